@@ -365,8 +365,14 @@ def perturbed(base: ParameterSet, rng: np.random.Generator, rel: float = 0.1, na
     packs = {}
     for n in PACK_NAMES:
         v = pack_vector(base.packs[n])
+        base_v = v.copy()
         v = v * np.exp(rng.uniform(np.log(1 - rel), np.log(1 + rel), size=v.shape))
         i_cb, i_qmax, i_cmax = (PACK_PARAMS.index(k) for k in ("C_b", "q_max", "C_max"))
+        # R_cp2 sits in an exponent: move it by a tenth of the spread, and perturb the end-of-discharge
+        # resistance R_cp1 exp(R_cp2) by the spread itself, so the knee stays a LiPo knee
+        i_r1, i_r2 = PACK_PARAMS.index("R_cp1"), PACK_PARAMS.index("R_cp2")
+        v[i_r2] = base_v[i_r2] * (1.0 + rng.uniform(-rel, rel) / 10.0)
+        v[i_r1] = v[i_r1] * np.exp(base_v[i_r2] - v[i_r2])
         v[i_qmax] = v[i_cb] * PACK_FULL_VOLTAGE
         v[i_cmax] = min(v[i_cmax], v[i_qmax])
         packs[n] = pack_from_vector(v)
