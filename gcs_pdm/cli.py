@@ -13,6 +13,7 @@ import sys
 
 # subcommand name -> module with register(subparsers)
 COMMAND_MODULES: dict[str, str] = {
+    "replay": "gcs_pdm.mavlink.cli",
 }
 
 

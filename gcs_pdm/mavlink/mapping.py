@@ -1,0 +1,381 @@
+"""Message -> frame mapping: configuration as data, compiled once into fast per-message handlers.
+
+The configuration is a plain dict (JSON-able): message name -> list of rules. A rule says which
+frame kind it produces (``gcs_pdm.frames.FRAME_KINDS``), how the frame's key is found (a field
+such as BATTERY_STATUS.id, the array index of ESC_TELEMETRY_1_TO_4, or a constant), optional
+``match`` conditions (NAMED_VALUE_FLOAT.name == "MOT_TEMP") and, per frame field, where its value
+comes from. Field specs:
+
+``{"field": "current_battery", "scale": 0.01, "missing": [-1]}``
+    one field (``[i]``-indexed automatically for indexed keys), times ``scale`` plus ``offset``;
+    raw values in ``missing`` (and NaN) become None.
+``{"sum": ["voltages", "voltages_ext"], "scale": 0.001, "missing": [0, 65535]}``
+    sum of all elements of the listed array fields that are not ``missing``; None if none is.
+``{"transform": "armed"}`` / ``{"transform": "flight_mode"}`` / ``{"field": "text", "text": true}``
+    named computations (see ``TRANSFORMS``) and NUL-terminated strings.
+
+Changing what a vehicle sends is a change of this dict (see ``docs/mavlink.md``).
+"""
+from __future__ import annotations
+
+import copy
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass, field, fields as dc_fields
+from typing import Any, Callable
+
+from gcs_pdm.frames import FRAME_KIND_OF, FRAME_KINDS, PACK_NAMES
+from gcs_pdm.mavlink.clock import VehicleClock
+from gcs_pdm.mavlink.dialect import MAV_AUTOPILOT_INVALID, MAV_MODE_FLAG_SAFETY_ARMED, MESSAGE_IDS_BY_NAME, mavlink2, mavutil
+from gcs_pdm.mavlink.wire import TIME_BOOT_MS_OFFSET, layout
+
+log = logging.getLogger(__name__)
+
+INT16_MAX = 32767
+UINT16_MAX = 65535
+
+DEFAULT_MAPPING: dict[str, list[dict[str, Any]]] = {
+    "BATTERY_STATUS": [{
+        "frame": "pack",
+        "key": {"field": "id", "target": "pack", "map": {str(i): name for i, name in enumerate(PACK_NAMES)}},
+        "fields": {
+            # Cell voltages summed; UINT16_MAX marks unused cells, 0 unused extension cells.
+            "voltage_v": {"sum": ["voltages", "voltages_ext"], "scale": 0.001, "missing": [0, UINT16_MAX]},
+            "current_a": {"field": "current_battery", "scale": 0.01, "missing": [-1]},
+            "temperature_c": {"field": "temperature", "scale": 0.01, "missing": [INT16_MAX]},
+        },
+    }],
+    "ESC_TELEMETRY_1_TO_4": [{
+        "frame": "motor",
+        "key": {"index": True, "target": "motor", "map": {"0": "fwd", "1": "aft"}},
+        "fields": {
+            "current_a": {"field": "current", "scale": 0.01},
+            "rpm": {"field": "rpm"},
+            "temperature_c": {"field": "temperature"},
+        },
+    }],
+    "SCALED_PRESSURE": [{
+        "frame": "ambient",
+        "fields": {"temperature_c": {"field": "temperature", "scale": 0.01}},
+    }],
+    "GLOBAL_POSITION_INT": [{
+        "frame": "position",
+        "fields": {
+            "lat_deg": {"field": "lat", "scale": 1e-7},
+            "lon_deg": {"field": "lon", "scale": 1e-7},
+            "alt_m": {"field": "alt", "scale": 0.001},
+            "relative_alt_m": {"field": "relative_alt", "scale": 0.001},
+            "vn": {"field": "vx", "scale": 0.01},
+            "ve": {"field": "vy", "scale": 0.01},
+            "vd": {"field": "vz", "scale": 0.01},
+        },
+    }],
+    "VFR_HUD": [{
+        "frame": "airdata",
+        "fields": {
+            "airspeed": {"field": "airspeed"},
+            "groundspeed": {"field": "groundspeed"},
+            "climb_rate": {"field": "climb"},
+            "throttle_pct": {"field": "throttle"},
+            "heading_deg": {"field": "heading"},
+        },
+    }],
+    "HEARTBEAT": [{
+        "frame": "status",
+        "fields": {
+            "armed": {"transform": "armed"},
+            "mode": {"transform": "flight_mode"},
+            "system_status": {"field": "system_status"},
+        },
+    }],
+    "MISSION_CURRENT": [{"frame": "mission_progress", "fields": {"current_seq": {"field": "seq"}}}],
+    "MISSION_ITEM_REACHED": [{"frame": "mission_progress", "fields": {"reached_seq": {"field": "seq"}}}],
+    "STATUSTEXT": [{
+        "frame": "statustext",
+        "fields": {"severity": {"field": "severity"}, "text": {"field": "text", "text": True}},
+    }],
+}
+
+
+def default_mapping() -> dict[str, list[dict[str, Any]]]:
+    """A fresh copy of the default mapping, to modify for a vehicle that names things differently."""
+    return copy.deepcopy(DEFAULT_MAPPING)
+
+
+class MappingError(ValueError):
+    """A mapping configuration that names an unknown message, field or frame."""
+
+
+# --- named transforms over a whole unpacked message ---------------------------------------
+
+_mode_cache: dict[tuple, str] = {}
+
+
+def _flight_mode(values: dict[str, Any]) -> str:
+    key = (values["type"], values["autopilot"], values["base_mode"], values["custom_mode"])
+    name = _mode_cache.get(key)
+    if name is None:
+        try:
+            name = mavutil.mode_string_v10(mavlink2.MAVLink_heartbeat_message(key[0], key[1], key[2], key[3], 0, 3))
+        except Exception:  # noqa: BLE001 - an odd vehicle type must not stop telemetry
+            name = f"Mode({key[3]})"
+        _mode_cache[key] = name
+    return name
+
+
+TRANSFORMS: dict[str, tuple[tuple[str, ...], Callable[[dict[str, Any]], Any]]] = {
+    "armed": (("base_mode",), lambda v: bool(v["base_mode"] & MAV_MODE_FLAG_SAFETY_ARMED)),
+    "flight_mode": (("type", "autopilot", "base_mode", "custom_mode"), _flight_mode),
+}
+
+
+# --- compilation ---------------------------------------------------------------------------
+
+def _clean(value, scale: float, offset: float, missing: frozenset):
+    if value in missing:
+        return None
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if scale == 1.0 and offset == 0.0:
+        return value
+    return value * scale + offset
+
+
+def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], Any]:
+    """Extractor from an unpacked payload tuple to one frame field value."""
+    scale = float(spec.get("scale", 1.0))
+    offset = float(spec.get("offset", 0.0))
+    missing = frozenset(spec.get("missing", ()))
+    if "transform" in spec:
+        try:
+            needed, fn = TRANSFORMS[spec["transform"]]
+        except KeyError:
+            raise MappingError(f"{lay.name}: unknown transform {spec['transform']!r}; known: {sorted(TRANSFORMS)}")
+        positions = []
+        for name in needed:
+            if name not in lay.index:
+                raise MappingError(f"{lay.name}: transform {spec['transform']!r} needs field {name!r}")
+            positions.append((name, lay.index[name]))
+        return lambda vals: fn({name: vals[pos] for name, pos in positions})
+    if "sum" in spec:
+        spans = []
+        for name in spec["sum"]:
+            if name not in lay.index:
+                raise MappingError(f"{lay.name} has no field {name!r}")
+            spans.append((lay.index[name], lay.index[name] + lay.count[name]))
+
+        def summed(vals):
+            total, seen = 0, False
+            for a, b in spans:
+                for v in vals[a:b]:
+                    if v not in missing:
+                        total += v
+                        seen = True
+            return total * scale + offset if seen else None
+        return summed
+    name = spec.get("field")
+    if name not in lay.index:
+        raise MappingError(f"{lay.name} has no field {name!r}; fields: {sorted(lay.index)}")
+    pos = lay.index[name]
+    if element is not None:
+        if element >= lay.count[name]:
+            raise MappingError(f"{lay.name}.{name} has {lay.count[name]} elements, index {element} requested")
+        pos += element
+    elif "index" in spec:
+        pos += int(spec["index"])
+    if spec.get("text"):
+        return lambda vals: vals[pos].split(b"\0", 1)[0].decode("utf-8", "replace")
+    return lambda vals: _clean(vals[pos], scale, offset, missing)
+
+
+@dataclass(slots=True)
+class _CompiledRule:
+    frame_cls: type
+    # (raw key value or None, frame key or None, element index or None, extractors in frame field order)
+    instances: list[tuple[Any, str | None, int | None, tuple]]
+    key_position: int | None
+    match: tuple[tuple[int, Any], ...]
+
+
+def _compile_rule(message: str, rule: dict) -> _CompiledRule:
+    if message not in MESSAGE_IDS_BY_NAME:
+        raise MappingError(f"unknown message {message!r} in mapping (dialect ardupilotmega)")
+    lay = layout(MESSAGE_IDS_BY_NAME[message])
+    kind = rule.get("frame")
+    if kind not in FRAME_KINDS:
+        raise MappingError(f"{message}: unknown frame kind {kind!r}; known: {sorted(FRAME_KINDS)}")
+    cls = FRAME_KINDS[kind]
+    frame_fields = [f.name for f in dc_fields(cls)][1:]  # after time_s
+    key = rule.get("key", {})
+    key_target = key.get("target")
+    if key and key_target not in frame_fields:
+        raise MappingError(f"{message}: key target {key_target!r} is not a field of {cls.__name__}")
+    specs = rule.get("fields", {})
+    for name in specs:
+        if name not in frame_fields:
+            raise MappingError(f"{message}: {cls.__name__} has no field {name!r}")
+
+    def extractors(element: int | None, key_value: str | None) -> tuple:
+        out = []
+        for name in frame_fields:
+            if name == key_target:
+                out.append(lambda vals, k=key_value: k)
+            elif name in specs:
+                out.append(_compile_field(specs[name], lay, element))
+            else:
+                out.append(lambda vals: None)
+        return tuple(out)
+
+    instances: list[tuple[Any, str | None, int | None, tuple]] = []
+    key_position = None
+    if "field" in key:
+        if key["field"] not in lay.index:
+            raise MappingError(f"{message} has no key field {key['field']!r}")
+        key_position = lay.index[key["field"]]
+        for raw, name in key.get("map", {}).items():
+            instances.append((int(raw), name, None, extractors(None, name)))
+    elif key.get("index"):
+        for raw, name in key.get("map", {}).items():
+            instances.append((None, name, int(raw), extractors(int(raw), name)))
+    else:
+        const = key.get("const")
+        instances.append((None, const, None, extractors(None, const)))
+    match = []
+    for fname, wanted in rule.get("match", {}).items():
+        if fname not in lay.index:
+            raise MappingError(f"{message}: match field {fname!r} does not exist")
+        if isinstance(wanted, str):
+            wanted = wanted.encode()
+        match.append((lay.index[fname], wanted))
+    return _CompiledRule(cls, instances, key_position, tuple(match))
+
+
+@dataclass
+class MappingStats:
+    frames_by_kind: Counter = field(default_factory=Counter)
+    other_source: int = 0  # messages from systems/components other than the vehicle
+    before_vehicle: int = 0  # messages before the vehicle was identified
+    undecodable: int = 0  # CRC-valid packets whose payload could not be unpacked
+    unmapped_keys: Counter = field(default_factory=Counter)  # e.g. BATTERY_STATUS id 7
+
+    def to_dict(self) -> dict:
+        return {"frames_by_kind": dict(sorted(self.frames_by_kind.items())), "other_source": self.other_source,
+                "before_vehicle": self.before_vehicle, "undecodable": self.undecodable,
+                "unmapped_keys": {str(k): v for k, v in sorted(self.unmapped_keys.items())}}
+
+
+def _matches(value, wanted) -> bool:
+    if isinstance(value, bytes):  # char[] fields: compare up to the NUL terminator
+        return value.split(b"\0", 1)[0] == wanted
+    return value == wanted
+
+
+_HEARTBEAT = MESSAGE_IDS_BY_NAME["HEARTBEAT"]
+_EMPTY: tuple = ()
+
+
+class FrameMapper:
+    """Turns packets (msgid, source, payload) into frames; one per vehicle, live or in replay.
+
+    ``target_system``/``target_component`` None means: lock onto the first HEARTBEAT whose
+    autopilot is not MAV_AUTOPILOT_INVALID (gimbals, cameras and ground stations send INVALID).
+    """
+
+    def __init__(self, mapping: dict | None = None, *, target_system: int | None = None,
+                 target_component: int | None = None, sync_window_s: float = 10.0):
+        self.mapping = default_mapping() if mapping is None else mapping
+        self.rules: dict[int, list[_CompiledRule]] = {}
+        for message, rules in self.mapping.items():
+            for rule in rules:
+                compiled = _compile_rule(message, rule)
+                self.rules.setdefault(MESSAGE_IDS_BY_NAME[message], []).append(compiled)
+        self.target_system = target_system
+        self.target_component = target_component
+        self.locked = target_system is not None and target_component is not None
+        self.clock = VehicleClock(sync_window_s)
+        self.stats = MappingStats()
+        self._pending: list[tuple[float, type, tuple]] = []
+
+    def _try_lock(self, msgid: int, sysid: int, compid: int, payload) -> bool:
+        if msgid != _HEARTBEAT:
+            return False
+        if self.target_system is not None and sysid != self.target_system:
+            return False
+        if self.target_component is not None and compid != self.target_component:
+            return False
+        lay = layout(_HEARTBEAT)
+        vals = lay.unpack(payload)
+        if vals[lay.index["autopilot"]] == MAV_AUTOPILOT_INVALID:
+            return False
+        self.target_system, self.target_component, self.locked = sysid, compid, True
+        log.info("vehicle identified: system %d component %d", sysid, compid)
+        return True
+
+    def feed(self, recv_s: float, msgid: int, sysid: int, compid: int, payload) -> list | tuple:
+        """Frames produced by one CRC-checked packet (often none). ``recv_s``: receive/tlog time."""
+        if not self.locked:
+            if not self._try_lock(msgid, sysid, compid, payload):
+                self.stats.before_vehicle += 1
+                return _EMPTY
+        elif sysid != self.target_system or compid != self.target_component:
+            self.stats.other_source += 1
+            return _EMPTY
+        clock = self.clock
+        time_offset = TIME_BOOT_MS_OFFSET.get(msgid)
+        if time_offset is not None:
+            raw = bytes(payload[time_offset:time_offset + 4]).ljust(4, b"\0")
+            t = clock.on_time_boot(int.from_bytes(raw, "little") / 1000.0, recv_s)
+            if t is None:
+                t = recv_s
+            released = self._release_pending(t, recv_s) if self._pending else None
+        else:
+            t = clock.untimed(recv_s)
+            released = None
+            if t is not None and self._pending:
+                released = self._release_pending(t, recv_s)
+        rules = self.rules.get(msgid)
+        if rules is None:
+            return released or _EMPTY
+        try:
+            vals = layout(msgid).unpack(payload)
+        except Exception:  # noqa: BLE001 - a bad payload is counted, never fatal
+            self.stats.undecodable += 1
+            return released or _EMPTY
+        out: list = []
+        for rule in rules:
+            if rule.match and not all(_matches(vals[pos], wanted) for pos, wanted in rule.match):
+                continue
+            for raw_key, _name, _element, extract in rule.instances:
+                if raw_key is not None and vals[rule.key_position] != raw_key:
+                    continue
+                args = tuple(fn(vals) for fn in extract)
+                if t is None:
+                    self._pending.append((recv_s, rule.frame_cls, args))
+                else:
+                    out.append(rule.frame_cls(t, *args))
+            if rule.key_position is not None and not any(vals[rule.key_position] == k for k, *_ in rule.instances):
+                self.stats.unmapped_keys[(layout(msgid).name, vals[rule.key_position])] += 1
+        counts = self.stats.frames_by_kind
+        for frame in out:
+            counts[FRAME_KIND_OF[type(frame)]] += 1
+        return released + out if released else out
+
+    def _release_pending(self, t_now: float, recv_now: float) -> list:
+        """Frames held before the clock existed, back-dated by their receive-time distance."""
+        out = []
+        fallback = self.clock.fallback
+        for recv_s, cls, args in self._pending:
+            t = recv_s if fallback else max(0.0, t_now - (recv_now - recv_s))
+            out.append(cls(t, *args))
+            self.stats.frames_by_kind[FRAME_KIND_OF[cls]] += 1
+        self._pending.clear()
+        return out
+
+    def flush(self) -> list:
+        """At the end of a replay: frames still waiting for a clock, stamped with receive time."""
+        out = [cls(recv_s, *args) for recv_s, cls, args in self._pending]
+        self._pending.clear()
+        for frame in out:
+            self.stats.frames_by_kind[FRAME_KIND_OF[type(frame)]] += 1
+        return out

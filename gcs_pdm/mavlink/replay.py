@@ -1,0 +1,157 @@
+"""Replay a tlog through the live frame-mapping code, by message time.
+
+``replay_tlog`` scans the file (``gcs_pdm.mavlink.tlog``), feeds every CRC-valid packet to the
+same :class:`~gcs_pdm.mavlink.mapping.FrameMapper` the live link uses, and hands each frame to
+an optional ``frame_consumer``. Pacing: as fast as possible (``speed=None``), or ×``speed`` real
+time following the tlog timestamps; ``udp_target`` re-sends every valid packet, unchanged, to a
+UDP address so other tools (QGroundControl, MAVProxy) can watch the replay.
+
+Hook for the estimator/diagnoser: a ``frame_consumer`` that also has a ``report()`` method
+returning a dict gets that dict into the summary under ``"consumer"``; a ``"faults"`` list in
+it (``[{"time_s": …, "type": …, "magnitude": …}, …]``) is lifted to ``summary["faults"]``.
+"""
+from __future__ import annotations
+
+import logging
+import socket
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Callable
+
+from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
+from gcs_pdm.mavlink.mapping import FrameMapper
+from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes
+
+log = logging.getLogger(__name__)
+
+FrameConsumer = Callable[[Any], None]
+
+
+@dataclass
+class ReplaySummary:
+    path: str
+    size_bytes: int
+    messages_by_type: dict[str, int]
+    scan: dict
+    mapping: dict
+    vehicle: dict
+    frame_time_span_s: tuple[float, float] | None
+    tlog_start_utc: str | None
+    tlog_duration_s: float | None
+    elapsed_s: float
+    consumer: dict | None = None
+    faults: list = field(default_factory=list)
+
+    @property
+    def messages(self) -> int:
+        return self.scan["records"]
+
+    @property
+    def frames(self) -> int:
+        return sum(self.mapping["frames_by_kind"].values())
+
+    @property
+    def skipped(self) -> dict[str, int]:
+        return {k: self.scan[k] for k in ("bad_crc", "unknown_msgid", "garbage_bytes", "truncated_tail_bytes")}
+
+    def to_dict(self) -> dict:
+        return {
+            "path": self.path,
+            "size_bytes": self.size_bytes,
+            "messages": self.messages,
+            "messages_by_type": self.messages_by_type,
+            "frames": self.frames,
+            "frames_by_kind": self.mapping["frames_by_kind"],
+            "skipped": self.skipped,
+            "scan": self.scan,
+            "mapping": self.mapping,
+            "vehicle": self.vehicle,
+            "frame_time_span_s": list(self.frame_time_span_s) if self.frame_time_span_s else None,
+            "tlog_start_utc": self.tlog_start_utc,
+            "tlog_duration_s": self.tlog_duration_s,
+            "elapsed_s": round(self.elapsed_s, 4),
+            "messages_per_s": round(self.messages / self.elapsed_s) if self.elapsed_s > 0 else None,
+            "faults": self.faults,
+            "consumer": self.consumer,
+        }
+
+
+def _udp_sender(target: str):
+    host, _, port = target.rpartition(":")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    address = (host or "127.0.0.1", int(port))
+    return sock, address
+
+
+def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
+                frame_consumer: FrameConsumer | None = None, speed: float | None = None,
+                udp_target: str | None = None) -> ReplaySummary:
+    """Replay ``path`` to its end; damaged data is skipped and counted, never raised."""
+    path = Path(path)
+    data = path.read_bytes()
+    mapper = mapper or FrameMapper()
+    stats = ScanStats()
+    by_id: Counter = Counter()
+    first_t = last_t = None
+    sock = address = None
+    if udp_target:
+        sock, address = _udp_sender(udp_target)
+    pace_origin_ts = pace_origin_wall = None
+    feed = mapper.feed
+    started = time.perf_counter()
+    for ts_us, msgid, sysid, compid, payload, start, end in scan_tlog_bytes(data, stats):
+        by_id[msgid] += 1
+        if speed is not None:
+            if pace_origin_ts is None:
+                pace_origin_ts, pace_origin_wall = ts_us, time.monotonic()
+            delay = (ts_us - pace_origin_ts) / 1e6 / speed - (time.monotonic() - pace_origin_wall)
+            if delay > 0:
+                time.sleep(delay)
+        if sock is not None:
+            try:
+                sock.sendto(data[start:end], address)
+            except OSError as exc:  # a closed port on the other side must not stop the replay
+                log.debug("UDP resend failed: %s", exc)
+        frames = feed(ts_us / 1e6, msgid, sysid, compid, payload)
+        if frames:
+            if first_t is None:
+                first_t = frames[0].time_s
+            last_t = frames[-1].time_s
+            if frame_consumer is not None:
+                for frame in frames:
+                    frame_consumer(frame)
+    leftovers = mapper.flush()
+    if frame_consumer is not None:
+        for frame in leftovers:
+            frame_consumer(frame)
+    elapsed = time.perf_counter() - started
+    if sock is not None:
+        sock.close()
+    skipped = stats.bad_crc + stats.unknown_msgid
+    if skipped or stats.garbage_bytes or stats.truncated_tail_bytes:
+        log.warning("%s: skipped %d bad-CRC and %d unknown packets, %d garbage bytes, %d truncated tail bytes",
+                    path.name, stats.bad_crc, stats.unknown_msgid, stats.garbage_bytes, stats.truncated_tail_bytes)
+    consumer_report = None
+    faults: list = []
+    report = getattr(frame_consumer, "report", None)
+    if callable(report):
+        consumer_report = report()
+        faults = list(consumer_report.get("faults", [])) if isinstance(consumer_report, dict) else []
+    names = {msgid: (MESSAGE_CLASSES[msgid].msgname if msgid in MESSAGE_CLASSES else str(msgid)) for msgid in by_id}
+    start_utc = duration = None
+    if stats.first_timestamp_us is not None:
+        start_utc = datetime.fromtimestamp(stats.first_timestamp_us / 1e6, tz=timezone.utc).isoformat()
+        duration = (stats.last_timestamp_us - stats.first_timestamp_us) / 1e6
+    return ReplaySummary(
+        path=str(path), size_bytes=len(data),
+        messages_by_type=dict(sorted(((names[k], v) for k, v in by_id.items()), key=lambda kv: (-kv[1], kv[0]))),
+        scan=stats.to_dict(), mapping=mapper.stats.to_dict(),
+        vehicle={"system": mapper.target_system, "component": mapper.target_component,
+                 "reboots": mapper.clock.reboots, "clock": "receive-time fallback" if mapper.clock.fallback else "vehicle"},
+        frame_time_span_s=(first_t, last_t) if first_t is not None else None,
+        tlog_start_utc=start_utc, tlog_duration_s=duration, elapsed_s=elapsed,
+        consumer=consumer_report, faults=faults,
+    )

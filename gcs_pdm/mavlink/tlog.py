@@ -1,0 +1,218 @@
+"""tlog files: write them (8-byte big-endian µs timestamp + raw packet) and scan them fast.
+
+The scanner walks the bytes itself instead of feeding pymavlink's parser one byte at a time:
+it reads a record's header, checks the CRC (``fastcrc`` + the dialect's CRC_EXTRA) and hands out
+the payload as a memoryview, so messages nobody maps cost only a CRC and a counter. Damage is
+skipped and counted, never fatal:
+
+* a packet whose CRC fails, or whose message id is not in the dialect, is skipped whole when a
+  plausible record follows it, else byte by byte until one does (``garbage_bytes``);
+* a record cut off by the end of the file is counted in ``truncated_tail_bytes``.
+"""
+from __future__ import annotations
+
+import logging
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO, Iterator
+
+from fastcrc.crc16 import mcrf4xx
+
+from gcs_pdm.mavlink.wire import CRC_EXTRA_BYTES, MAVLINK_IFLAG_SIGNED, SIGNATURE_LEN
+
+log = logging.getLogger(__name__)
+
+_TIMESTAMP = struct.Struct(">Q")
+
+
+class TlogWriter:
+    """Appends records to a tlog; safe to call from the reader thread and senders at once."""
+
+    def __init__(self, path: str | Path, *, clock=time.time):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file: BinaryIO = open(self.path, "ab")
+        self._lock = threading.Lock()
+        self._clock = clock
+        self.records = 0
+
+    def write(self, packet: bytes, timestamp_s: float | None = None) -> None:
+        stamp = self._clock() if timestamp_s is None else timestamp_s
+        record = _TIMESTAMP.pack(int(round(stamp * 1e6))) + bytes(packet)
+        with self._lock:
+            if self._file.closed:
+                return
+            self._file.write(record)
+            self.records += 1
+
+    def flush(self) -> None:
+        with self._lock:
+            if not self._file.closed:
+                self._file.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            self._file.close()
+
+    def __enter__(self) -> "TlogWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclass
+class ScanStats:
+    records: int = 0  # CRC-valid packets handed out
+    bad_crc: int = 0  # well-framed packets whose CRC did not match
+    unknown_msgid: int = 0  # well-framed packets of message ids outside the dialect
+    garbage_bytes: int = 0  # bytes skipped while looking for the next record
+    truncated_tail_bytes: int = 0  # an incomplete record at the end of the file
+    mavlink1: int = 0
+    mavlink2: int = 0
+    signed: int = 0
+    first_timestamp_us: int | None = None
+    last_timestamp_us: int | None = None
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def _find_magic(data: bytes, start: int) -> int:
+    a = data.find(b"\xfd", start)
+    b = data.find(b"\xfe", start)
+    if a < 0:
+        return b
+    if b < 0:
+        return a
+    return a if a < b else b
+
+
+def scan_tlog_bytes(data: bytes, stats: ScanStats | None = None) -> Iterator[tuple[int, int, int, int, memoryview, int, int]]:
+    """Yield ``(timestamp_us, msgid, sysid, compid, payload, packet_start, packet_end)`` per valid packet.
+
+    A tlog record is an 8-byte big-endian µs timestamp followed by one MAVLink 1 (0xFE) or
+    MAVLink 2 (0xFD) packet; MAVLink 2 payloads come back zero-truncated, as on the wire.
+    """
+    st = stats if stats is not None else ScanStats()
+    mv = memoryview(data)
+    n = len(data)
+    pos = 0
+    extras = CRC_EXTRA_BYTES
+    crc16 = mcrf4xx
+    ts_unpack = _TIMESTAMP.unpack_from
+    first_ts = None
+    last_ts = None
+    while pos + 9 <= n:
+        p = pos + 8  # packet start
+        magic = data[p]
+        if magic == 0xFD:
+            if p + 12 > n:
+                st.truncated_tail_bytes += n - pos
+                break
+            plen = data[p + 1]
+            body_end = p + 10 + plen
+            end = body_end + 2
+            if data[p + 2] & MAVLINK_IFLAG_SIGNED:
+                end += SIGNATURE_LEN
+                st.signed += 1
+            msgid = data[p + 7] | (data[p + 8] << 8) | (data[p + 9] << 16)
+            sysid = data[p + 5]
+            compid = data[p + 6]
+            v2 = True
+        elif magic == 0xFE:
+            if p + 8 > n:
+                st.truncated_tail_bytes += n - pos
+                break
+            plen = data[p + 1]
+            body_end = p + 6 + plen
+            end = body_end + 2
+            msgid = data[p + 5]
+            sysid = data[p + 3]
+            compid = data[p + 4]
+            v2 = False
+        else:
+            nxt = _find_magic(data, p + 1)
+            if nxt < 0:
+                st.garbage_bytes += n - pos
+                pos = n
+                break
+            st.garbage_bytes += nxt - 8 - pos
+            pos = nxt - 8
+            continue
+        if end > n:
+            # Either the file was cut off inside this record, or this "record" is garbage whose
+            # length byte points past the end: look for a complete record further on first.
+            nxt = _find_magic(data, p + 1)
+            while 0 <= nxt and nxt + 4 <= n:
+                if _plausible_record(data, nxt - 8, n):
+                    break
+                nxt = _find_magic(data, nxt + 1)
+            else:
+                st.truncated_tail_bytes += n - pos
+                break
+            st.garbage_bytes += nxt - 8 - pos
+            pos = nxt - 8
+            continue
+        extra = extras.get(msgid)
+        good = extra is not None and crc16(extra, crc16(mv[p + 1:body_end])) == (data[body_end] | (data[body_end + 1] << 8))
+        if good:
+            ts = ts_unpack(data, pos)[0]
+            if first_ts is None:
+                first_ts = ts
+            last_ts = ts
+            st.records += 1
+            if v2:
+                st.mavlink2 += 1
+                yield ts, msgid, sysid, compid, mv[p + 10:body_end], p, end
+            else:
+                st.mavlink1 += 1
+                yield ts, msgid, sysid, compid, mv[p + 6:body_end], p, end
+            pos = end
+            continue
+        # A damaged or foreign packet: skip it whole if a record seems to start right after it
+        # (the usual case: one corrupted packet), otherwise resynchronise byte by byte.
+        if end == n or (end + 9 <= n and data[end + 8] in (0xFD, 0xFE)):
+            if extra is None:
+                st.unknown_msgid += 1
+            else:
+                st.bad_crc += 1
+            pos = end
+            continue
+        nxt = _find_magic(data, p + 1)
+        if nxt < 0:
+            st.garbage_bytes += n - pos
+            pos = n
+            break
+        st.garbage_bytes += nxt - 8 - pos
+        pos = nxt - 8
+    else:
+        if pos < n:
+            st.truncated_tail_bytes += n - pos
+    st.first_timestamp_us = first_ts
+    st.last_timestamp_us = last_ts
+
+
+def _plausible_record(data: bytes, start: int, n: int) -> bool:
+    """A record fits in the file at ``start`` (used only to tell garbage from a cut-off tail)."""
+    if start < 0:
+        return False
+    p = start + 8
+    if data[p] == 0xFD:
+        if p + 12 > n:
+            return False
+        end = p + 12 + data[p + 1] + (SIGNATURE_LEN if data[p + 2] & MAVLINK_IFLAG_SIGNED else 0)
+    else:
+        if p + 8 > n:
+            return False
+        end = p + 8 + data[p + 1]
+    return end <= n
+
+
+def scan_tlog(path: str | Path, stats: ScanStats | None = None) -> Iterator[tuple[int, int, int, int, memoryview, int, int]]:
+    """:func:`scan_tlog_bytes` over a file (read whole: tlogs of a flight are megabytes)."""
+    data = Path(path).read_bytes()
+    yield from scan_tlog_bytes(data, stats)

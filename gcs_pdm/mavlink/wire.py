@@ -1,0 +1,120 @@
+"""MAVLink packet framing without pymavlink's per-byte parser: header parsing, CRC, payload layout.
+
+Used by the tlog fast path and, for the same frames, by the live link: a packet's bytes go
+through :func:`split_packet` and :class:`PayloadLayout` whichever way they arrived.
+"""
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass
+
+from fastcrc.crc16 import mcrf4xx
+
+from gcs_pdm.mavlink.dialect import CRC_EXTRA, MESSAGE_CLASSES
+
+MAGIC_V1 = 0xFE
+MAGIC_V2 = 0xFD
+HEADER_LEN_V1 = 6  # magic len seq sysid compid msgid
+HEADER_LEN_V2 = 10  # magic len incompat compat seq sysid compid msgid(3)
+SIGNATURE_LEN = 13
+MAVLINK_IFLAG_SIGNED = 0x01
+
+# One-byte strings of each message's CRC_EXTRA, so the CRC can be finished without building a
+# concatenated copy of the packet.
+CRC_EXTRA_BYTES: dict[int, bytes] = {msgid: bytes((extra,)) for msgid, extra in CRC_EXTRA.items()}
+
+
+def crc_ok(packet: memoryview | bytes, header_len: int, payload_len: int, msgid: int) -> bool | None:
+    """True/False for a packet whose CRC_EXTRA is known; None when the message id is unknown."""
+    extra = CRC_EXTRA_BYTES.get(msgid)
+    if extra is None:
+        return None
+    end = header_len + payload_len
+    crc = mcrf4xx(extra, mcrf4xx(packet[1:end]))
+    return crc == (packet[end] | (packet[end + 1] << 8))
+
+
+@dataclass(frozen=True, slots=True)
+class Packet:
+    """One MAVLink packet split into the parts the mapping needs."""
+
+    msgid: int
+    sysid: int
+    compid: int
+    payload: bytes
+    version: int
+
+
+def split_packet(buf: bytes) -> Packet | None:
+    """Header fields and payload of one complete packet (as pymavlink's ``get_msgbuf()`` gives)."""
+    if len(buf) < 8:
+        return None
+    if buf[0] == MAGIC_V2:
+        plen = buf[1]
+        return Packet(buf[7] | (buf[8] << 8) | (buf[9] << 16), buf[5], buf[6],
+                      bytes(buf[HEADER_LEN_V2:HEADER_LEN_V2 + plen]), 2)
+    if buf[0] == MAGIC_V1:
+        plen = buf[1]
+        return Packet(buf[5], buf[3], buf[4], bytes(buf[HEADER_LEN_V1:HEADER_LEN_V1 + plen]), 1)
+    return None
+
+
+_FORMAT_TOKEN = re.compile(r"(\d*)([a-zA-Z?])")
+
+
+class PayloadLayout:
+    """Where each field of one message sits in the tuple that its precompiled ``struct`` returns.
+
+    MAVLink 2 drops trailing zero bytes of a payload and MAVLink 1 carries no extension fields,
+    so :meth:`unpack` pads short payloads with zeros (which is what the dropped bytes were).
+    """
+
+    __slots__ = ("msgid", "name", "struct", "size", "index", "count")
+
+    def __init__(self, msgid: int):
+        cls = MESSAGE_CLASSES[msgid]
+        self.msgid = msgid
+        self.name: str = cls.msgname
+        self.struct = struct.Struct(cls.unpacker.format)
+        self.size = self.struct.size
+        self.index: dict[str, int] = {}
+        self.count: dict[str, int] = {}
+        tokens = _FORMAT_TOKEN.findall(cls.unpacker.format.lstrip("<"))
+        position = 0
+        for name, (repeat, code) in zip(cls.ordered_fieldnames, tokens):
+            n = 1 if code == "s" or not repeat else int(repeat)
+            self.index[name] = position
+            self.count[name] = n
+            position += n
+
+    def unpack(self, payload: bytes | memoryview) -> tuple:
+        if len(payload) != self.size:
+            payload = bytes(payload)[: self.size].ljust(self.size, b"\0")
+        return self.struct.unpack(payload)
+
+
+_LAYOUTS: dict[int, PayloadLayout] = {}
+
+
+def layout(msgid: int) -> PayloadLayout:
+    found = _LAYOUTS.get(msgid)
+    if found is None:
+        found = _LAYOUTS[msgid] = PayloadLayout(msgid)
+    return found
+
+
+# msgid -> byte offset of a ``time_boot_ms`` (uint32) field, for every message that carries one.
+TIME_BOOT_MS_OFFSET: dict[int, int] = {}
+for _msgid, _cls in MESSAGE_CLASSES.items():
+    if "time_boot_ms" in _cls.ordered_fieldnames:
+        _fmt = _cls.unpacker.format
+        _names = _cls.ordered_fieldnames
+        _tokens = _FORMAT_TOKEN.findall(_fmt.lstrip("<"))
+        _offset = 0
+        for _name, (_rep, _code) in zip(_names, _tokens):
+            if _name == "time_boot_ms":
+                if _code in "Ii":
+                    TIME_BOOT_MS_OFFSET[_msgid] = _offset
+                break
+            _offset += struct.calcsize("<" + _rep + _code)
