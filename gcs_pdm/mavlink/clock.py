@@ -23,7 +23,7 @@ class VehicleClock:
     # time_boot_ms going back by more than this is a reboot, not reordering between streams.
     REBOOT_BACKSTEP_S = 2.0
 
-    def __init__(self, sync_window_s: float = 10.0):
+    def __init__(self, sync_window_s: float = 30.0):
         self.sync_window_s = sync_window_s
         self.synced = False
         self.fallback = False

@@ -283,7 +283,7 @@ class FrameMapper:
     """
 
     def __init__(self, mapping: dict | None = None, *, target_system: int | None = None,
-                 target_component: int | None = None, sync_window_s: float = 10.0):
+                 target_component: int | None = None, sync_window_s: float = 30.0):
         self.mapping = default_mapping() if mapping is None else mapping
         self.rules: dict[int, list[_CompiledRule]] = {}
         for message, rules in self.mapping.items():

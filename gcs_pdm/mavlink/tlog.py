@@ -48,6 +48,15 @@ class TlogWriter:
             self._file.write(record)
             self.records += 1
 
+    def write_us(self, packet: bytes, timestamp_us: int) -> None:
+        """Like :meth:`write` with the timestamp already in integer microseconds."""
+        record = _TIMESTAMP.pack(timestamp_us) + bytes(packet)
+        with self._lock:
+            if self._file.closed:
+                return
+            self._file.write(record)
+            self.records += 1
+
     def flush(self) -> None:
         with self._lock:
             if not self._file.closed:

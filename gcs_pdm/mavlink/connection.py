@@ -1,0 +1,306 @@
+"""The MAVLink link: one pymavlink connection, one reader thread, many consumers.
+
+A :class:`Link` owns a ``mavutil.mavlink_connection`` (``udpin:``, ``udpout:``, ``tcp:``, serial)
+with MAVLink 2 and the ``ardupilotmega`` dialect pinned (``gcs_pdm.mavlink.dialect``). A single
+reader thread receives every packet, records it to the tlog, turns the vehicle's packets into
+frames through a :class:`~gcs_pdm.mavlink.mapping.FrameMapper`, and copies messages into the
+queues of whoever subscribed (the mission client, the service). Nothing else reads the socket, so
+the telemetry consumer and the mission client never steal each other's messages.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import queue
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+from gcs_pdm.mavlink.dialect import DIALECT, mavlink2, mavutil
+from gcs_pdm.mavlink.mapping import FrameMapper
+from gcs_pdm.mavlink.tlog import TlogWriter
+from gcs_pdm.mavlink.wire import split_packet
+
+log = logging.getLogger(__name__)
+
+# The service is one more component on the vehicle's link. System 255 is the GCS system id that
+# ArduPilot expects (SYSID_MYGCS / SYSID_ENFORCE); component 195 is MAV_COMP_ID_PATHPLANNER
+# ("supplies a mission flight plan"), which neither QGroundControl nor Mission Planner (190) use.
+DEFAULT_SOURCE_SYSTEM = 255
+DEFAULT_SOURCE_COMPONENT = mavlink2.MAV_COMP_ID_PATHPLANNER
+DEFAULT_RCVBUF_BYTES = 4 * 1024 * 1024
+
+
+@dataclass
+class LinkConfig:
+    """Everything needed to open a link; all of it can come from the service's config file."""
+
+    url: str  # udpin:0.0.0.0:14550, udpout:host:14550, tcp:host:5760, /dev/ttyUSB0
+    baud: int = 57600
+    source_system: int = DEFAULT_SOURCE_SYSTEM
+    source_component: int = DEFAULT_SOURCE_COMPONENT
+    target_system: int | None = None  # None: the first autopilot heartbeat
+    target_component: int | None = None
+    signing_key_file: str | None = None  # 32 raw bytes, 64 hex digits, or a passphrase (SHA-256)
+    allow_unsigned: bool = False  # with signing: accept unsigned packets too
+    rcvbuf_bytes: int = DEFAULT_RCVBUF_BYTES
+    tlog_path: str | None = None
+    # A GCS-type heartbeat makes the service visible to routers and vehicles. Caveat: ArduPilot
+    # counts any heartbeat from system SYSID_MYGCS as "GCS alive" (docs/mavlink.md).
+    heartbeat_hz: float = 1.0
+
+
+def load_signing_key(path: str | Path) -> bytes:
+    """A MAVLink 2 signing key from a file: 32 raw bytes, 64 hex digits, or a passphrase."""
+    raw = Path(path).read_bytes()
+    if len(raw) == 32:
+        return raw
+    text = raw.decode("utf-8", "replace").strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text)
+        except ValueError:
+            pass
+    if not text:
+        raise ValueError(f"signing key file {path} is empty")
+    # Same derivation as MAVProxy's "signing setup <passphrase>".
+    return hashlib.sha256(text.encode("utf-8")).digest()
+
+
+class MessageSubscription:
+    """A queue of received messages of some types, filled by the link's reader thread."""
+
+    def __init__(self, link: "Link", types: frozenset[str] | None, maxsize: int):
+        self._link = link
+        self.types = types
+        self.queue: queue.Queue = queue.Queue(maxsize)
+        self.dropped = 0
+
+    def _offer(self, msg) -> None:
+        try:
+            self.queue.put_nowait(msg)
+        except queue.Full:
+            self.dropped += 1
+            if self.dropped in (1, 10, 100) or self.dropped % 1000 == 0:
+                log.warning("subscription %s full: %d messages dropped", sorted(self.types or ["*"]), self.dropped)
+
+    def get(self, timeout: float | None = None):
+        """Next message, or None after ``timeout`` seconds."""
+        try:
+            return self.queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def drain(self) -> int:
+        n = 0
+        while True:
+            try:
+                self.queue.get_nowait()
+                n += 1
+            except queue.Empty:
+                return n
+
+    def close(self) -> None:
+        self._link.unsubscribe(self)
+
+    def __enter__(self) -> "MessageSubscription":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class Link:
+    """One MAVLink connection shared by telemetry and the mission client."""
+
+    def __init__(self, config: LinkConfig, mapper: FrameMapper | None = None):
+        self.config = config
+        self.mapper = mapper or FrameMapper(target_system=config.target_system,
+                                            target_component=config.target_component)
+        self.conn = None
+        self.tlog: TlogWriter | None = None
+        self._send_lock = threading.Lock()
+        self._subs_lock = threading.Lock()
+        self._subscriptions: list[MessageSubscription] = []
+        self._frame_listeners: list[Callable] = []
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.received = 0
+        self.bad_data = 0
+        self.sent = 0
+        self.rcvbuf_effective: int | None = None
+
+    # --- lifecycle ---------------------------------------------------------------------------
+
+    def open(self) -> "Link":
+        cfg = self.config
+        self.conn = mavutil.mavlink_connection(
+            cfg.url, baud=cfg.baud, source_system=cfg.source_system, source_component=cfg.source_component,
+            dialect=DIALECT, autoreconnect=cfg.url.startswith("tcp"))
+        if getattr(self.conn, "WIRE_PROTOCOL_VERSION", "2.0") != "2.0":
+            raise RuntimeError("pymavlink did not select MAVLink 2 (MAVLINK20 must be set before import)")
+        self.conn.mav.srcSystem = cfg.source_system
+        self.conn.mav.srcComponent = cfg.source_component
+        self._enlarge_receive_buffer()
+        if cfg.signing_key_file:
+            key = load_signing_key(cfg.signing_key_file)
+            allow = (lambda _mav, _msgid: True) if cfg.allow_unsigned else None
+            self.conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=allow,
+                                    initial_timestamp=None, link_id=0)
+        if cfg.tlog_path:
+            self.tlog = TlogWriter(cfg.tlog_path)
+        self.conn.mav.set_send_callback(self._on_sent)
+        return self
+
+    def _enlarge_receive_buffer(self) -> None:
+        sock = getattr(self.conn, "port", None)
+        if not isinstance(sock, socket.socket):
+            return  # serial: the driver's buffer is what it is
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.config.rcvbuf_bytes)
+            self.rcvbuf_effective = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        except OSError as exc:
+            log.warning("could not enlarge SO_RCVBUF: %s", exc)
+            return
+        # Linux reports twice the granted size and caps it at net.core.rmem_max.
+        if self.rcvbuf_effective < self.config.rcvbuf_bytes:
+            log.warning("SO_RCVBUF is %d bytes, asked for %d (raise net.core.rmem_max): fast bursts may drop",
+                        self.rcvbuf_effective, self.config.rcvbuf_bytes)
+
+    def start(self) -> "Link":
+        """Open if needed and start the reader thread (idempotent)."""
+        if self.conn is None:
+            self.open()
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="mavlink-reader", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self.conn is not None:
+            try:
+                self.conn.close()
+            except OSError:
+                pass
+        if self.tlog is not None:
+            self.tlog.close()
+
+    def __enter__(self) -> "Link":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- consumers ---------------------------------------------------------------------------
+
+    def subscribe(self, types: Iterable[str] | None = None, maxsize: int = 10000) -> MessageSubscription:
+        """A queue receiving every later message of ``types`` (all types if None)."""
+        sub = MessageSubscription(self, frozenset(types) if types is not None else None, maxsize)
+        with self._subs_lock:
+            self._subscriptions = self._subscriptions + [sub]
+        return sub
+
+    def unsubscribe(self, sub: MessageSubscription) -> None:
+        with self._subs_lock:
+            self._subscriptions = [s for s in self._subscriptions if s is not sub]
+
+    def add_frame_listener(self, callback: Callable) -> None:
+        """``callback(frame)`` for every frame, called on the reader thread: keep it quick."""
+        self._frame_listeners = self._frame_listeners + [callback]
+
+    @property
+    def target_system(self) -> int | None:
+        return self.mapper.target_system
+
+    @property
+    def target_component(self) -> int | None:
+        return self.mapper.target_component
+
+    def wait_for_vehicle(self, timeout: float = 10.0) -> tuple[int, int]:
+        """Block until the vehicle's heartbeat has been seen; its (system, component)."""
+        deadline = time.monotonic() + timeout
+        while not self.mapper.locked:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no autopilot heartbeat on {self.config.url} within {timeout:.1f} s")
+            time.sleep(0.02)
+        return self.mapper.target_system, self.mapper.target_component
+
+    # --- sending -----------------------------------------------------------------------------
+
+    @property
+    def mav(self):
+        """pymavlink's encoder (``link.mav.mission_count_encode(...)``); send with :meth:`send`."""
+        return self.conn.mav
+
+    def send(self, msg) -> None:
+        with self._send_lock:
+            self.conn.mav.send(msg)
+
+    def _on_sent(self, msg, *_args) -> None:
+        self.sent += 1
+        if self.tlog is not None:
+            self.tlog.write(msg.get_msgbuf())
+
+    # --- reader --------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        next_heartbeat = 0.0
+        period = 1.0 / self.config.heartbeat_hz if self.config.heartbeat_hz > 0 else None
+        conn = self.conn
+        while not self._stop.is_set():
+            if period is not None and time.monotonic() >= next_heartbeat:
+                next_heartbeat = time.monotonic() + period
+                self._send_heartbeat()
+            try:
+                msg = conn.recv_msg()
+            except (OSError, ConnectionError) as exc:
+                log.warning("link %s: receive failed: %s", self.config.url, exc)
+                time.sleep(0.1)
+                continue
+            except Exception:  # noqa: BLE001 - a parser surprise must not kill the reader
+                log.exception("link %s: unexpected receive error", self.config.url)
+                continue
+            if msg is None:
+                conn.select(0.02)
+                continue
+            self.handle_message(msg)
+
+    def _send_heartbeat(self) -> None:
+        try:
+            self.send(self.conn.mav.heartbeat_encode(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
+                                                     mavlink2.MAV_STATE_ACTIVE))
+        except OSError as exc:  # udpin before the peer is known, tcp while reconnecting
+            log.debug("heartbeat not sent: %s", exc)
+
+    def handle_message(self, msg) -> None:
+        """Record, map and dispatch one received message (public so tests can inject packets)."""
+        if msg.get_type() == "BAD_DATA":
+            self.bad_data += 1
+            return
+        self.received += 1
+        raw = msg.get_msgbuf()
+        # Receive time rounded to the tlog's microseconds, so replay sees exactly what live saw.
+        recv_us = int(round((getattr(msg, "_timestamp", None) or time.time()) * 1e6))
+        if self.tlog is not None:
+            self.tlog.write_us(raw, recv_us)
+        packet = split_packet(bytes(raw))
+        if packet is not None:
+            frames = self.mapper.feed(recv_us / 1e6, packet.msgid, packet.sysid, packet.compid, packet.payload)
+            for frame in frames:
+                for listener in self._frame_listeners:
+                    try:
+                        listener(frame)
+                    except Exception:  # noqa: BLE001 - one bad consumer must not starve the others
+                        log.exception("frame listener failed")
+        mtype = msg.get_type()
+        for sub in self._subscriptions:
+            if sub.types is None or mtype in sub.types:
+                sub._offer(msg)
