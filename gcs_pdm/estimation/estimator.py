@@ -1,0 +1,250 @@
+"""The state estimator: telemetry frames in, pack and motor state (with uncertainty) out.
+
+Frames arrive asynchronously, one pack or one motor at a time; each component is advanced by
+*message* time from its own previous frame. Inputs are guarded before they reach the filters:
+
+- a pack current that disagrees wildly with what the other pack of its series string and its
+  motor report (they carry the same current) is a spike and is replaced by their value;
+- a missing current holds the last one (the string-mate's or the motor's if fresher);
+- frames older than the component's last one are dropped and counted (a link re-ordering);
+- a sensor not heard from for ``stale_after_s`` is reported in ``Estimate.missing``.
+
+Core: no clocks, no I/O — ``consume`` is all there is.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
+from gcs_pdm.estimation.pack_filter import PackFilterBank, PackFilterConfig
+from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
+from gcs_pdm.models.powertrain import PowertrainState
+
+log = logging.getLogger(__name__)
+
+#: pack index -> the other pack in its series string, and its motor
+STRING_MATE = {0: 2, 2: 0, 1: 3, 3: 1}
+MOTOR_OF_PACK = {b: int(kernel.STRING_OF_PACK[b]) for b in range(4)}
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    pack: PackFilterConfig = PackFilterConfig()
+    motor: MotorFilterConfig = MotorFilterConfig()
+    default_ambient_c: float = 20.0
+    #: a pack current this far from its string's other readings is a spike, A (or half the reading)
+    current_spike_a: float = 8.0
+    #: how recent a corroborating reading must be, s
+    corroborate_within_s: float = 2.0
+    stale_after_s: float = 5.0
+    #: longest gap the filters integrate through in one step; longer gaps are still integrated,
+    #: but logged, because the held current is then a guess
+    long_gap_s: float = 30.0
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Snapshot of the estimator at message time ``time_s`` (PACK_NAMES / MOTOR_NAMES order)."""
+
+    time_s: float
+    soc: np.ndarray
+    soc_sd: np.ndarray
+    pack_temp_c: np.ndarray
+    pack_temp_sd: np.ndarray
+    pack_voltage_v: np.ndarray
+    motor_temp_c: np.ndarray
+    motor_temp_sd: np.ndarray
+    ambient_c: float
+    missing: tuple[str, ...] = ()
+    counters: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        def r(a, nd=4):
+            return [None if not math.isfinite(float(x)) else round(float(x), nd) for x in a]
+
+        return {
+            "time_s": self.time_s,
+            "packs": {n: {"soc": r([self.soc[i]])[0], "soc_sd": r([self.soc_sd[i]])[0],
+                          "temperature_c": r([self.pack_temp_c[i]], 2)[0], "temperature_sd": r([self.pack_temp_sd[i]], 2)[0],
+                          "voltage_v": r([self.pack_voltage_v[i]], 3)[0]} for i, n in enumerate(PACK_NAMES)},
+            "motors": {n: {"temperature_c": r([self.motor_temp_c[i]], 2)[0],
+                           "temperature_sd": r([self.motor_temp_sd[i]], 2)[0]} for i, n in enumerate(MOTOR_NAMES)},
+            "ambient_c": self.ambient_c,
+            "missing": list(self.missing),
+            "counters": dict(self.counters),
+        }
+
+
+class StateEstimator:
+    """Per-pack UKF and per-motor thermal filter, driven frame by frame."""
+
+    def __init__(self, params: ParameterSet, config: EstimatorConfig = EstimatorConfig()):
+        self.params = params
+        self.config = config
+        self.packs = PackFilterBank(params.pack_matrix(), config.pack)
+        self.motors = MotorThermalFilter(params.motor_vector(), len(MOTOR_NAMES), config.motor)
+        self.ambient_c = config.default_ambient_c
+        self.time_s = -math.inf
+        self._pack_index = {n: i for i, n in enumerate(PACK_NAMES)}
+        self._motor_index = {n: i for i, n in enumerate(MOTOR_NAMES)}
+        self.pack_time = np.full(4, -math.inf)
+        self.pack_current = np.full(4, np.nan)
+        self.pack_current_time = np.full(4, -math.inf)
+        self.motor_time = np.full(2, -math.inf)
+        self.motor_current = np.full(2, np.nan)
+        self.motor_current_time = np.full(2, -math.inf)
+        self.motor_rpm = np.full(2, np.nan)
+        # per sensor channel: last message time it carried a value
+        self.seen: dict[str, float] = {}
+        self.counters: Counter = Counter()
+
+    # ---- frames ----------------------------------------------------------------------------------
+    def consume(self, frame) -> None:
+        if isinstance(frame, PackFrame):
+            self._pack(frame)
+        elif isinstance(frame, MotorFrame):
+            self._motor(frame)
+        elif isinstance(frame, AmbientFrame):
+            if frame.temperature_c is not None and math.isfinite(frame.temperature_c):
+                self.ambient_c = float(frame.temperature_c)
+                self.seen["ambient"] = frame.time_s
+        else:
+            return
+        if frame.time_s > self.time_s:
+            self.time_s = float(frame.time_s)
+
+    def _reference_current(self, b: int, t: float) -> float:
+        """What the rest of pack b's series string says its current is (NaN if nobody recent)."""
+        refs = []
+        mate = STRING_MATE[b]
+        if t - self.pack_current_time[mate] <= self.config.corroborate_within_s:
+            refs.append(self.pack_current[mate])
+        q = MOTOR_OF_PACK[b]
+        if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
+            refs.append(self.motor_current[q])
+        refs = [r for r in refs if math.isfinite(r)]
+        return float(np.median(refs)) if refs else math.nan
+
+    def _pack(self, f: PackFrame) -> None:
+        b = self._pack_index.get(f.pack)
+        if b is None:
+            self.counters["unknown_pack"] += 1
+            return
+        t = float(f.time_s)
+        if t < self.pack_time[b]:
+            self.counters["out_of_order"] += 1
+            return
+        cur = _num(f.current_a)
+        ref = self._reference_current(b, t)
+        if math.isfinite(cur):
+            self.seen[f"{f.pack}.current"] = t
+            if math.isfinite(ref) and abs(cur - ref) > max(self.config.current_spike_a, 0.5 * abs(ref)):
+                self.counters["current_spikes"] += 1
+                cur = ref
+        else:
+            cur = ref if math.isfinite(ref) else self.pack_current[b]
+            self.counters["current_held"] += 1
+        if math.isfinite(_num(f.current_a)) or math.isfinite(cur):
+            self.pack_current[b] = cur
+            self.pack_current_time[b] = t
+        v, temp = _num(f.voltage_v), _num(f.temperature_c)
+        if math.isfinite(v):
+            self.seen[f"{f.pack}.voltage"] = t
+        if math.isfinite(temp):
+            self.seen[f"{f.pack}.temperature"] = t
+        if not self.packs.initialised[b]:
+            if not math.isfinite(v):
+                return  # nothing to start from yet
+            self.packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]))
+            self.pack_time[b] = t
+            return
+        dt = t - self.pack_time[b]
+        if dt > self.config.long_gap_s:
+            self.counters["long_gaps"] += 1
+            log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
+        self.packs.step(np.array([b]), np.array([dt]), np.array([cur if math.isfinite(cur) else 0.0]),
+                        self.ambient_c, np.array([v]), np.array([temp]))
+        self.pack_time[b] = t
+
+    def _motor(self, f: MotorFrame) -> None:
+        q = self._motor_index.get(f.motor)
+        if q is None:
+            self.counters["unknown_motor"] += 1
+            return
+        t = float(f.time_s)
+        if t < self.motor_time[q]:
+            self.counters["out_of_order"] += 1
+            return
+        cur = _num(f.current_a)
+        if math.isfinite(cur):
+            self.seen[f"{f.motor}.current"] = t
+            self.motor_current[q] = cur
+            self.motor_current_time[q] = t
+        else:
+            # the string's pack currents are the motor's current
+            packs = [b for b in range(4) if MOTOR_OF_PACK[b] == q]
+            fresh = [self.pack_current[b] for b in packs if t - self.pack_current_time[b] <= self.config.corroborate_within_s]
+            cur = float(np.nanmedian(fresh)) if fresh and np.isfinite(fresh).any() else self.motor_current[q]
+        rpm = _num(f.rpm)
+        if math.isfinite(rpm):
+            self.motor_rpm[q] = rpm
+            self.seen[f"{f.motor}.rpm"] = t
+        temp = _num(f.temperature_c)
+        if math.isfinite(temp):
+            self.seen[f"{f.motor}.temperature"] = t
+        if not self.motors.initialised[q]:
+            if not math.isfinite(temp):
+                return
+            self.motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
+            self.motor_time[q] = t
+            return
+        self.motors.step(np.array([q]), np.array([t - self.motor_time[q]]),
+                         np.array([cur if math.isfinite(cur) else 0.0]), self.ambient_c, np.array([temp]))
+        self.motor_time[q] = t
+
+    # ---- read-outs --------------------------------------------------------------------------------
+    def missing(self, now: float | None = None) -> tuple[str, ...]:
+        now = self.time_s if now is None else now
+        channels = [f"{p}.{c}" for p in PACK_NAMES for c in ("voltage", "current", "temperature")]
+        channels += [f"{m}.{c}" for m in MOTOR_NAMES for c in ("current", "rpm", "temperature")]
+        return tuple(c for c in channels if now - self.seen.get(c, -math.inf) > self.config.stale_after_s)
+
+    def estimate(self) -> Estimate:
+        soc, soc_sd = self.packs.soc()
+        tp, tp_sd = self.packs.temperature()
+        v, _ = self.packs.voltage()
+        tm, tm_sd = self.motors.temperature()
+        none = ~self.packs.initialised
+        for a in (soc, soc_sd, tp, tp_sd, v):
+            a[none] = np.nan
+        counters = dict(self.counters)
+        counters["voltage_gated"] = int(self.packs.rejected_total[:, 0].sum())
+        counters["pack_temperature_gated"] = int(self.packs.rejected_total[:, 1].sum())
+        counters["motor_temperature_gated"] = int(self.motors.rejected_total.sum())
+        counters["relocks"] = int(self.packs.relocks.sum() + self.motors.relocks.sum())
+        return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c, self.missing(), counters)
+
+    def ready(self) -> bool:
+        return bool(self.packs.initialised.all() and self.motors.initialised.all())
+
+    def powertrain_state(self) -> PowertrainState:
+        """The mean state in the kernel's layout (what the planner simulates from)."""
+        tm = self.motors.mean[:, 0]
+        return PowertrainState(pack_state=self.packs.mean.copy(),
+                               motor_temp_c=np.where(np.isfinite(tm), tm, self.ambient_c))
+
+
+def _num(x) -> float:
+    if x is None:
+        return math.nan
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan

@@ -1,0 +1,163 @@
+"""Unscented Kalman filter for the four packs, batched over the kernel.
+
+State per pack: the kernel's ``PACK_STATE`` (q_b, q_cp, q_s, T). Input: measured terminal
+current. Observations: terminal voltage and pack temperature (both linear in the state).
+
+One ``step`` advances any subset of packs, each by its own dt (frames arrive per pack at their
+own times): the 2n = 8 sigma points of every pack advanced become rows of ONE
+``kernel.simulate_packs`` call (sigma points × packs as the kernel's N dimension, one sample).
+
+Robustness: each observation channel is gated on its normalised innovation (spikes are
+rejected and counted); a channel rejected ``relock_after`` times in a row is taken as a real
+change the model missed, so the covariance is inflated and the filter re-locks instead of
+ignoring the sensor for ever. A missing channel (``NaN``) is skipped; the filter keeps
+predicting and its uncertainty grows.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from gcs_pdm.estimation import ukf
+from gcs_pdm.models import kernel
+
+N_STATE = kernel.N_PACK_STATE
+
+
+@dataclass(frozen=True)
+class PackFilterConfig:
+    voltage_sigma_v: float = 0.05       # sensor noise plus model error of one voltage sample
+    temperature_sigma_c: float = 0.5
+    #: process noise densities per √s: q_b, q_cp, q_s (C), T (°C). q_b's covers current-sensor
+    #: bias and the capacity mismatch between the parameter set and the real pack
+    process_sigma: tuple[float, float, float, float] = (4.0, 1.0, 0.5, 0.02)
+    initial_soc_sigma: float = 0.05
+    initial_temp_sigma_c: float = 2.0
+    gate: float = 5.0                   # normalised-innovation gate, σ
+    relock_after: int = 5               # consecutive rejections before re-locking
+    relock_inflation: float = 25.0
+
+
+class PackFilterBank:
+    """UKF over ``n_packs`` packs sharing nothing but the kernel call."""
+
+    def __init__(self, pack_params: np.ndarray, config: PackFilterConfig = PackFilterConfig()):
+        self.params = np.ascontiguousarray(np.atleast_2d(np.asarray(pack_params, dtype=np.float64)))
+        if self.params.shape[1] != kernel.N_PACK_PARAMS:
+            raise ValueError(f"pack_params: expected (packs, {kernel.N_PACK_PARAMS}), got {self.params.shape}")
+        self.config = config
+        n_packs = self.params.shape[0]
+        self.mean = np.zeros((n_packs, N_STATE))
+        self.cov = np.zeros((n_packs, N_STATE, N_STATE))
+        self.initialised = np.zeros(n_packs, dtype=bool)
+        self.rejected_in_row = np.zeros((n_packs, 2), dtype=np.int64)
+        self.rejected_total = np.zeros((n_packs, 2), dtype=np.int64)
+        self.relocks = np.zeros(n_packs, dtype=np.int64)
+        self.last_innovation = np.full((n_packs, 2), np.nan)
+        self._q = np.diag(np.square(np.asarray(config.process_sigma, dtype=np.float64)))
+        # observation rows: V = q_b/C_b - q_cp/C_cp - q_s/C_s ; T = T
+        p = self.params
+        self._h_v = np.stack([1.0 / p[:, kernel.I_CB], -1.0 / p[:, kernel.I_CCP], -1.0 / p[:, kernel.I_CS],
+                              np.zeros(n_packs)], axis=1)
+        self._h_t = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n_packs, 1))
+        self._rows = {}
+
+    # ---- initialisation -------------------------------------------------------------------------
+    def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray
+                   ) -> None:
+        """Start packs ``idx`` from a voltage reading: invert V = V_b - i (R_s + R_cp(SoC)) with the
+        R–C pairs settled at the measured current (two fixed-point passes are enough: R_cp is flat
+        away from the knee)."""
+        idx = np.atleast_1d(idx)
+        p = self.params[idx]
+        cur = np.nan_to_num(np.asarray(current, dtype=np.float64), nan=0.0)
+        temp = np.asarray(temperature, dtype=np.float64)
+        soc = np.full(idx.size, 1.0)
+        for _ in range(3):
+            r_cp = p[:, kernel.I_RCP0] + p[:, kernel.I_RCP1] * np.exp(p[:, kernel.I_RCP2] * (1.0 - soc))
+            v_b = voltage + cur * (p[:, kernel.I_RS] + r_cp)
+            soc = np.clip(1.0 - (p[:, kernel.I_QMAX] - p[:, kernel.I_CB] * v_b) / p[:, kernel.I_CMAX], 0.0, 1.0)
+        temp = np.where(np.isfinite(temp), temp, 20.0)
+        x = kernel.initial_pack_state(p, soc, temp, cur)
+        self.mean[idx] = x
+        c = self.config
+        sd = np.stack([c.initial_soc_sigma * p[:, kernel.I_CMAX], 0.3 * np.abs(x[:, 1]) + 5.0,
+                       0.3 * np.abs(x[:, 2]) + 1.0,
+                       np.where(np.isfinite(np.asarray(temperature, dtype=np.float64)), c.temperature_sigma_c,
+                                c.initial_temp_sigma_c)], axis=1)
+        self.cov[idx] = sd[:, :, None] * np.eye(N_STATE) * sd[:, None, :]
+        self.initialised[idx] = True
+
+    # ---- one step ----------------------------------------------------------------------------------
+    def step(self, idx: np.ndarray, dt: np.ndarray, current: np.ndarray, ambient: float | np.ndarray,
+             voltage: np.ndarray, temperature: np.ndarray) -> None:
+        """Advance packs ``idx`` by ``dt`` s at ``current`` A, then update with ``voltage`` V and
+        ``temperature`` °C (NaN = not measured)."""
+        idx = np.atleast_1d(np.asarray(idx, dtype=np.int64))
+        dt = np.broadcast_to(np.asarray(dt, dtype=np.float64), idx.shape)
+        current = np.broadcast_to(np.asarray(current, dtype=np.float64), idx.shape)
+        m = idx.size
+        mean, cov = self.mean[idx], self.cov[idx]
+        if np.any(dt > 0):
+            pts = ukf.sigma_points(mean, cov)                       # (m, 8, 4)
+            n_sig = pts.shape[1]
+            rows = self._param_rows(idx, n_sig)
+            run = kernel.simulate_packs(rows, pts.reshape(m * n_sig, N_STATE),
+                                        np.repeat(dt, n_sig)[:, None], np.repeat(current, n_sig)[:, None],
+                                        np.broadcast_to(np.asarray(ambient, dtype=np.float64), (m,)).repeat(n_sig)[:, None]
+                                        if np.ndim(ambient) else float(ambient))
+            moved = run.final_state.reshape(m, n_sig, N_STATE)
+            pmean, pcov = ukf.recombine(moved)
+            still = dt <= 0
+            pmean[still], pcov[still] = mean[still], cov[still]
+            mean = pmean
+            cov = pcov + self._q[None] * np.maximum(dt, 0.0)[:, None, None]
+        obs = ((0, np.asarray(voltage, dtype=np.float64), self._h_v[idx], self.config.voltage_sigma_v ** 2),
+               (1, np.asarray(temperature, dtype=np.float64), self._h_t[idx], self.config.temperature_sigma_c ** 2))
+        for ch, z, h, r in obs:
+            z = np.broadcast_to(z, idx.shape)
+            have = np.isfinite(z)
+            if not have.any():
+                continue
+            sel = np.flatnonzero(have)
+            new_mean, new_cov, nu, norm = ukf.scalar_update(mean[sel], cov[sel], h[sel], z[sel], r, self.config.gate)
+            mean[sel], cov[sel] = new_mean, new_cov
+            rows_idx = idx[sel]
+            self.last_innovation[rows_idx, ch] = nu
+            gated = np.abs(norm) > self.config.gate
+            self.rejected_total[rows_idx[gated], ch] += 1
+            self.rejected_in_row[rows_idx, ch] = np.where(gated, self.rejected_in_row[rows_idx, ch] + 1, 0)
+            relock = self.rejected_in_row[rows_idx, ch] >= self.config.relock_after
+            if relock.any():
+                # the model has lost the pack (a real jump, a sensor re-zeroed): widen and re-lock
+                k = sel[relock]
+                cov[k] *= self.config.relock_inflation
+                rm, rc, _, _ = ukf.scalar_update(mean[k], cov[k], h[k], z[k], r, np.inf)
+                mean[k], cov[k] = rm, rc
+                self.relocks[rows_idx[relock]] += 1
+                self.rejected_in_row[rows_idx[relock], ch] = 0
+        self.mean[idx], self.cov[idx] = mean, cov
+
+    def _param_rows(self, idx: np.ndarray, n_sig: int) -> np.ndarray:
+        key = (idx.tobytes(), n_sig)
+        rows = self._rows.get(key)
+        if rows is None:
+            rows = np.ascontiguousarray(np.repeat(self.params[idx], n_sig, axis=0))
+            self._rows[key] = rows
+        return rows
+
+    # ---- read-outs ---------------------------------------------------------------------------------
+    def soc(self) -> tuple[np.ndarray, np.ndarray]:
+        """SoC mean and standard deviation per pack."""
+        cmax = self.params[:, kernel.I_CMAX]
+        mean = kernel.state_of_charge(self.params, self.mean)
+        return mean, np.sqrt(np.maximum(self.cov[:, 0, 0], 0.0)) / cmax
+
+    def temperature(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.mean[:, 3].copy(), np.sqrt(np.maximum(self.cov[:, 3, 3], 0.0))
+
+    def voltage(self) -> tuple[np.ndarray, np.ndarray]:
+        v = kernel.terminal_voltage(self.params, self.mean)
+        var = np.einsum("ki,kij,kj->k", self._h_v, self.cov, self._h_v)
+        return v, np.sqrt(np.maximum(var, 0.0))
