@@ -132,14 +132,23 @@ TRANSFORMS: dict[str, tuple[tuple[str, ...], Callable[[dict[str, Any]], Any]]] =
 
 # --- compilation ---------------------------------------------------------------------------
 
-def _clean(value, scale: float, offset: float, missing: frozenset):
+def _scaler(scale: float, offset: float) -> Callable[[float], float]:
+    """value -> value * scale + offset; a scale of 1/N divides by N, so 85455938 * 1e-7 gives
+    8.5455938 exactly as printed rather than 8.545593799999999."""
+    if scale == 1.0 and offset == 0.0:
+        return lambda v: v
+    divisor = round(1.0 / scale) if scale else 0
+    if divisor > 1 and abs(divisor * scale - 1.0) < 1e-12:
+        return lambda v: v / divisor + offset
+    return lambda v: v * scale + offset
+
+
+def _clean(value, convert: Callable, missing: frozenset):
     if value in missing:
         return None
     if isinstance(value, float) and math.isnan(value):
         return None
-    if scale == 1.0 and offset == 0.0:
-        return value
-    return value * scale + offset
+    return convert(value)
 
 
 def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], Any]:
@@ -147,6 +156,7 @@ def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], An
     scale = float(spec.get("scale", 1.0))
     offset = float(spec.get("offset", 0.0))
     missing = frozenset(spec.get("missing", ()))
+    convert = _scaler(scale, offset)
     if "transform" in spec:
         try:
             needed, fn = TRANSFORMS[spec["transform"]]
@@ -172,7 +182,7 @@ def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], An
                     if v not in missing:
                         total += v
                         seen = True
-            return total * scale + offset if seen else None
+            return convert(total) if seen else None
         return summed
     name = spec.get("field")
     if name not in lay.index:
@@ -186,7 +196,7 @@ def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], An
         pos += int(spec["index"])
     if spec.get("text"):
         return lambda vals: vals[pos].split(b"\0", 1)[0].decode("utf-8", "replace")
-    return lambda vals: _clean(vals[pos], scale, offset, missing)
+    return lambda vals: _clean(vals[pos], convert, missing)
 
 
 @dataclass(slots=True)
