@@ -1,0 +1,121 @@
+"""The live link: frames seen live equal frames replayed from its tlog; signing; shared reader."""
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from gcs_pdm.frames import MotorFrame, PackFrame, StatusFrame
+from gcs_pdm.mavlink.connection import Link, LinkConfig, load_signing_key
+from gcs_pdm.mavlink.dialect import mavlink2, mavutil
+from gcs_pdm.mavlink.replay import replay_tlog
+from gcs_pdm.mavlink.tlog import scan_tlog
+from tests.mavlink.peers import free_udp_port
+
+
+def fake_vehicle(port: int, **kwargs):
+    return mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1,
+                                      dialect="ardupilotmega", **kwargs)
+
+
+def send_flight(vehicle, seconds: int = 20) -> int:
+    """A burst of telemetry as a fast simulated vehicle would send it (no pauses)."""
+    mav = vehicle.mav
+    sent = 0
+    for step in range(seconds * 10):
+        boot_ms = 60_000 + step * 100
+        mav.global_position_int_send(boot_ms, 473977419 + step, 85455938, 500_000, 100_000, 1500, 0, 0, 9000)
+        mav.scaled_pressure_send(boot_ms + 5, 1013.0, 0.1, 2100 + step % 7)
+        mav.esc_telemetry_1_to_4_send([60, 58, 0, 0], [2200] * 4, [1200 + step, 990, 0, 0], [0] * 4,
+                                      [5400, 5300, 0, 0], [0] * 4)
+        for pack in range(4):
+            mav.battery_status_send(pack, 0, 0, 2500 + pack, [4100, 4100, 4100, 4100, 4100] + [65535] * 5,
+                                    1500 - step, -1, -1, -1)
+        mav.vfr_hud_send(18.0, 17.5, 90, 55, 120.0, 0.5)
+        sent += 8
+        if step % 10 == 0:
+            mav.heartbeat_send(mavlink2.MAV_TYPE_FIXED_WING, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                               0x80 | mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 10, 4)
+            mav.mission_current_send(step // 10)
+            sent += 2
+    return sent
+
+
+def wait_for(condition, timeout: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.01)
+    return bool(condition())
+
+
+def test_live_frames_equal_replayed_frames(tmp_path):
+    port = free_udp_port()
+    tlog = tmp_path / "live.tlog"
+    link = Link(LinkConfig(url=f"udpin:127.0.0.1:{port}", tlog_path=str(tlog), heartbeat_hz=20))
+    live = []
+    link.add_frame_listener(live.append)
+    telemetry = link.subscribe(["HEARTBEAT"])  # a second consumer on the same reader
+    link.start()
+    assert link.rcvbuf_effective is None or link.rcvbuf_effective > 200_000
+    vehicle = fake_vehicle(port)
+    vehicle.mav.heartbeat_send(mavlink2.MAV_TYPE_FIXED_WING, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 3)
+    assert wait_for(lambda: link.mapper.locked)
+    sent = send_flight(vehicle) + 1
+    assert wait_for(lambda: link.received >= sent)
+    time.sleep(0.2)  # let the link's own heartbeats go out to the now known peer
+    link.close()
+    vehicle.close()
+    assert link.received == sent  # nothing dropped in the burst
+    assert telemetry.queue.qsize() == 21
+
+    replayed = []
+    summary = replay_tlog(tlog, frame_consumer=replayed.append)
+    assert replayed == live
+    kinds = summary.mapping["frames_by_kind"]
+    assert kinds == {"airdata": 200, "ambient": 200, "mission_progress": 20, "motor": 400, "pack": 800,
+                     "position": 200, "status": 21}
+    # The first heartbeat came before any timed message: back-dated from the first position.
+    assert isinstance(live[0], StatusFrame) and not live[0].armed and 55.0 < live[0].time_s <= 60.0
+    # Untimed messages carry the latest vehicle time: SCALED_PRESSURE said 60.005 s.
+    ura = next(f for f in live if isinstance(f, PackFrame) and f.pack == "URA40")
+    assert ura == PackFrame(60.005, "URA40", pytest.approx(20.5), 15.0, pytest.approx(25.03))
+    assert [f for f in live if isinstance(f, MotorFrame)][:2] == [
+        MotorFrame(60.005, "fwd", 12.0, 5400, 60), MotorFrame(60.005, "aft", 9.9, 5300, 58)]
+    # The tlog holds what was sent too: the service's own heartbeats as 255/195.
+    sources = {(sysid, compid) for _, _, sysid, compid, *_ in scan_tlog(tlog)}
+    assert sources == {(1, 1), (255, 195)}
+
+
+def test_signed_link_accepts_signed_and_rejects_unsigned(tmp_path):
+    key_file = tmp_path / "key"
+    key_file.write_text("correct horse battery staple\n")
+    key = load_signing_key(key_file)
+    assert len(key) == 32
+    port = free_udp_port()
+    link = Link(LinkConfig(url=f"udpin:127.0.0.1:{port}", signing_key_file=str(key_file))).start()
+    try:
+        unsigned = fake_vehicle(port)
+        unsigned.mav.heartbeat_send(1, 3, 0, 0, 3)
+        time.sleep(0.3)
+        assert not link.mapper.locked  # unsigned heartbeat refused
+        signed = fake_vehicle(port)
+        signed.setup_signing(key, sign_outgoing=True)
+        signed.mav.heartbeat_send(1, 3, 0, 0, 3)
+        assert wait_for(lambda: link.mapper.locked)
+        unsigned.close()
+        signed.close()
+    finally:
+        link.close()
+
+
+def test_signing_key_formats(tmp_path):
+    raw = bytes(range(32))
+    (tmp_path / "raw").write_bytes(raw)
+    (tmp_path / "hex").write_text(raw.hex())
+    assert load_signing_key(tmp_path / "raw") == raw
+    assert load_signing_key(tmp_path / "hex") == raw
+    (tmp_path / "empty").write_text("   \n")
+    with pytest.raises(ValueError, match="empty"):
+        load_signing_key(tmp_path / "empty")
