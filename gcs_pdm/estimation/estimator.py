@@ -47,6 +47,10 @@ class EstimatorConfig:
     #: longest gap the filters integrate through in one step; longer gaps are still integrated,
     #: but logged, because the held current is then a guess
     long_gap_s: float = 30.0
+    #: relative uncertainty of the parameter set's capacity against the real pack (1σ). No
+    #: telemetry can remove it within a flight — the voltage-to-charge map carries the same
+    #: mismatch — so it is added to the filter's SoC spread: σ² = σ_filter² + (σ_cap (1 - SoC))²
+    capacity_rel_sigma: float = 0.08
 
 
 @dataclass(frozen=True)
@@ -218,6 +222,7 @@ class StateEstimator:
 
     def estimate(self) -> Estimate:
         soc, soc_sd = self.packs.soc()
+        soc_sd = np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
         tp, tp_sd = self.packs.temperature()
         v, _ = self.packs.voltage()
         tm, tm_sd = self.motors.temperature()

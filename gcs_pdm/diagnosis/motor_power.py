@@ -1,0 +1,132 @@
+"""Motor power loss from the two motors' currents (and the shaft's rpm) against the model.
+
+The model (``kernel._simulate_powertrain``): each motor owes half the shaft power P; a motor with
+fault magnitude m delivers (1 - m) P/2 and the healthy one makes up the rest, (1 + m) P/2. A
+motor's delivered shaft power follows from its input current i and bus voltage V through the
+kernel's motor equation, V i = P_q + R_w i² + (1 - m_q) I_0 V. So with P_fwd, P_aft from the two
+measured currents,
+
+    m = (P_aft - P_fwd) / (P_aft + P_fwd)     (> 0: the fwd motor is faulted; < 0: the aft one)
+
+— independent of air density, propeller and the faulted rotor's drag, which all scale P. The
+(1 - m) on the faulted motor's no-load term makes this a fixed point, solved in three passes.
+The measured rpm is kept as evidence: it should match the total delivered power (``shaft_rpm``).
+
+Per sample m is noisy (current noise) and one ESC spike moves it a lot, so the detector works on
+the median of a short window, then debounces; the reported magnitude is the mean over the time
+the fault has been active (more samples, smaller error).
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
+from gcs_pdm.diagnosis.faults import MOTOR_POWER_LOSS, Fault
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import MOTOR_NAMES
+from gcs_pdm.models.powertrain import shaft_rpm
+
+
+@dataclass(frozen=True)
+class MotorPowerConfig:
+    raise_threshold: float = 0.10
+    clear_threshold: float = 0.05
+    #: below this total delivered power the no-load terms dominate and m is not observable, W
+    min_power_w: float = 150.0
+    window: int = 7                   # samples in the median
+    debounce: DebounceConfig = DebounceConfig(raise_after_s=3.0, clear_after_s=10.0)
+
+
+def delivered_power(current_a: float, bus_v: float, motor: np.ndarray, fault: float) -> float:
+    """Shaft power delivered by a motor drawing ``current_a`` from ``bus_v`` (kernel motor equation)."""
+    return bus_v * current_a - motor[kernel.M_RW] * current_a * current_a - (1.0 - fault) * motor[kernel.M_I0] * bus_v
+
+
+def fault_magnitude(i_fwd: float, i_aft: float, v_fwd: float, v_aft: float, motor: np.ndarray
+                    ) -> tuple[float, float, float]:
+    """Signed magnitude m (> 0: fwd faulted) and the two delivered powers (W)."""
+    f = [0.0, 0.0]
+    m = 0.0
+    p0 = p1 = 0.0
+    for _ in range(3):
+        p0 = delivered_power(i_fwd, v_fwd, motor, f[0])
+        p1 = delivered_power(i_aft, v_aft, motor, f[1])
+        total = p0 + p1
+        if total <= 0.0:
+            return math.nan, p0, p1
+        m = (p1 - p0) / total
+        f = [max(m, 0.0), max(-m, 0.0)]
+    return m, p0, p1
+
+
+class MotorPowerLossDetector:
+    def __init__(self, motor_params: np.ndarray, config: MotorPowerConfig = MotorPowerConfig()):
+        self.motor = np.asarray(motor_params, dtype=np.float64)
+        self.config = config
+        self._window: deque = deque(maxlen=config.window)
+        self._debounce = {name: Debouncer(config.debounce) for name in MOTOR_NAMES}
+        self._active_samples: dict[str, list[float]] = {name: [] for name in MOTOR_NAMES}
+        self.faults: dict[str, Fault] = {}
+        self.samples = 0
+        self.low_power_skipped = 0
+
+    def update(self, time_s: float, i_fwd: float, i_aft: float, v_fwd: float, v_aft: float,
+               rpm: float = math.nan) -> list[tuple[str, Fault]]:
+        """One paired observation; returns the (event, fault) pairs it caused ('raise'/'update'/'clear')."""
+        m, p0, p1 = fault_magnitude(i_fwd, i_aft, v_fwd, v_aft, self.motor)
+        if not math.isfinite(m) or p0 + p1 < self.config.min_power_w:
+            self.low_power_skipped += 1
+            return []
+        self.samples += 1
+        self._window.append(m)
+        if len(self._window) < self._window.maxlen:
+            return []
+        med = float(np.median(self._window))
+        spread = float(np.std(self._window)) / math.sqrt(len(self._window)) + 1e-3
+        events = []
+        for q, name in enumerate(MOTOR_NAMES):
+            mq = med if q == 0 else -med
+            deb = self._debounce[name]
+            ev = deb.update(time_s, mq >= self.config.raise_threshold, mq < self.config.clear_threshold)
+            if deb.active or ev == "clear":
+                if deb.active:
+                    self._active_samples[name].append(mq)
+                mag = float(np.mean(self._active_samples[name])) if self._active_samples[name] else mq
+                conf = _phi((mq - self.config.clear_threshold) / spread) if deb.active else 0.0
+                rpm_expected = float(shaft_rpm((p0 + p1) / (1.0 + 0.05 * abs(med))))
+                evidence = {"median_m": round(med, 4), "n_samples": len(self._active_samples[name]),
+                            "power_fwd_w": round(p0, 1), "power_aft_w": round(p1, 1),
+                            "current_fwd_a": round(i_fwd, 2), "current_aft_a": round(i_aft, 2),
+                            "rpm_measured": None if not math.isfinite(rpm) else round(rpm, 0),
+                            "rpm_expected_sea_level": round(rpm_expected, 0)}
+                if ev == "raise":
+                    f = Fault(MOTOR_POWER_LOSS, name, min(max(mag, 0.0), 1.0), time_s, conf, evidence,
+                              updated_s=time_s)
+                    self.faults[name] = f
+                    events.append(("raise", f))
+                elif ev == "clear":
+                    f = self.faults[name].with_(active=False, cleared_s=time_s, confidence=0.0, updated_s=time_s,
+                                                evidence=evidence)
+                    self.faults[name] = f
+                    self._active_samples[name] = []
+                    events.append(("clear", f))
+                else:
+                    f = self.faults[name].with_(magnitude=min(max(mag, 0.0), 1.0), confidence=conf,
+                                                updated_s=time_s, evidence=evidence)
+                    self.faults[name] = f
+            elif not deb.active:
+                self._active_samples[name] = []
+        return events
+
+    def fault_vector(self) -> np.ndarray:
+        """Active magnitudes (fwd, aft) for the kernel."""
+        return np.array([self.faults[n].magnitude if n in self.faults and self.faults[n].active else 0.0
+                         for n in MOTOR_NAMES])
+
+
+def _phi(z: float) -> float:
+    return 0.5 * (1.0 + math.erf(z / math.sqrt(2.0)))

@@ -1,0 +1,139 @@
+"""Frames in, estimate and faults out: the estimator and every detector, driven by message time.
+
+``DiagnosisPipeline.consume(frame)`` is the frame consumer for the live link and for
+``gcs-pdm replay`` (``report()`` gives the replay summary its ``faults``). ``faults`` holds every
+fault raised (latest state, active or cleared), ``events`` the raise/clear history in order.
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from gcs_pdm.diagnosis.faults import Fault
+from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, MotorPowerLossDetector
+from gcs_pdm.diagnosis.pack_health import PackHealthConfig, PackHealthMonitor
+from gcs_pdm.diagnosis.prognosis import PrognosisConfig, PrognosisMonitor
+from gcs_pdm.estimation.estimator import MOTOR_OF_PACK, EstimatorConfig, StateEstimator
+from gcs_pdm.estimation.prediction import FutureLoad
+from gcs_pdm.frames import MotorFrame, PackFrame
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, default_set
+from gcs_pdm.models.powertrain import Limits
+
+log = logging.getLogger(__name__)
+
+
+class DiagnosisPipeline:
+    def __init__(self, params: ParameterSet | None = None, *, limits: Limits = Limits(),
+                 estimator_config: EstimatorConfig = EstimatorConfig(),
+                 motor_config: MotorPowerConfig = MotorPowerConfig(),
+                 pack_config: PackHealthConfig = PackHealthConfig(),
+                 prognosis_config: PrognosisConfig = PrognosisConfig(), seed: int = 0,
+                 pair_within_s: float = 0.6, voltage_fresh_s: float = 3.0):
+        self.params = params or default_set()
+        self.estimator = StateEstimator(self.params, estimator_config)
+        self.motor_power = MotorPowerLossDetector(self.params.motor_vector(), motor_config)
+        self.pack_health = PackHealthMonitor(self.params.pack_matrix(), pack_config)
+        self.prognosis = PrognosisMonitor(limits, prognosis_config, seed=seed)
+        self.pair_within_s = pair_within_s
+        self.voltage_fresh_s = voltage_fresh_s
+        self._pack_v = np.full(4, np.nan)
+        self._pack_v_time = np.full(4, -math.inf)
+        self.faults: list[Fault] = []
+        self._index: dict[tuple[str, str], int] = {}
+        self.events: list[dict] = []
+        self.frames = 0
+
+    # ---- input ---------------------------------------------------------------------------------------
+    def set_mission(self, load: FutureLoad, start_s: float | None = None) -> None:
+        """The shaft-power load of the rest of the mission from message time ``start_s`` (default: now)."""
+        self.prognosis.set_mission(load, self.estimator.time_s if start_s is None else start_s)
+
+    def consume(self, frame) -> None:
+        self.frames += 1
+        est = self.estimator
+        est.consume(frame)
+        t = float(getattr(frame, "time_s", math.nan))
+        if isinstance(frame, PackFrame):
+            b = PACK_NAMES.index(frame.pack) if frame.pack in PACK_NAMES else -1
+            if b >= 0:
+                if frame.voltage_v is not None and math.isfinite(frame.voltage_v):
+                    self._pack_v[b], self._pack_v_time[b] = frame.voltage_v, t
+                if est.packs.initialised[b] and frame.voltage_v is not None:
+                    self.pack_health.add(b, t, float(est.pack_current[b]), float(frame.voltage_v), est.ambient_c,
+                                         est.packs.mean[b])
+        elif isinstance(frame, MotorFrame) and frame.motor in MOTOR_NAMES:
+            self._motor_pair(t)
+        else:
+            return
+        self._record(self.pack_health.check(t))
+        self._record(self.prognosis.check(t, est, self.motor_power.fault_vector()))
+
+    def _motor_pair(self, t: float) -> None:
+        est = self.estimator
+        tc = est.motor_current_time
+        # evaluate once per pair, on its later frame, with both currents fresh
+        if abs(tc[0] - tc[1]) > self.pair_within_s or t < max(tc[0], tc[1]):
+            return
+        v_string = np.empty(2)
+        v_filter, _ = est.packs.voltage()
+        for q in range(2):
+            total = 0.0
+            for b in range(4):
+                if MOTOR_OF_PACK[b] != q:
+                    continue
+                fresh = t - self._pack_v_time[b] <= self.voltage_fresh_s
+                total += self._pack_v[b] if fresh else v_filter[b]
+            v_string[q] = total
+        if not np.all(np.isfinite(v_string)):
+            return
+        rpm = float(np.nanmean(est.motor_rpm)) if np.isfinite(est.motor_rpm).any() else math.nan
+        self._record(self.motor_power.update(t, float(est.motor_current[0]), float(est.motor_current[1]),
+                                             float(v_string[0]), float(v_string[1]), rpm))
+        # keep stored faults' latest state in step with the detector's (magnitude refines while active)
+        for f in self.motor_power.faults.values():
+            if f.key in self._index:
+                self.faults[self._index[f.key]] = f
+
+    def _record(self, events: list[tuple[str, Fault]]) -> None:
+        for kind, f in events:
+            if kind == "raise" and f.key in self._index and self.faults[self._index[f.key]].active:
+                kind = "update"
+            if kind == "raise":
+                self._index[f.key] = len(self.faults)
+                self.faults.append(f)
+            elif f.key in self._index:
+                self.faults[self._index[f.key]] = f
+            self.events.append({"event": kind, "time_s": round(float(f.updated_s if f.updated_s is not None else f.time_s), 3),
+                                "type": f.type, "component": f.component, "magnitude": round(float(f.magnitude), 4),
+                                "confidence": round(float(f.confidence), 3)})
+            log.info("%s %s %s m=%.3f at t=%.1f s", kind, f.type, f.component, f.magnitude, f.time_s)
+
+    # ---- output --------------------------------------------------------------------------------------
+    def _refresh(self) -> None:
+        for source in (self.motor_power.faults.values(), self.pack_health.faults.values(),
+                       self.prognosis.faults.values()):
+            for f in source:
+                if f.key in self._index and self.faults[self._index[f.key]].time_s == f.time_s:
+                    self.faults[self._index[f.key]] = f
+
+    def active_faults(self) -> list[Fault]:
+        self._refresh()
+        return [f for f in self.faults if f.active]
+
+    def report(self) -> dict:
+        """Replay summary: faults (with message times), events, the final estimate and counters."""
+        self._refresh()
+        est = self.estimator.estimate()
+        return {
+            "faults": [f.to_dict() for f in self.faults],
+            "events": list(self.events),
+            "estimate": est.to_dict(),
+            "frames": self.frames,
+            "motor_power": {"samples": self.motor_power.samples, "low_power_skipped": self.motor_power.low_power_skipped},
+            "pack_health": {n: e.__dict__ for n, e in self.pack_health.latest.items()},
+            "prognosis": {"skipped_no_mission": self.prognosis.skipped_no_mission,
+                          "latest": None if self.prognosis.latest_prediction is None
+                          else self.prognosis.latest_prediction.to_dict()},
+        }

@@ -1,0 +1,218 @@
+"""Monte Carlo prediction: where the packs and motors are heading under a future load.
+
+From the estimator's state (mean and covariance of every pack, motor temperatures), draw N
+samples of the state *and* of the parameters (multiplicative log-normal spread around the
+parameter set — the model's own uncertainty), and fly all of them through the future shaft-power
+profile in ONE ``kernel.simulate_powertrain`` call with ``stop_on_failure``. Each sample stops at
+its first failure (cut-off voltage, depletion, over-temperature, power); the spread of the
+results is the prediction's uncertainty.
+
+The future load is a shaft-power profile (``FutureLoad``); the planner's vehicle simulator turns a
+route into exactly such a profile, so a route can be predicted by passing its profile.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
+from gcs_pdm.models.powertrain import Limits
+
+QUANTILES = (0.05, 0.5, 0.95)
+
+
+@dataclass(frozen=True)
+class FutureLoad:
+    """Shaft power over the future: sample k lasts ``dt[k]`` s at ``shaft_power_w[k]`` W."""
+
+    dt: np.ndarray
+    shaft_power_w: np.ndarray
+    ambient_c: np.ndarray | float = 20.0
+
+    def __post_init__(self) -> None:
+        dt = np.asarray(self.dt, dtype=np.float64)
+        p = np.asarray(self.shaft_power_w, dtype=np.float64)
+        if dt.ndim != 1 or p.shape != dt.shape:
+            raise ValueError(f"FutureLoad: dt and shaft_power_w must be 1-D of one length, got {dt.shape}, {p.shape}")
+        if np.any(~np.isfinite(dt)) or np.any(dt < 0):
+            raise ValueError("FutureLoad.dt: steps must be finite and non-negative")
+        if np.any(~np.isfinite(p)):
+            raise ValueError("FutureLoad.shaft_power_w: must be finite")
+
+    @classmethod
+    def constant(cls, power_w: float, duration_s: float, step_s: float = 1.0, ambient_c: float = 20.0) -> "FutureLoad":
+        n = max(1, int(math.ceil(duration_s / step_s)))
+        return cls(np.full(n, duration_s / n), np.full(n, float(power_w)), ambient_c)
+
+    @property
+    def duration_s(self) -> float:
+        return float(np.sum(self.dt))
+
+    def after(self, elapsed_s: float) -> "FutureLoad":
+        """The part of the load still ahead once ``elapsed_s`` of it has been flown."""
+        ends = np.cumsum(self.dt)
+        k = int(np.searchsorted(ends, elapsed_s, side="right"))
+        amb = self.ambient_c if np.ndim(self.ambient_c) == 0 else np.asarray(self.ambient_c)[k:]
+        return FutureLoad(np.asarray(self.dt)[k:], np.asarray(self.shaft_power_w)[k:], amb)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Quantiles (5 %, 50 %, 95 %) over the Monte Carlo samples; ``inf`` = not reached within the horizon."""
+
+    horizon_s: float
+    n_samples: int
+    p_failure: float
+    time_to_failure_s: np.ndarray        # (3,)
+    failure_causes: dict
+    pack_time_to_cutoff_s: np.ndarray    # (4, 3) to the pack's cut-off voltage or empty, whichever first
+    pack_energy_to_cutoff_j: np.ndarray  # (4, 3) energy drawn from the pack until its cut-off (or horizon)
+    peak_pack_temp_c: np.ndarray         # (4, 3)
+    peak_motor_temp_c: np.ndarray        # (2, 3)
+    time_s: np.ndarray | None = None     # (n,) offsets into the future for the median trajectories
+    soc_median: np.ndarray | None = None          # (n, 4)
+    pack_temp_median: np.ndarray | None = None    # (n, 4)
+    motor_temp_median: np.ndarray | None = None   # (n, 2)
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        def q(a):
+            return [None if not math.isfinite(float(x)) else round(float(x), 3) for x in a]
+
+        return {
+            "horizon_s": self.horizon_s,
+            "n_samples": self.n_samples,
+            "p_failure": round(self.p_failure, 4),
+            "quantiles": list(QUANTILES),
+            "time_to_failure_s": q(self.time_to_failure_s),
+            "failure_causes": dict(self.failure_causes),
+            "packs": {n: {"time_to_cutoff_s": q(self.pack_time_to_cutoff_s[i]),
+                          "energy_to_cutoff_j": q(self.pack_energy_to_cutoff_j[i]),
+                          "peak_temp_c": q(self.peak_pack_temp_c[i])} for i, n in enumerate(PACK_NAMES)},
+            "motors": {n: {"peak_temp_c": q(self.peak_motor_temp_c[i])} for i, n in enumerate(MOTOR_NAMES)},
+            **self.extra,
+        }
+
+
+def sample_parameters(params: ParameterSet, n: int, rng: np.random.Generator, rel_sigma: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 4, 12) pack and (n, 5) motor parameter samples, log-normal around ``params``.
+
+    q_max keeps its ratio to C_b (a full pack stays at full voltage), C_max never exceeds q_max,
+    and R_cp2 — an exponent — moves by a tenth of the spread with R_cp1 compensating, so the
+    end-of-discharge resistance varies by the spread itself (as ``params.perturbed`` does)."""
+    base = params.pack_matrix()
+    packs = base[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n,) + base.shape))
+    packs[..., kernel.I_RCP2] = base[:, kernel.I_RCP2] * (1.0 + rng.normal(0.0, rel_sigma / 10.0, size=(n, base.shape[0])))
+    packs[..., kernel.I_RCP1] *= np.exp(base[:, kernel.I_RCP2] - packs[..., kernel.I_RCP2])
+    packs[..., kernel.I_QMAX] = packs[..., kernel.I_CB] * (base[:, kernel.I_QMAX] / base[:, kernel.I_CB])
+    packs[..., kernel.I_CMAX] = np.minimum(packs[..., kernel.I_CMAX], packs[..., kernel.I_QMAX])
+    motor = params.motor_vector()[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n, kernel.N_MOTOR_PARAMS)))
+    return packs, motor
+
+
+def sample_states(pack_mean: np.ndarray, pack_cov: np.ndarray, motor_mean: np.ndarray, motor_sd: np.ndarray,
+                  n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 4, 4) pack states from per-pack Gaussians, (n, 2) motor temperatures."""
+    chol = np.linalg.cholesky(pack_cov + 1e-9 * np.eye(pack_cov.shape[-1]))
+    z = rng.standard_normal((n,) + pack_mean.shape)
+    x = pack_mean[None] + np.einsum("bij,nbj->nbi", chol, z)
+    tm = motor_mean[None] + motor_sd[None] * rng.standard_normal((n, motor_mean.size))
+    return x, tm
+
+
+def restate(base: np.ndarray, x: np.ndarray, sampled: np.ndarray) -> np.ndarray:
+    """Re-express states estimated under ``base`` parameters for ``sampled`` ones.
+
+    The kernel's charges are absolute (q_b counts from empty capacitor, not from cut-off), so a
+    state only means the same thing under another parameter vector once re-expressed: keep the
+    SoC (a fraction of *that* sample's capacity, so capacity uncertainty reaches the prediction)
+    and the voltages across C_cp and C_s."""
+    out = x.copy()
+    deficit = base[:, kernel.I_QMAX] - x[..., kernel.S_QB]
+    out[..., kernel.S_QB] = sampled[..., kernel.I_QMAX] - deficit * sampled[..., kernel.I_CMAX] / base[:, kernel.I_CMAX]
+    out[..., kernel.S_QCP] = x[..., kernel.S_QCP] * sampled[..., kernel.I_CCP] / base[:, kernel.I_CCP]
+    out[..., kernel.S_QS] = x[..., kernel.S_QS] * sampled[..., kernel.I_CS] / base[:, kernel.I_CS]
+    return out
+
+
+def predict(params: ParameterSet, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: np.ndarray,
+            motor_temp_sd: np.ndarray, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
+            param_rel_sigma: float = 0.05, fault: np.ndarray | None = None, limits: Limits = Limits(),
+            trajectories: bool = True, stop_on_failure: bool = True) -> Prediction:
+    """Monte Carlo prediction over state and parameter uncertainty (one kernel call).
+
+    ``fault``: (2,) motor fault magnitudes (fwd, aft) believed present — the diagnoser's faults.
+    With ``stop_on_failure`` a sample ends at the vehicle's first failure, so a pack that had not
+    reached its cut-off by then reports ``inf`` for that sample; pass ``False`` to run every sample
+    through the whole horizon and read each pack's own cut-off time."""
+    if n_samples < 1:
+        raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
+    pp, mp = sample_parameters(params, n_samples, rng, param_rel_sigma)
+    x0, tm0 = sample_states(np.asarray(pack_mean, dtype=np.float64), np.asarray(pack_cov, dtype=np.float64),
+                            np.asarray(motor_temp_c, dtype=np.float64), np.asarray(motor_temp_sd, dtype=np.float64),
+                            n_samples, rng)
+    x0 = restate(params.pack_matrix(), x0, pp)
+    f = np.zeros((1, 2)) if fault is None else np.clip(np.asarray(fault, dtype=np.float64).reshape(1, 2), 0.0, 1.0)
+    dt = np.asarray(load.dt, dtype=np.float64)
+    amb = load.ambient_c if np.ndim(load.ambient_c) == 0 else np.asarray(load.ambient_c, dtype=np.float64)
+    run = kernel.simulate_powertrain(pp, mp, x0, tm0, dt, np.asarray(load.shaft_power_w, dtype=np.float64), amb, f,
+                                     limits=limits.as_tuple(), stop_on_failure=stop_on_failure, record=True)
+    t_end = np.cumsum(dt)
+    failed = run.fail_step >= 0
+    ttf = np.where(failed, t_end[np.maximum(run.fail_step, 0)], np.inf)
+    causes: dict = {}
+    for c in run.fail_cause[failed]:
+        name = kernel.FAILURE_NAMES[int(c)]
+        causes[name] = causes.get(name, 0) + 1
+    v = run.pack_voltage                               # (N, n, 4), NaN after a stop
+    # a pack's end: below cut-off under load, or empty (near the knee a light load can empty a
+    # pack before its voltage reaches the cut-off)
+    ended = (v < limits.pack_cutoff_v) | (run.pack_soc <= 0.0)
+    reached = ended.any(axis=1)                        # (N, 4)
+    k_cut = np.where(reached, ended.argmax(axis=1), v.shape[1] - 1)
+    pack_ttc = np.where(reached, t_end[k_cut], np.inf)
+    power = np.nan_to_num(v * run.pack_current) * dt[None, :, None]
+    cum_energy = np.cumsum(power, axis=1)
+    energy = np.take_along_axis(cum_energy, k_cut[:, None, :], axis=1)[:, 0, :]
+    # peaks only while the vehicle still flies: past its first failure the numbers are not physical
+    k_stop = np.where(failed, run.fail_step, v.shape[1] - 1)
+    flying = np.arange(v.shape[1])[None, :] <= k_stop[:, None]
+    peak_pack = np.max(np.where(flying[..., None], np.nan_to_num(run.pack_temp, nan=-np.inf), -np.inf), axis=1)
+    peak_motor = np.max(np.where(flying[..., None], np.nan_to_num(run.motor_temp, nan=-np.inf), -np.inf), axis=1)
+    peak_pack = np.maximum(peak_pack, x0[..., kernel.S_T])
+    peak_motor = np.maximum(peak_motor, tm0)
+    pred = Prediction(
+        horizon_s=float(t_end[-1]) if t_end.size else 0.0,
+        n_samples=n_samples,
+        p_failure=float(failed.mean()),
+        time_to_failure_s=np.quantile(ttf, QUANTILES, method="nearest"),
+        failure_causes=causes,
+        pack_time_to_cutoff_s=np.quantile(pack_ttc, QUANTILES, axis=0, method="nearest").T,
+        pack_energy_to_cutoff_j=np.quantile(energy, QUANTILES, axis=0, method="nearest").T,
+        peak_pack_temp_c=np.quantile(peak_pack, QUANTILES, axis=0, method="nearest").T,
+        peak_motor_temp_c=np.quantile(peak_motor, QUANTILES, axis=0, method="nearest").T,
+    )
+    if trajectories:
+        with np.errstate(all="ignore"):
+            import warnings
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns after every sample stopped
+                pred = Prediction(**{**pred.__dict__, "time_s": t_end,
+                                     "soc_median": np.nanmedian(run.pack_soc, axis=0),
+                                     "pack_temp_median": np.nanmedian(run.pack_temp, axis=0),
+                                     "motor_temp_median": np.nanmedian(run.motor_temp, axis=0)})
+    return pred
+
+
+def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
+                           fault: np.ndarray | None = None, **kw) -> Prediction:
+    """``predict`` from a ``StateEstimator``'s current state."""
+    tm, tm_sd = estimator.motors.temperature()
+    tm = np.where(np.isfinite(tm), tm, estimator.ambient_c)
+    tm_sd = np.where(np.isfinite(tm_sd), tm_sd, 2.0)
+    return predict(estimator.params, estimator.packs.mean, estimator.packs.cov, tm, tm_sd, load, rng=rng,
+                   n_samples=n_samples, fault=fault, **kw)
