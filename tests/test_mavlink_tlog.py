@@ -179,7 +179,7 @@ def test_replay_cli_json(tmp_path):
     _, data = synthetic_tlog()
     path = tmp_path / "s.tlog"
     path.write_bytes(data + b"\xfd\x1c")  # truncated tail
-    out = subprocess.run([sys.executable, "-m", "gcs_pdm.cli", "replay", str(path), "--json"],
+    out = subprocess.run([sys.executable, "-m", "gcs_pdm.cli", "replay", str(path), "--json", "--no-diagnose"],
                          capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 0, out.stderr
     summary = json.loads(out.stdout.strip().splitlines()[-1])
@@ -190,6 +190,12 @@ def test_replay_cli_json(tmp_path):
     assert summary["skipped"]["truncated_tail_bytes"] == 2
     assert summary["faults"] == [] and summary["consumer"] is None
     assert summary["frame_time_span_s"] == pytest.approx([0.998, 1.2])  # heartbeats back-dated 2 ms
+    # By default the diagnoser consumes the frames; its faults land in the same summary.
+    out = subprocess.run([sys.executable, "-m", "gcs_pdm.cli", "replay", str(path), "--json"],
+                         capture_output=True, text=True, cwd=REPO, timeout=60)
+    assert out.returncode == 0, out.stderr
+    diagnosed = json.loads(out.stdout.strip().splitlines()[-1])
+    assert diagnosed["messages"] == 7 and isinstance(diagnosed["faults"], list)
 
 
 def test_replay_resends_to_udp_and_paces(tmp_path):

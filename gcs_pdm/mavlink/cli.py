@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
 
@@ -18,6 +19,7 @@ def register(subparsers) -> None:
     p.add_argument("--mapping", type=Path, default=None, help="JSON file with a message->frame mapping (default: built-in)")
     p.add_argument("--system", type=int, default=None, help="vehicle system id (default: first autopilot heartbeat)")
     p.add_argument("--component", type=int, default=None, help="vehicle component id (default: first autopilot heartbeat)")
+    p.add_argument("--no-diagnose", action="store_true", help="skip the estimator/diagnoser (gcs_pdm.diagnosis)")
     p.set_defaults(func=run)
 
 
@@ -33,7 +35,16 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError, MappingError) as exc:
         print(f"replay: bad mapping: {exc}", file=sys.stderr)
         return 2
-    summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp).to_dict()
+    consumer = None
+    if not args.no_diagnose:
+        # The estimator/diagnoser consume the frames and report faults raised into the summary.
+        try:
+            from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
+            consumer = DiagnosisPipeline()
+        except ImportError as exc:
+            logging.getLogger(__name__).warning("replay without diagnosis: %s", exc)
+    summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
+                          frame_consumer=consumer).to_dict()
     if args.json:
         print(json.dumps(summary))
         return 0
