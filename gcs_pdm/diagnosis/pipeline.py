@@ -70,6 +70,10 @@ class DiagnosisPipeline:
         self._record(self.pack_health.check(t))
         self._record(self.prognosis.check(t, est, self.motor_power.fault_vector()))
 
+    #: a pipeline is itself a frame consumer (``replay_tlog(frame_consumer=pipeline)`` then finds ``report``)
+    def __call__(self, frame) -> None:
+        self.consume(frame)
+
     def _motor_pair(self, t: float) -> None:
         est = self.estimator
         tc = est.motor_current_time

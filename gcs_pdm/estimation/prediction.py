@@ -56,7 +56,10 @@ class FutureLoad:
         ends = np.cumsum(self.dt)
         k = int(np.searchsorted(ends, elapsed_s, side="right"))
         amb = self.ambient_c if np.ndim(self.ambient_c) == 0 else np.asarray(self.ambient_c)[k:]
-        return FutureLoad(np.asarray(self.dt)[k:], np.asarray(self.shaft_power_w)[k:], amb)
+        dt = np.array(self.dt, dtype=np.float64)[k:]
+        if dt.size:
+            dt[0] = ends[k] - max(elapsed_s, 0.0) if elapsed_s > 0 else dt[0]  # the part of sample k still ahead
+        return FutureLoad(dt, np.asarray(self.shaft_power_w)[k:], amb)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,73 @@
+"""Monte Carlo prediction: wiring against a deterministic kernel run, faults, uncertainty."""
+import numpy as np
+import pytest
+
+from gcs_pdm.estimation.prediction import FutureLoad, predict, restate, sample_parameters
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import default_set
+from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState, fly
+
+
+def setup(soc=0.5):
+    ps = default_set()
+    st = PowertrainState.full(ps, temp_c=25.0, soc=soc)
+    return ps, st
+
+
+def test_without_uncertainty_it_is_the_kernel_run():
+    ps, st = setup()
+    load = FutureLoad.constant(1200.0, 1800.0, 1.0, ambient_c=20.0)
+    cov = np.tile(np.eye(4) * 1e-12, (4, 1, 1))
+    pred = predict(ps, st.pack_state, cov, st.motor_temp_c, np.zeros(2), load, rng=np.random.default_rng(0),
+                   n_samples=5, param_rel_sigma=0.0, fault=np.array([0.5, 0.0]))
+    ref = fly(ps, st, load.dt, load.shaft_power_w, 20.0, faults=[MotorFault("fwd", 0.5)], record=False)
+    t_ref = float(np.cumsum(load.dt)[ref.fail_step[0]])
+    assert pred.p_failure == 1.0
+    assert pred.time_to_failure_s == pytest.approx([t_ref] * 3, abs=1.5)
+    assert pred.peak_motor_temp_c[1, 1] == pytest.approx(ref.max_motor_temp[0, 1], abs=1e-3)
+    assert pred.failure_causes == {kernel.FAILURE_NAMES[int(ref.fail_cause[0])]: 5}
+
+
+def test_fault_shortens_and_uncertainty_spreads():
+    ps, st = setup(0.6)
+    load = FutureLoad.constant(1000.0, 1800.0, 2.0)
+    cov = np.tile(np.diag([300.0 ** 2, 10.0, 1.0, 0.5]), (4, 1, 1))
+    args = (ps, st.pack_state, cov, st.motor_temp_c, np.ones(2), load)
+    healthy = predict(*args, rng=np.random.default_rng(1), n_samples=100)
+    faulted = predict(*args, rng=np.random.default_rng(1), n_samples=100, fault=np.array([0.0, 0.7]))
+    assert faulted.time_to_failure_s[1] < healthy.time_to_failure_s[1] - 100
+    # the aft motor is faulted, so the fwd one carries the load: it runs hotter
+    assert faulted.peak_motor_temp_c[0, 1] > faulted.peak_motor_temp_c[1, 1] + 5
+    tight = predict(*args, rng=np.random.default_rng(1), n_samples=100, param_rel_sigma=0.01)
+    spread = lambda p: p.time_to_failure_s[2] - p.time_to_failure_s[0]
+    assert spread(healthy) > spread(tight) > 0
+    d = healthy.to_dict()
+    assert set(d["packs"]) == {"LLF20", "ULA20", "LRF40", "URA40"} and d["n_samples"] == 100
+
+
+def test_feasible_load_does_not_fail():
+    ps, st = setup(0.9)
+    load = FutureLoad.constant(800.0, 600.0, 5.0)
+    pred = predict(ps, st.pack_state, np.tile(np.eye(4), (4, 1, 1)), st.motor_temp_c, np.ones(2), load,
+                   rng=np.random.default_rng(2), n_samples=50, limits=Limits())
+    assert pred.p_failure == 0.0 and np.isinf(pred.time_to_failure_s).all()
+    assert pred.soc_median.shape == (load.dt.size, 4) and np.all(pred.soc_median[-1] < pred.soc_median[0])
+
+
+def test_restate_keeps_soc_fraction_and_voltages():
+    ps, st = setup(0.7)
+    pp, _ = sample_parameters(ps, 20, np.random.default_rng(3), 0.1)
+    x = restate(ps.pack_matrix(), np.broadcast_to(st.pack_state, (20, 4, 4)), pp)
+    assert np.allclose(kernel.state_of_charge(pp, x), 0.7)
+    assert np.all(pp[..., kernel.I_CMAX] <= pp[..., kernel.I_QMAX])
+
+
+def test_future_load_validation_and_after():
+    with pytest.raises(ValueError, match="dt"):
+        FutureLoad(np.array([1.0, -1.0]), np.array([1.0, 2.0]))
+    with pytest.raises(ValueError, match="one length"):
+        FutureLoad(np.ones(3), np.ones(2))
+    load = FutureLoad(np.full(10, 2.0), np.arange(10.0))
+    rest = load.after(5.0)
+    assert rest.duration_s == pytest.approx(15.0) and rest.shaft_power_w[0] == 2.0
+    assert load.after(0.0).duration_s == 20.0 and load.after(25.0).dt.size == 0
