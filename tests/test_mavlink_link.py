@@ -1,7 +1,9 @@
 """The live link: frames seen live equal frames replayed from its tlog; signing; shared reader."""
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -10,7 +12,9 @@ from gcs_pdm.mavlink.connection import Link, LinkConfig, load_signing_key
 from gcs_pdm.mavlink.dialect import mavlink2, mavutil
 from gcs_pdm.mavlink.replay import replay_tlog
 from gcs_pdm.mavlink.tlog import scan_tlog
-from tests.mavlink.peers import free_udp_port
+
+sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
+from mavlink_peers import free_udp_port  # noqa: E402
 
 
 def fake_vehicle(port: int, **kwargs):

@@ -1,12 +1,17 @@
 """Message -> frame mapping: units, sentinels, configuration changes, vehicle filter, clock."""
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import pytest
 
 from gcs_pdm.frames import AirdataFrame, AmbientFrame, MotorFrame, PackFrame, PositionFrame, StatusFrame
 from gcs_pdm.mavlink.mapping import FrameMapper, MappingError, default_mapping
 from gcs_pdm.mavlink.wire import split_packet
-from tests.mavlink.builders import PacketFactory
+
+sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
+from mavlink_builders import PacketFactory  # noqa: E402
 
 
 def feed(mapper: FrameMapper, packet: bytes, recv_s: float):

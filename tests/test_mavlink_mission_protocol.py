@@ -6,8 +6,10 @@ downloads with what was uploaded (params and z as float32, as on the wire).
 """
 from __future__ import annotations
 
+import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -15,7 +17,9 @@ from gcs_pdm.mavlink.connection import Link, LinkConfig
 from gcs_pdm.mavlink.dialect import mavlink2, mavutil
 from gcs_pdm.mavlink.mission_client import MissionClient, MissionError, MissionRejected, MissionTimeouts
 from gcs_pdm.missions import MissionItem, as_sent, renumber, same_items, takeoff, waypoint
-from tests.mavlink.peers import LossyRelay, MavsdkVehicle, free_udp_port
+
+sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
+from mavlink_peers import LossyRelay, MavsdkVehicle, free_udp_port  # noqa: E402
 
 mavsdk = pytest.importorskip("mavsdk", reason="the mavsdk package (test extra) provides MissionRawServer")
 

@@ -14,7 +14,9 @@ import pytest
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES, mavutil
 from gcs_pdm.mavlink.replay import replay_tlog
 from gcs_pdm.mavlink.tlog import ScanStats, TlogWriter, scan_tlog, scan_tlog_bytes
-from tests.mavlink.builders import PacketFactory, tlog_record
+
+sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
+from mavlink_builders import PacketFactory, tlog_record  # noqa: E402
 
 REPO = Path(__file__).parents[1]
 TLOG_DIR = Path(os.environ.get("GCS_PDM_TLOG_DIR", REPO / ".." / "shared" / "tlogs"))
