@@ -1,0 +1,292 @@
+"""A planning scenario: where the vehicle is, what it still may visit, and what it must not exceed.
+
+This is the one format the planner reads — from a JSON file (``gcs-pdm plan``) or built by the
+service from live state (:meth:`Scenario.from_live`). Positions are local ENU metres about the home
+point (east, north); altitudes are metres above home, as in a ``*_RELATIVE_ALT`` mission. A waypoint
+given in degrees is converted with an equirectangular projection about home, which is accurate to
+well under a metre over the few kilometres a small UAV flies. The format is documented in
+docs/planning.md.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, builtin
+from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState
+
+EARTH_RADIUS_M = 6_371_000.0
+FORMAT_VERSION = 1
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be planned; the message names the offending field."""
+
+
+def enu_from_geodetic(lat_deg: float, lon_deg: float, home_lat_deg: float, home_lon_deg: float) -> tuple[float, float]:
+    """(east, north) metres of a point about home (equirectangular; fine over tens of km)."""
+    north = math.radians(lat_deg - home_lat_deg) * EARTH_RADIUS_M
+    east = math.radians(lon_deg - home_lon_deg) * EARTH_RADIUS_M * math.cos(math.radians(home_lat_deg))
+    return east, north
+
+
+def geodetic_from_enu(east_m: float, north_m: float, home_lat_deg: float, home_lon_deg: float) -> tuple[float, float]:
+    lat = home_lat_deg + math.degrees(north_m / EARTH_RADIUS_M)
+    lon = home_lon_deg + math.degrees(east_m / (EARTH_RADIUS_M * math.cos(math.radians(home_lat_deg))))
+    return lat, lon
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """A place worth visiting: position, flight parameters Γ (altitude, airspeed) and its reward."""
+
+    number: int
+    east_m: float
+    north_m: float
+    alt_m: float
+    reward: float
+    airspeed_mps: float = 25.0
+
+    def __post_init__(self) -> None:
+        for name in ("east_m", "north_m", "alt_m", "reward", "airspeed_mps"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                raise ScenarioError(f"waypoint {self.number}.{name}: expected a finite number, got {v!r}")
+        if self.reward < 0:
+            raise ScenarioError(f"waypoint {self.number}.reward: must be >= 0, got {self.reward}")
+        if self.airspeed_mps <= 0:
+            raise ScenarioError(f"waypoint {self.number}.airspeed_mps: must be > 0, got {self.airspeed_mps}")
+
+
+@dataclass(frozen=True)
+class Home:
+    """Take-off and landing site; the origin of the local frame."""
+
+    lat_deg: float = 37.0870
+    lon_deg: float = -76.3800
+    ground_alt_m: float = 0.0     # above sea level, for air density
+    ground_temp_c: float = 20.0   # ambient at the ground; aloft follows the standard lapse rate
+    landing_east_m: float = 0.0
+    landing_north_m: float = 0.0
+
+
+@dataclass(frozen=True)
+class StartState:
+    """The vehicle now: position, the time on the vehicle's clock and the powertrain state.
+
+    The powertrain is given either as full kernel pack states (only meaningful with the parameter
+    set that produced them) or as per-pack SoC and temperatures, from which a settled state is
+    built for whichever parameter set plans (the R–C pairs settled at ``pack_current_a``).
+    """
+
+    east_m: float
+    north_m: float
+    alt_m: float
+    pack_temp_c: tuple[float, ...]
+    motor_temp_c: tuple[float, ...]
+    pack_soc: tuple[float, ...] | None = None
+    pack_state: tuple[tuple[float, ...], ...] | None = None
+    pack_current_a: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    time_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if len(self.pack_temp_c) != len(PACK_NAMES):
+            raise ScenarioError(f"start.pack_temp_c: expected {len(PACK_NAMES)} values, got {len(self.pack_temp_c)}")
+        if len(self.motor_temp_c) != len(MOTOR_NAMES):
+            raise ScenarioError(f"start.motor_temp_c: expected {len(MOTOR_NAMES)} values, got {len(self.motor_temp_c)}")
+        if self.pack_soc is None and self.pack_state is None:
+            raise ScenarioError("start: give pack_soc or pack_state")
+        if self.pack_soc is not None:
+            if len(self.pack_soc) != len(PACK_NAMES):
+                raise ScenarioError(f"start.pack_soc: expected {len(PACK_NAMES)} values, got {len(self.pack_soc)}")
+            if any(not 0.0 <= s <= 1.0 for s in self.pack_soc):
+                raise ScenarioError(f"start.pack_soc: values must be within [0, 1], got {self.pack_soc}")
+        if self.pack_state is not None and np.shape(self.pack_state) != (len(PACK_NAMES), kernel.N_PACK_STATE):
+            raise ScenarioError(f"start.pack_state: expected shape (4, 4), got {np.shape(self.pack_state)}")
+
+    def powertrain(self, params: ParameterSet) -> PowertrainState:
+        if self.pack_state is not None:
+            x = np.array(self.pack_state, dtype=np.float64)
+        else:
+            x = kernel.initial_pack_state(params.pack_matrix(), np.array(self.pack_soc), np.array(self.pack_temp_c),
+                                          np.array(self.pack_current_a))
+        x[:, kernel.S_T] = self.pack_temp_c
+        return PowertrainState(pack_state=x, motor_temp_c=np.array(self.motor_temp_c, dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class PlanLimits:
+    """The kernel's failure limits plus the charge every pack must still hold on landing."""
+
+    pack_cutoff_v: float = Limits.pack_cutoff_v
+    pack_max_temp_c: float = Limits.pack_max_temp_c
+    motor_max_temp_c: float = Limits.motor_max_temp_c
+    landing_reserve_soc: float = 0.0
+
+    def kernel_limits(self) -> Limits:
+        return Limits(self.pack_cutoff_v, self.pack_max_temp_c, self.motor_max_temp_c)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    home: Home
+    start: StartState
+    waypoints: tuple[Waypoint, ...]
+    faults: tuple[MotorFault, ...] = ()
+    limits: PlanLimits = field(default_factory=PlanLimits)
+    #: a built-in set name, or an inline parameter set (``ParameterSet.to_dict`` form)
+    params: str | Mapping[str, Any] = "paper_si"
+    reward_collected: float = 0.0
+    #: waypoints of the original mission already flown (for reports only)
+    visited: tuple[int, ...] = ()
+    description: str = ""
+    return_airspeed_mps: float = 25.0
+    max_climb_rate_mps: float = 5.0
+
+    def __post_init__(self) -> None:
+        numbers = [w.number for w in self.waypoints]
+        if len(set(numbers)) != len(numbers):
+            raise ScenarioError(f"waypoints: numbers must be unique, got {numbers}")
+        if self.return_airspeed_mps <= 0 or self.max_climb_rate_mps <= 0:
+            raise ScenarioError("return_airspeed_mps and max_climb_rate_mps must be > 0")
+
+    # ---- parameters ----------------------------------------------------------------------------
+    def parameter_set(self) -> ParameterSet:
+        if isinstance(self.params, str):
+            try:
+                return builtin(self.params)
+            except KeyError as exc:
+                raise ScenarioError(f"params: {exc.args[0]}") from None
+        return ParameterSet.from_dict(self.params)
+
+    def subset(self, numbers: Sequence[int], name: str | None = None) -> "Scenario":
+        keep = set(numbers)
+        return _replace(self, name=name or self.name, waypoints=tuple(w for w in self.waypoints if w.number in keep))
+
+    def with_params(self, params: str | ParameterSet) -> "Scenario":
+        return _replace(self, params=params if isinstance(params, str) else params.to_dict())
+
+    # ---- construction from live state --------------------------------------------------------
+    @classmethod
+    def from_live(cls, params: ParameterSet, state: PowertrainState, faults: Sequence[MotorFault],
+                  waypoints: Sequence[Waypoint], position_enu: tuple[float, float, float], home: Home,
+                  limits: PlanLimits | None = None, *, name: str = "live", time_s: float = 0.0,
+                  reward_collected: float = 0.0, visited: Sequence[int] = ()) -> "Scenario":
+        """The scenario the service builds: the estimated state (full pack states) of ``params``."""
+        x = np.asarray(state.pack_state, dtype=np.float64)
+        start = StartState(east_m=position_enu[0], north_m=position_enu[1], alt_m=position_enu[2],
+                           pack_temp_c=tuple(float(t) for t in x[:, kernel.S_T]),
+                           motor_temp_c=tuple(float(t) for t in state.motor_temp_c),
+                           pack_state=tuple(tuple(float(v) for v in row) for row in x), time_s=time_s)
+        return cls(name=name, home=home, start=start, waypoints=tuple(waypoints), faults=tuple(faults),
+                   limits=limits or PlanLimits(), params=params.to_dict(), reward_collected=reward_collected,
+                   visited=tuple(visited))
+
+    # ---- JSON ----------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        s = self.start
+        start: dict[str, Any] = {"east_m": s.east_m, "north_m": s.north_m, "alt_m": s.alt_m, "time_s": s.time_s,
+                                 "pack_temp_c": list(s.pack_temp_c), "motor_temp_c": list(s.motor_temp_c),
+                                 "pack_current_a": list(s.pack_current_a)}
+        if s.pack_soc is not None:
+            start["pack_soc"] = list(s.pack_soc)
+        if s.pack_state is not None:
+            start["pack_state"] = [list(r) for r in s.pack_state]
+        h = self.home
+        return {
+            "format": "gcs-pdm-scenario", "version": FORMAT_VERSION,
+            "name": self.name, "description": self.description,
+            "home": {"lat_deg": h.lat_deg, "lon_deg": h.lon_deg, "ground_alt_m": h.ground_alt_m,
+                     "ground_temp_c": h.ground_temp_c, "landing_east_m": h.landing_east_m,
+                     "landing_north_m": h.landing_north_m},
+            "start": start,
+            "waypoints": [{"number": w.number, "east_m": w.east_m, "north_m": w.north_m, "alt_m": w.alt_m,
+                           "airspeed_mps": w.airspeed_mps, "reward": w.reward} for w in self.waypoints],
+            "faults": [{"motor": f.motor, "magnitude": f.magnitude, "kind": f.kind} for f in self.faults],
+            "limits": {"pack_cutoff_v": self.limits.pack_cutoff_v, "pack_max_temp_c": self.limits.pack_max_temp_c,
+                       "motor_max_temp_c": self.limits.motor_max_temp_c,
+                       "landing_reserve_soc": self.limits.landing_reserve_soc},
+            "params": self.params if isinstance(self.params, str) else dict(self.params),
+            "reward_collected": self.reward_collected, "visited": list(self.visited),
+            "return_airspeed_mps": self.return_airspeed_mps, "max_climb_rate_mps": self.max_climb_rate_mps,
+        }
+
+    def to_json(self, **kw: Any) -> str:
+        return json.dumps(self.to_dict(), **kw)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "Scenario":
+        if not isinstance(data, Mapping):
+            raise ScenarioError("scenario: expected a JSON object")
+        try:
+            hd = dict(data.get("home", {}))
+            home = Home(**{k: float(v) for k, v in hd.items() if k in Home.__dataclass_fields__})
+            unknown = set(hd) - set(Home.__dataclass_fields__)
+            if unknown:
+                raise ScenarioError(f"home: unknown field(s) {sorted(unknown)}")
+            sd = data["start"]
+            if "lat_deg" in sd:
+                east, north = enu_from_geodetic(float(sd["lat_deg"]), float(sd["lon_deg"]), home.lat_deg, home.lon_deg)
+            else:
+                east, north = float(sd["east_m"]), float(sd["north_m"])
+            start = StartState(
+                east_m=east, north_m=north, alt_m=float(sd["alt_m"]), time_s=float(sd.get("time_s", 0.0)),
+                pack_temp_c=tuple(float(v) for v in sd["pack_temp_c"]),
+                motor_temp_c=tuple(float(v) for v in sd["motor_temp_c"]),
+                pack_soc=tuple(float(v) for v in sd["pack_soc"]) if "pack_soc" in sd else None,
+                pack_state=tuple(tuple(float(v) for v in r) for r in sd["pack_state"]) if "pack_state" in sd else None,
+                pack_current_a=tuple(float(v) for v in sd.get("pack_current_a", (0.0,) * 4)))
+            wps = []
+            for i, wd in enumerate(data["waypoints"]):
+                number = int(wd.get("number", i + 1))
+                if "lat_deg" in wd:
+                    e, n = enu_from_geodetic(float(wd["lat_deg"]), float(wd["lon_deg"]), home.lat_deg, home.lon_deg)
+                elif "east_m" in wd and "north_m" in wd:
+                    e, n = float(wd["east_m"]), float(wd["north_m"])
+                else:
+                    raise ScenarioError(f"waypoints[{i}]: give lat_deg/lon_deg or east_m/north_m")
+                wps.append(Waypoint(number=number, east_m=e, north_m=n, alt_m=float(wd["alt_m"]),
+                                    reward=float(wd["reward"]), airspeed_mps=float(wd.get("airspeed_mps", 25.0))))
+            faults = tuple(MotorFault(motor=str(f["motor"]), magnitude=float(f["magnitude"]),
+                                      kind=str(f.get("kind", "motor_power_loss"))) for f in data.get("faults", ()))
+            ld = dict(data.get("limits", {}))
+            unknown = set(ld) - set(PlanLimits.__dataclass_fields__)
+            if unknown:
+                raise ScenarioError(f"limits: unknown field(s) {sorted(unknown)}")
+            limits = PlanLimits(**{k: float(v) for k, v in ld.items()})
+            params = data.get("params", "paper_si")
+            if not isinstance(params, (str, Mapping)):
+                raise ScenarioError("params: expected a built-in set name or an inline parameter set")
+            return cls(name=str(data.get("name", "scenario")), home=home, start=start, waypoints=tuple(wps),
+                       faults=faults, limits=limits, params=params,
+                       reward_collected=float(data.get("reward_collected", 0.0)),
+                       visited=tuple(int(v) for v in data.get("visited", ())),
+                       description=str(data.get("description", "")),
+                       return_airspeed_mps=float(data.get("return_airspeed_mps", 25.0)),
+                       max_climb_rate_mps=float(data.get("max_climb_rate_mps", 5.0)))
+        except KeyError as exc:
+            raise ScenarioError(f"scenario: missing field {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, ScenarioError):
+                raise
+            raise ScenarioError(f"scenario: {exc}") from None
+
+    @classmethod
+    def from_json(cls, text: str) -> "Scenario":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ScenarioError(f"scenario: not JSON: {exc}") from None
+        return cls.from_dict(data)
+
+
+def _replace(s: Scenario, **changes: Any) -> Scenario:
+    import dataclasses
+
+    return dataclasses.replace(s, **changes)

@@ -1,0 +1,368 @@
+"""The vehicle simulator (VS): candidate routes → reward, health cost, power cost, failure.
+
+A route is an ordered list of waypoint indices (positions in ``scenario.waypoints``) flown from the
+vehicle's current position and always closed by the return to the landing site. Each leg is
+flown at constant airspeed and climb rate, so its shaft power (``powertrain.shaft_power``) is
+constant; the leg is cut into equal samples of at most ``dt_s`` seconds and all candidate routes
+are flown through ``kernel.simulate_powertrain`` together in one call (profiles padded with
+zero-length samples, which the kernel treats as no-ops).
+
+Two ways in, one physics:
+
+* :meth:`VehicleSimulator.evaluate` flies whole routes from the start (used for verdicts,
+  local search and the brute-force cross-check);
+* :meth:`VehicleSimulator.advance` / :meth:`VehicleSimulator.home` fly one more leg from carried
+  prefix states (:class:`FlightState`), which is what makes the particle filter and the exact
+  search cheap: a prefix is simulated once, not once per extension. Because every leg is sampled
+  the same way in both, the two give identical numbers (tested).
+
+Scoring: ``reward_reached`` sums the rewards of waypoints reached before the first failure;
+``reward`` is that sum only for routes that get home inside every limit (and keep the landing
+reserve), and 0 otherwise — a route that cannot get home scores as a failure. The health cost
+``C_h`` is the worst thermal stress (peak rise over the ground ambient as a fraction of the
+allowed rise, packs and motors) plus the depth of discharge of the most drained pack; the power
+cost ``C_p`` is the electrical energy drawn, in MJ.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import ParameterSet
+from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
+                                       fault_vector, shaft_power)
+from gcs_pdm.planning.scenario import Scenario
+
+#: failure code for a route that lands with a pack below the landing reserve
+FAIL_RESERVE = 6
+FAILURE_NAMES = {**kernel.FAILURE_NAMES, FAIL_RESERVE: "landing reserve not kept"}
+
+DEFAULT_DT_S = 10.0
+#: Θ of the objective Θᵀ{R, −C_h, −C_p}: reward first, costs break ties
+DEFAULT_THETA = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class LegTable:
+    """Every leg between the scenario's places, sampled: rows/cols are waypoints 0..n-1, the start
+    (n) and the landing site (n+1)."""
+
+    dt: np.ndarray          # (M, M, L) sample lengths, zero-padded
+    power: np.ndarray       # (M, M, L) shaft power, W
+    ambient: np.ndarray     # (M, M, L) ambient temperature, °C
+    steps: np.ndarray       # (M, M) samples actually used
+    duration_s: np.ndarray  # (M, M)
+    distance_m: np.ndarray  # (M, M) horizontal
+    airspeed: np.ndarray    # (M, M) airspeed flown on the leg, m/s
+
+
+@dataclass(frozen=True)
+class FlightState:
+    """A batch of B vehicles part-way along their routes (the carried prefix state)."""
+
+    x: np.ndarray            # (B, 4, 4) pack states
+    motor_temp: np.ndarray   # (B, 2)
+    node: np.ndarray         # (B,) where each vehicle is (LegTable index)
+    reward: np.ndarray       # (B,) reward of waypoints reached so far
+    energy_j: np.ndarray     # (B,)
+    time_s: np.ndarray       # (B,)
+    peak_pack_c: np.ndarray  # (B,)
+    peak_motor_c: np.ndarray  # (B,)
+
+    def __len__(self) -> int:
+        return int(self.node.shape[0])
+
+    def take(self, idx: np.ndarray) -> "FlightState":
+        return FlightState(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
+
+    @staticmethod
+    def concat(states: Sequence["FlightState"]) -> "FlightState":
+        return FlightState(*(np.concatenate([getattr(s, f) for s in states]) for f in FlightState.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """Per-vehicle verdict of a flight that ends with the landing (arrays of length B)."""
+
+    feasible: np.ndarray      # (B,) bool: got home inside every limit with the reserve kept
+    cause: np.ndarray         # (B,) FAIL_* code (FAIL_RESERVE for a missed reserve)
+    reward: np.ndarray        # (B,) scored reward (0 when infeasible)
+    reward_reached: np.ndarray  # (B,) rewards of waypoints reached before any failure
+    health_cost: np.ndarray   # (B,)
+    power_cost: np.ndarray    # (B,) MJ
+    final_soc: np.ndarray     # (B, 4)
+    final_pack_temp: np.ndarray  # (B, 4)
+    final_motor_temp: np.ndarray  # (B, 2)
+    flight_time_s: np.ndarray  # (B,) from the start to landing (or failure)
+
+    def objective(self, theta: Sequence[float] = DEFAULT_THETA) -> np.ndarray:
+        t = np.asarray(theta, dtype=np.float64)
+        return t[0] * self.reward - t[1] * self.health_cost - t[2] * self.power_cost
+
+
+@dataclass(frozen=True)
+class RouteEvaluation(Outcome):
+    """Outcome of whole routes plus where each one failed."""
+
+    fail_leg: np.ndarray = None  # (B,) index of the leg that failed (len(route) = the way home), -1 if none
+    reached: np.ndarray = None   # (B,) number of route waypoints reached
+
+
+class VehicleSimulator:
+    """Flies candidate routes of one scenario on one parameter set (the planner's model)."""
+
+    def __init__(self, scenario: Scenario, params: ParameterSet | None = None, *, dt_s: float = DEFAULT_DT_S,
+                 optimise_airspeed: bool = False, airspeed_candidates: Sequence[float] | None = None,
+                 airframe: Airframe = EDGE_540, state: PowertrainState | None = None) -> None:
+        if dt_s <= 0:
+            raise ValueError(f"dt_s: must be > 0, got {dt_s}")
+        self.scenario = scenario
+        self.params = params if params is not None else scenario.parameter_set()
+        self.dt_s = float(dt_s)
+        self.airframe = airframe
+        self.n = len(scenario.waypoints)
+        self.start_node = self.n
+        self.landing_node = self.n + 1
+        self.rewards = np.array([w.reward for w in scenario.waypoints] + [0.0, 0.0])
+        self._pp = self.params.pack_matrix()[None]
+        self._mp = self.params.motor_vector()[None]
+        self._fault = fault_vector(list(scenario.faults))[None]
+        self._limits = scenario.limits.kernel_limits().as_tuple()
+        self._reserve = scenario.limits.landing_reserve_soc
+        self._t_ground = scenario.home.ground_temp_c
+        self.initial = state if state is not None else scenario.start.powertrain(self.params)
+        self.legs = self._leg_table(optimise_airspeed, airspeed_candidates)
+
+    # ---- legs -----------------------------------------------------------------------------------
+    def _places(self) -> np.ndarray:
+        sc = self.scenario
+        pts = [(w.east_m, w.north_m, w.alt_m) for w in sc.waypoints]
+        pts.append((sc.start.east_m, sc.start.north_m, sc.start.alt_m))
+        pts.append((sc.home.landing_east_m, sc.home.landing_north_m, 0.0))
+        return np.array(pts, dtype=np.float64)
+
+    def _leg_profile(self, a: np.ndarray, b: np.ndarray, airspeed: float) -> tuple[float, float, float, float, float]:
+        """(duration, distance, shaft power, ambient, airspeed) of the straight leg a→b."""
+        sc = self.scenario
+        dist = float(np.hypot(*(b[:2] - a[:2])))
+        dz = float(b[2] - a[2])
+        t = dist / airspeed
+        # too steep to fly straight: climb or descend in a spiral at the vehicle's climb rate
+        t = max(t, abs(dz) / sc.max_climb_rate_mps)
+        climb = dz / t if t > 0 else 0.0
+        mid_alt = sc.home.ground_alt_m + 0.5 * (a[2] + b[2])
+        rho = float(air_density(mid_alt, sc.home.ground_temp_c))
+        p = float(shaft_power(airspeed, climb, rho, self.airframe))
+        amb = float(ambient_temperature(mid_alt, sc.home.ground_temp_c, sc.home.ground_alt_m))
+        return t, dist, p, amb, airspeed
+
+    def _leg_table(self, optimise: bool, candidates: Sequence[float] | None) -> LegTable:
+        places = self._places()
+        m = len(places)
+        sc = self.scenario
+        af = self.airframe
+        if candidates is None:
+            candidates = np.arange(max(af.stall_airspeed + 4.0, 16.0), min(af.max_airspeed, 32.0) + 1e-9, 2.0)
+        info = np.zeros((m, m, 5))
+        for i in range(m):
+            for j in range(m):
+                if i == j or i == self.landing_node or j == self.start_node:
+                    continue
+                nominal = sc.return_airspeed_mps if j == self.landing_node else sc.waypoints[j].airspeed_mps
+                info[i, j] = self._leg_profile(places[i], places[j], nominal)
+        if optimise:
+            info = self._optimise_airspeeds(places, info, np.asarray(candidates, dtype=np.float64))
+        steps = np.where(info[..., 0] > 0, np.ceil(info[..., 0] / self.dt_s - 1e-9), 0).astype(np.int64)
+        L = max(int(steps.max()), 1)
+        dt = np.zeros((m, m, L))
+        power = np.zeros((m, m, L))
+        amb = np.zeros((m, m, L))
+        for i in range(m):
+            for j in range(m):
+                k = steps[i, j]
+                if k:
+                    dt[i, j, :k] = info[i, j, 0] / k
+                    power[i, j, :k] = info[i, j, 2]
+                    amb[i, j, :k] = info[i, j, 3]
+        return LegTable(dt, power, amb, steps, info[..., 0], info[..., 1], info[..., 4])
+
+    def _optimise_airspeeds(self, places: np.ndarray, info: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+        """Per leg, the candidate airspeed that draws the least electrical energy from the start
+        state under the present faults (one batched kernel call over legs × candidates)."""
+        m = len(places)
+        pairs = [(i, j) for i in range(m) for j in range(m) if info[i, j, 0] > 0]
+        rows = [(i, j, v) for (i, j) in pairs for v in candidates]
+        prof = [self._leg_profile(places[i], places[j], float(v)) for (i, j, v) in rows]
+        steps = [max(1, int(np.ceil(p[0] / self.dt_s - 1e-9))) for p in prof]
+        L = max(steps)
+        dt = np.zeros((len(rows), L))
+        pw = np.zeros((len(rows), L))
+        am = np.zeros((len(rows), L))
+        for r, (p, k) in enumerate(zip(prof, steps)):
+            dt[r, :k] = p[0] / k
+            pw[r, :k] = p[2]
+            am[r, :k] = p[3]
+        x0 = np.broadcast_to(self.initial.pack_state, (len(rows), 4, 4))
+        tm0 = np.broadcast_to(self.initial.motor_temp_c, (len(rows), 2))
+        run = kernel.simulate_powertrain(self._pp, self._mp, x0, tm0, dt, pw, am, self._fault,
+                                         fault_drag=0.1, max_dt=self.dt_s)
+        energy = run.energy_j.reshape(len(pairs), len(candidates))
+        out = info.copy()
+        for r, (i, j) in enumerate(pairs):
+            out[i, j] = prof[r * len(candidates) + int(np.argmin(energy[r]))]
+        return out
+
+    # ---- incremental flight ------------------------------------------------------------------
+    def start_state(self, batch: int = 1) -> FlightState:
+        st = self.initial
+        return FlightState(
+            x=np.repeat(st.pack_state[None], batch, axis=0),
+            motor_temp=np.repeat(np.asarray(st.motor_temp_c, dtype=np.float64)[None], batch, axis=0),
+            node=np.full(batch, self.start_node, dtype=np.int64), reward=np.zeros(batch),
+            energy_j=np.zeros(batch), time_s=np.zeros(batch),
+            peak_pack_c=np.full(batch, float(np.max(st.pack_state[:, kernel.S_T]))),
+            peak_motor_c=np.full(batch, float(np.max(st.motor_temp_c))))
+
+    def _fly(self, state: FlightState, to: np.ndarray) -> tuple[FlightState, kernel.PowertrainRun]:
+        to = np.asarray(to, dtype=np.int64)
+        frm = state.node
+        used = int(self.legs.steps[frm, to].max()) if len(to) else 0
+        used = max(used, 1)
+        dt = self.legs.dt[frm, to, :used]
+        run = kernel.simulate_powertrain(self._pp, self._mp, state.x, state.motor_temp, dt,
+                                         self.legs.power[frm, to, :used], self.legs.ambient[frm, to, :used],
+                                         self._fault, limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
+        ok = ~run.failed
+        new = FlightState(
+            x=run.final_pack_state, motor_temp=run.final_motor_temp, node=to,
+            reward=state.reward + np.where(ok, self.rewards[to], 0.0),
+            energy_j=state.energy_j + run.energy_j, time_s=state.time_s + run.elapsed_s,
+            peak_pack_c=np.maximum(state.peak_pack_c, run.max_pack_temp.max(axis=1)),
+            peak_motor_c=np.maximum(state.peak_motor_c, run.max_motor_temp.max(axis=1)))
+        return new, run
+
+    def advance(self, state: FlightState, to: np.ndarray) -> tuple[FlightState, np.ndarray]:
+        """Fly each vehicle of the batch to waypoint ``to[b]``; returns the new states and
+        whether each arrived without failing (a failed one's state is where it failed)."""
+        if len(state) == 0:
+            return state, np.zeros(0, dtype=bool)
+        new, run = self._fly(state, to)
+        return new, ~run.failed
+
+    def home(self, state: FlightState) -> Outcome:
+        """Fly each vehicle of the batch home and land; the verdict of its whole route."""
+        if len(state) == 0:
+            return self._outcome(state, np.zeros(0, dtype=np.int64), state.reward)
+        new, run = self._fly(state, np.full(len(state), self.landing_node, dtype=np.int64))
+        return self._outcome(new, run.fail_cause, state.reward)
+
+    def _outcome(self, final: FlightState, cause: np.ndarray, reward_reached: np.ndarray) -> Outcome:
+        soc = kernel.state_of_charge(self._pp, final.x)
+        cause = np.asarray(cause, dtype=np.int64).copy()
+        short = (cause == kernel.FAIL_NONE) & (soc.min(axis=1) < self._reserve) if len(cause) else cause.astype(bool)
+        cause[short] = FAIL_RESERVE
+        feasible = cause == kernel.FAIL_NONE
+        lim = self.scenario.limits
+        t0 = self._t_ground
+        stress = np.maximum((final.peak_pack_c - t0) / max(lim.pack_max_temp_c - t0, 1e-6),
+                            (final.peak_motor_c - t0) / max(lim.motor_max_temp_c - t0, 1e-6))
+        health = np.maximum(stress, 0.0) + (1.0 - soc.min(axis=1) if len(cause) else 0.0)
+        return Outcome(feasible=feasible, cause=cause, reward=np.where(feasible, reward_reached, 0.0),
+                       reward_reached=np.asarray(reward_reached, dtype=np.float64),
+                       health_cost=np.asarray(health, dtype=np.float64), power_cost=final.energy_j / 1e6,
+                       final_soc=soc, final_pack_temp=final.x[..., kernel.S_T], final_motor_temp=final.motor_temp,
+                       flight_time_s=final.time_s)
+
+    # ---- whole routes in one call ----------------------------------------------------------------
+    def evaluate(self, routes: Sequence[Sequence[int]], *, dt_s: float | None = None) -> RouteEvaluation:
+        """Fly whole routes from the start, each closed by the landing, in ONE kernel call.
+
+        ``dt_s`` overrides the sampling (e.g. 1 s to check the coarse planning step)."""
+        sim = self if dt_s is None or dt_s == self.dt_s else self.resampled(dt_s)
+        return sim._evaluate(routes)
+
+    def resampled(self, dt_s: float) -> "VehicleSimulator":
+        """The same simulator (same legs and airspeeds) sampled at another step."""
+        other = object.__new__(VehicleSimulator)
+        other.__dict__.update(self.__dict__)
+        other.dt_s = float(dt_s)
+        info = np.stack([self.legs.duration_s, self.legs.distance_m, self.legs.power[..., 0],
+                         self.legs.ambient[..., 0], self.legs.airspeed], axis=-1)
+        steps = np.where(info[..., 0] > 0, np.ceil(info[..., 0] / other.dt_s - 1e-9), 0).astype(np.int64)
+        L = max(int(steps.max()), 1)
+        m = info.shape[0]
+        dt = np.zeros((m, m, L))
+        power = np.zeros((m, m, L))
+        amb = np.zeros((m, m, L))
+        for i in range(m):
+            for j in range(m):
+                k = steps[i, j]
+                if k:
+                    dt[i, j, :k] = info[i, j, 0] / k
+                    power[i, j, :k] = info[i, j, 2]
+                    amb[i, j, :k] = info[i, j, 3]
+        other.legs = LegTable(dt, power, amb, steps, info[..., 0], info[..., 1], info[..., 4])
+        return other
+
+    def _evaluate(self, routes: Sequence[Sequence[int]]) -> RouteEvaluation:
+        legs = self.legs
+        B = len(routes)
+        if B == 0:
+            z = np.zeros(0)
+            return RouteEvaluation(z.astype(bool), z.astype(np.int64), z, z, z, z, np.zeros((0, 4)), np.zeros((0, 4)),
+                                   np.zeros((0, 2)), z, fail_leg=z.astype(np.int64), reached=z.astype(np.int64))
+        nodes = []
+        for r in routes:
+            r = [int(v) for v in r]
+            if any(v < 0 or v >= self.n for v in r) or len(set(r)) != len(r):
+                raise ValueError(f"route {r}: expected distinct waypoint indices in [0, {self.n})")
+            nodes.append([self.start_node] + r + [self.landing_node])
+        leg_steps = [legs.steps[np.array(p[:-1]), np.array(p[1:])] for p in nodes]
+        total = [int(s.sum()) for s in leg_steps]
+        n = max(max(total), 1)
+        dt = np.zeros((B, n))
+        pw = np.zeros((B, n))
+        am = np.zeros((B, n))
+        for b, p in enumerate(nodes):
+            frm, to = np.array(p[:-1]), np.array(p[1:])
+            mask = np.arange(legs.dt.shape[2])[None, :] < legs.steps[frm, to][:, None]
+            k = total[b]
+            dt[b, :k] = legs.dt[frm, to][mask]
+            pw[b, :k] = legs.power[frm, to][mask]
+            am[b, :k] = legs.ambient[frm, to][mask]
+        st = self.start_state(B)
+        run = kernel.simulate_powertrain(self._pp, self._mp, st.x, st.motor_temp, dt, pw, am, self._fault,
+                                         limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
+        fail_leg = np.full(B, -1, dtype=np.int64)
+        reached = np.empty(B, dtype=np.int64)
+        reward_reached = np.empty(B)
+        for b, p in enumerate(nodes):
+            ends = np.cumsum(leg_steps[b])  # sample index just past each leg
+            if run.fail_step[b] >= 0:
+                fail_leg[b] = int(np.searchsorted(ends, run.fail_step[b], side="right"))
+                got = fail_leg[b]
+            else:
+                got = len(p) - 2
+            got = min(got, len(p) - 2)
+            reached[b] = got
+            reward_reached[b] = self.rewards[np.array(p[1:1 + got], dtype=np.int64)].sum() if got else 0.0
+        final = FlightState(
+            x=run.final_pack_state, motor_temp=run.final_motor_temp, node=np.full(B, self.landing_node),
+            reward=reward_reached, energy_j=run.energy_j, time_s=run.elapsed_s,
+            peak_pack_c=np.maximum(st.peak_pack_c, run.max_pack_temp.max(axis=1)),
+            peak_motor_c=np.maximum(st.peak_motor_c, run.max_motor_temp.max(axis=1)))
+        out = self._outcome(final, run.fail_cause, reward_reached)
+        return RouteEvaluation(**{f: getattr(out, f) for f in Outcome.__dataclass_fields__},
+                               fail_leg=fail_leg, reached=reached)
+
+
+def original_order(scenario: Scenario) -> list[int]:
+    """The route as planned before the fault: the waypoints in their numbered order."""
+    return sorted(range(len(scenario.waypoints)), key=lambda i: scenario.waypoints[i].number)
+
+
+__all__ = ["DEFAULT_DT_S", "DEFAULT_THETA", "FAIL_RESERVE", "FAILURE_NAMES", "FlightState", "LegTable", "Outcome",
+           "RouteEvaluation", "VehicleSimulator", "original_order"]
