@@ -9,7 +9,7 @@ measured currents,
     m = (P_aft - P_fwd) / (P_aft + P_fwd)     (> 0: the fwd motor is faulted; < 0: the aft one)
 
 — independent of air density, propeller and the faulted rotor's drag, which all scale P. The
-(1 - m) on the faulted motor's no-load term makes this a fixed point, solved in three passes.
+(1 - m) on the faulted motor's no-load term makes this a fixed point (a contraction: I_0 V is a small part of the power), iterated to 1e-9.
 The measured rpm is kept as evidence: it should match the total delivered power (``shaft_rpm``).
 
 Per sample m is noisy (current noise) and one ESC spike moves it a lot, so the detector works on
@@ -52,14 +52,17 @@ def fault_magnitude(i_fwd: float, i_aft: float, v_fwd: float, v_aft: float, moto
     f = [0.0, 0.0]
     m = 0.0
     p0 = p1 = 0.0
-    for _ in range(3):
+    for _ in range(30):
         p0 = delivered_power(i_fwd, v_fwd, motor, f[0])
         p1 = delivered_power(i_aft, v_aft, motor, f[1])
         total = p0 + p1
         if total <= 0.0:
             return math.nan, p0, p1
-        m = (p1 - p0) / total
-        f = [max(m, 0.0), max(-m, 0.0)]
+        m_new = (p1 - p0) / total
+        f = [max(m_new, 0.0), max(-m_new, 0.0)]
+        if abs(m_new - m) < 1e-9:
+            return m_new, p0, p1
+        m = m_new
     return m, p0, p1
 
 

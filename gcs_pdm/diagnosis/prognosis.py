@@ -24,6 +24,7 @@ import numpy as np
 
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import DEGRADATION_RATE_DEVIATION, PREDICTED_LIMIT_VIOLATION, Fault
+from gcs_pdm.models import kernel
 from gcs_pdm.estimation.prediction import FutureLoad, Prediction, predict_from_estimator
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import Limits
@@ -111,8 +112,11 @@ class PrognosisMonitor:
 
     # ---- degradation-rate deviation -----------------------------------------------------------------
     def _snapshot(self, estimator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Observed SoC by counting the measured charge (the filter's SoC also moves when the voltage
+        corrects it, which is calibration, not a degradation rate), and filtered temperatures."""
         e = estimator.estimate()
-        return e.soc.copy(), e.pack_temp_c.copy(), e.motor_temp_c.copy()
+        soc_counted = 1.0 - estimator.charge_c / estimator.params.pack_matrix()[:, kernel.I_CMAX]
+        return soc_counted, e.pack_temp_c.copy(), e.motor_temp_c.copy()
 
     def _rate_check(self, time_s: float, pred: Prediction, estimator) -> list:
         cfg = self.config
@@ -120,16 +124,17 @@ class PrognosisMonitor:
             self._baseline = (time_s, pred, *self._snapshot(estimator))
             return []
         t0, base, soc0, tp0, tm0 = self._baseline
+        base_soc_start = base.soc_median[0]
         elapsed = time_s - t0
         if elapsed < cfg.rate_window_s or base.time_s is None or base.time_s.size == 0:
             return []
         k = int(np.clip(np.searchsorted(base.time_s, elapsed), 0, base.time_s.size - 1))
         soc, tp, tm = self._snapshot(estimator)
-        # predicted changes from the baseline's own start (its sample medians start at the estimate)
-        d_soc_pred = base.soc_median[k] - soc0
+        # predicted changes: the baseline's median trajectory from its own start
+        d_soc_pred = base.soc_median[k] - base_soc_start
         d_soc_obs = soc - soc0
-        d_tp_pred, d_tp_obs = base.pack_temp_median[k] - tp0, tp - tp0
-        d_tm_pred, d_tm_obs = base.motor_temp_median[k] - tm0, tm - tm0
+        d_tp_pred, d_tp_obs = base.pack_temp_median[k] - base.pack_temp_median[0], tp - tp0
+        d_tm_pred, d_tm_obs = base.motor_temp_median[k] - base.motor_temp_median[0], tm - tm0
         worst = (0.0, None, None)
         for names, obs, prd, rel_lim, abs_lim, what in (
                 (PACK_NAMES, d_soc_obs, d_soc_pred, cfg.soc_rel, cfg.soc_abs, "soc"),

@@ -105,6 +105,8 @@ class StateEstimator:
         self.motor_current = np.full(2, np.nan)
         self.motor_current_time = np.full(2, -math.inf)
         self.motor_rpm = np.full(2, np.nan)
+        #: charge drawn from each pack since its filter started (cleaned current × dt), C
+        self.charge_c = np.zeros(4)
         # per sensor channel: last message time it carried a value
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
@@ -173,8 +175,9 @@ class StateEstimator:
         if dt > self.config.long_gap_s:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
-        self.packs.step(np.array([b]), np.array([dt]), np.array([cur if math.isfinite(cur) else 0.0]),
-                        self.ambient_c, np.array([v]), np.array([temp]))
+        i_used = cur if math.isfinite(cur) else 0.0
+        self.packs.step(np.array([b]), np.array([dt]), np.array([i_used]), self.ambient_c, np.array([v]), np.array([temp]))
+        self.charge_c[b] += i_used * dt
         self.pack_time[b] = t
 
     def _motor(self, f: MotorFrame) -> None:

@@ -112,10 +112,11 @@ def fly_synthetic(truth: ParameterSet, rng: np.random.Generator, *, duration_s: 
                   fault_motor: str | None = None, fault_magnitude: float = 0.0, fault_time_s: float | None = None,
                   degradation: tuple[PackDegradation, ...] = (), noise: SensorNoise = SensorNoise(),
                   initial_soc: float = 1.0, ground_temp_c: float = 20.0, step_s: float = 0.5,
-                  pack_every: int = 2) -> SyntheticFlight:
+                  pack_every: int = 2, limits: Limits = Limits()) -> SyntheticFlight:
     """Fly ``truth`` (plus ``degradation``) through a random mission and return noisy frames.
 
-    Motor frames come every sample (≈2 Hz), pack frames every ``pack_every`` samples."""
+    Motor frames come every sample (≈2 Hz), pack frames every ``pack_every`` samples. The flight
+    ends at the vehicle's first failure under ``limits`` (``info['failed_at_s']``)."""
     t, power, ambient, rho = mission_profile(rng, duration_s, step_s, ground_temp_c)
     flown = degrade(truth, degradation)
     n = t.size
@@ -129,16 +130,23 @@ def fly_synthetic(truth: ParameterSet, rng: np.random.Generator, *, duration_s: 
     rec = {name: [] for name in ("pack_voltage", "pack_current", "pack_temp", "pack_soc", "motor_current",
                                  "motor_temp")}
     x0, tm0 = state.pack_state[None], np.asarray(state.motor_temp_c)[None]
+    failed_at = None
     for a, b, f in segments:
-        if b <= a:
+        if b <= a or failed_at is not None:
             continue
+        # the vehicle stops flying at its first failure (it would land or be lost): so does the log
         run = kernel.simulate_powertrain(flown.pack_matrix()[None], flown.motor_vector()[None], x0, tm0,
                                          dt[a:b], power[a:b], ambient[a:b], f[None], record=True,
-                                         limits=(-np.inf, np.inf, np.inf))
+                                         limits=limits.as_tuple(), stop_on_failure=True)
+        end = b - a if run.fail_step[0] < 0 else int(run.fail_step[0]) + 1
         for name in rec:
-            rec[name].append(getattr(run, name)[0])
+            rec[name].append(getattr(run, name)[0][:end])
         x0, tm0 = run.final_pack_state, run.final_motor_temp
+        if run.fail_step[0] >= 0:
+            failed_at = (a + int(run.fail_step[0]), kernel.FAILURE_NAMES[int(run.fail_cause[0])])
     truth_arrays = {name: np.concatenate(v) for name, v in rec.items()}
+    n = truth_arrays["pack_soc"].shape[0]
+    t, power, ambient, rho = t[:n], power[:n], ambient[:n], rho[:n]
     rpm = shaft_rpm(power, rho)
 
     frames: list = []
@@ -181,7 +189,9 @@ def fly_synthetic(truth: ParameterSet, rng: np.random.Generator, *, duration_s: 
         frames=frames, time_s=t, shaft_power_w=power, ambient_c=ambient, soc=truth_arrays["pack_soc"],
         pack_temp_c=truth_arrays["pack_temp"], motor_temp_c=truth_arrays["motor_temp"],
         fault_motor=fault_motor, fault_magnitude=fault_magnitude if fault_motor else 0.0,
-        fault_time_s=float(t[min(k_fault, n - 1)]) if fault_motor else None, degradation=tuple(degradation),
+        fault_time_s=float(t[k_fault]) if fault_motor and k_fault < n else None, degradation=tuple(degradation),
         truth=flown, info={"min_pack_voltage": float(np.min(truth_arrays["pack_voltage"])),
-                           "limits": Limits().as_tuple()},
+                           "limits": limits.as_tuple(),
+                           "failed_at_s": None if failed_at is None else float(t[min(failed_at[0], n - 1)]),
+                           "failure": None if failed_at is None else failed_at[1]},
     )
