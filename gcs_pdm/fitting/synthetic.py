@@ -196,7 +196,8 @@ def generate_flight(truth: ParameterSet, seed: int, *, name: str | None = None, 
     soc0 = np.broadcast_to(np.asarray(soc0, dtype=np.float64), (4,)).copy()
     pm = truth.pack_matrix()
     t_pack0 = ground + rng.uniform(0.0, 6.0, size=4)
-    x0 = kernel.initial_pack_state(pm, soc0, t_pack0)
+    # logging starts with the motors spun up at idle: both R-C pairs settled at the no-load current
+    x0 = kernel.initial_pack_state(pm, soc0, t_pack0, truth.motor.I_0)
     t_motor0 = np.full(2, ground + rng.uniform(0.0, 4.0))
     step = np.diff(t, prepend=t[0])
     run = kernel.simulate_powertrain(pm[None], truth.motor_vector()[None], x0[None], t_motor0[None], step, power, amb,

@@ -1,0 +1,270 @@
+"""Fitting problems: whole-flight simulation error of batches of parameter vectors.
+
+A problem maps a batch of points ``U`` (N, d) in the unit cube — each coordinate the position of one
+free parameter between the log of its lower and upper bound — to the residuals of N whole-flight
+simulations on every flight of a split (one kernel call per flight for the whole batch). Working in
+log-parameters makes R_cp1 ≈ 1e-16 Ω and C_b ≈ 2e4 F equally well conditioned.
+
+* :class:`PackProblem` — one pack through ``kernel.simulate_packs``, target ``"voltage"``
+  (terminal voltage) or ``"temperature"`` (pack temperature, with the pack's R from the circuit).
+* :class:`MotorProblem` — the motor pair through ``kernel.simulate_motor_thermal``: mean motor
+  current in, one bracket temperature out.
+
+Initial state per flight (it is not in the log; packs are not always full): the temperature starts
+at the median of the first ``init_samples`` measured temperatures; the state of charge is the one
+at which the model, for *this* parameter vector, gives the mean of the first ``init_samples``
+voltages at their mean current with both R–C pairs settled (bisection on the model's own
+voltage–SoC curve, vectorised over the batch). Because it is recomputed for every vector, the
+initial SoC is profiled out of the search instead of traded off against C_b.
+
+Pure: numpy in, numpy out. Parallelism is injected (``mapper``: a ``map``-like callable, e.g. a
+thread pool's ``map``; the kernel releases the GIL).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import PACK_CAPACITY_C, PACK_FULL_VOLTAGE
+
+Mapper = Callable[[Callable, Iterable], Iterable]
+
+
+@dataclass(frozen=True)
+class Bound:
+    """Expected physical range of one parameter (both ends > 0; searched in log space)."""
+
+    name: str
+    lo: float
+    hi: float
+    unit: str
+    why: str = ""
+
+
+#: Expected ranges for one 5S 7.8 Ah LiPo pack (docs/fitting.md explains each).
+BATTERY_ELECTRICAL_BOUNDS: tuple[Bound, ...] = (
+    Bound("R_s", 2e-3, 3e-2, "ohm", "0.4-6 mOhm per cell: ohmic resistance of a 7.8 Ah LiPo cell string"),
+    Bound("R_p", 1e3, 1e5, "ohm", "self-discharge 0.2-20 mA at 20 V"),
+    Bound("R_cp0", 5e-3, 1e-1, "ohm", "polarisation resistance on the plateau"),
+    Bound("R_cp1", 1e-18, 1e-14, "ohm", "with R_cp2: end-of-discharge resistance R_cp1 exp(R_cp2)"),
+    Bound("R_cp2", 25.0, 45.0, "1", "knee sharpness: the knee lies in the last 5-15 % of charge"),
+    Bound("C_s", 20.0, 1000.0, "F", "tau_s = R_s C_s between 0.04 s and 30 s"),
+    Bound("C_b", 5e3, 6e4, "F", "open-circuit voltage drops 0.5-5.6 V over the 28 kC capacity"),
+    Bound("C_cp", 50.0, 3000.0, "F", "tau_cp = R_cp0 C_cp between 0.25 s and 300 s"),
+)
+BATTERY_THERMAL_BOUNDS: tuple[Bound, ...] = (
+    Bound("C_t", 200.0, 5000.0, "J/K", "0.2-5 kJ/K: a 1 kg pack at c_p ~ 1 kJ/(kg K), with its mounting"),
+    Bound("h", 0.2, 10.0, "W/K", "natural to strong forced convection over ~0.06 m^2"),
+)
+MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
+    Bound("C_t", 100.0, 3000.0, "J/K", "motor (~0.6 kg copper/iron) and its aluminium bracket"),
+    Bound("h", 0.2, 10.0, "W/K", "propeller-wash cooled out-runner"),
+)
+
+
+class ParameterSpace:
+    """Unit-cube coordinates ↔ log-scaled physical values of the free parameters."""
+
+    def __init__(self, bounds: Sequence[Bound]):
+        self.bounds = tuple(bounds)
+        self.names = tuple(b.name for b in self.bounds)
+        self.log_lo = np.log([b.lo for b in self.bounds])
+        self.log_hi = np.log([b.hi for b in self.bounds])
+
+    @property
+    def dim(self) -> int:
+        return len(self.bounds)
+
+    def to_values(self, U: np.ndarray) -> np.ndarray:
+        return np.exp(self.log_lo + np.asarray(U) * (self.log_hi - self.log_lo))
+
+    def to_unit(self, values: np.ndarray) -> np.ndarray:
+        return (np.log(np.asarray(values, dtype=np.float64)) - self.log_lo) / (self.log_hi - self.log_lo)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A cleaned flight as kernel inputs, with the first-samples summary for the initial state."""
+
+    name: str
+    dt: np.ndarray
+    current: np.ndarray
+    ambient: np.ndarray
+    target: np.ndarray        # measured output, NaN where missing
+    mask: np.ndarray          # finite target
+    init_current: float
+    init_voltage: float       # NaN for motor flights
+    init_temperature: float
+
+
+def prepare(flight: Flight, target: str, init_samples: int = 10) -> Prepared:
+    """Kernel inputs of a cleaned flight (no NaN in inputs, increasing time)."""
+    if np.any(~np.isfinite(flight.current_a)) or np.any(~np.isfinite(flight.ambient_c)):
+        raise ValueError(f"{flight.name}: current/ambient must be finite (clean the flight first)")
+    if np.any(np.diff(flight.time_s) <= 0):
+        raise ValueError(f"{flight.name}: time must increase (clean the flight first)")
+    y = np.asarray(flight.voltage_v if target == "voltage" else flight.temperature_c, dtype=np.float64)
+    first_temp = flight.temperature_c[np.isfinite(flight.temperature_c)][:max(init_samples // 2, 1)]
+    if first_temp.size == 0:
+        raise ValueError(f"{flight.name}: no temperature sample for the initial state")
+    if flight.kind == BATTERY:
+        fin = np.flatnonzero(np.isfinite(flight.voltage_v))[:init_samples]
+        if fin.size == 0:
+            raise ValueError(f"{flight.name}: no voltage sample for the initial state")
+        init_v = float(np.mean(flight.voltage_v[fin]))
+        init_i = float(np.mean(flight.current_a[: fin[-1] + 1]))
+    else:
+        init_v, init_i = float("nan"), float(flight.current_a[0])
+    return Prepared(name=flight.name, dt=np.ascontiguousarray(flight.dt), current=np.ascontiguousarray(flight.current_a),
+                    ambient=np.ascontiguousarray(flight.ambient_c), target=y, mask=np.isfinite(y),
+                    init_current=init_i, init_voltage=init_v, init_temperature=float(np.median(first_temp)))
+
+
+def pack_vectors_with(base: np.ndarray, names: Sequence[str], values: np.ndarray) -> np.ndarray:
+    """(N, 12) pack vectors: ``base`` with ``names`` set to ``values`` (N, len(names)); q_max tracks C_b
+    (a full pack at 4.2 V/cell) and C_max stays the pack's 7.8 Ah unless q_max is smaller."""
+    values = np.atleast_2d(values)
+    P = np.tile(np.asarray(base, dtype=np.float64), (values.shape[0], 1))
+    for j, name in enumerate(names):
+        P[:, kernel.PACK_PARAMS.index(name)] = values[:, j]
+    if "C_b" in names:
+        P[:, kernel.I_QMAX] = P[:, kernel.I_CB] * PACK_FULL_VOLTAGE
+        P[:, kernel.I_CMAX] = np.minimum(PACK_CAPACITY_C, P[:, kernel.I_QMAX])
+    return P
+
+
+def initial_soc(P: np.ndarray, voltage: float, current: float, iterations: int = 40) -> np.ndarray:
+    """SoC (N,) at which each pack vector, settled at ``current``, shows terminal ``voltage``.
+
+    V = V_b(SoC) - i_b (R_s + R_cp(SoC)), i_b = i + V / R_p; monotone in SoC, so bisection on
+    [-0.3, 1.3] (outside [0, 1] the model is extrapolated, and the fit sees the misfit).
+    """
+    P = np.atleast_2d(P)
+    i_b = current + voltage / P[:, kernel.I_RP]
+    lo = np.full(P.shape[0], -0.3)
+    hi = np.full(P.shape[0], 1.3)
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        v_b = (P[:, kernel.I_QMAX] - (1.0 - mid) * P[:, kernel.I_CMAX]) / P[:, kernel.I_CB]
+        with np.errstate(over="ignore"):
+            r = P[:, kernel.I_RS] + P[:, kernel.I_RCP0] + P[:, kernel.I_RCP1] * np.exp(P[:, kernel.I_RCP2] * (1.0 - mid))
+        above = v_b - i_b * r > voltage
+        hi = np.where(above, mid, hi)
+        lo = np.where(above, lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def _chunks(n: int, parts: int) -> list[slice]:
+    parts = max(1, min(parts, n))
+    edges = np.linspace(0, n, parts + 1).astype(int)
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+class _Problem:
+    """Shared batching over flights and vectors."""
+
+    space: ParameterSpace
+    flights: list[Prepared]
+
+    def __init__(self, space: ParameterSpace, flights: list[Prepared], mapper: Mapper | None = None, workers: int = 1):
+        if not flights:
+            raise ValueError("no flights")
+        self.space = space
+        self.flights = flights
+        self.mapper = mapper or map
+        self.workers = workers
+        self.n_residuals = int(sum(f.mask.sum() for f in flights))
+        if self.n_residuals == 0:
+            raise ValueError("no measured samples in the flights")
+
+    # subclasses: simulate one flight for a batch of physical value rows -> (N, n) predictions
+    def simulate(self, values: np.ndarray, f: Prepared) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _residuals_serial(self, values: np.ndarray) -> np.ndarray:
+        out = np.empty((values.shape[0], self.n_residuals))
+        k = 0
+        for f in self.flights:
+            pred = self.simulate(values, f)
+            m = int(f.mask.sum())
+            out[:, k:k + m] = pred[:, f.mask] - f.target[f.mask]
+            k += m
+        # a diverged simulation (NaN/inf) is a very bad fit, not a crash
+        np.nan_to_num(out, copy=False, nan=1e6, posinf=1e6, neginf=-1e6)
+        return out
+
+    def residuals(self, U: np.ndarray, parallel: bool = True) -> np.ndarray:
+        """(N, m) residuals (prediction - measurement, over every measured sample of every flight)."""
+        values = self.space.to_values(np.atleast_2d(U))
+        if not parallel or self.workers <= 1 or values.shape[0] < 2:
+            return self._residuals_serial(values)
+        parts = list(self.mapper(self._residuals_serial, [values[s] for s in _chunks(values.shape[0], self.workers)]))
+        return np.concatenate(parts, axis=0)
+
+    def mse(self, U: np.ndarray, parallel: bool = True) -> np.ndarray:
+        r = self.residuals(U, parallel)
+        return np.einsum("ij,ij->i", r, r) / r.shape[1]
+
+    def predictions(self, u: np.ndarray) -> list[np.ndarray]:
+        """Per-flight prediction (n,) for one point."""
+        values = self.space.to_values(np.atleast_2d(u))
+        return [self.simulate(values, f)[0] for f in self.flights]
+
+
+class PackProblem(_Problem):
+    """One pack's voltage or temperature; the free parameters replace those of ``base`` (12,)."""
+
+    def __init__(self, flights: Sequence[Flight], base: np.ndarray, bounds: Sequence[Bound], target: str = "voltage",
+                 *, init_samples: int = 10, mapper: Mapper | None = None, workers: int = 1):
+        if target not in ("voltage", "temperature"):
+            raise ValueError(f"target must be 'voltage' or 'temperature', got {target!r}")
+        bad = [f.name for f in flights if f.kind != BATTERY]
+        if bad:
+            raise ValueError(f"not battery flights: {', '.join(bad)}")
+        self.base = np.asarray(base, dtype=np.float64)
+        self.target = target
+        super().__init__(ParameterSpace(bounds), [prepare(f, target, init_samples) for f in flights], mapper, workers)
+
+    def pack_vectors(self, values: np.ndarray) -> np.ndarray:
+        return pack_vectors_with(self.base, self.space.names, values)
+
+    def initial_states(self, P: np.ndarray, f: Prepared) -> np.ndarray:
+        soc = initial_soc(P, f.init_voltage, f.init_current)
+        return kernel.initial_pack_state(P, soc, f.init_temperature, f.init_current)
+
+    def simulate(self, values: np.ndarray, f: Prepared) -> np.ndarray:
+        P = self.pack_vectors(values)
+        traj = kernel.simulate_packs(P, self.initial_states(P, f), f.dt, f.current, f.ambient)
+        return traj.voltage if self.target == "voltage" else traj.temperature
+
+    def initial_soc(self, u: np.ndarray) -> list[float]:
+        P = self.pack_vectors(self.space.to_values(np.atleast_2d(u)))
+        return [float(initial_soc(P, f.init_voltage, f.init_current)[0]) for f in self.flights]
+
+
+class MotorProblem(_Problem):
+    """The motor pair's bracket temperature from the mean motor current; free parameters replace
+    those of ``base`` (5,) in MOTOR_PARAMS order."""
+
+    def __init__(self, flights: Sequence[Flight], base: np.ndarray, bounds: Sequence[Bound], *, init_samples: int = 10,
+                 mapper: Mapper | None = None, workers: int = 1):
+        bad = [f.name for f in flights if f.kind != MOTOR]
+        if bad:
+            raise ValueError(f"not motor flights: {', '.join(bad)}")
+        self.base = np.asarray(base, dtype=np.float64)
+        super().__init__(ParameterSpace(bounds), [prepare(f, "temperature", init_samples) for f in flights], mapper, workers)
+
+    def motor_vectors(self, values: np.ndarray) -> np.ndarray:
+        values = np.atleast_2d(values)
+        M = np.tile(self.base, (values.shape[0], 1))
+        for j, name in enumerate(self.space.names):
+            M[:, kernel.MOTOR_PARAMS.index(name)] = values[:, j]
+        return M
+
+    def simulate(self, values: np.ndarray, f: Prepared) -> np.ndarray:
+        M = self.motor_vectors(values)
+        return kernel.simulate_motor_thermal(M, np.full(M.shape[0], f.init_temperature), f.dt, f.current, f.ambient)

@@ -1,0 +1,397 @@
+"""The paper's learning procedure (§IV) for one component, as a function a job runner can call.
+
+``fit_battery(train, val, test, settings)`` for one pack and ``fit_motor(...)`` for the motor pair:
+
+1. clean every flight (:mod:`gcs_pdm.fitting.cleaning`); rejected flights are reported, not dropped;
+2. per stage — battery: *electrical* (R_s, R_p, R_cp0, R_cp1, R_cp2, C_s, C_b, C_cp on voltage),
+   then *thermal* (C_t, h on pack temperature, with the learned circuit's R); motor: *thermal*
+   (C_t, h on the bracket temperature) — simulated annealing from ``starts`` random points inside
+   the expected ranges, Levenberg–Marquardt from each annealing result, and the LM solution with the
+   lowest validation error kept;
+3. errors (RMSE, mean absolute, max; temperatures in °C and °F) per flight and overall for train,
+   validation and test, for the learned set and for a reference set.
+
+This module orchestrates: it owns a thread pool for the duration of a fit (the kernel releases the
+GIL, so the annealing population and the LM restarts run on all cores) and measures the time taken.
+The physics, the search and the cleaning are the pure modules it calls.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from gcs_pdm.fitting import problem as pb
+from gcs_pdm.fitting.cleaning import CleaningReport, CleaningSettings, RejectedFlight, clean_flights
+from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
+from gcs_pdm.fitting.search import FitCancelled, SearchSettings, anneal, levenberg_marquardt
+from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import (PACK_NAMES, MotorParams, PackParams, ParameterSet, builtin, motor_from_vector,
+                                   pack_from_vector)
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[float, str], None]
+ShouldStop = Callable[[], bool]
+SPLITS = ("train", "validation", "test")
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    search: SearchSettings = SearchSettings()
+    cleaning: CleaningSettings = CleaningSettings()
+    #: set the fixed (not learned) values come from, and the initial point of nothing: starts are random
+    base: str = "previous_si"
+    #: set whose errors are reported beside the learned ones
+    reference: str = "previous_si"
+    init_samples: int = 10
+    workers: int = 2
+
+    def to_dict(self) -> dict:
+        return {"search": self.search.to_dict(), "base": self.base, "reference": self.reference,
+                "init_samples": self.init_samples, "workers": self.workers,
+                "cleaning": {k: v for k, v in self.cleaning.__dict__.items()}}
+
+
+@dataclass
+class Candidate:
+    start: int
+    sa_rmse: float
+    lm_rmse: float
+    val_rmse: float
+    lm_nfev: int
+    values: dict[str, float]
+
+    def to_dict(self) -> dict:
+        return {"start": self.start, "sa_train_rmse": self.sa_rmse, "lm_train_rmse": self.lm_rmse,
+                "validation_rmse": self.val_rmse, "lm_evaluations": self.lm_nfev, "parameters": self.values}
+
+
+@dataclass
+class StageResult:
+    name: str
+    target: str
+    free: tuple[str, ...]
+    bounds: dict[str, tuple[float, float]]
+    candidates: list[Candidate]
+    chosen: int
+    evaluations: int
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {"stage": self.name, "target": self.target, "free": list(self.free),
+                "bounds": {k: list(v) for k, v in self.bounds.items()}, "chosen": self.chosen,
+                "evaluations": self.evaluations, "seconds": self.seconds,
+                "candidates": [c.to_dict() for c in self.candidates]}
+
+
+@dataclass
+class FlightPrediction:
+    """Measured and predicted traces of one flight (for predictions/<flight>.csv and the plots)."""
+
+    name: str
+    split: str
+    time_s: np.ndarray
+    measured_voltage: np.ndarray | None
+    predicted_voltage: np.ndarray | None
+    measured_temperature: np.ndarray
+    predicted_temperature: np.ndarray
+    reference_voltage: np.ndarray | None
+    reference_temperature: np.ndarray
+    initial_soc: float | None
+
+
+@dataclass
+class FitResult:
+    component: str                       # "battery" | "motor"
+    pack: str | None
+    parameters: dict[str, float]         # every kernel parameter of the component, learned or fixed
+    learned: tuple[str, ...]
+    reference: str
+    errors: dict[str, Any]               # {"learned"|"reference": {split: {"overall": …, "flights": […]}}}
+    stages: list[StageResult]
+    cleaning: list[CleaningReport]
+    rejected: list[RejectedFlight]
+    flights: dict[str, list[str]]        # split -> flight (segment) names used
+    settings: FitSettings
+    seconds: float
+    predictions: list[FlightPrediction] = field(default_factory=list, repr=False)
+
+    @property
+    def pack_params(self) -> PackParams | None:
+        if self.component != BATTERY:
+            return None
+        return pack_from_vector(np.array([self.parameters[k] for k in kernel.PACK_PARAMS]))
+
+    @property
+    def motor_params(self) -> MotorParams | None:
+        if self.component != MOTOR:
+            return None
+        return motor_from_vector(np.array([self.parameters[k] for k in kernel.MOTOR_PARAMS]))
+
+    def to_dict(self) -> dict:
+        """The ``result.json`` document (docs/fitting.md describes every field)."""
+        return {
+            "format": "gcs-pdm-fit/1",
+            "component": self.component,
+            "pack": self.pack,
+            "parameters": dict(self.parameters),
+            "learned": list(self.learned),
+            "reference": self.reference,
+            "errors": self.errors,
+            "stages": [s.to_dict() for s in self.stages],
+            "flights": self.flights,
+            "initial_soc": {p.name: p.initial_soc for p in self.predictions if p.initial_soc is not None},
+            "cleaning": [r.to_dict() for r in self.cleaning],
+            "rejected": [r.to_dict() for r in self.rejected],
+            "provenance": {"settings": self.settings.to_dict(), "seed": self.settings.search.seed,
+                           "seconds": self.seconds, "method": "SA x starts -> LM each -> lowest validation error"},
+        }
+
+
+# ---- helpers ---------------------------------------------------------------------------------------
+
+def _clean_splits(splits: Mapping[str, Sequence[Flight]], kind: str, settings: CleaningSettings,
+                  ) -> tuple[dict[str, list[Flight]], list[CleaningReport], list[RejectedFlight]]:
+    out: dict[str, list[Flight]] = {}
+    reports: list[CleaningReport] = []
+    rejected: list[RejectedFlight] = []
+    for split, flights in splits.items():
+        wrong = [f.name for f in flights if f.kind != kind]
+        if wrong:
+            raise FlightDataError(f"{split}: expected {kind} flights, got other kinds: {', '.join(wrong)}")
+        usable, reps, rej = clean_flights(list(flights), settings)
+        reports += reps
+        rejected += rej
+        if not usable:
+            reasons = "; ".join(f"{r.name}: {r.reason}" for r in rej) or "no flights given"
+            raise FlightDataError(f"{split}: no usable flight ({reasons})")
+        out[split] = usable
+    return out, reports, rejected
+
+
+class _Stepper:
+    """Maps stage-local progress onto the whole fit's [0, 1] and checks for cancellation."""
+
+    def __init__(self, progress: Progress | None, should_stop: ShouldStop | None):
+        self.progress = progress
+        self.should_stop = should_stop
+
+    def report(self, fraction: float, stage: str) -> None:
+        if self.progress is not None:
+            self.progress(min(max(fraction, 0.0), 1.0), stage)
+
+    def check(self) -> None:
+        if self.should_stop is not None and self.should_stop():
+            raise FitCancelled("fit cancelled")
+
+
+def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], train: Sequence[Flight],
+               val: Sequence[Flight], search: SearchSettings, pool: ThreadPoolExecutor, workers: int,
+               stepper: _Stepper, span: tuple[float, float], seed_offset: int) -> tuple[np.ndarray, StageResult, pb._Problem]:
+    t0 = time.perf_counter()
+    prob = make(train, workers)
+    vprob = make(val, 1)
+    a, b = span
+    sa_end = a + 0.65 * (b - a)
+    rng = np.random.default_rng([search.seed, seed_offset])
+    label = f"{name}: annealing"
+    ann = anneal(prob.mse, prob.space.dim, search, rng,
+                 progress=lambda f: stepper.report(a + f * (sa_end - a), label), should_stop=stepper.should_stop)
+    stepper.check()
+    stepper.report(sa_end, f"{name}: Levenberg-Marquardt")
+
+    def lm(u0: np.ndarray):
+        stepper.check()
+        return levenberg_marquardt(lambda U: prob.residuals(U, parallel=False), u0, search)
+
+    done = 0
+    lm_results = []
+    for r in pool.map(lm, list(ann.best_u)):
+        lm_results.append(r)
+        done += 1
+        stepper.report(sa_end + (b - sa_end) * done / len(ann.best_u), f"{name}: Levenberg-Marquardt {done}/{len(ann.best_u)}")
+    stepper.check()
+    U = np.array([r.u for r in lm_results])
+    val_mse = vprob.mse(U, parallel=False)
+    values = prob.space.to_values(U)
+    candidates = [Candidate(start=i, sa_rmse=float(np.sqrt(ann.best_mse[i])), lm_rmse=float(np.sqrt(r.mse)),
+                            val_rmse=float(np.sqrt(val_mse[i])), lm_nfev=r.nfev + r.njev * prob.space.dim,
+                            values={n: float(v) for n, v in zip(prob.space.names, values[i])})
+                  for i, r in enumerate(lm_results)]
+    chosen = int(np.argmin(val_mse))
+    evaluations = ann.evaluations + sum(c.lm_nfev for c in candidates) + len(candidates)
+    stage = StageResult(name=name, target=getattr(prob, "target", "temperature"), free=prob.space.names,
+                        bounds={bd.name: (bd.lo, bd.hi) for bd in prob.space.bounds}, candidates=candidates,
+                        chosen=chosen, evaluations=int(evaluations), seconds=time.perf_counter() - t0)
+    log.info("%s: chose start %d, train RMSE %.4g, validation RMSE %.4g (%d evaluations, %.1f s)", name, chosen,
+             candidates[chosen].lm_rmse, candidates[chosen].val_rmse, evaluations, stage.seconds)
+    return U[chosen], stage, prob
+
+
+def _split_errors(pairs: dict[str, list[tuple[str, dict[str, tuple[np.ndarray, np.ndarray]]]]]) -> dict:
+    """pairs[split] = [(flight, {"voltage": (pred, meas), "temperature": (pred, meas)})]"""
+    out = {}
+    for split, flights in pairs.items():
+        per = []
+        quantities = sorted({q for _, d in flights for q in d})
+        for name, d in flights:
+            entry: dict[str, Any] = {"flight": name}
+            for q, (p, m) in d.items():
+                st = error_stats(p, m)
+                entry[q] = with_fahrenheit(st) if q == "temperature" else st
+            per.append(entry)
+        overall = {}
+        for q in quantities:
+            st = pooled([d[q] for _, d in flights if q in d])
+            overall[q] = with_fahrenheit(st) | {"mean_flight_rmse_f": st["mean_flight_rmse"] * 1.8,
+                                                "mean_flight_mae_f": st["mean_flight_mae"] * 1.8} \
+                if q == "temperature" else st
+        out[split] = {"overall": overall, "flights": per}
+    return out
+
+
+# ---- battery -----------------------------------------------------------------------------------------
+
+def _pack_traces(vec: np.ndarray, flights: Sequence[Flight], init_samples: int) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(voltage, temperature, initial SoC) per flight for one full pack vector."""
+    out = []
+    for f in flights:
+        pv = pb.prepare(f, "voltage", init_samples)
+        P = vec[None]
+        soc = pb.initial_soc(P, pv.init_voltage, pv.init_current)
+        x0 = kernel.initial_pack_state(P, soc, pv.init_temperature, pv.init_current)
+        tr = kernel.simulate_packs(P, x0, pv.dt, pv.current, pv.ambient)
+        out.append((tr.voltage[0], tr.temperature[0], float(soc[0])))
+    return out
+
+
+def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
+                settings: FitSettings = FitSettings(), *, pack: str | None = None,
+                progress: Progress | None = None, should_stop: ShouldStop | None = None) -> FitResult:
+    """Learn one pack's circuit and thermal parameters from its flights (the paper's procedure)."""
+    t_start = time.perf_counter()
+    stepper = _Stepper(progress, should_stop)
+    stepper.report(0.0, "cleaning")
+    splits, reports, rejected = _clean_splits({"train": train, "validation": val, "test": test}, BATTERY, settings.cleaning)
+    base_set = builtin(settings.base)
+    ref_set = builtin(settings.reference)
+    pack_name = pack if pack in PACK_NAMES else PACK_NAMES[0]
+    base_vec = base_set.pack_matrix()[PACK_NAMES.index(pack_name)]
+    ref_vec = ref_set.pack_matrix()[PACK_NAMES.index(pack_name)]
+    s = settings
+    stepper.report(0.02, "electrical: annealing")
+    with ThreadPoolExecutor(max_workers=max(1, s.workers)) as pool:
+        def make_el(flights, workers):
+            return pb.PackProblem(flights, base_vec, pb.BATTERY_ELECTRICAL_BOUNDS, "voltage", init_samples=s.init_samples,
+                                  mapper=pool.map, workers=workers)
+        u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"], s.search, pool,
+                                          s.workers, stepper, (0.02, 0.55), 1)
+        el_vec = prob_el.pack_vectors(prob_el.space.to_values(u_el))[0]
+
+        def make_th(flights, workers):
+            return pb.PackProblem(flights, el_vec, pb.BATTERY_THERMAL_BOUNDS, "temperature", init_samples=s.init_samples,
+                                  mapper=pool.map, workers=workers)
+        u_th, st_th, prob_th = _run_stage("thermal", make_th, splits["train"], splits["validation"], s.search, pool,
+                                          s.workers, stepper, (0.55, 0.95), 2)
+        final = prob_th.pack_vectors(prob_th.space.to_values(u_th))[0]
+    stepper.report(0.96, "errors")
+    pairs_l: dict[str, list] = {}
+    pairs_r: dict[str, list] = {}
+    predictions: list[FlightPrediction] = []
+    for split in SPLITS:
+        flights = splits[split]
+        learned = _pack_traces(final, flights, s.init_samples)
+        refs = _pack_traces(ref_vec, flights, s.init_samples)
+        pairs_l[split] = [(f.name, {"voltage": (lv, f.voltage_v), "temperature": (lt, f.temperature_c)})
+                          for f, (lv, lt, _) in zip(flights, learned)]
+        pairs_r[split] = [(f.name, {"voltage": (rv, f.voltage_v), "temperature": (rt, f.temperature_c)})
+                          for f, (rv, rt, _) in zip(flights, refs)]
+        for f, (lv, lt, soc), (rv, rt, _) in zip(flights, learned, refs):
+            predictions.append(FlightPrediction(f.name, split, f.time_s, f.voltage_v, lv, f.temperature_c, lt, rv, rt, soc))
+    result = FitResult(
+        component=BATTERY, pack=pack, parameters={k: float(v) for k, v in zip(kernel.PACK_PARAMS, final)},
+        learned=st_el.free + st_th.free, reference=settings.reference,
+        errors={"learned": _split_errors(pairs_l), "reference": _split_errors(pairs_r)},
+        stages=[st_el, st_th], cleaning=reports, rejected=rejected,
+        flights={k: [f.name for f in v] for k, v in splits.items()}, settings=settings,
+        seconds=time.perf_counter() - t_start, predictions=predictions)
+    stepper.report(1.0, "done")
+    return result
+
+
+# ---- motor -----------------------------------------------------------------------------------------
+
+def fit_motor(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
+              settings: FitSettings = FitSettings(), *, progress: Progress | None = None,
+              should_stop: ShouldStop | None = None) -> FitResult:
+    """Learn the motors' thermal parameters (C_t, h) from mean motor current and the bracket sensor."""
+    t_start = time.perf_counter()
+    stepper = _Stepper(progress, should_stop)
+    stepper.report(0.0, "cleaning")
+    splits, reports, rejected = _clean_splits({"train": train, "validation": val, "test": test}, MOTOR, settings.cleaning)
+    s = settings
+    base_vec = builtin(s.base).motor_vector()
+    ref_vec = builtin(s.reference).motor_vector()
+    with ThreadPoolExecutor(max_workers=max(1, s.workers)) as pool:
+        def make(flights, workers):
+            return pb.MotorProblem(flights, base_vec, pb.MOTOR_THERMAL_BOUNDS, init_samples=s.init_samples,
+                                   mapper=pool.map, workers=workers)
+        u, st, prob = _run_stage("thermal", make, splits["train"], splits["validation"], s.search, pool, s.workers,
+                                 stepper, (0.02, 0.95), 3)
+        final = prob.motor_vectors(prob.space.to_values(u))[0]
+    pairs_l: dict[str, list] = {}
+    pairs_r: dict[str, list] = {}
+    predictions: list[FlightPrediction] = []
+    for split in SPLITS:
+        for f in splits[split]:
+            pr = pb.prepare(f, "temperature", s.init_samples)
+            lt, rt = (kernel.simulate_motor_thermal(v[None], pr.init_temperature, pr.dt, pr.current, pr.ambient)[0]
+                      for v in (final, ref_vec))
+            pairs_l.setdefault(split, []).append((f.name, {"temperature": (lt, f.temperature_c)}))
+            pairs_r.setdefault(split, []).append((f.name, {"temperature": (rt, f.temperature_c)}))
+            predictions.append(FlightPrediction(f.name, split, f.time_s, None, None, f.temperature_c, lt, None, rt, None))
+    result = FitResult(
+        component=MOTOR, pack=None, parameters={k: float(v) for k, v in zip(kernel.MOTOR_PARAMS, final)},
+        learned=st.free, reference=s.reference,
+        errors={"learned": _split_errors(pairs_l), "reference": _split_errors(pairs_r)},
+        stages=[st], cleaning=reports, rejected=rejected, flights={k: [f.name for f in v] for k, v in splits.items()},
+        settings=s, seconds=time.perf_counter() - t_start, predictions=predictions)
+    stepper.report(1.0, "done")
+    return result
+
+
+# ---- merging ---------------------------------------------------------------------------------------
+
+def merge_results(base: ParameterSet, batteries: Mapping[str, FitResult], motor: FitResult | None = None, *,
+                  name: str = "learned", description: str = "", provenance: Mapping[str, Any] | None = None,
+                  ) -> ParameterSet:
+    """A ParameterSet: ``base`` with each fitted pack (keyed by pack name) and the motor replaced."""
+    ps = base
+    prov: dict[str, Any] = {"base": base.name, "packs": {}, **(provenance or {})}
+    for pack, res in batteries.items():
+        if pack not in PACK_NAMES:
+            raise ValueError(f"unknown pack {pack!r}; expected one of {PACK_NAMES}")
+        if res.component != BATTERY:
+            raise ValueError(f"{pack}: not a battery fit")
+        ps = ps.with_pack(pack, res.pack_params)
+        prov["packs"][pack] = _fit_provenance(res)
+    if motor is not None:
+        if motor.component != MOTOR:
+            raise ValueError("motor: not a motor fit")
+        ps = ps.replace(motor=motor.motor_params)
+        prov["motor"] = _fit_provenance(motor)
+    return ParameterSet(name=name, packs=ps.packs, motor=ps.motor,
+                        description=description or f"learned from flight logs over {base.name}", provenance=prov)
+
+
+def _fit_provenance(res: FitResult) -> dict:
+    return {"learned": list(res.learned), "flights": res.flights, "seed": res.settings.search.seed,
+            "seconds": round(res.seconds, 2), "settings": res.settings.search.to_dict(),
+            "test_errors": res.errors["learned"]["test"]["overall"],
+            "reference_test_errors": res.errors["reference"]["test"]["overall"], "reference": res.reference}
