@@ -1,0 +1,111 @@
+"""Service configuration: documented defaults < a TOML/JSON file < ``GCS_PDM_*`` environment variables.
+
+Pydantic validates every value, so a bad setting is rejected at start-up with the field named
+(``ConfigError: policy: Input should be 'auto' or 'advise'``). The file may be TOML (stdlib
+``tomllib``) or JSON; keys are the field names below. An environment variable is the field name
+upper-cased with the ``GCS_PDM_`` prefix (``GCS_PDM_POLICY=advise``, ``GCS_PDM_HTTP_PORT=8080``).
+See docs/service.md for the table of settings.
+"""
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import tomllib
+from pathlib import Path
+from typing import Any, Literal, Mapping
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+ENV_PREFIX = "GCS_PDM_"
+
+
+class ConfigError(ValueError):
+    """A configuration value that cannot be used; the message names the field."""
+
+
+class ServiceConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+    # --- links -------------------------------------------------------------------------------
+    mavlink_url: str = Field("udpin:0.0.0.0:14550", description="MAVLink connection (udpin:, udpout:, tcp:, serial)")
+    source_system: int = Field(255, ge=1, le=255, description="our MAVLink system id")
+    source_component: int = Field(195, ge=1, le=255, description="our MAVLink component id (MAV_COMP_ID_PATHPLANNER)")
+    signing_key_file: str | None = Field(None, description="MAVLink 2 signing key file")
+    http_host: str = Field("127.0.0.1", description="HTTP bind address; localhost unless told")
+    http_port: int = Field(8000, ge=0, le=65535)
+
+    # --- storage -----------------------------------------------------------------------------
+    data_dir: str = Field("./gcs-pdm-data", description="directory for the database, tlogs, uploads and plots")
+    db_path: str | None = Field(None, description="SQLite file (default: <data_dir>/gcs_pdm.sqlite3)")
+    record_tlog: bool = Field(True, description="record every live session to <data_dir>/tlogs/")
+
+    # --- auth --------------------------------------------------------------------------------
+    api_token: str | None = Field(None, description="bearer token for mutating endpoints; generated and logged if unset")
+
+    # --- decision loop -----------------------------------------------------------------------
+    policy: Literal["auto", "advise"] = Field("auto", description="auto: upload and tell the operator; advise: propose, operator approves")
+    parameter_set: str = Field("paper_si", description="parameter set active at start-up (name in the store)")
+    planner: Literal["auto", "stronger", "pf", "exact"] = Field("auto", description="auto: the strongest planner available (else exact search)")
+    particles: int = Field(30, ge=1, le=10_000)
+    planner_deadline_s: float = Field(20.0, gt=0, description="wall-clock budget of one planning run")
+    planner_seed: int = 0
+    replan_cooldown_s: float = Field(30.0, ge=0, description="message-time seconds between two replans for deviations")
+    deviation_soc: float = Field(0.08, gt=0, description="SoC deviation (observed vs predicted at plan time) that triggers a replan")
+    confirm_download: bool = Field(True, description="confirm each upload by downloading the mission back")
+    fit_workers: int = Field(1, ge=1, le=8, description="worker threads for fitting jobs")
+
+    @property
+    def data_path(self) -> Path:
+        return Path(self.data_dir)
+
+    @property
+    def database(self) -> Path:
+        return Path(self.db_path) if self.db_path else self.data_path / "gcs_pdm.sqlite3"
+
+
+def _read_file(path: str | Path) -> dict[str, Any]:
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"config file {p}: {exc.strerror or exc}") from None
+    try:
+        data = json.loads(text) if p.suffix.lower() == ".json" else tomllib.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"config file {p}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {p}: expected a table of settings")
+    # A [service] table is accepted so the file can be shared with other tools.
+    return dict(data.get("service", data))
+
+
+def _from_env(env: Mapping[str, str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name in ServiceConfig.model_fields:
+        key = ENV_PREFIX + name.upper()
+        if key in env:
+            out[name] = env[key]
+    return out
+
+
+def load_config(path: str | Path | None = None, env: Mapping[str, str] | None = None,
+                **overrides: Any) -> ServiceConfig:
+    """Defaults, then the file (``path`` or ``$GCS_PDM_CONFIG``), then the environment, then overrides."""
+    env = os.environ if env is None else env
+    values: dict[str, Any] = {}
+    path = path or env.get(ENV_PREFIX + "CONFIG")
+    if path:
+        values.update(_read_file(path))
+    values.update(_from_env(env))
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        return ServiceConfig(**values)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(x) for x in err["loc"]) or "config"
+        raise ConfigError(f"{where}: {err['msg']}") from None
+
+
+def new_token() -> str:
+    return secrets.token_urlsafe(24)

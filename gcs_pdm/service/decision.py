@@ -1,0 +1,131 @@
+"""The decision maker's rules, pure: which waypoints are left, which candidate route to fly, and
+the mission items that fly it. No I/O, no clocks: the live loop calls these with plain values.
+
+Rules (docs/service.md):
+
+* candidates are the planner's route, the rest of the current mission in its order ("keep") and
+  the direct return to the landing site ("home");
+* a candidate the vehicle simulator predicts to fail is never chosen while a feasible one exists;
+* among feasible ones the highest objective wins; a tie keeps the current mission (an upload is
+  not free: it is a moment of risk on a lossy link);
+* if none is feasible, the one that reaches the most reward before its predicted failure is
+  proposed, flagged ``feasible: false``, and never uploaded in ``auto`` mode without an operator.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+from gcs_pdm import missions as M
+
+EARTH_RADIUS_M = 6_371_008.8
+#: a mission waypoint within this distance of a catalogue waypoint is that waypoint
+MATCH_RADIUS_M = 30.0
+
+
+@dataclass(frozen=True)
+class CatalogueWaypoint:
+    """A place the operator wants visited, with its reward (the planner's ``Waypoint``, in degrees)."""
+
+    number: int
+    lat_deg: float
+    lon_deg: float
+    alt_m: float
+    reward: float
+    airspeed_mps: float = 25.0
+
+
+@dataclass(frozen=True)
+class Candidate:
+    name: str                   # planner | keep | home
+    route: tuple[int, ...]      # catalogue waypoint numbers in flying order
+    feasible: bool
+    reward: float               # scored reward (0 when infeasible)
+    reward_reached: float       # reward reached before a predicted failure
+    objective: float
+    cause: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "route": list(self.route), "feasible": self.feasible, "reward": self.reward,
+                "reward_reached": self.reward_reached, "objective": self.objective, "cause": self.cause, **self.extra}
+
+
+def distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
+    p1, p2 = math.radians(lat1), math.radians(lat2)
+    dp, dl = p2 - p1, math.radians(lon2 - lon1)
+    a = math.sin(dp / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(dl / 2) ** 2
+    return 2 * EARTH_RADIUS_M * math.asin(min(1.0, math.sqrt(a)))
+
+
+def is_nav_waypoint(item: M.MissionItem) -> bool:
+    return item.command == M.MAV_CMD_NAV_WAYPOINT and item.frame in M.GLOBAL_FRAMES
+
+
+def match_items(items: Sequence[M.MissionItem], catalogue: Sequence[CatalogueWaypoint],
+                radius_m: float = MATCH_RADIUS_M) -> dict[int, int]:
+    """Mission seq -> catalogue number for every NAV_WAYPOINT item that lies on a catalogue waypoint."""
+    out: dict[int, int] = {}
+    for item in items:
+        if not is_nav_waypoint(item) or item.seq == 0:  # seq 0 is ArduPilot's home
+            continue
+        best = min(catalogue, key=lambda w: distance_m(item.lat_deg, item.lon_deg, w.lat_deg, w.lon_deg), default=None)
+        if best is not None and distance_m(item.lat_deg, item.lon_deg, best.lat_deg, best.lon_deg) <= radius_m:
+            out[item.seq] = best.number
+    return out
+
+
+def catalogue_from_items(items: Sequence[M.MissionItem], reward: float = 1.0) -> list[CatalogueWaypoint]:
+    """With no rewards configured, every waypoint of the vehicle's mission is worth ``reward``."""
+    return [CatalogueWaypoint(number=i + 1, lat_deg=it.lat_deg, lon_deg=it.lon_deg, alt_m=float(it.z), reward=reward)
+            for i, it in enumerate(x for x in items if is_nav_waypoint(x) and x.seq != 0)]
+
+
+def remaining_route(items: Sequence[M.MissionItem], current_seq: int | None, catalogue: Sequence[CatalogueWaypoint],
+                    visited: set[int]) -> list[int]:
+    """Catalogue numbers the current mission still flies to, in its order (from ``current_seq`` on)."""
+    seq_to_number = match_items(items, catalogue)
+    start = current_seq if current_seq is not None else 0
+    route: list[int] = []
+    for item in items:
+        n = seq_to_number.get(item.seq)
+        if item.seq >= start and n is not None and n not in visited and n not in route:
+            route.append(n)
+    return route
+
+
+def choose(candidates: Sequence[Candidate]) -> tuple[Candidate, str]:
+    """The candidate to fly and why (see the module docstring)."""
+    if not candidates:
+        raise ValueError("candidates: nothing to choose from")
+    feasible = [c for c in candidates if c.feasible]
+    if feasible:
+        best = max(feasible, key=lambda c: (round(c.objective, 9), c.name == "keep"))
+        keep = next((c for c in feasible if c.name == "keep"), None)
+        if keep is not None and keep.objective >= best.objective - 1e-9:
+            return keep, "the current mission is predicted to succeed and nothing scores better"
+        return best, f"{best.name} is feasible with the best objective {best.objective:.3f}"
+    best = max(candidates, key=lambda c: (c.reward_reached, c.name == "home"))
+    return best, "no candidate is predicted to get home inside the limits; operator decision needed"
+
+
+def mission_items(route_numbers: Sequence[int], catalogue: Sequence[CatalogueWaypoint],
+                  home: tuple[float, float, float], landing: tuple[float, float] | None = None,
+                  current_alt_m: float | None = None) -> list[M.MissionItem]:
+    """A complete mission for an airborne vehicle: home (seq 0, as ArduPilot keeps it), the route's
+    waypoints, then NAV_LAND at the landing site. Altitudes are relative to home."""
+    by_number = {w.number: w for w in catalogue}
+    lat0, lon0, _alt0 = home
+    land_lat, land_lon = landing or (lat0, lon0)
+    items = [M.waypoint(lat0, lon0, 0.0, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)]
+    for n in route_numbers:
+        w = by_number[n]
+        items.append(M.waypoint(w.lat_deg, w.lon_deg, w.alt_m))
+    items.append(M.land(land_lat, land_lon, 0.0))
+    return M.renumber(items)
+
+
+def route_of_items(items: Sequence[M.MissionItem], catalogue: Sequence[CatalogueWaypoint]) -> list[int]:
+    seq_to_number = match_items(items, catalogue)
+    return [seq_to_number[i.seq] for i in items if i.seq in seq_to_number]

@@ -1,0 +1,427 @@
+"""The live decision loop: frames → estimator → diagnoser → (new fault / deviation) → planner →
+upload → confirmation by download, in message time.
+
+Threads, and why there are three:
+
+* the link's reader thread hands every frame to :meth:`LiveLoop._on_frame`, which only enqueues
+  it (the reader must never wait for us);
+* the telemetry thread (:meth:`LiveLoop._run`) feeds the estimator and the diagnoser and updates
+  the live state — it never plans, uploads or fits, so telemetry is never held up;
+* one decision worker runs planning, uploads and downloads, one at a time (two uploads must never
+  interleave on the link). A replan requested while one runs is remembered and runs next.
+
+A replan works on a snapshot taken by the telemetry thread at the message time of the trigger, so
+what is planned is exactly the state the diagnosis saw.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import queue
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from gcs_pdm import missions as M
+from gcs_pdm.frames import MissionProgressFrame, PositionFrame, StatusTextFrame
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
+from gcs_pdm.models.powertrain import MotorFault, PowertrainState
+from gcs_pdm.service import adapters
+from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, mission_items, remaining_route,
+                                      route_of_items)
+
+log = logging.getLogger(__name__)
+
+MAV_SEVERITY_WARNING = 4
+MAV_SEVERITY_NOTICE = 5
+#: a diagnosed magnitude that changes by this much is a new fault for the planner
+MAGNITUDE_STEP = 0.1
+STATUS_PERIOD_S = 1.0
+
+
+def item_to_json(item: M.MissionItem) -> dict:
+    d = dataclasses.asdict(item)
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+
+def item_from_json(d: dict) -> M.MissionItem:
+    vals = {f.name: d[f.name] for f in dataclasses.fields(M.MissionItem) if f.name in d}
+    for k in ("param1", "param2", "param3", "param4"):
+        if vals.get(k) is None:
+            vals[k] = float("nan")
+    return M.MissionItem(**vals)
+
+
+@dataclasses.dataclass(frozen=True)
+class Snapshot:
+    """What a replan starts from, taken on the telemetry thread."""
+
+    time_s: float
+    state: PowertrainState
+    position: tuple[float, float, float]  # lat, lon, altitude above home
+    ambient_c: float
+    faults: tuple[MotorFault, ...]
+    fault_records: tuple[dict, ...]
+    current_seq: int | None
+    soc: tuple[float, ...]
+
+
+class LiveLoop:
+    def __init__(self, service, link, mission_client, *, estimator=None, diagnoser=None):
+        self.service = service
+        self.link = link
+        self.mc = mission_client
+        self.params = service.params
+        self.diagnoser = diagnoser if diagnoser is not None else adapters.make_diagnoser(self.params)
+        shared = adapters.estimator_of(self.diagnoser) if estimator is None else None
+        self.estimator = estimator or shared or adapters.make_estimator(self.params)
+        # The pipeline feeds its own estimator; feeding it twice would double-count every frame.
+        self._feed_estimator = shared is None
+        self._frames: queue.Queue = queue.Queue(maxsize=50_000)
+        self.frames_dropped = 0
+        self.frames_seen = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decide")
+        self._lock = threading.Lock()
+        self._busy = False
+        self._pending: tuple[str, Snapshot] | None = None
+        # mission knowledge
+        self.mission_items: list[M.MissionItem] | None = None
+        self.mission_time_s: float | None = None
+        self.catalogue = list(service.catalogue) if service.catalogue else None
+        self.home: tuple[float, float, float] | None = None
+        self.visited: set[int] = set()
+        self.reward_collected = 0.0
+        # diagnosis bookkeeping
+        self._fault_ids: dict[tuple[str, str], tuple[int, float]] = {}
+        self._operator_faults: dict[str, float] = {}
+        self._last_status_s = -math.inf
+        self._last_replan_s = -math.inf
+        self._expectation: dict | None = None
+        self._time_s: float | None = None
+        self._ground_alt_amsl: float | None = None
+        self._position = (math.nan, math.nan, math.nan)
+
+    # --- lifecycle -------------------------------------------------------------------------------
+
+    def start(self) -> "LiveLoop":
+        self.link.add_frame_listener(self._on_frame)
+        self._thread = threading.Thread(target=self._run, name="telemetry", daemon=True)
+        self._thread.start()
+        self._worker.submit(self._guard, self._initial_download)
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        self._worker.shutdown(wait=True, cancel_futures=True)
+
+    def _guard(self, fn, *args) -> Any:
+        try:
+            return fn(*args)
+        except Exception:  # noqa: BLE001 - the worker must survive any one failure
+            log.exception("decision worker: %s failed", getattr(fn, "__name__", fn))
+            return None
+
+    # --- telemetry thread --------------------------------------------------------------------------
+
+    def _on_frame(self, frame) -> None:
+        try:
+            self._frames.put_nowait(frame)
+        except queue.Full:
+            self.frames_dropped += 1
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                frame = self._frames.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                self.process(frame)
+            except Exception:  # noqa: BLE001 - one bad frame must not stop the loop
+                log.exception("frame %r could not be processed", frame)
+
+    def process(self, frame) -> None:
+        """One frame, in message time (public so tests and replays can drive it directly)."""
+        self.frames_seen += 1
+        st = self.service.state
+        st.apply_frame(frame)
+        t = frame.time_s
+        self._time_s = t if self._time_s is None else max(self._time_s, t)
+        if isinstance(frame, PositionFrame) and frame.lat_deg is not None:
+            self._position = (frame.lat_deg, frame.lon_deg, frame.relative_alt_m or 0.0)
+            if self._ground_alt_amsl is None and frame.alt_m is not None and frame.relative_alt_m is not None:
+                self._ground_alt_amsl = frame.alt_m - frame.relative_alt_m
+        elif isinstance(frame, MissionProgressFrame) and frame.reached_seq is not None:
+            self._reached(frame.reached_seq, t)
+        elif isinstance(frame, StatusTextFrame):
+            self.service.events.publish("statustext", time_s=t, severity=frame.severity, text=frame.text)
+            if frame.severity <= 2:
+                st.update(failed=frame.text)
+        if self._feed_estimator:
+            self.estimator.consume(frame)
+        self.diagnoser.consume(frame)
+        if t - self._last_status_s >= STATUS_PERIOD_S:
+            self._last_status_s = t
+            self._tick(t)
+
+    def _reached(self, seq: int, t: float) -> None:
+        if not self.mission_items or not self.catalogue:
+            return
+        from gcs_pdm.service.decision import match_items
+
+        number = match_items(self.mission_items, self.catalogue).get(seq)
+        if number is not None and number not in self.visited:
+            self.visited.add(number)
+            reward = next(w.reward for w in self.catalogue if w.number == number)
+            self.reward_collected += reward
+            self.service.events.publish("mission", time_s=t, reached_seq=seq, waypoint=number, reward=reward,
+                                        reward_collected=self.reward_collected)
+
+    def _tick(self, t: float) -> None:
+        st = self.service.state
+        if self.estimator.ready():
+            est = self.estimator.estimate()
+            for i, n in enumerate(PACK_NAMES):
+                st.update_nested("packs", n, soc=float(est.soc[i]), soc_sd=float(est.soc_sd[i]),
+                                 temperature_c=float(est.pack_temp_c[i]), temperature_sd=float(est.pack_temp_sd[i]))
+            for i, n in enumerate(MOTOR_NAMES):
+                st.update_nested("motors", n, temperature_c=float(est.motor_temp_c[i]),
+                                 temperature_sd=float(est.motor_temp_sd[i]))
+        st.update(link={"connected": True, "received": self.link.received, "vehicle": [self.link.target_system,
+                                                                                       self.link.target_component]})
+        self._check_faults(t)
+        self._check_deviation(t)
+
+    def _check_faults(self, t: float) -> None:
+        current = {(d.get("type"), d.get("component")): d for d in adapters.active_faults(self.diagnoser)}
+        new_or_grown = []
+        for key, d in current.items():
+            mag = float(d.get("magnitude", 0.0))
+            known = self._fault_ids.get(key)
+            if known is None or abs(mag - known[1]) >= MAGNITUDE_STEP:
+                if known is not None:
+                    self.service.store.clear_fault(known[0])
+                fid = self.service.store.add_fault(
+                    {"time_s": d.get("time_s", t), "kind": key[0], "target": key[1], "magnitude": mag, **d}, "diagnoser")
+                self._fault_ids[key] = (fid, mag)
+                new_or_grown.append(d)
+                self.service.events.publish("fault", id=fid, time_s=t, kind=key[0], target=key[1], magnitude=mag,
+                                            confidence=d.get("confidence"), source="diagnoser")
+                log.warning("fault at t=%.1f s: %s %s magnitude %.2f", t, key[0], key[1], mag)
+        for key in [k for k in self._fault_ids if k not in current]:
+            fid, _ = self._fault_ids.pop(key)
+            self.service.store.clear_fault(fid)
+            self.service.events.publish("fault", id=fid, time_s=t, kind=key[0], target=key[1], cleared=True)
+        self._update_motor_health(current.values())
+        if new_or_grown:
+            self.request_replan("fault: " + ", ".join(f"{d.get('type')} {d.get('component')}" for d in new_or_grown))
+
+    def _update_motor_health(self, fault_dicts) -> None:
+        faults = self._all_motor_faults(fault_dicts)
+        for n in MOTOR_NAMES:
+            f = next((x for x in faults if x.motor == n), None)
+            self.service.state.update_nested("motors", n, health=1.0 - (f.magnitude if f else 0.0),
+                                             fault={"kind": f.kind, "magnitude": f.magnitude} if f else None)
+
+    def _all_motor_faults(self, fault_dicts=None) -> list[MotorFault]:
+        dicts = list(fault_dicts if fault_dicts is not None else adapters.active_faults(self.diagnoser))
+        dicts += [{"type": "motor_power_loss", "component": m, "magnitude": v} for m, v in self._operator_faults.items()]
+        return adapters.motor_faults(dicts)
+
+    def _check_deviation(self, t: float) -> None:
+        """A significant deviation of observed from predicted discharge (the paper's second trigger)."""
+        exp = self._expectation
+        if exp is None or not self.estimator.ready() or t - self._last_replan_s < self.service.config.replan_cooldown_s:
+            return
+        frac = min(max((t - exp["t0"]) / max(exp["duration_s"], 1.0), 0.0), 1.0)
+        expected = np.asarray(exp["soc0"]) + frac * (np.asarray(exp["soc1"]) - np.asarray(exp["soc0"]))
+        observed = np.asarray(self.estimator.estimate().soc)
+        dev = float(np.max(expected - observed))
+        if dev > self.service.config.deviation_soc:
+            self.service.events.publish("fault", time_s=t, kind="soc_deviation", target="vehicle", magnitude=dev,
+                                        source="decision")
+            self._expectation = None
+            self.request_replan(f"deviation: SoC {dev:.3f} below the plan's prediction")
+
+    # --- triggering ------------------------------------------------------------------------------
+
+    def snapshot(self) -> Snapshot:
+        t = self._time_s if self._time_s is not None else 0.0
+        state = self.estimator.powertrain_state()
+        state = PowertrainState(pack_state=np.array(state.pack_state, copy=True),
+                                motor_temp_c=np.array(state.motor_temp_c, copy=True))
+        dicts = adapters.active_faults(self.diagnoser)
+        amb = self.service.state.get("ambient_c")
+        soc = tuple(float(v) for v in self.estimator.estimate().soc) if self.estimator.ready() else ()
+        return Snapshot(time_s=t, state=state, position=self._position,
+                        ambient_c=float(amb) if amb is not None else 20.0,
+                        faults=tuple(self._all_motor_faults(dicts)), fault_records=tuple(dicts),
+                        current_seq=self.service.state.get("mission")["current_seq"], soc=soc)
+
+    def request_replan(self, reason: str) -> None:
+        """Queue a replan from the present state (call on the telemetry thread, or any thread)."""
+        if not self.estimator.ready():
+            log.info("replan (%s) deferred: estimator not ready", reason)
+            return
+        snap = self.snapshot()
+        self._last_replan_s = snap.time_s
+        with self._lock:
+            if self._busy:
+                self._pending = (reason, snap)
+                return
+            self._busy = True
+        self._worker.submit(self._plan_then_next, reason, snap)
+
+    def declare_fault(self, motor: str, magnitude: float, replan: bool) -> None:
+        self._operator_faults[motor] = magnitude
+        self._update_motor_health(None)
+        if replan:
+            self.request_replan(f"operator: motor_power_loss {motor} {magnitude:.2f}")
+
+    def clear_operator_fault(self, motor: str) -> None:
+        self._operator_faults.pop(motor, None)
+
+    def _plan_then_next(self, reason: str, snap: Snapshot) -> None:
+        while True:
+            self._guard(self._plan, reason, snap)
+            with self._lock:
+                if self._pending is None:
+                    self._busy = False
+                    return
+                reason, snap = self._pending
+                self._pending = None
+
+    # --- decision worker -----------------------------------------------------------------------
+
+    def _initial_download(self) -> None:
+        self.link.wait_for_vehicle(timeout=60.0)
+        self.refresh_mission()
+
+    def refresh_mission(self) -> list[M.MissionItem]:
+        items = self.mc.download()
+        self._set_mission(items, source="download")
+        return items
+
+    def _set_mission(self, items: list[M.MissionItem], source: str) -> None:
+        self.mission_items = list(items)
+        self.mission_time_s = self._time_s
+        if items and self.home is None:
+            h = items[0]
+            self.home = (h.lat_deg, h.lon_deg, float(h.z) if h.frame == M.MAV_FRAME_GLOBAL else 0.0)
+        if self.catalogue is None and items:
+            self.catalogue = catalogue_from_items(items, reward=1.0)
+            log.info("no mission objectives configured: each of the %d waypoints is worth 1", len(self.catalogue))
+        self.service.state.update(mission={"count": len(items)})
+        route = route_of_items(items, self.catalogue or [])
+        self.service.events.publish("mission", time_s=self._time_s, source=source, count=len(items), route=route)
+
+    def _plan(self, reason: str, snap: Snapshot) -> None:
+        svc = self.service
+        cfg = svc.config
+        if self.mission_items is None:
+            self.refresh_mission()
+        if not self.catalogue or self.home is None:
+            log.warning("replan (%s) skipped: no mission on the vehicle to plan from", reason)
+            return
+        keep = remaining_route(self.mission_items, snap.current_seq, self.catalogue, self.visited)
+        svc.events.publish("plan", status="planning", time_s=snap.time_s, reason=reason,
+                           faults=[dataclasses.asdict(f) for f in snap.faults])
+        home = (self.home[0], self.home[1], self._ground_alt_amsl or 0.0)
+        cands, info = adapters.plan_candidates(
+            self.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
+            planner=cfg.planner, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
+            time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected)
+        chosen, why = choose(cands)
+        body = {"reason": reason, "policy": svc.policy, "parameter_set": self.params.name,
+                "faults": [dataclasses.asdict(f) for f in snap.faults], "fault_records": list(snap.fault_records),
+                "candidates": [c.to_dict() for c in cands], "chosen": chosen.to_dict(), "why": why,
+                "previous_items": [item_to_json(i) for i in self.mission_items],
+                "previous_route": keep, "plan_time_s": info["plan_time_s"], "planner": info["planner"],
+                "scenario": info["scenario"], "visited": sorted(self.visited)}
+        if chosen.name == "keep":
+            pid = svc.store.add_plan(body, reason, "kept", snap.time_s)
+            self._expect(snap, chosen)
+            svc.events.publish("plan", id=pid, status="kept", time_s=snap.time_s, why=why, chosen=chosen.to_dict())
+            return
+        items = mission_items(chosen.route, self.catalogue, self.home)
+        body["items"] = [item_to_json(i) for i in items]
+        auto = svc.policy == "auto" and chosen.feasible
+        pid = svc.store.add_plan(body, reason, "approved" if auto else "proposed", snap.time_s)
+        svc.events.publish("plan", id=pid, status="approved" if auto else "proposed", time_s=snap.time_s, why=why,
+                           chosen=chosen.to_dict(), keep=next((c.to_dict() for c in cands if c.name == "keep"), None))
+        for old in svc.store.plans(status="proposed"):
+            if old["id"] != pid:
+                svc.store.set_plan_status(old["id"], "superseded", f"by plan {pid}")
+        if auto:
+            self.upload(pid, items, chosen, snap)
+        else:
+            self.statustext(f"PDM: plan {pid} proposed, reward {chosen.reward:g}; approve on gcs-pdm",
+                            MAV_SEVERITY_WARNING)
+
+    def _expect(self, snap: Snapshot, chosen: Candidate) -> None:
+        if snap.soc and chosen.extra.get("final_soc"):
+            self._expectation = {"t0": snap.time_s, "soc0": list(snap.soc), "soc1": chosen.extra["final_soc"],
+                                 "duration_s": chosen.extra.get("flight_time_s", 0.0)}
+
+    def approve(self, plan_id: int) -> None:
+        """Upload an operator-approved plan (runs on the decision worker)."""
+        plan = self.service.store.plan(plan_id)
+        items = [item_from_json(d) for d in plan["items"]]
+        chosen = plan["chosen"]
+        cand = Candidate(chosen["name"], tuple(chosen["route"]), chosen["feasible"], chosen["reward"],
+                         chosen["reward_reached"], chosen["objective"], chosen.get("cause"),
+                         {k: chosen[k] for k in ("final_soc", "flight_time_s") if k in chosen})
+        self._worker.submit(self._guard, self.upload, plan_id, items, cand, None)
+
+    def upload(self, plan_id: int, items: list[M.MissionItem], chosen: Candidate, snap: Snapshot | None) -> bool:
+        svc = self.service
+        previous = list(self.mission_items or [])
+        svc.events.publish("upload", plan_id=plan_id, status="uploading", count=len(items), time_s=self._time_s)
+        from gcs_pdm.mavlink.mission_client import MissionError
+
+        try:
+            stats = self.mc.upload(items)
+            # The vehicle resumes at item 1, the first waypoint of the new route (docs/service.md).
+            self.mc.set_current(1)
+            confirmed = None
+            if svc.config.confirm_download:
+                back = self.mc.download()
+                confirmed = M.same_items([M.as_sent(i) for i in items], back)
+                items_on_vehicle = back
+            else:
+                items_on_vehicle = items
+        except MissionError as exc:
+            uid = svc.store.add_upload(plan_id, "failed", {"error": str(exc), "items": [item_to_json(i) for i in items],
+                                                           "previous_items": [item_to_json(i) for i in previous]})
+            svc.store.set_plan_status(plan_id, "upload_failed", str(exc))
+            svc.events.publish("upload", id=uid, plan_id=plan_id, status="failed", error=str(exc), time_s=self._time_s)
+            log.error("upload of plan %d failed, the vehicle keeps its mission: %s", plan_id, exc)
+            return False
+        status = "confirmed" if confirmed else ("sent" if confirmed is None else "mismatch")
+        uid = svc.store.add_upload(plan_id, status, {
+            "items": [item_to_json(i) for i in items], "previous_items": [item_to_json(i) for i in previous],
+            "route": list(chosen.route), "time_s": self._time_s,
+            "stats": dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None})
+        svc.store.set_plan_status(plan_id, "uploaded", status)
+        self._set_mission(items_on_vehicle, source="upload")
+        if snap is not None:
+            self._expect(snap, chosen)
+        svc.events.publish("upload", id=uid, plan_id=plan_id, status=status, route=list(chosen.route),
+                           reward=chosen.reward, time_s=self._time_s)
+        self.statustext(f"PDM: new mission uploaded, wp {','.join(map(str, chosen.route)) or 'home'}", MAV_SEVERITY_NOTICE)
+        return status != "mismatch"
+
+    def statustext(self, text: str, severity: int = MAV_SEVERITY_NOTICE) -> None:
+        """Tell the operator through the ground station (STATUSTEXT, 50 characters)."""
+        try:
+            self.link.send(self.link.mav.statustext_encode(severity, text.encode("ascii", "replace")[:50]))
+        except Exception as exc:  # noqa: BLE001 - a lost notice must not fail the upload
+            log.warning("STATUSTEXT not sent: %s", exc)
+        self.service.events.publish("statustext", severity=severity, text=text, sent=True, time_s=self._time_s)

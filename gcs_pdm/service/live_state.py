@@ -1,0 +1,98 @@
+"""The one place that holds what the service currently knows about the vehicle.
+
+Written by the live loop (one thread), read by the HTTP API (others): every update and every
+snapshot takes the lock, and a snapshot is a plain JSON-able dict copy.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import threading
+from typing import Any
+
+from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, MotorFrame, PackFrame,
+                            PositionFrame, StatusFrame)
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
+
+
+def _clean(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+class LiveState:
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._s: dict[str, Any] = {
+            "time_s": None,
+            "link": {"url": None, "connected": False, "vehicle": None, "received": 0, "last_frame_time_s": None},
+            "packs": {n: {"voltage_v": None, "current_a": None, "temperature_c": None, "soc": None, "soc_sd": None,
+                          "temperature_sd": None, "time_to_cutoff_s": None, "time_to_cutoff_sd": None} for n in PACK_NAMES},
+            "motors": {n: {"current_a": None, "rpm": None, "temperature_c": None, "temperature_sd": None,
+                           "health": 1.0, "fault": None} for n in MOTOR_NAMES},
+            "ambient_c": None,
+            "position": {"lat_deg": None, "lon_deg": None, "alt_m": None, "relative_alt_m": None},
+            "airdata": {"airspeed": None, "groundspeed": None, "climb_rate": None, "throttle_pct": None},
+            "armed": None, "mode": None, "system_status": None,
+            "mission": {"current_seq": None, "last_reached_seq": None, "count": None},
+            "prediction": None,
+            "policy": None,
+            "parameter_set": None,
+            "failed": None,
+        }
+
+    def update(self, **sections: Any) -> None:
+        with self._lock:
+            for key, value in sections.items():
+                if isinstance(value, dict) and isinstance(self._s.get(key), dict):
+                    self._s[key].update(value)
+                else:
+                    self._s[key] = value
+
+    def update_nested(self, section: str, name: str, **values: Any) -> None:
+        with self._lock:
+            self._s[section][name].update({k: _clean(v) for k, v in values.items()})
+
+    def apply_frame(self, f: Any) -> None:
+        """Raw telemetry, as received (the estimator's view is set separately)."""
+        with self._lock:
+            s = self._s
+            s["time_s"] = max(s["time_s"] or f.time_s, f.time_s)
+            s["link"]["last_frame_time_s"] = f.time_s
+            if isinstance(f, PackFrame) and f.pack in s["packs"]:
+                p = s["packs"][f.pack]
+                for k in ("voltage_v", "current_a", "temperature_c"):
+                    v = getattr(f, k)
+                    if v is not None:
+                        p[k if k != "temperature_c" else "temperature_raw_c"] = v
+            elif isinstance(f, MotorFrame) and f.motor in s["motors"]:
+                m = s["motors"][f.motor]
+                for k in ("current_a", "rpm"):
+                    v = getattr(f, k)
+                    if v is not None:
+                        m[k] = v
+                if f.temperature_c is not None:
+                    m["temperature_raw_c"] = f.temperature_c
+            elif isinstance(f, AmbientFrame):
+                if f.temperature_c is not None:
+                    s["ambient_c"] = f.temperature_c
+            elif isinstance(f, PositionFrame):
+                s["position"].update({k: getattr(f, k) for k in ("lat_deg", "lon_deg", "alt_m", "relative_alt_m")})
+            elif isinstance(f, AirdataFrame):
+                s["airdata"].update({k: getattr(f, k) for k in ("airspeed", "groundspeed", "climb_rate", "throttle_pct")})
+            elif isinstance(f, StatusFrame):
+                s["armed"], s["mode"], s["system_status"] = f.armed, f.mode, f.system_status
+            elif isinstance(f, MissionProgressFrame):
+                if f.current_seq is not None:
+                    s["mission"]["current_seq"] = f.current_seq
+                if f.reached_seq is not None:
+                    s["mission"]["last_reached_seq"] = f.reached_seq
+
+    def get(self, key: str) -> Any:
+        with self._lock:
+            return copy.deepcopy(self._s.get(key))
+
+    def snapshot(self) -> dict[str, Any]:
+        with self._lock:
+            return copy.deepcopy(self._s)

@@ -1,0 +1,180 @@
+"""The service object: configuration, store, events, jobs, live state and (when connected) the
+live loop, wired together. The HTTP API and the CLI talk to this, never to the parts directly.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+from gcs_pdm.models.params import ParameterSet
+from gcs_pdm.service.config import ServiceConfig, new_token
+from gcs_pdm.service.decision import CatalogueWaypoint
+from gcs_pdm.service.events import EventBus
+from gcs_pdm.service.jobs import JobRunner
+from gcs_pdm.service.live_state import LiveState
+from gcs_pdm.service.storage import Conflict, NotFound, Store
+
+log = logging.getLogger(__name__)
+
+
+class Service:
+    def __init__(self, config: ServiceConfig, store: Store | None = None):
+        self.config = config
+        config.data_path.mkdir(parents=True, exist_ok=True)
+        self.store = store or Store(config.database)
+        self.token = config.api_token or new_token()
+        if not config.api_token:
+            log.warning("no api_token configured; this run's token is %s", self.token)
+        self.events = EventBus()
+        self.state = LiveState()
+        self.runner = JobRunner(self.store, self.events, workers=config.fit_workers)
+        from gcs_pdm.service.fit_jobs import make_fit_job
+
+        self.runner.register("fit", make_fit_job(self))
+        self.policy = config.policy
+        # The operator's last activation survives a restart; the config names the first one.
+        active = self.store.active_parameter_set_name() or config.parameter_set
+        self.params: ParameterSet = self.store.activate_parameter_set(active)
+        self.catalogue: list[CatalogueWaypoint] | None = None
+        self.loop = None
+        self.state.update(policy=self.policy, parameter_set=self.params.name)
+
+    # --- lifecycle ---------------------------------------------------------------------------------
+
+    def attach_loop(self, loop) -> None:
+        self.loop = loop
+        self.state.update(link={"url": self.config.mavlink_url})
+
+    def close(self) -> None:
+        if self.loop is not None:
+            self.loop.stop()
+        self.runner.shutdown()
+        self.store.close()
+
+    # --- mission objectives ------------------------------------------------------------------------
+
+    def load_objectives(self, path: str | Path) -> list[CatalogueWaypoint]:
+        """Waypoints with rewards from a scenario JSON (``fixtures/scenarios``; lat/lon or ENU)."""
+        from gcs_pdm.planning.scenario import Scenario, geodetic_from_enu
+
+        sc = Scenario.from_json(Path(path).read_text())
+        h = sc.home
+        cat = []
+        for w in sc.waypoints:
+            lat, lon = geodetic_from_enu(w.east_m, w.north_m, h.lat_deg, h.lon_deg)
+            cat.append(CatalogueWaypoint(w.number, lat, lon, w.alt_m, w.reward, w.airspeed_mps))
+        self.catalogue = cat
+        return cat
+
+    # --- operator actions --------------------------------------------------------------------------
+
+    def declare_fault(self, kind: str, motor: str, magnitude: float, note: str, replan: bool = True) -> int:
+        t = self.state.get("time_s")
+        fid = self.store.add_fault({"time_s": t, "kind": kind, "target": motor, "magnitude": magnitude,
+                                    "note": note, "type": kind, "component": motor}, "operator")
+        self.events.publish("fault", id=fid, time_s=t, kind=kind, target=motor, magnitude=magnitude, source="operator")
+        if self.loop is not None:
+            self.loop.declare_fault(motor, magnitude, replan)
+        return fid
+
+    def clear_fault(self, fault_id: int) -> None:
+        fault = next((f for f in self.store.faults() if f["id"] == fault_id), None)
+        if fault is None:
+            raise NotFound(f"fault {fault_id}")
+        self.store.clear_fault(fault_id)
+        if self.loop is not None and fault["source"] == "operator" and fault["target"]:
+            self.loop.clear_operator_fault(fault["target"])
+        self.events.publish("fault", id=fault_id, cleared=True, source="operator")
+
+    def _proposed(self, plan_id: int) -> dict:
+        plan = self.store.plan(plan_id)
+        if plan["status"] != "proposed":
+            raise Conflict(f"plan {plan_id} is {plan['status']}, not proposed")
+        return plan
+
+    def approve(self, plan_id: int, note: str = "") -> None:
+        self._proposed(plan_id)
+        if self.loop is None:
+            raise Conflict("no vehicle link: a plan cannot be uploaded")
+        self.store.set_plan_status(plan_id, "approved", note or "operator")
+        self.events.publish("plan", id=plan_id, status="approved", by="operator")
+        self.loop.approve(plan_id)
+
+    def reject(self, plan_id: int, note: str = "") -> None:
+        self._proposed(plan_id)
+        self.store.set_plan_status(plan_id, "rejected", note or "operator")
+        self.events.publish("plan", id=plan_id, status="rejected", by="operator")
+
+    def request_replan(self, reason: str) -> None:
+        if self.loop is None:
+            raise Conflict("no vehicle link: nothing to replan")
+        self.loop.request_replan(reason)
+
+    def set_policy(self, policy: str) -> None:
+        self.policy = policy
+        self.state.update(policy=policy)
+        self.events.publish("policy", policy=policy)
+
+    def activate_parameter_set(self, name: str) -> ParameterSet:
+        ps = self.store.activate_parameter_set(name)
+        self.params = ps
+        self.state.update(parameter_set=name)
+        if self.loop is not None:
+            # The filters keep their state; planning uses the new set from the next replan on.
+            self.loop.params = ps
+        self.events.publish("parameter_set", name=name)
+        return ps
+
+    def current_mission(self) -> dict:
+        if self.loop is None or self.loop.mission_items is None:
+            return {"items": None, "source": "none", "time_s": None}
+        from gcs_pdm.service.live import item_to_json
+
+        return {"items": [item_to_json(i) for i in self.loop.mission_items], "source": "download",
+                "time_s": self.loop.mission_time_s}
+
+    # --- files -------------------------------------------------------------------------------------
+
+    def save_upload(self, filename: str, kind: str, data: bytes) -> str:
+        folder = self.config.data_path / "uploads"
+        folder.mkdir(parents=True, exist_ok=True)
+        stamp = time.strftime("%Y%m%dT%H%M%S")
+        path = folder / f"{stamp}_{filename}"
+        n = 1
+        while path.exists():
+            path = folder / f"{stamp}_{n}_{filename}"
+            n += 1
+        path.write_bytes(data)
+        file_id = self.store.add_file(filename, str(path), kind, len(data))
+        if kind == "tlog":
+            self.store.close_tlog(self.store.add_tlog(str(path), note=f"uploaded as {filename}"))
+        return file_id
+
+    def resolve_flight_ref(self, ref: dict) -> Path:
+        if ref.get("file_id"):
+            return Path(self.store.file(ref["file_id"])["path"])
+        if ref.get("tlog_id") is not None:
+            return Path(self.store.tlog(int(ref["tlog_id"]))["path"])
+        path = Path(ref["path"]).resolve()
+        allowed = [self.config.data_path.resolve(), Path("fixtures").resolve()]
+        if not any(path.is_relative_to(a) for a in allowed):
+            raise PermissionError(f"path {path} is outside the data directory and fixtures/")
+        return path
+
+    def check_flight_ref(self, ref) -> str | None:
+        """Why a flight reference cannot be used, or None."""
+        try:
+            path = self.resolve_flight_ref(ref.model_dump() if hasattr(ref, "model_dump") else ref)
+        except NotFound as exc:
+            return f"not found: {exc.args[0]}"
+        except PermissionError as exc:
+            return str(exc)
+        if not path.exists():
+            return f"file {path} does not exist"
+        return None
+
+
+def dump_json(obj) -> str:
+    return json.dumps(obj, indent=2, default=str)
