@@ -1,0 +1,56 @@
+"""A real fitting job through the HTTP API: uploaded CSV flights → fit_battery → stored set, plots."""
+from __future__ import annotations
+
+import io
+
+import pandas as pd
+import pytest
+from fastapi.testclient import TestClient
+
+from gcs_pdm.fitting.synthetic import generate_flight, synthetic_truth
+from gcs_pdm.service.api import create_app
+from gcs_pdm.service.config import load_config
+from gcs_pdm.service.runtime import Service
+
+TOKEN = "t0k"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+
+
+def _csv(flight) -> bytes:
+    buf = io.StringIO()
+    pd.DataFrame({c: getattr(flight, c) for c in flight.columns()}).to_csv(buf, index=False)
+    return buf.getvalue().encode()
+
+
+@pytest.mark.slow
+def test_fit_job_from_uploaded_csv(tmp_path):
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN))
+    try:
+        client = TestClient(create_app(svc))
+        truth = synthetic_truth(seed=3)
+        ids = []
+        for seed in range(3):
+            f = generate_flight(truth, seed, duration_s=600.0, dt=2.0, damage=None).packs["LLF20"]
+            r = client.post("/files", files={"file": (f"flight{seed}.csv", _csv(f))}, headers=AUTH)
+            assert r.status_code == 201
+            ids.append(r.json()["id"])
+        body = {"component": "battery", "packs": ["LLF20"], "save_as": "fitted_llf20",
+                "flights": {"train": [{"file_id": ids[0]}], "validation": [{"file_id": ids[1]}],
+                            "test": [{"file_id": ids[2]}]},
+                "settings": {"search": {"starts": 2, "sa_generations": 8, "lm_max_nfev": 4, "seed": 1}, "workers": 1}}
+        r = client.post("/jobs/fit", json=body, headers=AUTH)
+        assert r.status_code == 202, r.text
+        job = svc.runner.wait(r.json()["id"], timeout=240)
+        assert job["status"] == "succeeded", job["error"]
+        result = client.get(f"/jobs/{job['id']}/result").json()
+        fit = result["fits"]["LLF20"]
+        assert fit["flights"]["test"] and "overall" in fit["errors"]["learned"]["test"]
+        assert result["saved_as"] == "fitted_llf20"
+        stored = client.get("/parameter-sets/fitted_llf20").json()
+        assert stored["packs"]["LLF20"]["battery"]["R_s"] == pytest.approx(fit["parameters"]["R_s"])
+        assert stored["provenance"]["job"] == job["id"]
+        plot = next(iter(result["plots"]))
+        png = client.get(f"/jobs/{job['id']}/plots/{plot}")
+        assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
+    finally:
+        svc.close()
