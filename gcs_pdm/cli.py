@@ -14,6 +14,7 @@ import sys
 # subcommand name -> module with register(subparsers)
 COMMAND_MODULES: dict[str, str] = {
     "replay": "gcs_pdm.mavlink.cli",
+    "fit": "gcs_pdm.fitting.cli",
 }
 
 

@@ -1,0 +1,164 @@
+"""``gcs-pdm fit battery|motor|synthetic``: learn parameters from flight logs (the paper's §IV).
+
+    gcs-pdm fit battery --train F… --val F… --test F… --out DIR [--pack LLF20|ULA20|LRF40|URA40|all]
+    gcs-pdm fit motor   --train F… --val F… --test F… --out DIR
+    gcs-pdm fit synthetic --out DIR [--flights 12] [--seed 1]     (CSV logs with known truth)
+
+Flight files are CSV/Parquet tables (one pack or the motors) or tlogs (all four packs and the
+motors). With tlogs, ``--pack all`` fits every pack into ``DIR/<pack>/`` and writes the merged
+learned set to ``DIR/parameters.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from gcs_pdm.models.params import PACK_NAMES
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("fit", help="learn battery/motor parameters from flight logs (SA -> LM)")
+    sub = p.add_subparsers(dest="fit_command", metavar="WHAT")
+    for what in ("battery", "motor"):
+        q = sub.add_parser(what, help=f"fit the {what} parameters")
+        q.add_argument("--train", nargs="+", type=Path, required=True, help="training flights (CSV, Parquet or tlog)")
+        q.add_argument("--val", nargs="+", type=Path, required=True, help="validation flights (select among LM solutions)")
+        q.add_argument("--test", nargs="+", type=Path, required=True, help="test flights (errors reported)")
+        q.add_argument("--out", type=Path, required=True, help="output directory")
+        if what == "battery":
+            q.add_argument("--pack", default=None, choices=PACK_NAMES + ("all",),
+                           help="pack to fit: tlogs hold all four (default all); tables hold one (its fixed values "
+                                "and reference come from this pack, default LLF20)")
+        q.add_argument("--starts", type=int, default=10, help="annealing starts = LM runs (default 10)")
+        q.add_argument("--sa-generations", type=int, default=None, help="annealing generations per start")
+        q.add_argument("--sa-proposals", type=int, default=None, help="proposals per chain and generation")
+        q.add_argument("--lm-max-nfev", type=int, default=None, help="LM residual evaluations per run")
+        q.add_argument("--seed", type=int, default=0)
+        q.add_argument("--workers", type=int, default=2, help="threads running the kernel (default 2)")
+        q.add_argument("--reference", default="previous_si", help="built-in set whose errors are reported alongside")
+        q.add_argument("--base", default="previous_si", help="built-in set giving the values that are not learned")
+        q.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+        q.add_argument("--quiet", action="store_true", help="no progress display")
+        q.set_defaults(func=run, fit_what=what)
+    s = sub.add_parser("synthetic", help="write synthetic flight logs (CSV) with known true parameters")
+    s.add_argument("--out", type=Path, required=True)
+    s.add_argument("--flights", type=int, default=12)
+    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--truth-seed", type=int, default=7)
+    s.add_argument("--clean", action="store_true", help="noise only, no injected damage")
+    s.set_defaults(func=run_synthetic)
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
+
+
+class _ProgressLine:
+    """A one-line progress display on stderr (rewritten in place on a terminal)."""
+
+    def __init__(self, prefix: str, quiet: bool):
+        self.prefix, self.quiet, self.last = prefix, quiet, (-1, "")
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, fraction: float, stage: str) -> None:
+        if self.quiet:
+            return
+        key = (int(fraction * 20), stage.split(" ")[0])
+        if key == self.last and fraction < 1.0:
+            return
+        self.last = key
+        line = f"{self.prefix}{fraction:6.1%}  {stage}"
+        print(("\r" + line.ljust(70)) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
+        if self.tty and fraction >= 1.0:
+            print(file=sys.stderr)
+
+
+def _settings(args):
+    from gcs_pdm.fitting.procedure import FitSettings
+    from gcs_pdm.fitting.search import SearchSettings
+
+    search = {"starts": args.starts, "seed": args.seed}
+    for k, attr in (("sa_generations", "sa_generations"), ("sa_proposals", "sa_proposals"), ("lm_max_nfev", "lm_max_nfev")):
+        if getattr(args, attr) is not None:
+            search[k] = getattr(args, attr)
+    return FitSettings(search=SearchSettings(**search), base=args.base, reference=args.reference, workers=args.workers)
+
+
+def _summary(res) -> dict:
+    e = res.errors
+    out = {"component": res.component, "pack": res.pack, "seconds": round(res.seconds, 2)}
+    for which in ("learned", "reference"):
+        t = e[which]["test"]["overall"]
+        if "voltage" in t:
+            out[f"{which}_test_voltage_rmse_v"] = round(t["voltage"]["rmse"], 4)
+        out[f"{which}_test_temperature_rmse_f"] = round(t["temperature"]["rmse_f"], 3)
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from gcs_pdm.fitting.logs import read_flights, write_outputs
+    from gcs_pdm.fitting.procedure import fit_battery, fit_motor, merge_results
+    from gcs_pdm.fitting.tables import FlightDataError
+    from gcs_pdm.models.params import builtin
+
+    kind = args.fit_what
+    try:
+        settings = _settings(args)
+        builtin(settings.base), builtin(settings.reference)
+    except (KeyError, TypeError, ValueError) as exc:
+        print(f"fit: {exc}", file=sys.stderr)
+        return 2
+    any_tlog = any(p.suffix.lower() == ".tlog" for p in args.train + args.val + args.test)
+    pack_arg = getattr(args, "pack", None)
+    if kind == "battery":
+        packs = (PACK_NAMES if pack_arg in (None, "all") else (pack_arg,)) if any_tlog else (pack_arg or "LLF20",)
+        if not any_tlog and "all" in packs:
+            print("fit: a table holds one pack; name it with --pack (or give tlogs for --pack all)", file=sys.stderr)
+            return 2
+    else:
+        packs = (None,)
+    results = {}
+    try:
+        for pack in packs:
+            def load(paths):
+                flights = []
+                for path in paths:
+                    fl = read_flights(path, kind, pack=pack or "all")
+                    flights += fl
+                return flights
+            train, val, test = load(args.train), load(args.val), load(args.test)
+            prog = _ProgressLine(f"fit {kind}{' ' + pack if pack else ''}: ", args.quiet)
+            if kind == "battery":
+                res = fit_battery(train, val, test, settings, pack=pack, progress=prog)
+            else:
+                res = fit_motor(train, val, test, settings, progress=prog)
+            out = args.out / pack if len(packs) > 1 else args.out
+            write_outputs(res, out, plots=not args.no_plots)
+            results[pack] = res
+            print(json.dumps(_summary(res)))
+    except FlightDataError as exc:
+        print(f"fit: {exc}", file=sys.stderr)
+        return 2
+    if kind == "battery" and len(results) > 1:
+        merged = merge_results(builtin(settings.base), results, name="learned",
+                               provenance={"source": "gcs-pdm fit battery", "files": {
+                                   "train": [str(p) for p in args.train], "validation": [str(p) for p in args.val],
+                                   "test": [str(p) for p in args.test]}})
+        (args.out / "parameters.json").write_text(merged.to_json(indent=2))
+    print(f"fit: results in {args.out}", file=sys.stderr)
+    return 0
+
+
+def run_synthetic(args: argparse.Namespace) -> int:
+    from gcs_pdm.fitting.logs import write_table
+    from gcs_pdm.fitting.synthetic import NO_DAMAGE, Damage, generate_flights, synthetic_truth
+
+    truth = synthetic_truth(args.truth_seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    flights = generate_flights(truth, args.flights, seed=args.seed, damage=NO_DAMAGE if args.clean else Damage())
+    for f in flights:
+        for pack, fl in f.packs.items():
+            write_table(fl, args.out / f"{f.name}_{pack}.csv")
+        write_table(f.motor, args.out / f"{f.name}_motor.csv")
+    (args.out / "truth.json").write_text(truth.to_json(indent=2))
+    print(f"fit synthetic: {args.flights} flights x 5 logs and truth.json in {args.out}", file=sys.stderr)
+    return 0

@@ -1,0 +1,190 @@
+"""Reading flight logs (CSV, Parquet, MAVLink tlog) into :class:`~gcs_pdm.fitting.tables.Flight` s,
+and writing a fit's outputs (``result.json``, ``predictions/<flight>.csv``, plots). Shell module: files.
+
+Tables: one flight per file with the columns of :mod:`gcs_pdm.fitting.tables` (extra columns are
+ignored). Tlogs go through the MAVLink engineer's reader (``gcs_pdm.mavlink.replay.replay_tlog`` and
+its frame mapping): every pack's ``PackFrame`` becomes a battery flight (ambient from
+``AmbientFrame``, interpolated to the pack's times), and the two ``MotorFrame`` streams become one
+motor flight (mean current, mean of the reported temperatures: one bracket sensor).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import re
+import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from gcs_pdm.fitting.tables import BATTERY, KINDS, MOTOR, Flight, FlightDataError, flight_from_columns
+from gcs_pdm.models.params import PACK_NAMES
+
+if TYPE_CHECKING:  # pragma: no cover
+    from gcs_pdm.fitting.procedure import FitResult
+
+log = logging.getLogger(__name__)
+
+TABLE_SUFFIXES = (".csv", ".parquet", ".pq")
+TLOG_SUFFIXES = (".tlog",)
+
+
+def read_table(path: str | Path, kind: str, name: str | None = None) -> Flight:
+    """One flight from a CSV or Parquet table."""
+    import pandas as pd
+
+    path = Path(path)
+    name = name or path.stem
+    if not path.is_file():
+        raise FlightDataError(f"{path}: no such file")
+    try:
+        if path.suffix.lower() == ".csv":
+            df = pd.read_csv(path)
+        elif path.suffix.lower() in (".parquet", ".pq"):
+            df = pd.read_parquet(path)
+        else:
+            raise FlightDataError(f"{path}: unknown table format {path.suffix!r} (use .csv, .parquet or .tlog)")
+    except FlightDataError:
+        raise
+    except Exception as exc:  # pandas/pyarrow raise many types for a damaged file
+        raise FlightDataError(f"{path}: cannot read table ({type(exc).__name__}: {exc})") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    return flight_from_columns(name, kind, df, source={"file": str(path)})
+
+
+class _FrameCollector:
+    """Collects pack, motor and ambient frames from a tlog replay."""
+
+    def __init__(self) -> None:
+        self.packs: dict[str, list[tuple]] = {p: [] for p in PACK_NAMES}
+        self.motors: dict[str, list[tuple]] = {}
+        self.ambient: list[tuple] = []
+
+    def __call__(self, frame) -> None:
+        kind = type(frame).__name__
+        nan = float("nan")
+        if kind == "PackFrame" and frame.pack in self.packs:
+            self.packs[frame.pack].append((frame.time_s, _f(frame.current_a), _f(frame.voltage_v), _f(frame.temperature_c)))
+        elif kind == "MotorFrame":
+            self.motors.setdefault(frame.motor, []).append((frame.time_s, _f(frame.current_a), _f(frame.temperature_c)))
+        elif kind == "AmbientFrame":
+            self.ambient.append((frame.time_s, _f(frame.temperature_c) if frame.temperature_c is not None else nan))
+
+
+def _f(v) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def _interp(t: np.ndarray, ts: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    ok = np.isfinite(ts) & np.isfinite(xs)
+    if not ok.any():
+        return np.full(t.shape, np.nan)
+    order = np.argsort(ts[ok])
+    return np.interp(t, ts[ok][order], xs[ok][order])
+
+
+def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES) -> list[Flight]:
+    """Battery flights (one per pack in ``packs``) or the motor flight of one tlog."""
+    from gcs_pdm.mavlink.replay import replay_tlog
+
+    path = Path(path)
+    if not path.is_file():
+        raise FlightDataError(f"{path}: no such file")
+    col = _FrameCollector()
+    replay_tlog(path, frame_consumer=col)
+    if not col.ambient:
+        raise FlightDataError(f"{path}: no ambient temperature frames in the tlog")
+    amb = np.array(col.ambient, dtype=np.float64)
+    out: list[Flight] = []
+    if kind == BATTERY:
+        for p in packs:
+            rows = np.array(col.packs[p], dtype=np.float64).reshape(-1, 4)
+            if rows.shape[0] == 0:
+                raise FlightDataError(f"{path}: no frames for pack {p}")
+            t = rows[:, 0]
+            out.append(flight_from_columns(f"{path.stem}_{p}", BATTERY, {
+                "time_s": t, "current_a": rows[:, 1], "voltage_v": rows[:, 2], "temperature_c": rows[:, 3],
+                "ambient_c": _interp(t, amb[:, 0], amb[:, 1])}, source={"file": str(path), "pack": p}))
+    else:
+        if not col.motors:
+            raise FlightDataError(f"{path}: no motor frames in the tlog")
+        series = {m: np.array(r, dtype=np.float64).reshape(-1, 3) for m, r in col.motors.items()}
+        t = max(series.values(), key=len)[:, 0]
+        cur = np.nanmean([_interp(t, s[:, 0], s[:, 1]) for s in series.values()], axis=0)
+        temps = np.array([_interp(t, s[:, 0], s[:, 2]) for s in series.values()])
+        with warnings.catch_warnings():  # a time with no temperature from either motor stays missing
+            warnings.simplefilter("ignore", RuntimeWarning)
+            temp = np.nanmean(temps, axis=0)
+        out.append(flight_from_columns(f"{path.stem}_motor", MOTOR, {
+            "time_s": t, "current_a": cur, "temperature_c": temp, "ambient_c": _interp(t, amb[:, 0], amb[:, 1])},
+            source={"file": str(path), "motors": sorted(series)}))
+    return out
+
+
+def read_flights(path: str | Path, kind: str, pack: str = "all") -> list[Flight]:
+    """Flights of one file: a table gives one; a tlog gives one per pack (``pack="all"``) or the
+    named pack, or the motor flight."""
+    if kind not in KINDS:
+        raise FlightDataError(f"kind must be one of {KINDS}, got {kind!r}")
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in TLOG_SUFFIXES:
+        packs = PACK_NAMES if pack == "all" else (pack,)
+        bad = [p for p in packs if p not in PACK_NAMES]
+        if bad:
+            raise FlightDataError(f"unknown pack {bad[0]!r}; expected one of {', '.join(PACK_NAMES)} or all")
+        return read_tlog(path, kind, packs)
+    if suffix in TABLE_SUFFIXES:
+        return [read_table(path, kind)]
+    raise FlightDataError(f"{path}: unknown flight file type {path.suffix!r} (use .csv, .parquet or .tlog)")
+
+
+def write_table(flight: Flight, path: str | Path) -> Path:
+    """A flight as a CSV or Parquet table with the standard columns."""
+    import pandas as pd
+
+    path = Path(path)
+    df = pd.DataFrame({c: getattr(flight, c) for c in flight.columns()})
+    if path.suffix.lower() == ".csv":
+        df.to_csv(path, index=False)
+    else:
+        df.to_parquet(path, index=False)
+    return path
+
+
+def safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def write_outputs(result: "FitResult", out_dir: str | Path, plots: bool = True) -> dict[str, Path]:
+    """``result.json``, ``predictions/<flight>.csv`` for every flight and ``plots/<flight>.png`` for
+    every test flight (predicted vs measured, like the paper's Figures 3 and 4)."""
+    import pandas as pd
+
+    out = Path(out_dir)
+    (out / "predictions").mkdir(parents=True, exist_ok=True)
+    written: dict[str, Path] = {}
+    res_path = out / "result.json"
+    res_path.write_text(json.dumps(result.to_dict(), indent=2, allow_nan=True))
+    written["result"] = res_path
+    for p in result.predictions:
+        cols = {"time_s": p.time_s}
+        if p.measured_voltage is not None:
+            cols.update(measured_voltage_v=p.measured_voltage, predicted_voltage_v=p.predicted_voltage,
+                        reference_voltage_v=p.reference_voltage)
+        cols.update(measured_temperature_c=p.measured_temperature, predicted_temperature_c=p.predicted_temperature,
+                    reference_temperature_c=p.reference_temperature)
+        fp = out / "predictions" / f"{safe_name(p.name)}.csv"
+        pd.DataFrame(cols).assign(split=p.split).to_csv(fp, index=False)
+        written[f"predictions/{p.name}"] = fp
+    if plots:
+        from gcs_pdm.fitting.plots import plot_flight
+
+        (out / "plots").mkdir(exist_ok=True)
+        for p in result.predictions:
+            if p.split == "test":
+                fp = out / "plots" / f"{safe_name(p.name)}.png"
+                plot_flight(p, fp, reference=result.reference)
+                written[f"plots/{p.name}"] = fp
+    return written
