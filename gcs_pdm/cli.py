@@ -14,6 +14,8 @@ import sys
 # subcommand name -> module with register(subparsers)
 COMMAND_MODULES: dict[str, str] = {
     "replay": "gcs_pdm.mavlink.cli",
+    "plan": "gcs_pdm.planning.cli",
+    "experiment": "gcs_pdm.planning.cli",
     "fit": "gcs_pdm.fitting.cli",
 }
 
