@@ -1,18 +1,16 @@
 """Pack degradation: a voltage residual that persists beyond noise, read as capacity loss or
 resistance rise, with an estimate of each.
 
-Every ``check_every_s`` of message time the pack's whole flight so far (cleaned current,
-ambient) is re-simulated open loop by ``kernel.simulate_packs`` from the state the estimator
-started it in, and the residual r = V_measured - V_model is regressed on
-
-    r ≈ c0 - ΔR · i - κ · Q,     Q = charge drawn so far (C)
-
-c0 absorbs an initial-SoC error, ΔR is the series resistance the parameter set misses (the
-quasi-static drop of R_s + R_cp), and κ = 1/C_b' - 1/C_b the faster voltage fall of a smaller
-bulk capacitance: capacity factor C_b'/C_b = 1 / (1 + κ C_b). Outliers (spikes) are dropped with
-a MAD rule and the fit is repeated; samples near the knee (model SoC < ``min_soc``), where the
-model's own R_cp error dominates, are left out. A fault needs the estimate beyond its threshold
-at two checks in a row (debounce), and clears likewise.
+Every ``check_every_s`` of message time the pack's whole record so far (cleaned current,
+measured voltage, ambient) is fitted through the kernel with three unknowns: a scale on the series
+resistance (R_s and R_cp0 together), a scale on the capacity (C_b, q_max, C_max together: a pack
+that lost capacity loses bulk capacitance, so its voltage falls faster per coulomb) and the
+initial SoC (the record may start anywhere). A few Gauss–Newton steps with a finite-difference
+Jacobian (one batched ``simulate_packs`` call each) from (1, 1, full) converge; the fit runs on
+the model's own dynamics, so the R_cp–C_cp lag does not bias the resistance as a static
+regression would. Spikes are cut with a MAD rule; samples near the knee (model SoC <
+``min_soc``) are left out. A fault needs its estimate beyond the raise threshold (and two
+standard errors above the clear one) at two checks in a row, and clears likewise.
 
 Thresholds sit above what an uncalibrated parameter set alone produces (≈15 % per parameter for
 the simulated vehicle); after the fitter has learned the real pack they can be tightened.
@@ -35,7 +33,7 @@ class PackHealthConfig:
     check_every_s: float = 60.0
     min_history_s: float = 300.0
     min_samples: int = 150
-    min_soc: float = 0.12
+    min_soc: float = 0.2
     capacity_loss_raise: float = 0.22
     capacity_loss_clear: float = 0.15
     resistance_rise_raise: float = 0.6
@@ -47,7 +45,7 @@ class PackHealthConfig:
 class PackHealthEstimate:
     pack: str
     n: int
-    offset_v: float
+    initial_soc: float
     delta_r_ohm: float
     resistance_rise: float      # ΔR / (R_s + R_cp0)
     capacity_factor: float
@@ -57,44 +55,77 @@ class PackHealthEstimate:
     residual_rms_v: float
 
 
-def fit_pack_residual(params: np.ndarray, x0: np.ndarray, t: np.ndarray, current: np.ndarray,
-                      voltage: np.ndarray, ambient: np.ndarray, min_soc: float = 0.12) -> tuple | None:
-    """(coefficients [c0, ΔR, κ], standard errors, residual rms, n used) or None if not enough data."""
+def _scaled(params: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Pack parameter rows for theta = (resistance scale, capacity scale, initial SoC) rows."""
+    p = np.repeat(params[None], theta.shape[0], axis=0)
+    for k in (kernel.I_RS, kernel.I_RCP0):
+        p[:, k] *= theta[:, 0]
+    for k in (kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX):
+        p[:, k] *= theta[:, 1]
+    return p
+
+
+def fit_pack_residual(params: np.ndarray, t: np.ndarray, current: np.ndarray, voltage: np.ndarray,
+                      ambient: np.ndarray, min_soc: float = 0.2, iterations: int = 10) -> tuple | None:
+    """Gauss–Newton fit of theta = (resistance scale, capacity scale, initial SoC) to a pack's
+    voltage record, through the kernel (Jacobian by forward differences: the base and three
+    perturbed vectors in ONE ``simulate_packs`` call per iteration). Spikes are cut with a MAD rule.
+
+    Returns (theta, standard errors, residual rms, samples used) or None if the record cannot
+    separate the parameters (too short, or a current that never changes)."""
     dt = np.diff(t, prepend=t[0])
-    run = kernel.simulate_packs(params[None], x0[None], dt, current, ambient)
-    r = voltage - run.voltage[0]
-    q = np.cumsum(current * dt)
-    use = np.isfinite(r) & (run.soc[0] >= min_soc)
-    if use.sum() < 20 or np.ptp(current[use]) < 1.0:
+    if t.size < 20 or np.ptp(current) < 1.0:
         return None
-    a = np.stack([np.ones(use.sum()), -current[use], -q[use]], axis=1)
-    y = r[use]
-    for _ in range(2):
-        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-        res = y - a @ coef
+    # start from the SoC the first reading implies under the nominal circuit (the capacity scale
+    # leaves the open-circuit curve unchanged: q_max and C_max scale with C_b)
+    r_cp = params[kernel.I_RCP0] + params[kernel.I_RCP1] * math.exp(params[kernel.I_RCP2] * 0.5)
+    v_b = voltage[0] + current[0] * (params[kernel.I_RS] + r_cp)
+    soc0 = 1.0 - (params[kernel.I_QMAX] - params[kernel.I_CB] * v_b) / params[kernel.I_CMAX]
+    theta = np.array([1.0, 1.0, min(max(soc0, 0.2), 1.0)])
+    max_step = np.array([0.5, 0.15, 0.1])
+    eps = np.array([0.02, 0.005, 0.005])
+    keep = np.ones(t.size, dtype=bool)
+    for it in range(iterations):
+        th = np.repeat(theta[None], 4, axis=0)
+        th[1:, :] += np.diag(eps)
+        th[:, 2] = np.minimum(th[:, 2], 1.0 + eps[2])
+        p = _scaled(params, th)
+        x0 = kernel.initial_pack_state(p, th[:, 2], float(ambient[0]), float(current[0]))
+        run = kernel.simulate_packs(p, x0, dt, current, ambient)
+        r = voltage - run.voltage[0]
+        jac = ((run.voltage[1:] - run.voltage[0]) / eps[:, None]).T     # (n, 3)
+        use = keep & np.isfinite(r) & (run.soc[0] >= min_soc)
+        if use.sum() < 20:
+            return None
+        res = r[use]
         mad = 1.4826 * np.median(np.abs(res - np.median(res))) + 1e-6
-        keep = np.abs(res) <= 4.0 * mad
-        if keep.all():
+        keep = keep & ~(np.abs(r - np.median(res)) > 5.0 * mad)
+        use = use & keep
+        step, *_ = np.linalg.lstsq(jac[use], r[use], rcond=None)
+        # a trust region: the knee makes the first linearisation poor far from the answer
+        step = step * min(1.0, float(np.min(max_step / (np.abs(step) + 1e-12))))
+        theta = theta + step
+        theta[0] = max(theta[0], 0.05)
+        theta[1] = min(max(theta[1], 0.05), 2.0)
+        theta[2] = min(max(theta[2], 0.0), 1.0)
+        if np.all(np.abs(step) < 1e-4):
             break
-        a, y = a[keep], y[keep]
-    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-    res = y - a @ coef
-    n = y.size
+    res = r[use] - jac[use] @ step
+    n = int(use.sum())
     sigma2 = float(res @ res) / max(n - 3, 1)
-    cov = sigma2 * np.linalg.pinv(a.T @ a)
-    # residuals of a model-mismatch are correlated over the R_cp–C_cp time constant and longer:
+    cov = sigma2 * np.linalg.pinv(jac[use].T @ jac[use])
+    # residuals of a model mismatch are correlated over the R_cp–C_cp time constant and longer:
     # count one independent sample per 30 s rather than per frame
     span = float(t[-1] - t[0])
     inflate = math.sqrt(max(n / max(span / 30.0, 1.0), 1.0))
     se = np.sqrt(np.maximum(np.diag(cov), 0.0)) * inflate
-    return coef, se, math.sqrt(float(res @ res) / n), n
+    return theta, se, math.sqrt(float(res @ res) / n), n
 
 
 class PackHealthMonitor:
     def __init__(self, pack_params: np.ndarray, config: PackHealthConfig = PackHealthConfig()):
         self.params = np.asarray(pack_params, dtype=np.float64)
         self.config = config
-        self._x0: list[np.ndarray | None] = [None] * len(PACK_NAMES)
         self._buf: list[list[tuple[float, float, float, float]]] = [[] for _ in PACK_NAMES]
         self._last_check = -math.inf
         self._debounce = {(ty, n): Debouncer(config.debounce) for n in PACK_NAMES
@@ -103,11 +134,9 @@ class PackHealthMonitor:
         self.latest: dict[str, PackHealthEstimate] = {}
 
     def add(self, b: int, time_s: float, current_a: float, voltage_v: float, ambient_c: float,
-            start_state: np.ndarray) -> None:
+            ) -> None:
         if not (math.isfinite(current_a) and math.isfinite(voltage_v)):
             return
-        if self._x0[b] is None:
-            self._x0[b] = np.array(start_state, dtype=np.float64)
         self._buf[b].append((time_s, current_a, voltage_v, ambient_c))
 
     def check(self, time_s: float) -> list[tuple[str, Fault]]:
@@ -120,18 +149,14 @@ class PackHealthMonitor:
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
                 continue
             arr = np.asarray(buf)
-            fit = fit_pack_residual(self.params[b], self._x0[b], arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3],
-                                    self.config.min_soc)
+            fit = fit_pack_residual(self.params[b], arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc)
             if fit is None:
                 continue
-            coef, se, rms, n = fit
+            theta, se, rms, n = fit
             p = self.params[b]
             r_nom = p[kernel.I_RS] + p[kernel.I_RCP0]
-            kappa_cb = coef[2] * p[kernel.I_CB]
-            factor = 1.0 / (1.0 + kappa_cb) if 1.0 + kappa_cb > 0 else math.inf
-            est = PackHealthEstimate(name, n, float(coef[0]), float(coef[1]), float(coef[1] / r_nom), factor,
-                                     1.0 - factor, float(se[1] / r_nom),
-                                     float(se[2] * p[kernel.I_CB] * factor * factor), rms)
+            est = PackHealthEstimate(name, n, float(theta[2]), float((theta[0] - 1.0) * r_nom), float(theta[0] - 1.0),
+                                     float(theta[1]), float(1.0 - theta[1]), float(se[0]), float(se[1]), rms)
             self.latest[name] = est
             cfg = self.config
             for ty, value, se_v, hi, lo in ((PACK_CAPACITY_LOSS, est.capacity_loss, est.se_capacity_loss,
@@ -143,7 +168,7 @@ class PackHealthMonitor:
                 ev = deb.update(time_s, strong, value < lo)
                 conf = 0.5 * (1.0 + math.erf((value - lo) / (max(se_v, 1e-6) * math.sqrt(2.0))))
                 evidence = {"delta_r_ohm": round(est.delta_r_ohm, 5), "capacity_factor": round(est.capacity_factor, 4),
-                            "offset_v": round(est.offset_v, 4), "residual_rms_v": round(rms, 4), "n_samples": n,
+                            "initial_soc": round(est.initial_soc, 4), "residual_rms_v": round(rms, 4), "n_samples": n,
                             "standard_error": round(se_v, 4)}
                 key = (ty, name)
                 if ev == "raise":

@@ -61,8 +61,7 @@ class DiagnosisPipeline:
                 if frame.voltage_v is not None and math.isfinite(frame.voltage_v):
                     self._pack_v[b], self._pack_v_time[b] = frame.voltage_v, t
                 if est.packs.initialised[b] and frame.voltage_v is not None:
-                    self.pack_health.add(b, t, float(est.pack_current[b]), float(frame.voltage_v), est.ambient_c,
-                                         est.packs.mean[b])
+                    self.pack_health.add(b, t, float(est.pack_current[b]), float(frame.voltage_v), est.ambient_c)
         elif isinstance(frame, MotorFrame) and frame.motor in MOTOR_NAMES:
             self._motor_pair(t)
         else:
