@@ -29,11 +29,11 @@ def make_estimator(params: ParameterSet):
 
 # --- diagnosis ---------------------------------------------------------------------------------
 
-def make_diagnoser(params: ParameterSet):
+def make_diagnoser(params: ParameterSet, limits=None):
     """The diagnosis pipeline: ``.consume(frame)`` and a list of active faults (``active_faults``)."""
     from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 
-    return DiagnosisPipeline(params)
+    return DiagnosisPipeline(params) if limits is None else DiagnosisPipeline(params, limits=limits)
 
 
 def estimator_of(diagnoser):
@@ -73,27 +73,22 @@ def _deadline(deadline_s: float) -> Callable[[], bool]:
     return lambda: time.monotonic() > end
 
 
-def run_planner(name: str, sim, *, particles: int, seed: int, deadline_s: float) -> list[int]:
-    """The route (indices into ``sim.scenario.waypoints``) of the named planner of gcs_pdm.planning.
+def run_planner(name: str, sim, *, particles: int, seed: int, deadline_s: float):
+    """The named planner of gcs_pdm.planning on ``sim``; returns its ``Plan``.
 
-    ``auto`` is the strongest planner the package offers (falling back to the exact search)."""
+    ``auto`` is the strongest one the package offers (PF + local search, ``pfls``)."""
+    from gcs_pdm.planning.exact import exact_search
+    from gcs_pdm.planning.local_search import pf_local_search
+    from gcs_pdm.planning.particle_filter import particle_filter
+
     stop = _deadline(deadline_s)
-    if name in ("auto", "stronger"):
-        try:
-            from gcs_pdm.planning.stronger import stronger_planner
-        except ImportError:
-            name = "exact"
-        else:
-            return list(stronger_planner(sim, particles=particles, seed=seed, should_stop=stop).route)
+    if name in ("auto", "stronger", "pfls"):
+        return pf_local_search(sim, particles=particles, seed=seed, should_stop=stop)
     if name == "pf":
-        from gcs_pdm.planning.particle_filter import particle_filter
-
-        return list(particle_filter(sim, particles=particles, seed=seed, should_stop=stop).route)
+        return particle_filter(sim, particles=particles, seed=seed, should_stop=stop)
     if name == "exact":
-        from gcs_pdm.planning.exact import exact_search
-
-        return list(exact_search(sim, should_stop=stop).route)
-    raise ValueError(f"planner: unknown planner {name!r} (auto, stronger, pf, exact)")
+        return exact_search(sim, should_stop=stop)
+    raise ValueError(f"planner: unknown planner {name!r} (auto, pfls, pf, exact)")
 
 
 def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequence[MotorFault],
@@ -102,9 +97,15 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                     *, planner: str, particles: int, seed: int, deadline_s: float, time_s: float,
                     visited: Sequence[int] = (), reward_collected: float = 0.0,
                     limits: Any = None) -> tuple[list[Candidate], dict]:
-    """Plan from the live state; evaluate the planner's route, the current one and the way home."""
+    """Plan from the live state; evaluate the planner's route, the current one and the way home.
+
+    Each candidate carries the mission that flies it (``extra["mission"]``: items in the planner's
+    ArduPilot layout and the item to make current after the upload)."""
+    from gcs_pdm.planning.mission import plan_to_mission
+    from gcs_pdm.planning.plan import make_plan
     from gcs_pdm.planning.scenario import Home, Scenario, Waypoint, enu_from_geodetic
-    from gcs_pdm.planning.simulator import FAILURE_NAMES, VehicleSimulator
+    from gcs_pdm.planning.simulator import VehicleSimulator
+    from gcs_pdm.service.live import item_to_json
 
     lat0, lon0, alt0 = home
     wps = []
@@ -115,28 +116,28 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
         wps.append(Waypoint(number=w.number, east_m=e, north_m=n, alt_m=w.alt_m, reward=w.reward,
                             airspeed_mps=w.airspeed_mps))
     e, n = enu_from_geodetic(position[0], position[1], lat0, lon0)
+    # The ground ambient is what the scenario wants; aloft it follows the lapse rate from there.
     scenario = Scenario.from_live(params, state, list(faults), wps, (e, n, position[2]),
                                   Home(lat_deg=lat0, lon_deg=lon0, ground_alt_m=alt0, ground_temp_c=ground_temp_c),
                                   limits, time_s=time_s, reward_collected=reward_collected, visited=tuple(visited))
     sim = VehicleSimulator(scenario, params)
     index_of = {w.number: i for i, w in enumerate(scenario.waypoints)}
     t0 = time.perf_counter()
-    route = run_planner(planner, sim, particles=particles, seed=seed, deadline_s=deadline_s)
+    planned = run_planner(planner, sim, particles=particles, seed=seed, deadline_s=deadline_s)
     plan_s = time.perf_counter() - t0
     keep = [index_of[n] for n in keep_route if n in index_of]
-    routes = {"planner": route, "keep": keep, "home": []}
-    ev = sim.evaluate(list(routes.values()))
-    obj = ev.objective()
+    plans = {"planner": planned, "keep": make_plan(sim, keep, "keep"), "home": make_plan(sim, [], "home")}
     cands = []
-    for b, (name, r) in enumerate(routes.items()):
-        cause = None if bool(ev.feasible[b]) else FAILURE_NAMES.get(int(ev.cause[b]), str(int(ev.cause[b])))
+    for name, p in plans.items():
+        mp = plan_to_mission(scenario, p, airborne=True)
         cands.append(Candidate(
-            name=name, route=tuple(scenario.waypoints[i].number for i in r), feasible=bool(ev.feasible[b]),
-            reward=float(ev.reward[b]), reward_reached=float(ev.reward_reached[b]), objective=float(obj[b]),
-            cause=cause, extra={"flight_time_s": float(ev.flight_time_s[b]), "health_cost": float(ev.health_cost[b]),
-                                "power_cost_mj": float(ev.power_cost[b]),
-                                "final_soc": [float(v) for v in np.asarray(ev.final_soc[b])]}))
-    info = {"planner": planner, "plan_time_s": plan_s, "scenario": scenario.to_dict()}
+            name=name, route=tuple(p.numbers), feasible=bool(p.feasible), reward=float(p.reward),
+            reward_reached=float(p.reward_reached), objective=float(p.objective),
+            cause=None if p.feasible else p.failure,
+            extra={"flight_time_s": p.flight_time_s, "health_cost": p.health_cost, "power_cost_mj": p.power_cost_mj,
+                   "final_soc": list(p.final_soc), "fail_leg": p.fail_leg,
+                   "mission": {"items": [item_to_json(i) for i in mp.items], "current_seq": mp.current_seq}}))
+    info = {"planner": getattr(planned, "planner", planner), "plan_time_s": plan_s, "scenario": scenario.to_dict()}
     return cands, info
 
 

@@ -110,22 +110,6 @@ def choose(candidates: Sequence[Candidate]) -> tuple[Candidate, str]:
     return best, "no candidate is predicted to get home inside the limits; operator decision needed"
 
 
-def mission_items(route_numbers: Sequence[int], catalogue: Sequence[CatalogueWaypoint],
-                  home: tuple[float, float, float], landing: tuple[float, float] | None = None,
-                  current_alt_m: float | None = None) -> list[M.MissionItem]:
-    """A complete mission for an airborne vehicle: home (seq 0, as ArduPilot keeps it), the route's
-    waypoints, then NAV_LAND at the landing site. Altitudes are relative to home."""
-    by_number = {w.number: w for w in catalogue}
-    lat0, lon0, _alt0 = home
-    land_lat, land_lon = landing or (lat0, lon0)
-    items = [M.waypoint(lat0, lon0, 0.0, frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)]
-    for n in route_numbers:
-        w = by_number[n]
-        items.append(M.waypoint(w.lat_deg, w.lon_deg, w.alt_m))
-    items.append(M.land(land_lat, land_lon, 0.0))
-    return M.renumber(items)
-
-
 def route_of_items(items: Sequence[M.MissionItem], catalogue: Sequence[CatalogueWaypoint]) -> list[int]:
     seq_to_number = match_items(items, catalogue)
     return [seq_to_number[i.seq] for i in items if i.seq in seq_to_number]

@@ -30,8 +30,7 @@ from gcs_pdm.frames import MissionProgressFrame, PositionFrame, StatusTextFrame
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service import adapters
-from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, mission_items, remaining_route,
-                                      route_of_items)
+from gcs_pdm.service.decision import Candidate, catalogue_from_items, choose, remaining_route, route_of_items
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +74,8 @@ class LiveLoop:
         self.link = link
         self.mc = mission_client
         self.params = service.params
-        self.diagnoser = diagnoser if diagnoser is not None else adapters.make_diagnoser(self.params)
+        self.diagnoser = diagnoser if diagnoser is not None else adapters.make_diagnoser(
+            self.params, service.limits.kernel_limits() if service.limits is not None else None)
         shared = adapters.estimator_of(self.diagnoser) if estimator is None else None
         self.estimator = estimator or shared or adapters.make_estimator(self.params)
         # The pipeline feeds its own estimator; feeding it twice would double-count every frame.
@@ -314,7 +314,8 @@ class LiveLoop:
         self.mission_time_s = self._time_s
         if items and self.home is None:
             h = items[0]
-            self.home = (h.lat_deg, h.lon_deg, float(h.z) if h.frame == M.MAV_FRAME_GLOBAL else 0.0)
+            absolute = h.frame in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT)
+            self.home = (h.lat_deg, h.lon_deg, float(h.z) if absolute else 0.0)
         if self.catalogue is None and items:
             self.catalogue = catalogue_from_items(items, reward=1.0)
             log.info("no mission objectives configured: each of the %d waypoints is worth 1", len(self.catalogue))
@@ -333,11 +334,12 @@ class LiveLoop:
         keep = remaining_route(self.mission_items, snap.current_seq, self.catalogue, self.visited)
         svc.events.publish("plan", status="planning", time_s=snap.time_s, reason=reason,
                            faults=[dataclasses.asdict(f) for f in snap.faults])
-        home = (self.home[0], self.home[1], self._ground_alt_amsl or 0.0)
+        home = (self.home[0], self.home[1], self.home[2] or self._ground_alt_amsl or 0.0)
         cands, info = adapters.plan_candidates(
             self.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
             planner=cfg.planner, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
-            time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected)
+            time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
+            limits=svc.limits)
         chosen, why = choose(cands)
         body = {"reason": reason, "policy": svc.policy, "parameter_set": self.params.name,
                 "faults": [dataclasses.asdict(f) for f in snap.faults], "fault_records": list(snap.fault_records),
@@ -350,8 +352,10 @@ class LiveLoop:
             self._expect(snap, chosen)
             svc.events.publish("plan", id=pid, status="kept", time_s=snap.time_s, why=why, chosen=chosen.to_dict())
             return
-        items = mission_items(chosen.route, self.catalogue, self.home)
-        body["items"] = [item_to_json(i) for i in items]
+        mission = chosen.extra["mission"]
+        items = [item_from_json(d) for d in mission["items"]]
+        body["items"] = mission["items"]
+        body["current_seq"] = mission["current_seq"]
         auto = svc.policy == "auto" and chosen.feasible
         pid = svc.store.add_plan(body, reason, "approved" if auto else "proposed", snap.time_s)
         svc.events.publish("plan", id=pid, status="approved" if auto else "proposed", time_s=snap.time_s, why=why,
@@ -360,7 +364,7 @@ class LiveLoop:
             if old["id"] != pid:
                 svc.store.set_plan_status(old["id"], "superseded", f"by plan {pid}")
         if auto:
-            self.upload(pid, items, chosen, snap)
+            self.upload(pid, items, chosen, snap, mission["current_seq"])
         else:
             self.statustext(f"PDM: plan {pid} proposed, reward {chosen.reward:g}; approve on gcs-pdm",
                             MAV_SEVERITY_WARNING)
@@ -378,9 +382,10 @@ class LiveLoop:
         cand = Candidate(chosen["name"], tuple(chosen["route"]), chosen["feasible"], chosen["reward"],
                          chosen["reward_reached"], chosen["objective"], chosen.get("cause"),
                          {k: chosen[k] for k in ("final_soc", "flight_time_s") if k in chosen})
-        self._worker.submit(self._guard, self.upload, plan_id, items, cand, None)
+        self._worker.submit(self._guard, self.upload, plan_id, items, cand, None, plan.get("current_seq", 1))
 
-    def upload(self, plan_id: int, items: list[M.MissionItem], chosen: Candidate, snap: Snapshot | None) -> bool:
+    def upload(self, plan_id: int, items: list[M.MissionItem], chosen: Candidate, snap: Snapshot | None,
+               current_seq: int = 1) -> bool:
         svc = self.service
         previous = list(self.mission_items or [])
         svc.events.publish("upload", plan_id=plan_id, status="uploading", count=len(items), time_s=self._time_s)
@@ -388,8 +393,9 @@ class LiveLoop:
 
         try:
             stats = self.mc.upload(items)
-            # The vehicle resumes at item 1, the first waypoint of the new route (docs/service.md).
-            self.mc.set_current(1)
+            # An airborne vehicle heads for the first item of the new route, never the take-off
+            # (gcs_pdm.planning.mission documents the layout).
+            self.mc.set_current(current_seq)
             confirmed = None
             if svc.config.confirm_download:
                 back = self.mc.download()

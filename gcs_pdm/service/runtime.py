@@ -38,6 +38,8 @@ class Service:
         active = self.store.active_parameter_set_name() or config.parameter_set
         self.params: ParameterSet = self.store.activate_parameter_set(active)
         self.catalogue: list[CatalogueWaypoint] | None = None
+        #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the kernel's defaults
+        self.limits = None
         self.loop = None
         self.state.update(policy=self.policy, parameter_set=self.params.name)
 
@@ -66,6 +68,7 @@ class Service:
             lat, lon = geodetic_from_enu(w.east_m, w.north_m, h.lat_deg, h.lon_deg)
             cat.append(CatalogueWaypoint(w.number, lat, lon, w.alt_m, w.reward, w.airspeed_mps))
         self.catalogue = cat
+        self.limits = sc.limits
         return cat
 
     # --- operator actions --------------------------------------------------------------------------
