@@ -395,3 +395,26 @@ def _fit_provenance(res: FitResult) -> dict:
             "seconds": round(res.seconds, 2), "settings": res.settings.search.to_dict(),
             "test_errors": res.errors["learned"]["test"]["overall"],
             "reference_test_errors": res.errors["reference"]["test"]["overall"], "reference": res.reference}
+
+
+# ---- evaluation of a given set ----------------------------------------------------------------------
+
+def evaluate_battery(vector: np.ndarray, flights: Sequence[Flight], settings: FitSettings = FitSettings()) -> dict:
+    """Errors of one pack vector (12,) on flights, cleaned and initialised exactly as in a fit
+    (so the errors of the true parameters compare with a fit's on the same data)."""
+    usable, _, _ = clean_flights(list(flights), settings.cleaning)
+    traces = _pack_traces(np.asarray(vector, dtype=np.float64), usable, settings.init_samples)
+    return _split_errors({"eval": [(f.name, {"voltage": (v, f.voltage_v), "temperature": (t, f.temperature_c)})
+                                   for f, (v, t, _) in zip(usable, traces)]})["eval"]
+
+
+def evaluate_motor(vector: np.ndarray, flights: Sequence[Flight], settings: FitSettings = FitSettings()) -> dict:
+    """Errors of one motor vector (5,) on motor flights, cleaned and initialised as in a fit."""
+    usable, _, _ = clean_flights(list(flights), settings.cleaning)
+    pairs = []
+    for f in usable:
+        pr = pb.prepare(f, "temperature", settings.init_samples)
+        t = kernel.simulate_motor_thermal(np.asarray(vector, dtype=np.float64)[None], pr.init_temperature, pr.dt,
+                                          pr.current, pr.ambient)[0]
+        pairs.append((f.name, {"temperature": (t, f.temperature_c)}))
+    return _split_errors({"eval": pairs})["eval"]
