@@ -59,9 +59,13 @@ class Service:
 
     def load_objectives(self, path: str | Path) -> list[CatalogueWaypoint]:
         """Waypoints with rewards from a scenario JSON (``fixtures/scenarios``; lat/lon or ENU)."""
-        from gcs_pdm.planning.scenario import Scenario, geodetic_from_enu
+        from gcs_pdm.planning.scenario import Scenario
 
-        sc = Scenario.from_json(Path(path).read_text())
+        return self.load_objectives_scenario(Scenario.from_json(Path(path).read_text()))
+
+    def load_objectives_scenario(self, sc) -> list[CatalogueWaypoint]:
+        from gcs_pdm.planning.scenario import geodetic_from_enu
+
         h = sc.home
         cat = []
         for w in sc.waypoints:

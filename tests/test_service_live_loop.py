@@ -1,0 +1,210 @@
+"""The decision loop without a network: real estimator, diagnoser and planner, a scripted vehicle.
+
+Frames of a seeded synthetic flight whose aft motor loses 70 % of its power are fed to the loop in
+message time; the loop must diagnose the fault, replan over the Table III waypoints, upload the new
+mission (auto) or propose it (advise), confirm by download, tell the operator, and keep an audit
+record with the previous mission.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from gcs_pdm import missions as M
+from gcs_pdm.estimation.synthetic import fly_synthetic
+from gcs_pdm.frames import MissionProgressFrame, PositionFrame
+from gcs_pdm.planning.mission import plan_to_mission
+from gcs_pdm.planning.plan import make_plan
+from gcs_pdm.planning.scenario import geodetic_from_enu
+from gcs_pdm.planning.simulator import VehicleSimulator, original_order
+from gcs_pdm.planning.table3_scenario import TABLE3_HOME, TABLE3_WAYPOINTS, preflight_scenario
+from gcs_pdm.service.config import load_config
+from gcs_pdm.service.decision import Candidate, choose
+from gcs_pdm.service.live import LiveLoop
+from gcs_pdm.service.runtime import Service
+from gcs_pdm.sim.truth import true_parameters
+
+
+class FakeLink:
+    def __init__(self):
+        self.mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=195)
+        self.sent = []
+        self.received = 0
+        self.target_system, self.target_component = 1, 1
+
+    def add_frame_listener(self, cb):
+        pass
+
+    def wait_for_vehicle(self, timeout=10.0):
+        return 1, 1
+
+    def send(self, msg):
+        self.sent.append(msg)
+
+
+class FakeVehicleMissions:
+    """The vehicle's side of the mission protocol, reduced to its outcome."""
+
+    def __init__(self, items, fail_uploads=0):
+        self.items = [M.as_sent(i) for i in items]
+        self.uploads = []
+        self.current = None
+        self.fail_uploads = fail_uploads
+
+    def upload(self, items):
+        from gcs_pdm.mavlink.mission_client import MissionTimeout
+
+        if self.fail_uploads:
+            self.fail_uploads -= 1
+            raise MissionTimeout("upload: no MISSION_REQUEST after 5 retries")
+        self.uploads.append(list(items))
+        self.items = [M.as_sent(i) for i in items]
+        return None
+
+    def download(self):
+        return list(self.items)
+
+    def set_current(self, seq):
+        self.current = seq
+
+
+def original_mission():
+    sc = preflight_scenario(10)
+    sim = VehicleSimulator(sc, true_parameters())
+    return plan_to_mission(sc, make_plan(sim, original_order(sc), "original"), airborne=False)
+
+
+def fault_frames():
+    """Frames of a flight whose aft motor loses 70 % at t = 200 s, with position between wp 2 and 3."""
+    f = fly_synthetic(true_parameters(), np.random.default_rng(1), duration_s=420.0, fault_motor="aft",
+                      fault_magnitude=0.7, fault_time_s=200.0, initial_soc=0.8)
+    w = {n: (e, no, a) for n, e, no, a, _ in TABLE3_WAYPOINTS}
+    mid = 0.5 * (np.array(w[2]) + np.array(w[3]))
+    lat, lon = geodetic_from_enu(mid[0], mid[1], TABLE3_HOME.lat_deg, TABLE3_HOME.lon_deg)
+    extra = [PositionFrame(t, lat, lon, mid[2], mid[2], 0.0, 0.0, 0.0) for t in range(1, 420, 5)]
+    return sorted(f.frames + extra, key=lambda fr: fr.time_s)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return fault_frames()
+
+
+def make_loop(tmp_path, policy, mission, fail_uploads=0):
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy=policy, planner_deadline_s=20.0))
+    svc.load_objectives_scenario(preflight_scenario(10))
+    link = FakeLink()
+    vehicle = FakeVehicleMissions(mission.items, fail_uploads)
+    loop = LiveLoop(svc, link, vehicle)
+    svc.attach_loop(loop)
+    loop._initial_download()
+    return svc, loop, link, vehicle
+
+
+def run(loop, frames, mission):
+    loop.process(MissionProgressFrame(0.5, None, mission.waypoint_seq[1]))
+    loop.process(MissionProgressFrame(0.6, None, mission.waypoint_seq[2]))
+    loop.process(MissionProgressFrame(0.7, mission.waypoint_seq[3], None))
+    for fr in frames:
+        loop.process(fr)
+    deadline = time.monotonic() + 60
+    while (loop._busy or loop._pending) and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
+def statustexts(link):
+    return [m.text for m in link.sent if m.get_type() == "STATUSTEXT"]
+
+
+@pytest.mark.slow
+def test_auto_policy_diagnoses_replans_uploads_and_confirms(tmp_path, frames):
+    mission = original_mission()
+    svc, loop, link, vehicle = make_loop(tmp_path, "auto", mission)
+    try:
+        run(loop, frames, mission)
+        faults = svc.store.faults(active_only=True)
+        assert any(f["kind"] == "motor_power_loss" and f["target"] == "aft" and 0.55 < f["magnitude"] < 0.85
+                   for f in faults), faults
+        assert loop.visited == {1, 2}
+        plans = svc.store.plans()
+        assert plans, "no plan was made"
+        plan = plans[-1]  # the first plan, made on the fault
+        assert plan["trigger"].startswith("fault: motor_power_loss aft")
+        chosen = plan["chosen"]
+        by_name = {c["name"]: c for c in plan["candidates"]}
+        assert set(by_name) == {"planner", "keep", "home"}
+        assert by_name["keep"]["route"] == [3, 4, 5, 6, 7, 8, 9, 10]
+        # never a route predicted to fail while a feasible one exists
+        assert chosen["feasible"] and chosen["reward"] >= max(c["reward"] for c in plan["candidates"] if c["feasible"])
+        if plan["status"] == "kept":
+            pytest.fail("the original order should not be flyable with the fault (Table III scenario)")
+        assert plan["status"] == "uploaded"
+        # uploaded, set current to the first new item, confirmed by download
+        assert len(vehicle.uploads) >= 1
+        up = vehicle.uploads[0]
+        assert [i.seq for i in up] == list(range(len(up))) and up[-1].command == M.MAV_CMD_NAV_LAND
+        assert vehicle.current == plan["current_seq"]
+        uploads = svc.store.uploads()
+        assert uploads[-1]["status"] == "confirmed" and uploads[-1]["plan_id"] == plan["id"]
+        assert len(uploads[-1]["previous_items"]) == len(mission.items)
+        assert any(t.startswith("PDM: new mission") for t in statustexts(link))
+        assert loop.mission_items is not None and M.same_items(loop.mission_items, vehicle.items)
+        kinds = [e.kind for e in svc.events.since(0)]
+        assert kinds.index("fault") < kinds.index("plan") < kinds.index("upload")
+    finally:
+        svc.close()
+
+
+@pytest.mark.slow
+def test_advise_policy_proposes_and_uploads_only_when_approved(tmp_path, frames):
+    mission = original_mission()
+    svc, loop, link, vehicle = make_loop(tmp_path, "advise", mission)
+    try:
+        run(loop, frames, mission)
+        proposed = svc.store.plans(status="proposed")
+        assert len(proposed) == 1 and vehicle.uploads == []
+        assert any("proposed" in t for t in statustexts(link))
+        svc.approve(proposed[0]["id"])
+        deadline = time.monotonic() + 20
+        while not vehicle.uploads and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.2)
+        assert vehicle.uploads and svc.store.plan(proposed[0]["id"])["status"] == "uploaded"
+    finally:
+        svc.close()
+
+
+@pytest.mark.slow
+def test_failed_upload_keeps_the_old_mission_and_is_recorded(tmp_path, frames):
+    mission = original_mission()
+    svc, loop, link, vehicle = make_loop(tmp_path, "auto", mission, fail_uploads=10)
+    try:
+        run(loop, frames, mission)
+        assert vehicle.uploads == []
+        assert M.same_items(loop.mission_items, [M.as_sent(i) for i in mission.items])
+        up = svc.store.uploads()
+        assert up and all(u["status"] == "failed" for u in up) and "no MISSION_REQUEST" in up[-1]["error"]
+        assert svc.store.plans()[-1]["status"] == "upload_failed"
+    finally:
+        svc.close()
+
+
+def _c(name, feasible, reward, obj=None):
+    return Candidate(name, (), feasible, reward if feasible else 0.0, reward, obj if obj is not None else reward)
+
+
+def test_choose_never_prefers_a_predicted_failure():
+    best, _ = choose([_c("planner", False, 400), _c("keep", False, 300), _c("home", True, 0)])
+    assert best.name == "home"
+    best, _ = choose([_c("planner", True, 250), _c("keep", False, 300), _c("home", True, 0)])
+    assert best.name == "planner"
+    # a tie keeps the mission on the vehicle
+    best, _ = choose([_c("planner", True, 250), _c("keep", True, 250), _c("home", True, 0)])
+    assert best.name == "keep"
+    # nothing feasible: the most reward before the failure, flagged for the operator
+    best, why = choose([_c("planner", False, 100), _c("keep", False, 50), _c("home", False, 0)])
+    assert best.name == "planner" and "operator" in why
