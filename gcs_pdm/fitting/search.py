@@ -85,7 +85,7 @@ def anneal(cost: Callable[[np.ndarray], np.ndarray], dim: int, settings: SearchS
         k = np.argmin(e, axis=1)
         e_new = e[np.arange(S), k]
         u_new = prop[np.arange(S), k]
-        accept = (e_new < e_cur) | (rng.random(S) < np.exp(-(e_new - e_cur) / temp))
+        accept = (e_new < e_cur) | (rng.random(S) < np.exp(-np.maximum(e_new - e_cur, 0.0) / temp))
         cur[accept], e_cur[accept] = u_new[accept], e_new[accept]
         better = e_cur < e_best
         best[better], e_best[better] = cur[better], e_cur[better]
