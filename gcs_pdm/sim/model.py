@@ -565,7 +565,8 @@ class VehicleModel:
     def _check_leg_faults(self, dist_left: float) -> None:
         for spec in list(self._pending_faults):
             tr = spec.trigger
-            if tr.kind != "leg" or self.current_seq != tr.seq or self._last_reached != tr.from_seq:
+            # the leg a-b: flying towards b with a (or a non-positional item after it) reached last
+            if tr.kind != "leg" or self.current_seq != tr.seq or not tr.from_seq <= self._last_reached < tr.seq:
                 continue
             if self._leg_start is None:
                 continue
