@@ -17,6 +17,8 @@ COMMAND_MODULES: dict[str, str] = {
     "plan": "gcs_pdm.planning.cli",
     "experiment": "gcs_pdm.planning.cli",
     "fit": "gcs_pdm.fitting.cli",
+    "serve": "gcs_pdm.service.cli",
+    "demo": "gcs_pdm.service.cli",
 }
 
 

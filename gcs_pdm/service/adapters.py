@@ -148,3 +148,13 @@ def fitting_api():
     import gcs_pdm.fitting as fitting
 
     return fitting
+
+
+# --- simulated vehicle -------------------------------------------------------------------------
+
+def start_sim_vehicle(sim_config, url: str, speedup: float):
+    """The loopback simulated vehicle (gcs_pdm.sim) in a background thread, talking MAVLink on ``url``;
+    the returned object has ``.stop()`` and ``.model`` (the steppable truth)."""
+    from gcs_pdm.sim.vehicle import SimulatedVehicle
+
+    return SimulatedVehicle(sim_config, url=url, speedup=speedup).start()

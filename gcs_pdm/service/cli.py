@@ -1,0 +1,55 @@
+"""``gcs-pdm serve`` and ``gcs-pdm demo``."""
+from __future__ import annotations
+
+import argparse
+import logging
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("serve", help="run the decision service beside a ground station (MAVLink + HTTP)")
+    p.add_argument("--config", help="TOML or JSON settings file (see docs/service.md); env GCS_PDM_* override it")
+    p.add_argument("--mavlink", dest="mavlink_url", help="MAVLink address (default udpin:0.0.0.0:14550)")
+    p.add_argument("--http", help="HTTP host:port (default 127.0.0.1:8000)")
+    p.add_argument("--policy", choices=("auto", "advise"))
+    p.add_argument("--data-dir", dest="data_dir")
+    p.add_argument("--objectives", help="scenario JSON with the waypoints' rewards and the limits to plan with")
+    p.set_defaults(func=_serve)
+    d = subparsers.add_parser("demo", help="simulated vehicle + service on loopback: the Table III flight, live")
+    d.add_argument("--speedup", type=float, default=60.0, help="simulated seconds per wall second (default 60)")
+    d.add_argument("--http-port", type=int, default=8000, help="status page port (0: any free port)")
+    d.add_argument("--data-dir", help="keep the database and tlog here (default: a temporary directory)")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--timeout", type=float, default=170.0, help="wall-clock limit, s")
+    d.add_argument("--no-compare", action="store_true", help="skip flying the original mission without the service")
+    d.set_defaults(func=_demo)
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from gcs_pdm.service.config import ConfigError, load_config
+    from gcs_pdm.service.server import serve
+
+    host = port = None
+    if args.http:
+        host, _, port_text = args.http.rpartition(":")
+        port = int(port_text)
+    try:
+        config = load_config(args.config, mavlink_url=args.mavlink_url, policy=args.policy, data_dir=args.data_dir,
+                             http_host=host or None, http_port=port)
+    except ConfigError as exc:
+        print(f"gcs-pdm serve: {exc}")
+        return 2
+    return serve(config, objectives=args.objectives)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from gcs_pdm.service.demo import print_summary, run_demo
+
+    # The demo's own lines are the show; the libraries' INFO chatter would bury them.
+    logging.getLogger().setLevel(logging.WARNING)
+    result = run_demo(speedup=args.speedup, http_port=args.http_port, data_dir=args.data_dir, seed=args.seed,
+                      timeout_s=args.timeout, compare=not args.no_compare)
+    print_summary(result)
+    if not result.landed:
+        print("gcs-pdm demo: the vehicle did not land safely")
+        return 1
+    return 0
