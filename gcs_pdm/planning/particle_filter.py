@@ -86,7 +86,8 @@ def particle_filter(sim: VehicleSimulator, *, particles: int = 30, iterations: i
         extend = length >= 1
         for k in np.flatnonzero(np.isfinite(weight)):
             path = paths[k] + tuple(int(w) for w in perms[k][:length[k]])
-            if best is None or better(float(wreward[k]), float(weight[k]), best[1], best[2]):
+            # argmax of the weight (line 19), the reward breaking exact ties
+            if best is None or better(float(weight[k]), float(wreward[k]), best[2], best[1]):
                 best = (path, float(wreward[k]), float(weight[k]))
         if first_step is not None and np.any(extend):
             state = _scatter(state, np.flatnonzero(extend), first_step.take(np.flatnonzero(extend)))
