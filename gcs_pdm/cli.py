@@ -19,6 +19,7 @@ COMMAND_MODULES: dict[str, str] = {
     "fit": "gcs_pdm.fitting.cli",
     "serve": "gcs_pdm.service.cli",
     "demo": "gcs_pdm.service.cli",
+    "sim": "gcs_pdm.sim.cli",
 }
 
 

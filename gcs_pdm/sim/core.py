@@ -13,6 +13,15 @@ from gcs_pdm.sim.model import SimConfig, TruthState, VehicleModel
 from gcs_pdm.sim.telemetry import COMPONENT_ID, SYSTEM_ID, Telemetry, TelemetryConfig
 
 
+def warm_up_kernel(config: SimConfig) -> None:
+    """Load (or compile) the kernel's numba functions now, so the first ticks of a fast live run
+    are not late: a throwaway vehicle takes off and rests."""
+    model = VehicleModel(config)
+    model.step()
+    model.arm()
+    model._powertrain(config.physics_dt_s, 100.0, True)
+
+
 class VehicleCore:
     def __init__(self, config: SimConfig, telemetry: TelemetryConfig | None = None,
                  timeouts: ServerTimeouts | None = None):
