@@ -49,6 +49,15 @@ def register(subparsers) -> None:
     s.add_argument("--truth-seed", type=int, default=7)
     s.add_argument("--clean", action="store_true", help="noise only, no injected damage")
     s.set_defaults(func=run_synthetic)
+    ls = sub.add_parser("learn-synthetic", help="learn a whole parameter set from synthetic flights of the simulated "
+                                                "vehicle (gcs_pdm.sim.truth) and write it as JSON")
+    ls.add_argument("--out", type=Path, required=True, help="parameter set JSON to write")
+    ls.add_argument("--flights", type=int, default=12)
+    ls.add_argument("--seed", type=int, default=1, help="flight generator seed")
+    ls.add_argument("--fit-seed", type=int, default=0)
+    ls.add_argument("--truth-seed", type=int, default=None, help="gcs_pdm.sim.truth seed (default: the vehicle's)")
+    ls.add_argument("--quiet", action="store_true")
+    ls.set_defaults(func=run_learn_synthetic)
     p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
 
 
@@ -161,4 +170,22 @@ def run_synthetic(args: argparse.Namespace) -> int:
         write_table(f.motor, args.out / f"{f.name}_motor.csv")
     (args.out / "truth.json").write_text(truth.to_json(indent=2))
     print(f"fit synthetic: {args.flights} flights x 5 logs and truth.json in {args.out}", file=sys.stderr)
+    return 0
+
+
+def run_learn_synthetic(args: argparse.Namespace) -> int:
+    from gcs_pdm.fitting.learn_synthetic import learn_from_synthetic
+    from gcs_pdm.fitting.procedure import FitSettings
+    from gcs_pdm.fitting.search import SearchSettings
+    from gcs_pdm.sim.truth import DEFAULT_TRUTH_SEED, true_parameters
+
+    truth = true_parameters(args.truth_seed if args.truth_seed is not None else DEFAULT_TRUTH_SEED)
+    merged, results = learn_from_synthetic(truth, flights=args.flights, seed=args.seed,
+                                           settings=FitSettings(search=SearchSettings(seed=args.fit_seed)),
+                                           progress=_ProgressLine("learn: ", args.quiet))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(merged.to_json(indent=2))
+    for part, res in results.items():
+        print(json.dumps({"part": part, **_summary(res)}))
+    print(f"fit learn-synthetic: wrote {args.out}", file=sys.stderr)
     return 0
