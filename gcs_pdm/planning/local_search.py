@@ -26,8 +26,9 @@ from gcs_pdm.planning.simulator import DEFAULT_THETA, VehicleSimulator
 log = logging.getLogger(__name__)
 
 
-def neighbours(route: tuple[int, ...], n: int) -> list[tuple[int, ...]]:
-    """All routes one move away from ``route`` over waypoints 0..n-1 (distinct, deduplicated)."""
+def neighbours(route: tuple[int, ...], n: int, *, wide: bool = True) -> list[tuple[int, ...]]:
+    """All routes one move away from ``route`` over waypoints 0..n-1 (distinct, deduplicated).
+    ``wide=False`` leaves out the drop-one-add-two moves (the largest neighbourhood)."""
     r = list(route)
     unvisited = [w for w in range(n) if w not in set(r)]
     out: set[tuple[int, ...]] = set()
@@ -48,7 +49,8 @@ def neighbours(route: tuple[int, ...], n: int) -> list[tuple[int, ...]]:
             s[i], s[j] = s[j], s[i]
             out.add(tuple(s))
             out.add(tuple(r[:i] + r[i:j + 1][::-1] + r[j + 1:]))
-        # drop one, add two
+        if not wide:
+            continue
         for a in range(len(unvisited)):
             for b in range(len(unvisited)):
                 if a != b:
@@ -67,20 +69,27 @@ def improve(sim: VehicleSimulator, route: Sequence[int], *, theta: Sequence[floa
     cur_r = float(ev.reward[0]) if ev.feasible[0] else -1.0
     cur_o = float(ev.objective(theta)[0]) if ev.feasible[0] else -np.inf
     flown = 1
+    rewards = sim.rewards
+    wide = False
     for _ in range(max_rounds):
         if should_stop is not None and should_stop():
             break
-        cands = neighbours(cur, sim.n)
-        if not cands:
+        # a move that loses reward can never win (reward ranks first): do not fly it
+        cands = [c for c in neighbours(cur, sim.n, wide=wide) if rewards[list(c)].sum() >= cur_r - 1e-9]
+        if cands:
+            ev = sim.evaluate(cands)
+            flown += len(cands)
+            obj = np.where(ev.feasible, ev.objective(theta), -np.inf)
+            rew = np.where(ev.feasible, ev.reward, -1.0)
+            i = rank(rew, obj)
+            if better(float(rew[i]), float(obj[i]), cur_r, cur_o):
+                cur, cur_r, cur_o = cands[i], float(rew[i]), float(obj[i])
+                wide = False
+                continue
+        if wide:
             break
-        ev = sim.evaluate(cands)
-        flown += len(cands)
-        obj = np.where(ev.feasible, ev.objective(theta), -np.inf)
-        rew = np.where(ev.feasible, ev.reward, -1.0)
-        i = rank(rew, obj)
-        if not better(float(rew[i]), float(obj[i]), cur_r, cur_o):
-            break
-        cur, cur_r, cur_o = cands[i], float(rew[i]), float(obj[i])
+        # the small moves are exhausted: try the wide neighbourhood before giving up
+        wide = True
     return cur, cur_r, cur_o, flown
 
 
