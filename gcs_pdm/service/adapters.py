@@ -152,9 +152,9 @@ def fitting_api():
 
 # --- simulated vehicle -------------------------------------------------------------------------
 
-def start_sim_vehicle(sim_config, url: str, speedup: float):
-    """The loopback simulated vehicle (gcs_pdm.sim) in a background thread, talking MAVLink on ``url``;
-    the returned object has ``.stop()`` and ``.model`` (the steppable truth)."""
-    from gcs_pdm.sim.vehicle import SimulatedVehicle
+def start_sim_vehicle(sim_config, url: str, speedup: float, telemetry=None):
+    """The loopback simulated vehicle in a background thread, talking MAVLink on ``url``; the
+    returned object has ``.stop()`` and ``.model`` (the steppable truth)."""
+    from gcs_pdm.service.loopback_vehicle import LoopbackVehicle
 
-    return SimulatedVehicle(sim_config, url=url, speedup=speedup).start()
+    return LoopbackVehicle(sim_config, url, speedup, telemetry).start()

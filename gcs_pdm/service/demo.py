@@ -77,6 +77,14 @@ def sim_config(scenario, mission, seed: int = 0):
                      mission=tuple(mission.items))
 
 
+def demo_telemetry():
+    """1 Hz battery/ESC/position telemetry: what the estimator needs, light enough for x60."""
+    from gcs_pdm.sim.telemetry import RECORDING_RATES, TelemetryConfig
+
+    rates = dict(RECORDING_RATES, GLOBAL_POSITION_INT=1.0, VFR_HUD=1.0, MISSION_CURRENT=1.0, HEARTBEAT=1.0)
+    return TelemetryConfig(rates_hz=rates)
+
+
 def reward_of(reached_seqs, mission, scenario) -> tuple[list[int], float]:
     number_of = {seq: n for n, seq in mission.waypoint_seq.items()}
     reward = {w.number: w.reward for w in scenario.waypoints}
@@ -90,7 +98,7 @@ def fly_without_service(config, max_sim_s: float = 4 * 3600.0) -> dict:
     from gcs_pdm.sim.model import VehicleModel
 
     model = VehicleModel(config)
-    while not model.finished() and model.time_s < max_sim_s:
+    while not model.finished and model.time_s < max_sim_s:
         model.step()
     s = model.state()
     return {"landed": bool(s.landed and not s.failed), "failed": bool(s.failed), "failure": s.failure,
@@ -164,13 +172,23 @@ def summarise_predictions(service: Service) -> dict:
     if not plans:
         return {}
     plan = plans[0]
-    sc = Scenario.from_dict(plan["scenario"])
-    truth = true_parameters()
-    # The truth's own state at that moment is not what the service knew; score from the service's
-    # estimate of the state, but with the true parameters and the true fault.
+    import dataclasses
+
+    import numpy as np
+
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.params import ParameterSet
     from gcs_pdm.models.powertrain import MotorFault
 
-    sc = sc.__class__(**{**sc.__dict__, "faults": (MotorFault(FAULT_MOTOR, FAULT_MAGNITUDE),)})
+    sc = Scenario.from_dict(plan["scenario"])
+    truth = true_parameters()
+    # Score from what the service estimated (SoC, temperatures) at the replan, but with the TRUE
+    # parameters and the TRUE fault. The estimator's kernel state belongs to the service's own
+    # parameter set, so the truth starts from the same SoC rather than from that state vector.
+    x = np.asarray(sc.start.pack_state)
+    soc = kernel.state_of_charge(ParameterSet.from_dict(sc.params).pack_matrix(), x)
+    start = dataclasses.replace(sc.start, pack_state=None, pack_soc=tuple(float(min(max(v, 0.0), 1.0)) for v in soc))
+    sc = dataclasses.replace(sc, start=start, faults=(MotorFault(FAULT_MOTOR, FAULT_MAGNITUDE),))
     sim = VehicleSimulator(sc, truth)
     index = {w.number: i for i, w in enumerate(sc.waypoints)}
     out = {"at_time_s": plan["time_s"], "collected_before": plan["scenario"].get("reward_collected", 0.0)}
@@ -206,7 +224,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         f"{FAULT_MAGNITUDE:.0%} of its power half way from waypoint 2 to 3")
     printer = TerminalPrinter(service, out).start()
     start_mavlink(service)
-    vehicle = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup)
+    vehicle = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry())
     last_status = -math.inf
     try:
         while time.monotonic() - wall0 < timeout_s:
@@ -216,7 +234,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
                 soc = ", ".join(f"{v:.2f}" for v in s.pack_soc)
                 out(f"[t={s.time_s:7.1f} s] vehicle  {s.mode:5s} alt {s.alt_m:5.0f} m  item {s.current_seq:2d}  "
                     f"SoC [{soc}]  motors {s.motor_temp_c[0]:.0f}/{s.motor_temp_c[1]:.0f} °C")
-            if vehicle.model.finished():
+            if vehicle.model.finished:
                 break
             time.sleep(0.2)
         time.sleep(0.5)
@@ -225,7 +243,9 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         stop_mavlink(service)
         printer.stop()
     s = vehicle.model.state()
-    reached, reward = reward_of([seq for seq, _ in vehicle.model.reached_log], mission, scenario)
+    # Waypoint numbers as the service matched them (the mission's seqs change with each upload).
+    hits = [e.data for e in service.events.since(0) if e.kind == "mission" and e.data.get("waypoint") is not None]
+    reached, reward = [h["waypoint"] for h in hits], float(sum(h["reward"] for h in hits))
     faults = service.store.faults()
     injected = vehicle.model.fault_log[0]["time_s"] if vehicle.model.fault_log else None
     result = DemoResult(landed=bool(s.landed and not s.failed), failed=bool(s.failed), failure=s.failure,
@@ -235,6 +255,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
                         fault_injected_s=injected, sim_time_s=float(s.time_s))
     result.predicted = summarise_predictions(service)
     if compare:
+        out("flying the same vehicle, seed and fault without gcs-pdm, for comparison ...")
         orig = fly_without_service(cfg_sim)
         nums, rew = reward_of(orig["reached_seqs"], mission, scenario)
         result.original = {**orig, "reached": nums, "reward": rew}
@@ -264,9 +285,11 @@ def print_summary(r: DemoResult, out=print) -> None:
         del chosen
     if r.original:
         o = r.original
-        out(f"flown without gcs-pdm: waypoints {o['reached']} (reward {o['reward']:g}), "
+        out(f"flown without gcs-pdm: waypoints {o['reached']} (reward {o['reward']:g} reached, "
+            f"{o['reward'] if o['landed'] else 0:g} scored), "
             + ("landed" if o["landed"] else f"FAILED: {o['failure']}") + f" at t={o['time_s']:.0f} s")
-    out(f"flown with gcs-pdm:    waypoints {r.reached} (reward {r.reward_flown:g}), "
+    out(f"flown with gcs-pdm:    waypoints {r.reached} (reward {r.reward_flown:g} reached, "
+        f"{r.reward_flown if r.landed else 0:g} scored), "
         + ("landed safely" if r.landed else (f"FAILED: {r.failure}" if r.failed else "still flying (timeout)"))
         + f" at t={r.sim_time_s:.0f} s")
     out(f"{r.plans} plan(s), {r.uploads} confirmed upload(s); {r.wall_s:.0f} s wall time")

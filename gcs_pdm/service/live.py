@@ -30,7 +30,8 @@ from gcs_pdm.frames import MissionProgressFrame, PositionFrame, StatusTextFrame
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service import adapters
-from gcs_pdm.service.decision import Candidate, catalogue_from_items, choose, remaining_route, route_of_items
+from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, remaining_route, route_of_items,
+                                      same_mission)
 
 log = logging.getLogger(__name__)
 
@@ -214,7 +215,7 @@ class LiveLoop:
                 new_or_grown.append(d)
                 self.service.events.publish("fault", id=fid, time_s=t, kind=key[0], target=key[1], magnitude=mag,
                                             confidence=d.get("confidence"), source="diagnoser")
-                log.warning("fault at t=%.1f s: %s %s magnitude %.2f", t, key[0], key[1], mag)
+                log.info("fault at t=%.1f s: %s %s magnitude %.2f", t, key[0], key[1], mag)
         for key in [k for k in self._fault_ids if k not in current]:
             fid, _ = self._fault_ids.pop(key)
             self.service.store.clear_fault(fid)
@@ -399,7 +400,7 @@ class LiveLoop:
             confirmed = None
             if svc.config.confirm_download:
                 back = self.mc.download()
-                confirmed = M.same_items([M.as_sent(i) for i in items], back)
+                confirmed = same_mission(items, back)
                 items_on_vehicle = back
             else:
                 items_on_vehicle = items
