@@ -50,6 +50,7 @@ class DemoResult:
     fault_injected_s: float | None = None
     sim_time_s: float = 0.0
     wall_s: float = 0.0
+    http: dict = field(default_factory=dict)          # what the HTTP API said at the end of the flight
 
 
 def table3_mission():
@@ -254,6 +255,14 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
                         fault_detected_s=next((f["time_s"] for f in faults if f["kind"] == "motor_power_loss"), None),
                         fault_injected_s=injected, sim_time_s=float(s.time_s))
     result.predicted = summarise_predictions(service)
+    try:
+        import httpx
+
+        with httpx.Client(base_url=http.url, timeout=5.0) as client:
+            result.http = {path: client.get(path).json() for path in ("/status", "/faults", "/missions/history",
+                                                                       "/missions/uploads", "/missions/current")}
+    except Exception as exc:  # noqa: BLE001 - the summary does not depend on it
+        log.warning("could not read the HTTP API at the end: %s", exc)
     if compare:
         out("flying the same vehicle, seed and fault without gcs-pdm, for comparison ...")
         orig = fly_without_service(cfg_sim)

@@ -1,0 +1,39 @@
+"""End to end over loopback UDP: simulated vehicle → service → fault diagnosed → new mission uploaded
+→ the vehicle flies it and lands without failure, where the original mission (same vehicle, seed
+and fault, nobody replanning) fails."""
+from __future__ import annotations
+
+import pytest
+
+from gcs_pdm.service.demo import run_demo
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
+    lines: list[str] = []
+    r = run_demo(speedup=80.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=lines.append)
+    text = "\n".join(lines)
+    # without the service the vehicle fails
+    assert r.original["failed"] and not r.original["landed"], r.original
+    # with it: the fault is diagnosed after it happened, a mission is uploaded and confirmed, the vehicle lands
+    assert r.fault_injected_s is not None and r.fault_detected_s is not None
+    assert r.fault_injected_s <= r.fault_detected_s + 1.0 and r.fault_detected_s - r.fault_injected_s < 60.0
+    assert r.uploads >= 1
+    assert r.landed and not r.failed, (r.failure, text)
+    assert r.reward_flown > 0
+    # the new route is not the original order, and it visits waypoints 1 and 2 before the fault
+    assert r.reached[:2] == [1, 2] and r.reached[2:] != sorted(r.reached[2:])
+    # the predicted comparison on the true parameters agrees with what happened
+    assert r.predicted["keep"]["feasible_on_truth"] is False
+    assert r.predicted["planner"]["feasible_on_truth"] is True
+    # the terminal showed fault, replan and upload as they happened, in that order
+    i_fault, i_plan, i_up = (text.index(k) for k in ("FAULT    motor_power_loss aft", "PLAN     approved", "UPLOAD   plan 1: confirmed"))
+    assert i_fault < i_plan < i_up
+    # and the HTTP API has the record
+    http = r.http
+    assert any(f["kind"] == "motor_power_loss" and f["target"] == "aft" for f in http["/faults"])
+    assert http["/missions/history"][-1]["status"] == "uploaded"
+    assert http["/missions/uploads"][0]["status"] == "confirmed"
+    assert http["/status"]["motors"]["aft"]["health"] < 0.5
+    assert http["/missions/current"]["source"] == "download"
