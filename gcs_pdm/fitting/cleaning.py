@@ -17,7 +17,9 @@ Order of the repairs (each one counted in :class:`CleaningReport` under the key 
    absolute floor) from the median of its ``spike_window`` neighbours becomes missing
    (``spikes_<column>``) — a Hampel filter, which leaves genuine steps (throttle changes) alone;
 7. stuck sensors: ``stuck_samples`` or more identical consecutive readings of a measured output
-   (voltage, temperature) are missing (``stuck_runs_<column>``, ``stuck_samples_<column>``);
+   (voltage, temperature) are missing (``stuck_runs_<column>``, ``stuck_samples_<column>``); on a
+   coarse sensor (more than ``coarse_equal_fraction`` of consecutive readings equal, e.g. whole-degree
+   ESC temperatures; ``coarse_sensor_<column>``) only runs of ``stuck_samples_coarse``;
 8. missing values: measured outputs stay missing and are left out of the error (``missing_<column>``);
    model inputs (current, ambient) are interpolated in time (``interpolated_<column>``);
 9. gaps: a gap up to ``max_bridge_s`` is bridged (the kernel integrates uneven steps exactly, with
@@ -53,6 +55,10 @@ class CleaningSettings:
     spike_window: int = 7
     spike_sigmas: float = 6.0
     stuck_samples: int = 20
+    #: a coarse sensor (most consecutive readings equal, e.g. whole-degree ESC temperatures) is only
+    #: called stuck after this many identical readings
+    stuck_samples_coarse: int = 300
+    coarse_equal_fraction: float = 0.3
     #: physically possible values, per column
     ranges: tuple[tuple[str, float, float], ...] = (
         ("voltage_v", 5.0, 30.0),
@@ -206,8 +212,13 @@ def clean_flight(flight: Flight, settings: CleaningSettings = CleaningSettings()
 
     # 7. stuck sensors on measured outputs
     for k in measured:
+        x = cols[k][np.isfinite(cols[k])]
+        coarse = x.size > 1 and float(np.mean(np.diff(x) == 0)) > s.coarse_equal_fraction
+        if coarse:
+            c[f"coarse_sensor_{k}"] += 1
+        limit = s.stuck_samples_coarse if coarse else s.stuck_samples
         for a, b, length in _runs_of_equal(cols[k]):
-            if length >= s.stuck_samples:
+            if length >= limit:
                 c[f"stuck_runs_{k}"] += 1
                 c[f"stuck_samples_{k}"] += length
                 cols[k][a:b] = np.nan

@@ -1,0 +1,59 @@
+"""Tlogs of the simulated vehicle read into per-pack battery flights and one motor flight, and fitted
+through the command line (all four packs from one set of tlogs)."""
+import json
+
+import numpy as np
+import pytest
+
+from gcs_pdm.cli import main
+from gcs_pdm.fitting.cleaning import clean_flight
+from gcs_pdm.fitting.logs import read_flights
+from gcs_pdm.models.params import PACK_NAMES, ParameterSet
+from gcs_pdm.sim.model import SimConfig
+from gcs_pdm.sim.record import fly
+from gcs_pdm.sim.routes import mission_from_enu
+
+ROUTE = mission_from_enu([(4000, 0, 100), (4000, 4000, 150), (0, 4000, 100), (0, 0, 100)])
+
+
+@pytest.fixture(scope="module")
+def tlogs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("tlogs")
+    out = []
+    for i, soc in enumerate((1.0, 0.95, 0.9)):
+        p = d / f"flight{i}.tlog"
+        rec = fly(SimConfig(seed=i, mission=ROUTE, initial_soc=soc, ground_temp_c=15.0 + 5 * i), tlog_path=p)
+        out.append((p, rec))
+    return out
+
+
+def test_tlog_gives_every_pack_and_the_motors(tlogs):
+    path, rec = tlogs[0]
+    packs = read_flights(path, "battery")
+    assert [f.source["pack"] for f in packs] == list(PACK_NAMES)
+    for b, f in enumerate(packs):
+        r = clean_flight(f)
+        assert r.rejected is None
+        g = r.flights[0]
+        truth_v = np.interp(g.time_s, rec.time_s, rec.truth["pack_voltage_v"][:, b])
+        assert np.nanmedian(np.abs(g.voltage_v - truth_v)) < 0.1
+    one = read_flights(path, "battery", pack="URA40")
+    assert len(one) == 1 and one[0].name.endswith("URA40")
+    motor = read_flights(path, "motor")[0]
+    r = clean_flight(motor)
+    assert r.rejected is None  # whole-degree ESC temperatures are a coarse sensor, not a stuck one
+    assert r.report.counts["coarse_sensor_temperature_c"] == 1
+
+
+def test_cli_fits_all_packs_from_tlogs(tlogs, tmp_path):
+    (a, _), (b, _), (c, _) = tlogs
+    out = tmp_path / "fit"
+    rc = main(["fit", "battery", "--train", str(a), "--val", str(b), "--test", str(c), "--out", str(out),
+               "--pack", "all", "--starts", "2", "--sa-generations", "8", "--lm-max-nfev", "4", "--quiet",
+               "--no-plots"])
+    assert rc == 0
+    for p in PACK_NAMES:
+        d = json.loads((out / p / "result.json").read_text())
+        assert d["pack"] == p
+    ps = ParameterSet.from_json((out / "parameters.json").read_text())
+    assert set(ps.provenance["packs"]) == set(PACK_NAMES)
