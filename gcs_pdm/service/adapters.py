@@ -154,7 +154,7 @@ def fitting_api():
 
 def start_sim_vehicle(sim_config, url: str, speedup: float, telemetry=None):
     """The loopback simulated vehicle in a background thread, talking MAVLink on ``url``; the
-    returned object has ``.stop()`` and ``.model`` (the steppable truth)."""
-    from gcs_pdm.service.loopback_vehicle import LoopbackVehicle
+    returned object has ``.stop()``, ``.state`` (the truth) and ``.fault_log``."""
+    from gcs_pdm.sim.vehicle import SimulatedVehicle
 
-    return LoopbackVehicle(sim_config, url, speedup, telemetry).start()
+    return SimulatedVehicle(sim_config, url, speedup=speedup, telemetry=telemetry).start()

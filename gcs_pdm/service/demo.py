@@ -229,13 +229,13 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     last_status = -math.inf
     try:
         while time.monotonic() - wall0 < timeout_s:
-            s = vehicle.model.state()
+            s = vehicle.state
             if s.time_s - last_status >= 120.0:
                 last_status = s.time_s
                 soc = ", ".join(f"{v:.2f}" for v in s.pack_soc)
                 out(f"[t={s.time_s:7.1f} s] vehicle  {s.mode:5s} alt {s.alt_m:5.0f} m  item {s.current_seq:2d}  "
                     f"SoC [{soc}]  motors {s.motor_temp_c[0]:.0f}/{s.motor_temp_c[1]:.0f} °C")
-            if vehicle.model.finished:
+            if (s.landed or s.failed) and s.on_ground and not s.armed:
                 break
             time.sleep(0.2)
         time.sleep(0.5)
@@ -243,12 +243,13 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         vehicle.stop()
         stop_mavlink(service)
         printer.stop()
-    s = vehicle.model.state()
+    s = vehicle.state
     # Waypoint numbers as the service matched them (the mission's seqs change with each upload).
     hits = [e.data for e in service.events.since(0) if e.kind == "mission" and e.data.get("waypoint") is not None]
     reached, reward = [h["waypoint"] for h in hits], float(sum(h["reward"] for h in hits))
     faults = service.store.faults()
-    injected = vehicle.model.fault_log[0]["time_s"] if vehicle.model.fault_log else None
+    fault_log = vehicle.fault_log
+    injected = fault_log[0]["time_s"] if fault_log else None
     result = DemoResult(landed=bool(s.landed and not s.failed), failed=bool(s.failed), failure=s.failure,
                         reached=reached, reward_flown=reward, plans=len(service.store.plans()),
                         uploads=len([u for u in service.store.uploads() if u["status"] == "confirmed"]),
