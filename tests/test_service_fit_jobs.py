@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -52,5 +53,37 @@ def test_fit_job_from_uploaded_csv(tmp_path):
         plot = next(iter(result["plots"]))
         png = client.get(f"/jobs/{job['id']}/plots/{plot}")
         assert png.status_code == 200 and png.content[:4] == b"\x89PNG"
+    finally:
+        svc.close()
+
+
+@pytest.mark.slow
+def test_fit_job_from_recorded_tlogs_in_the_index(tmp_path):
+    from gcs_pdm.service.demo import sim_config, table3_mission
+    from gcs_pdm.sim.record import fly
+
+    scenario, mission = table3_mission()
+    (tmp_path / "tlogs").mkdir()
+    for seed in range(3):
+        cfg = sim_config(scenario, mission, seed)
+        fly(cfg, tlog_path=tmp_path / "tlogs" / f"flight{seed}.tlog", max_time_s=400.0)
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN))
+    try:
+        client = TestClient(create_app(svc))
+        tl = client.get("/tlogs").json()
+        assert [Path(t["path"]).name for t in tl] == ["flight0.tlog", "flight1.tlog", "flight2.tlog"]
+        assert all(t["note"] == "found at start-up" and t["size_bytes"] > 0 for t in tl)
+        body = {"component": "motor", "flights": {"train": [{"tlog_id": tl[0]["id"]}],
+                                                  "validation": [{"tlog_id": tl[1]["id"]}],
+                                                  "test": [{"tlog_id": tl[2]["id"]}]},
+                "settings": {"search": {"starts": 2, "sa_generations": 6, "lm_max_nfev": 4}, "workers": 1}}
+        r = client.post("/jobs/fit", json=body, headers=AUTH)
+        assert r.status_code == 202, r.text
+        job = svc.runner.wait(r.json()["id"], timeout=240)
+        assert job["status"] == "succeeded", job["error"]
+        fit = job["result"]["fits"]["motor"]
+        assert fit["component"] == "motor" and fit["flights"]["train"]
+        assert set(fit["learned"]) == {"C_t", "h"}
+        assert (tmp_path / "jobs" / job["id"] / "result.json").exists()
     finally:
         svc.close()

@@ -141,15 +141,6 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
     return cands, info
 
 
-# --- fitting -----------------------------------------------------------------------------------
-
-def fitting_api():
-    """The fitting package's pure API module (``fit_battery``, ``fit_motor``, flight loaders)."""
-    import gcs_pdm.fitting as fitting
-
-    return fitting
-
-
 # --- simulated vehicle -------------------------------------------------------------------------
 
 def start_sim_vehicle(sim_config, url: str, speedup: float, telemetry=None):

@@ -18,6 +18,9 @@ from gcs_pdm.service.storage import Conflict, NotFound, Store
 
 log = logging.getLogger(__name__)
 
+#: the repository's recorded flights and scenarios (readable by fit jobs by path)
+FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
+
 
 class Service:
     def __init__(self, config: ServiceConfig, store: Store | None = None):
@@ -37,6 +40,7 @@ class Service:
         # The operator's last activation survives a restart; the config names the first one.
         active = self.store.active_parameter_set_name() or config.parameter_set
         self.params: ParameterSet = self.store.activate_parameter_set(active)
+        self.index_recorded_tlogs()
         self.catalogue: list[CatalogueWaypoint] | None = None
         #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the kernel's defaults
         self.limits = None
@@ -54,6 +58,12 @@ class Service:
             self.loop.stop()
         self.runner.shutdown()
         self.store.close()
+
+    def index_recorded_tlogs(self) -> int:
+        """Tlogs already in ``<data_dir>/tlogs`` (copied there, or from an older install) join the index."""
+        known = {t["path"] for t in self.store.tlogs()}
+        new = [p for p in sorted((self.config.data_path / "tlogs").glob("*.tlog")) if str(p) not in known]
+        return self.store.index_tlogs(new, note="found at start-up") if new else 0
 
     # --- mission objectives ------------------------------------------------------------------------
 
@@ -165,7 +175,7 @@ class Service:
         if ref.get("tlog_id") is not None:
             return Path(self.store.tlog(int(ref["tlog_id"]))["path"])
         path = Path(ref["path"]).resolve()
-        allowed = [self.config.data_path.resolve(), Path("fixtures").resolve()]
+        allowed = [self.config.data_path.resolve(), FIXTURES.resolve()]
         if not any(path.is_relative_to(a) for a in allowed):
             raise PermissionError(f"path {path} is outside the data directory and fixtures/")
         return path
