@@ -11,8 +11,9 @@ Flights (all seeded; the simulated vehicle's hidden truth differs from the servi
 
 A detection is the first raise of the injected type on the injected component after the injection
 (for degradation present from take-off: any time); a false alarm is any other raise, except the
-consequences the injected fault legitimately triggers (a predicted limit violation or a
-degradation-rate deviation after it). Recorded flights in ``fixtures/flights/`` (tlog + truth json)
+consequences the injected fault legitimately triggers (a degradation-rate deviation after it,
+a predicted limit violation on a flight that did fail). A limit violation predicted on a flight the
+vehicle finished counts as a false alarm. Recorded flights in ``fixtures/flights/`` (tlog + truth json)
 are replayed too when present.
 
 Run: ``python scripts/evaluate_diagnosis.py`` (about 3 minutes on one core; ``--quick`` for fewer flights).
@@ -96,6 +97,8 @@ def score(flight, p):
             hits.append({"type": ty, "component": comp, "delay_s": None if onset is None else f.time_s - onset,
                          "detected_at_s": f.time_s, "magnitude": f.magnitude, "true_magnitude": mag,
                          "lead_s": (flight.info["failed_at_s"] - f.time_s) if ty == PREDICTED_LIMIT_VIOLATION else None})
+        elif f.type == PREDICTED_LIMIT_VIOLATION and flight.info.get("failed_at_s") is None:
+            false_alarms.append(f.to_dict())  # the vehicle did finish: the warning was wrong
         elif f.type in CONSEQUENCES and first_onset is not None and f.time_s >= first_onset:
             continue
         elif f.type in CONSEQUENCES and any(e[2] is None for e in exp):
@@ -186,6 +189,8 @@ def main(argv=None) -> int:
         if soc_err.size:
             soc_err_all.append(soc_err.ravel())
             soc_z_all.append(soc_z.ravel())
+            c.setdefault("_soc_err", []).append(soc_err.ravel())
+            c.setdefault("_soc_z", []).append(soc_z.ravel())
         logging.getLogger("evaluate").info("%s seed %d: %d hits, %d false, %d missed", cls, seed, len(hits), len(fa), len(missed))
 
     def by_type(ty):
@@ -202,8 +207,14 @@ def main(argv=None) -> int:
 
     soc_err_all = np.concatenate(soc_err_all) if soc_err_all else np.zeros(0)
     soc_z_all = np.concatenate(soc_z_all) if soc_z_all else np.zeros(0)
+    for c in per_class.values():
+        e = np.concatenate(c.pop("_soc_err", [np.zeros(0)]))
+        z = np.concatenate(c.pop("_soc_z", [np.zeros(0)]))
+        c["soc_rmse"] = float(np.sqrt(np.mean(e ** 2))) if e.size else None
+        c["soc_abs_error_p95"] = float(np.quantile(np.abs(e), 0.95)) if e.size else None
+        c["soc_within_2sd"] = float(np.mean(z <= 2.0)) if z.size else None
     result = {
-        "classes": {k: {kk: (round(vv, 3) if isinstance(vv, float) else vv) for kk, vv in v.items()}
+        "classes": {k: {kk: (round(vv, 4) if isinstance(vv, float) else vv) for kk, vv in v.items()}
                     for k, v in per_class.items()},
         "types": {ty: by_type(ty) for ty in (MOTOR_POWER_LOSS, PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE,
                                              PREDICTED_LIMIT_VIOLATION)},
@@ -219,12 +230,13 @@ def main(argv=None) -> int:
     result["fixture_flights"] = fixtures
     result["elapsed_s"] = round(time.perf_counter() - started, 1)
 
-    print("| flights | n | flight h | expected | detected | detection rate | false alarms | false alarms / h |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| flights | n | flight h | expected | detected | detection rate | false alarms | false alarms / h | SoC RMS error | SoC p95 abs error | SoC within 2σ |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for cls, c in per_class.items():
         rate = c["detected"] / c["expected"] if c["expected"] else float("nan")
         print(f"| {cls} | {c['flights']} | {c['hours']:.2f} | {c['expected']} | {c['detected']} | "
-              f"{'—' if math.isnan(rate) else f'{rate:.0%}'} | {c['false_alarms']} | {c['false_alarms'] / c['hours']:.2f} |")
+              f"{'—' if math.isnan(rate) else f'{rate:.0%}'} | {c['false_alarms']} | {c['false_alarms'] / c['hours']:.2f} | "
+              f"{c['soc_rmse']:.3f} | {c['soc_abs_error_p95']:.3f} | {c['soc_within_2sd']:.0%} |")
     print()
     print("| fault type | detections | mean delay s | max delay s | mean abs magnitude error | max abs magnitude error | mean warning before failure s |")
     print("|---|---|---|---|---|---|---|")

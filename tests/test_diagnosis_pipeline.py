@@ -72,7 +72,7 @@ def test_pack_degradation_detected_on_the_right_pack_with_an_estimate():
 
 
 def test_infeasible_mission_after_a_fault_is_predicted_and_the_rate_deviation_fires():
-    flight = fly_synthetic(true_parameters(), np.random.default_rng(25), duration_s=1500.0, initial_soc=0.8,
+    flight = fly_synthetic(true_parameters(), np.random.default_rng(25), duration_s=1500.0, initial_soc=0.7,
                            fault_motor="fwd", fault_magnitude=0.9, fault_time_s=300.0)
     p = diagnose(flight)
     limit = raised(p, PREDICTED_LIMIT_VIOLATION)

@@ -40,10 +40,11 @@ class DiagnosisPipeline:
         self.voltage_fresh_s = voltage_fresh_s
         self._pack_v = np.full(4, np.nan)
         self._pack_v_time = np.full(4, -math.inf)
-        self.faults: list[Fault] = []
+        self._faults: list[Fault] = []
         self._index: dict[tuple[str, str], int] = {}
         self.events: list[dict] = []
         self.frames = 0
+        self._adopted: dict[str, tuple[float, float]] = {}
 
     # ---- input ---------------------------------------------------------------------------------------
     def set_mission(self, load: FutureLoad, start_s: float | None = None) -> None:
@@ -66,7 +67,10 @@ class DiagnosisPipeline:
             self._motor_pair(t)
         else:
             return
-        self._record(self.pack_health.check(t))
+        pack_events = self.pack_health.check(t)
+        self._record(pack_events)
+        if pack_events or self.pack_health.faults:
+            self._adopt_pack_degradation()
         self._record(self.prognosis.check(t, est, self.motor_power.fault_vector()))
 
     #: a pipeline is itself a frame consumer (``replay_tlog(frame_consumer=pipeline)`` then finds ``report``)
@@ -97,17 +101,35 @@ class DiagnosisPipeline:
         # keep stored faults' latest state in step with the detector's (magnitude refines while active)
         for f in self.motor_power.faults.values():
             if f.key in self._index:
-                self.faults[self._index[f.key]] = f
+                self._faults[self._index[f.key]] = f
+
+    def _adopt_pack_degradation(self) -> None:
+        """Let the estimator (and so the predictions) run each degraded pack on its diagnosed
+        capacity and resistance; back to the parameter set when the fault clears."""
+        from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE
+
+        for name in PACK_NAMES:
+            est = self.pack_health.latest.get(name)
+            cap = self.pack_health.faults.get((PACK_CAPACITY_LOSS, name))
+            res = self.pack_health.faults.get((PACK_RESISTANCE_RISE, name))
+            want = (est.resistance_rise + 1.0 if est is not None and res is not None and res.active else 1.0,
+                    est.capacity_factor if est is not None and cap is not None and cap.active else 1.0)
+            have = self._adopted.get(name, (1.0, 1.0))
+            if abs(want[0] - have[0]) > 0.05 or abs(want[1] - have[1]) > 0.02:
+                self.estimator.adopt_pack_scales(name, *want)
+                self._adopted[name] = want
+                self.prognosis.reset_baseline()
+                log.info("pack %s: estimator adopts resistance x%.2f, capacity x%.2f", name, *want)
 
     def _record(self, events: list[tuple[str, Fault]]) -> None:
         for kind, f in events:
-            if kind == "raise" and f.key in self._index and self.faults[self._index[f.key]].active:
+            if kind == "raise" and f.key in self._index and self._faults[self._index[f.key]].active:
                 kind = "update"
             if kind == "raise":
-                self._index[f.key] = len(self.faults)
-                self.faults.append(f)
+                self._index[f.key] = len(self._faults)
+                self._faults.append(f)
             elif f.key in self._index:
-                self.faults[self._index[f.key]] = f
+                self._faults[self._index[f.key]] = f
             self.events.append({"event": kind, "time_s": round(float(f.updated_s if f.updated_s is not None else f.time_s), 3),
                                 "type": f.type, "component": f.component, "magnitude": round(float(f.magnitude), 4),
                                 "confidence": round(float(f.confidence), 3)})
@@ -118,19 +140,25 @@ class DiagnosisPipeline:
         for source in (self.motor_power.faults.values(), self.pack_health.faults.values(),
                        self.prognosis.faults.values()):
             for f in source:
-                if f.key in self._index and self.faults[self._index[f.key]].time_s == f.time_s:
-                    self.faults[self._index[f.key]] = f
+                if f.key in self._index and self._faults[self._index[f.key]].time_s == f.time_s:
+                    self._faults[self._index[f.key]] = f
+
+    @property
+    def faults(self) -> list[Fault]:
+        """Every fault raised, in order, each in its latest state."""
+        self._refresh()
+        return list(self._faults)
 
     def active_faults(self) -> list[Fault]:
         self._refresh()
-        return [f for f in self.faults if f.active]
+        return [f for f in self._faults if f.active]
 
     def report(self) -> dict:
         """Replay summary: faults (with message times), events, the final estimate and counters."""
         self._refresh()
         est = self.estimator.estimate()
         return {
-            "faults": [f.to_dict() for f in self.faults],
+            "faults": [f.to_dict() for f in self._faults],
             "events": list(self.events),
             "estimate": est.to_dict(),
             "frames": self.frames,

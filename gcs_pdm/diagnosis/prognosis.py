@@ -8,7 +8,7 @@ silent, and ``PrognosisMonitor.skipped_no_mission`` counts the checks that could
 - Limit violation: every ``check_every_s`` the Monte Carlo prediction (one kernel call, state and
   parameter uncertainty, the diagnosed motor faults included) runs over the remaining mission; the
   fault is raised when the probability of a failure before the mission ends is at least
-  ``p_raise`` at two checks in a row, and cleared when it stays below ``p_clear``.
+  ``p_raise`` at three checks in a row (after a ``warmup_s`` settling time), and cleared when it stays below ``p_clear``.
 - Rate deviation: the median predicted SoC and temperature trajectories of a *baseline*
   prediction are compared with what the estimator observes since; a relative deviation of a
   pack's SoC drop beyond ``soc_rel`` (and ``soc_abs``), or a temperature rise off by more than
@@ -33,10 +33,13 @@ from gcs_pdm.models.powertrain import Limits
 @dataclass(frozen=True)
 class PrognosisConfig:
     check_every_s: float = 30.0
+    #: no prognosis before the estimator has run this long: right after take-off its SoC still
+    #: carries whatever the first voltage reading and the parameter set's errors made of it
+    warmup_s: float = 120.0
     n_samples: int = 100
     p_raise: float = 0.5
     p_clear: float = 0.2
-    limit_debounce: DebounceConfig = DebounceConfig(raise_after_s=30.0, clear_after_s=60.0)
+    limit_debounce: DebounceConfig = DebounceConfig(raise_after_s=60.0, clear_after_s=60.0)
     rate_window_s: float = 120.0
     soc_rel: float = 0.25
     soc_abs: float = 0.015
@@ -59,10 +62,15 @@ class PrognosisMonitor:
         self.faults: dict[tuple[str, str], Fault] = {}
         self.latest_prediction: Prediction | None = None
         self.skipped_no_mission = 0
+        self._ready_since = math.nan
 
     def set_mission(self, load: FutureLoad, start_s: float) -> None:
         """The load of the mission from message time ``start_s`` on; resets the rate baseline."""
         self.mission, self.mission_start_s = load, float(start_s)
+        self._baseline = None
+
+    def reset_baseline(self) -> None:
+        """Forget the rate baseline (the estimator's parameters changed under it)."""
         self._baseline = None
 
     def check(self, time_s: float, estimator, fault_vector: np.ndarray) -> list[tuple[str, Fault]]:
@@ -73,6 +81,11 @@ class PrognosisMonitor:
             self.skipped_no_mission += 1
             return []
         if not estimator.ready():
+            self._ready_since = math.nan
+            return []
+        if math.isnan(self._ready_since):
+            self._ready_since = time_s
+        if time_s - self._ready_since < self.config.warmup_s:
             return []
         remaining = self.mission.after(time_s - self.mission_start_s)
         if remaining.dt.size == 0:
@@ -115,7 +128,7 @@ class PrognosisMonitor:
         """Observed SoC by counting the measured charge (the filter's SoC also moves when the voltage
         corrects it, which is calibration, not a degradation rate), and filtered temperatures."""
         e = estimator.estimate()
-        soc_counted = 1.0 - estimator.charge_c / estimator.params.pack_matrix()[:, kernel.I_CMAX]
+        soc_counted = 1.0 - estimator.charge_c / estimator.packs.params[:, kernel.I_CMAX]
         return soc_counted, e.pack_temp_c.copy(), e.motor_temp_c.copy()
 
     def _rate_check(self, time_s: float, pred: Prediction, estimator) -> list:

@@ -49,8 +49,10 @@ class EstimatorConfig:
     long_gap_s: float = 30.0
     #: relative uncertainty of the parameter set's capacity against the real pack (1σ). No
     #: telemetry can remove it within a flight — the voltage-to-charge map carries the same
-    #: mismatch — so it is added to the filter's SoC spread: σ² = σ_filter² + (σ_cap (1 - SoC))²
-    capacity_rel_sigma: float = 0.08
+    #: mismatch — so it is added to the filter's SoC spread: σ² = σ_filter² + (σ_cap (1 - SoC))².
+    #: 0.12: the SoC error follows the ratio C_b/C_max, and two independent ±15 % log-uniform
+    #: factors (the simulated vehicle's spread, close to an uncalibrated set's) give 0.12
+    capacity_rel_sigma: float = 0.12
 
 
 @dataclass(frozen=True)
@@ -215,6 +217,18 @@ class StateEstimator:
         self.motors.step(np.array([q]), np.array([t - self.motor_time[q]]),
                          np.array([cur if math.isfinite(cur) else 0.0]), self.ambient_c, np.array([temp]))
         self.motor_time[q] = t
+
+    def adopt_pack_scales(self, pack: str, resistance_scale: float, capacity_scale: float) -> None:
+        """Run pack ``pack`` on its parameter set's values with R_s, R_cp0 scaled by
+        ``resistance_scale`` and C_b, q_max, C_max by ``capacity_scale`` — the diagnoser's estimate
+        of its degradation — so SoC and predictions stop inheriting the mismatch. SoC is then a
+        fraction of the *degraded* capacity."""
+        b = PACK_NAMES.index(pack)
+        row = self.params.pack_matrix()[b].copy()
+        row[[kernel.I_RS, kernel.I_RCP0]] *= float(resistance_scale)
+        row[[kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX]] *= float(capacity_scale)
+        self.packs.set_params(b, row)
+        self.counters["parameter_updates"] += 1
 
     # ---- read-outs --------------------------------------------------------------------------------
     def missing(self, now: float | None = None) -> tuple[str, ...]:

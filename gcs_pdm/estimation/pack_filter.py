@@ -139,6 +139,23 @@ class PackFilterBank:
                 self.rejected_in_row[rows_idx[relock], ch] = 0
         self.mean[idx], self.cov[idx] = mean, cov
 
+    def set_params(self, b: int, row: np.ndarray) -> None:
+        """Adopt new parameters for pack ``b`` (e.g. a diagnosed capacity loss), keeping what the
+        filter knows: the SoC fraction and the voltages across C_cp and C_s (``prediction.restate``)."""
+        from gcs_pdm.estimation.prediction import restate
+
+        row = np.asarray(row, dtype=np.float64)
+        old = self.params[b].copy()
+        if self.initialised[b]:
+            x = restate(old[None], self.mean[b][None], row[None])[0]
+            scale = np.array([row[kernel.I_CMAX] / old[kernel.I_CMAX], row[kernel.I_CCP] / old[kernel.I_CCP],
+                              row[kernel.I_CS] / old[kernel.I_CS], 1.0])
+            self.cov[b] = self.cov[b] * scale[:, None] * scale[None, :]
+            self.mean[b] = x
+        self.params[b] = row
+        self._h_v[b] = [1.0 / row[kernel.I_CB], -1.0 / row[kernel.I_CCP], -1.0 / row[kernel.I_CS], 0.0]
+        self._rows.clear()
+
     def _param_rows(self, idx: np.ndarray, n_sig: int) -> np.ndarray:
         key = (idx.tobytes(), n_sig)
         rows = self._rows.get(key)

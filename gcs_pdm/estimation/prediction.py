@@ -100,20 +100,32 @@ class Prediction:
         }
 
 
-def sample_parameters(params: ParameterSet, n: int, rng: np.random.Generator, rel_sigma: float
+ParamsLike = "ParameterSet | tuple[np.ndarray, np.ndarray]"
+
+
+def base_arrays(params) -> tuple[np.ndarray, np.ndarray]:
+    """(4, 12) pack matrix and (5,) motor vector from a ParameterSet or such a pair of arrays
+    (the estimator's own, once diagnosed degradation has been adopted)."""
+    if isinstance(params, ParameterSet):
+        return params.pack_matrix(), params.motor_vector()
+    packs, motor = params
+    return np.asarray(packs, dtype=np.float64), np.asarray(motor, dtype=np.float64)
+
+
+def sample_parameters(params, n: int, rng: np.random.Generator, rel_sigma: float
                       ) -> tuple[np.ndarray, np.ndarray]:
     """(n, 4, 12) pack and (n, 5) motor parameter samples, log-normal around ``params``.
 
     q_max keeps its ratio to C_b (a full pack stays at full voltage), C_max never exceeds q_max,
     and R_cp2 — an exponent — moves by a tenth of the spread with R_cp1 compensating, so the
     end-of-discharge resistance varies by the spread itself (as ``params.perturbed`` does)."""
-    base = params.pack_matrix()
+    base, motor_base = base_arrays(params)
     packs = base[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n,) + base.shape))
     packs[..., kernel.I_RCP2] = base[:, kernel.I_RCP2] * (1.0 + rng.normal(0.0, rel_sigma / 10.0, size=(n, base.shape[0])))
     packs[..., kernel.I_RCP1] *= np.exp(base[:, kernel.I_RCP2] - packs[..., kernel.I_RCP2])
     packs[..., kernel.I_QMAX] = packs[..., kernel.I_CB] * (base[:, kernel.I_QMAX] / base[:, kernel.I_CB])
     packs[..., kernel.I_CMAX] = np.minimum(packs[..., kernel.I_CMAX], packs[..., kernel.I_QMAX])
-    motor = params.motor_vector()[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n, kernel.N_MOTOR_PARAMS)))
+    motor = motor_base[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n, kernel.N_MOTOR_PARAMS)))
     return packs, motor
 
 
@@ -142,11 +154,13 @@ def restate(base: np.ndarray, x: np.ndarray, sampled: np.ndarray) -> np.ndarray:
     return out
 
 
-def predict(params: ParameterSet, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: np.ndarray,
+def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: np.ndarray,
             motor_temp_sd: np.ndarray, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
-            param_rel_sigma: float = 0.05, fault: np.ndarray | None = None, limits: Limits = Limits(),
+            param_rel_sigma: float = 0.08, fault: np.ndarray | None = None, limits: Limits = Limits(),
             trajectories: bool = True, stop_on_failure: bool = True) -> Prediction:
     """Monte Carlo prediction over state and parameter uncertainty (one kernel call).
+
+    ``params``: a ParameterSet or a (pack matrix (4, 12), motor vector (5,)) pair.
 
     ``fault``: (2,) motor fault magnitudes (fwd, aft) believed present — the diagnoser's faults.
     With ``stop_on_failure`` a sample ends at the vehicle's first failure, so a pack that had not
@@ -158,7 +172,7 @@ def predict(params: ParameterSet, pack_mean: np.ndarray, pack_cov: np.ndarray, m
     x0, tm0 = sample_states(np.asarray(pack_mean, dtype=np.float64), np.asarray(pack_cov, dtype=np.float64),
                             np.asarray(motor_temp_c, dtype=np.float64), np.asarray(motor_temp_sd, dtype=np.float64),
                             n_samples, rng)
-    x0 = restate(params.pack_matrix(), x0, pp)
+    x0 = restate(base_arrays(params)[0], x0, pp)
     f = np.zeros((1, 2)) if fault is None else np.clip(np.asarray(fault, dtype=np.float64).reshape(1, 2), 0.0, 1.0)
     dt = np.asarray(load.dt, dtype=np.float64)
     amb = load.ambient_c if np.ndim(load.ambient_c) == 0 else np.asarray(load.ambient_c, dtype=np.float64)
@@ -217,5 +231,5 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     tm, tm_sd = estimator.motors.temperature()
     tm = np.where(np.isfinite(tm), tm, estimator.ambient_c)
     tm_sd = np.where(np.isfinite(tm_sd), tm_sd, 2.0)
-    return predict(estimator.params, estimator.packs.mean, estimator.packs.cov, tm, tm_sd, load, rng=rng,
+    return predict((estimator.packs.params, estimator.motors.params[0]), estimator.packs.mean, estimator.packs.cov, tm, tm_sd, load, rng=rng,
                    n_samples=n_samples, fault=fault, **kw)
