@@ -274,7 +274,12 @@ class MissionClient:
     def _request_count(self, sub, vehicle) -> int:
         t = self.timeouts
         request = self.link.mav.mission_request_list_encode(vehicle[0], vehicle[1], MAV_MISSION_TYPE_MISSION)
-        for _ in range(t.retries + 1):
+        # A vehicle still busy with an earlier transfer (e.g. waiting for an ACK we sent and it
+        # lost) only answers once that one times out: keep asking for the spec's full budget.
+        give_up = time.monotonic() + t.retries * t.default_s
+        sends = 0
+        while time.monotonic() < give_up or sends <= t.retries:
+            sends += 1
             self.link.send(request)
             sent_at = time.monotonic()
             deadline = sent_at + self.rtt.timeout(t.default_s, t.min_item_s * 5)
@@ -283,12 +288,13 @@ class MissionClient:
                 if msg is None or not self._for_us(msg, vehicle) or not self._mission_type_ok(msg):
                     continue
                 if msg.get_type() == "MISSION_COUNT":
-                    self.rtt.sample(time.monotonic() - sent_at)
+                    if sends == 1:  # Karn: a reply to a re-sent request is no RTT sample
+                        self.rtt.sample(time.monotonic() - sent_at)
                     return msg.count
                 if msg.get_type() == "MISSION_ACK" and msg.type != MAV_MISSION_ACCEPTED:
                     raise MissionRejected("mission download", msg.type)
             self.last_stats.resends += 1
-        raise MissionTimeout(f"mission download: no MISSION_COUNT after {t.retries + 1} MISSION_REQUEST_LIST")
+        raise MissionTimeout(f"mission download: no MISSION_COUNT after {sends} MISSION_REQUEST_LIST")
 
     def _request_item(self, sub, vehicle, seq: int) -> MissionItem:
         t = self.timeouts
@@ -324,7 +330,10 @@ class MissionClient:
         request = self.link.mav.mission_clear_all_encode(vehicle[0], vehicle[1], MAV_MISSION_TYPE_MISSION)
         with self.link.subscribe(MISSION_MESSAGES) as sub:
             sub.drain()
-            for _ in range(t.retries + 1):
+            give_up = time.monotonic() + t.retries * t.default_s
+            sends = 0
+            while time.monotonic() < give_up or sends <= t.retries:
+                sends += 1
                 self.link.send(request)
                 sent_at = time.monotonic()
                 deadline = sent_at + self.rtt.timeout(t.default_s, t.min_item_s * 5)
@@ -335,10 +344,11 @@ class MissionClient:
                     if not self._mission_type_ok(msg) and msg.mission_type != mavlink2.MAV_MISSION_TYPE_ALL:
                         continue
                     if msg.type == MAV_MISSION_ACCEPTED:
-                        self.rtt.sample(time.monotonic() - sent_at)
+                        if sends == 1:
+                            self.rtt.sample(time.monotonic() - sent_at)
                         return
                     raise MissionRejected("mission clear", msg.type)
-        raise MissionTimeout(f"mission clear: no MISSION_ACK after {t.retries + 1} MISSION_CLEAR_ALL")
+        raise MissionTimeout(f"mission clear: no MISSION_ACK after {sends} MISSION_CLEAR_ALL")
 
     def set_current(self, seq: int) -> None:
         """Make item ``seq`` current; confirmed by the vehicle's MISSION_CURRENT (spec: no ACK)."""
