@@ -5,6 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gcs_pdm.models import kernel
 from gcs_pdm.models.params import builtin
 from gcs_pdm.planning.exact import brute_force, exact_search
 from gcs_pdm.planning.local_search import improve, neighbours, pf_local_search
@@ -20,22 +21,27 @@ def load(n):
     return Scenario.from_json((FIXTURES / f"table3_{n}.json").read_text())
 
 
-def random_instance(seed, n=6):
-    """A random small field around the Table III start, same vehicle and fault."""
+def random_instance(seed, n=6, hot=False):
+    """A random small field around the Table III start, same vehicle and fault; ``hot``: tall climbs
+    and a pack temperature limit that binds before the energy does."""
     base = load(7)
     rng = np.random.default_rng(seed)
+    alts = [50.0, 300.0, 600.0] if hot else [80.0, 120.0, 200.0]
     wps = tuple(Waypoint(i + 1, float(rng.uniform(-5000, 5000)), float(rng.uniform(-5000, 5000)),
-                         float(rng.choice([80.0, 120.0, 200.0])), float(rng.integers(5, 90))) for i in range(n))
-    return dataclasses.replace(base, waypoints=wps, name=f"random_{seed}")
+                         float(rng.choice(alts)), float(rng.integers(5, 90))) for i in range(n))
+    sc = dataclasses.replace(base, waypoints=wps, name=f"random_{seed}")
+    if hot:
+        sc = dataclasses.replace(sc, limits=dataclasses.replace(sc.limits, pack_max_temp_c=31.0))
+    return sc
 
 
-@pytest.mark.parametrize("case", ["t7-truth", "t8-prior", "r1", "r2", "r3"])
+@pytest.mark.parametrize("case", ["t7-truth", "t8-prior", "r1", "r2", "r3", "h1", "h2"])
 def test_exact_matches_brute_force(case):
     if case.startswith("t"):
         sc = load(int(case[1]))
         ps = true_parameters() if case.endswith("truth") else builtin("previous_si")
     else:
-        sc, ps = random_instance(int(case[1:])), builtin("paper_si")
+        sc, ps = random_instance(int(case[1:]), hot=case[0] == "h"), builtin("paper_si")
     sim = VehicleSimulator(sc, ps)
     ex = exact_search(sim)
     bf = brute_force(sim)
@@ -43,8 +49,11 @@ def test_exact_matches_brute_force(case):
     assert ex.reward == bf.reward
     assert ex.objective == pytest.approx(bf.objective, abs=1e-9)
     assert ex.feasible and bf.feasible
-    # and without dominance pruning
-    assert exact_search(sim, dominance=False).reward == bf.reward
+    # and without dominance pruning or warm start
+    assert exact_search(sim, dominance=False, warm_start=False).reward == bf.reward
+    if case[0] == "h":  # the temperature limit is what stops the longer routes
+        ev = sim.evaluate([tuple(range(len(sc.waypoints)))])
+        assert ev.cause[0] == kernel.FAIL_PACK_OVERTEMP
 
 
 def test_exact_beats_the_original_order_which_fails():

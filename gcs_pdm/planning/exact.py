@@ -12,8 +12,12 @@ Pruning, and the assumptions that make it exact (the brute force checks them in 
 * dominance — of two prefixes visiting the same set and ending at the same waypoint, one whose
   state is no worse in every respect (charge, polarisation, temperatures, peaks, energy) can do all
   the other can, so the other is dropped;
-* bound — a prefix whose reward plus every unvisited reward cannot beat the best complete route
-  is dropped (this one is always valid).
+* reach — a waypoint that a prefix cannot visit and still get home from is not tried after any
+  extension of that prefix either (a detour before it never helps), so each node carries the set
+  of waypoints it may still add: its parent's other feasible extensions;
+* bound — a prefix whose reward plus the rewards it may still add cannot beat the best route found
+  (seeded by a local search), or can only tie it with no better objective bound (costs so far are a
+  lower bound on the final costs), is dropped.
 
 The answer maximises reward; among equal rewards, the objective Θᵀ{R, −C_h, −C_p}.
 """
@@ -67,37 +71,57 @@ def _pareto_keep(keys: np.ndarray, good: np.ndarray) -> np.ndarray:
 
 
 def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THETA, dominance: bool = True,
-                 should_stop: Callable[[], bool] | None = None) -> Plan:
-    """The reward-optimal route (ties broken by the objective), proven under the assumptions above."""
+                 warm_start: bool = True, should_stop: Callable[[], bool] | None = None) -> Plan:
+    """The reward-optimal route (ties broken by the objective), proven under the assumptions above.
+
+    ``warm_start`` seeds the incumbent with a local search from the empty route, so the bounds
+    prune from the first level on."""
     n = sim.n
     rewards = sim.rewards[:n]
+    theta = tuple(float(t) for t in theta)
     root = sim.start_state(1)
     root_out = sim.home(root)
     best_route: tuple[int, ...] = ()
     best_r, best_o = (float(root_out.reward[0]), float(root_out.objective(theta)[0])) if root_out.feasible[0] \
         else (-1.0, -np.inf)
+    warm_routes = 0
+    if warm_start and root_out.feasible[0]:
+        from gcs_pdm.planning.local_search import improve
+
+        r, rw, ob, warm_routes = improve(sim, (), theta=theta, should_stop=should_stop)
+        if better(rw, ob, best_r, best_o):
+            best_route, best_r, best_o = r, rw, ob
     frontier = root
     routes: list[tuple[int, ...]] = [()]
     masks = np.zeros(1, dtype=np.int64)
+    reach = np.full(1, (1 << n) - 1, dtype=np.int64)  # waypoints a node may still add
     if not root_out.feasible[0]:
         log.warning("exact: the vehicle cannot get home even directly (%s)", root_out.cause[0])
         frontier = root.take(np.zeros(0, dtype=np.int64))
-        routes = []
-        masks = masks[:0]
+        routes, masks, reach = [], masks[:0], reach[:0]
+    # the objective bound needs costs that only grow along a route, i.e. non-negative cost weights
+    cost_bound = theta[1] >= 0 and theta[2] >= 0
+    bits = np.arange(n)
     nodes = 0
     rows = 0
     interrupted = False
     level = 0
+    tol = 1e-9
     while len(frontier):
         if should_stop is not None and should_stop():
             interrupted = True
             break
         level += 1
-        # every unvisited waypoint of every frontier node whose bound can still win
-        visited = (masks[:, None] >> np.arange(n)[None, :]) & 1
-        left = np.where(visited == 0, rewards[None, :], 0.0).sum(axis=1)
-        alive = frontier.reward + left >= best_r - 1e-9
-        parent, child = np.nonzero((visited == 0) & alive[:, None])
+        can = ((reach[:, None] >> bits[None, :]) & 1).astype(bool)
+        bound_r = frontier.reward + (can * rewards[None, :]).sum(axis=1)
+        alive = bound_r > best_r + tol
+        if cost_bound:
+            c_h, c_p = sim.cost_lower_bound(frontier)
+            bound_o = theta[0] * bound_r - theta[1] * c_h - theta[2] * c_p
+            alive |= (bound_r >= best_r - tol) & (bound_o > best_o + tol)
+        else:
+            alive |= bound_r >= best_r - tol
+        parent, child = np.nonzero(can & alive[:, None])
         if len(parent) == 0:
             break
         st, ok = sim.advance(frontier.take(parent), child)
@@ -109,10 +133,16 @@ def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THET
         out = Outcome(*(getattr(out, f)[feas] for f in Outcome.__dataclass_fields__))
         if len(parent) == 0:
             break
-        new_masks = masks[parent] | (1 << child)
+        # what a child may still add: its parent's other feasible children (a waypoint the parent
+        # could not visit and get home from cannot be visited after a detour either)
+        feasible_children = np.zeros(len(frontier), dtype=np.int64)
+        np.bitwise_or.at(feasible_children, parent, np.left_shift(1, child))
+        new_reach = feasible_children[parent] & ~np.left_shift(1, child)
+        new_masks = masks[parent] | np.left_shift(1, child)
         if dominance:
             keep = _pareto_keep(new_masks * (n + 1) + child, _goodness(st, out))
-            parent, child, st, new_masks = parent[keep], child[keep], st.take(keep), new_masks[keep]
+            parent, child, st = parent[keep], child[keep], st.take(keep)
+            new_masks, new_reach = new_masks[keep], new_reach[keep]
             out = Outcome(*(getattr(out, f)[keep] for f in Outcome.__dataclass_fields__))
         obj = out.objective(theta)
         i = rank(out.reward, obj)
@@ -120,11 +150,11 @@ def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THET
             best_r, best_o = float(out.reward[i]), float(obj[i])
             best_route = routes[parent[i]] + (int(child[i]),)
         routes = [routes[p] + (int(c),) for p, c in zip(parent, child)]
-        frontier, masks = st, new_masks
+        frontier, masks, reach = st, new_masks, new_reach
         nodes += len(parent)
         log.debug("exact: level %d, %d nodes, best reward %.1f", level, len(parent), best_r)
     return make_plan(sim, best_route, "exact", theta, nodes=nodes, simulated_rows=rows, levels=level,
-                     proven_optimal=not interrupted, interrupted=interrupted)
+                     warm_start_routes=warm_routes, proven_optimal=not interrupted, interrupted=interrupted)
 
 
 def brute_force(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THETA, max_routes: int = 2_000_000,

@@ -259,17 +259,26 @@ class VehicleSimulator:
         new, run = self._fly(state, np.full(len(state), self.landing_node, dtype=np.int64))
         return self._outcome(new, run.fail_cause, state.reward)
 
+    def cost_lower_bound(self, state: FlightState) -> tuple[np.ndarray, np.ndarray]:
+        """(C_h, C_p) that every route continuing from ``state`` will at least have: peaks only
+        rise, charge only falls, energy only grows."""
+        soc = kernel.state_of_charge(self._pp, state.x).min(axis=1)
+        return self._stress(state) + (1.0 - soc), state.energy_j / 1e6
+
+    def _stress(self, state: FlightState) -> np.ndarray:
+        lim = self.scenario.limits
+        t0 = self._t_ground
+        stress = np.maximum((state.peak_pack_c - t0) / max(lim.pack_max_temp_c - t0, 1e-6),
+                            (state.peak_motor_c - t0) / max(lim.motor_max_temp_c - t0, 1e-6))
+        return np.maximum(stress, 0.0)
+
     def _outcome(self, final: FlightState, cause: np.ndarray, reward_reached: np.ndarray) -> Outcome:
         soc = kernel.state_of_charge(self._pp, final.x)
         cause = np.asarray(cause, dtype=np.int64).copy()
         short = (cause == kernel.FAIL_NONE) & (soc.min(axis=1) < self._reserve) if len(cause) else cause.astype(bool)
         cause[short] = FAIL_RESERVE
         feasible = cause == kernel.FAIL_NONE
-        lim = self.scenario.limits
-        t0 = self._t_ground
-        stress = np.maximum((final.peak_pack_c - t0) / max(lim.pack_max_temp_c - t0, 1e-6),
-                            (final.peak_motor_c - t0) / max(lim.motor_max_temp_c - t0, 1e-6))
-        health = np.maximum(stress, 0.0) + (1.0 - soc.min(axis=1) if len(cause) else 0.0)
+        health = self._stress(final) + (1.0 - soc.min(axis=1) if len(cause) else 0.0)
         return Outcome(feasible=feasible, cause=cause, reward=np.where(feasible, reward_reached, 0.0),
                        reward_reached=np.asarray(reward_reached, dtype=np.float64),
                        health_cost=np.asarray(health, dtype=np.float64), power_cost=final.energy_j / 1e6,
