@@ -37,3 +37,11 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     assert http["/missions/uploads"][0]["status"] == "confirmed"
     assert http["/status"]["motors"]["aft"]["health"] < 0.5
     assert http["/missions/current"]["source"] == "download"
+    # the status carried a Monte Carlo time-to-cut-off with its spread while flying
+    packs = http["/status"]["packs"]
+    # null = no cut-off within the prediction horizon (the lightly loaded aft string)
+    timed = [p for p in packs.values() if p["time_to_cutoff_s"] is not None]
+    assert timed and all(p["time_to_cutoff_s"] > 0 and p["time_to_cutoff_sd"] > 0 for p in timed), packs
+    assert packs["LLF20"]["time_to_cutoff_s"] is not None  # the most drained pack, on the loaded string
+    assert all(p["soc"] is not None and 0.0 <= p["soc"] <= 1.0 for p in packs.values())
+    assert http["/status"]["prediction"]["n_samples"] > 0

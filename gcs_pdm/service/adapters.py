@@ -27,6 +27,32 @@ def make_estimator(params: ParameterSet):
     return StateEstimator(params)
 
 
+def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Sequence[MotorFault], limits=None,
+                   *, horizon_s: float = 3600.0, step_s: float = 10.0, n_samples: int = 64, seed: int = 0):
+    """A Monte Carlo time-to-cut-off prediction at the present load, as a callable to run elsewhere.
+
+    The estimator's arrays are copied here (on the telemetry thread) so the prediction can run on a
+    worker while the filters move on."""
+    from gcs_pdm.estimation.prediction import FutureLoad, predict
+    from gcs_pdm.models.powertrain import Limits, fault_vector
+
+    tm, tm_sd = estimator.motors.temperature()
+    tm = np.where(np.isfinite(tm), tm, estimator.ambient_c)
+    tm_sd = np.where(np.isfinite(tm_sd), tm_sd, 2.0)
+    params = (np.array(estimator.packs.params, copy=True), np.array(estimator.motors.params[0], copy=True))
+    mean, cov = np.array(estimator.packs.mean, copy=True), np.array(estimator.packs.cov, copy=True)
+    load = FutureLoad.constant(shaft_power_w, horizon_s, step_s, ambient_c)
+    fv = fault_vector(list(faults))
+    lim = limits or Limits()
+
+    def run():
+        return predict(params, mean, cov, np.array(tm, copy=True), np.array(tm_sd, copy=True), load,
+                       rng=np.random.default_rng(seed), n_samples=n_samples, fault=fv, limits=lim, trajectories=False,
+                       stop_on_failure=False)  # each pack to its own cut-off, not only the first
+
+    return run
+
+
 # --- diagnosis ---------------------------------------------------------------------------------
 
 def make_diagnoser(params: ParameterSet, limits=None):

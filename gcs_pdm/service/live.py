@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from gcs_pdm import missions as M
-from gcs_pdm.frames import MissionProgressFrame, PositionFrame, StatusTextFrame
+from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusTextFrame
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service import adapters
@@ -35,6 +35,7 @@ from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, r
 
 log = logging.getLogger(__name__)
 
+PREDICT_PERIOD_S = 10.0
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 #: a diagnosed magnitude that changes by this much is a new fault for the planner
@@ -87,6 +88,11 @@ class LiveLoop:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="decide")
+        # Predictions have their own worker: a long plan must not freeze the status page's numbers.
+        self._predictor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="predict")
+        self._predicting = False
+        self._last_predict_s = -math.inf
+        self._airdata: tuple[float, float] | None = None
         self._lock = threading.Lock()
         self._busy = False
         self._pending: tuple[str, Snapshot] | None = None
@@ -121,6 +127,7 @@ class LiveLoop:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
         self._worker.shutdown(wait=True, cancel_futures=True)
+        self._predictor.shutdown(wait=True, cancel_futures=True)
 
     def _guard(self, fn, *args) -> Any:
         try:
@@ -159,6 +166,8 @@ class LiveLoop:
             self._position = (frame.lat_deg, frame.lon_deg, frame.relative_alt_m or 0.0)
             if self._ground_alt_amsl is None and frame.alt_m is not None and frame.relative_alt_m is not None:
                 self._ground_alt_amsl = frame.alt_m - frame.relative_alt_m
+        elif isinstance(frame, AirdataFrame) and frame.airspeed is not None:
+            self._airdata = (frame.airspeed, frame.climb_rate or 0.0)
         elif isinstance(frame, MissionProgressFrame) and frame.reached_seq is not None:
             self._reached(frame.reached_seq, t)
         elif isinstance(frame, StatusTextFrame):
@@ -199,6 +208,42 @@ class LiveLoop:
                                                                                        self.link.target_component]})
         self._check_faults(t)
         self._check_deviation(t)
+        if t - self._last_predict_s >= PREDICT_PERIOD_S:
+            self._last_predict_s = t
+            self._predict(t)
+
+    def _predict(self, t: float) -> None:
+        """Time to each pack's cut-off at the present load (Monte Carlo), off the telemetry thread."""
+        from gcs_pdm.models.powertrain import air_density, shaft_power
+
+        if self._predicting or self._airdata is None or not self.estimator.ready():
+            return
+        airspeed, climb = self._airdata
+        if airspeed < 5.0:  # on the ground: no flight load to extrapolate
+            return
+        alt = (self._ground_alt_amsl or 0.0) + (self._position[2] if math.isfinite(self._position[2]) else 0.0)
+        power = float(shaft_power(airspeed, climb, air_density(alt)))
+        amb = self.service.state.get("ambient_c")
+        limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
+        job = adapters.prediction_job(self.estimator, power, float(amb) if amb is not None else 20.0,
+                                      self._all_motor_faults(), limits, seed=int(t))
+        self._predicting = True
+
+        def run() -> None:
+            try:
+                pred = job()
+                st = self.service.state
+                for i, n in enumerate(PACK_NAMES):
+                    q05, q50, q95 = (float(v) for v in pred.pack_time_to_cutoff_s[i])
+                    sd = (q95 - q05) / 3.29 if math.isfinite(q95) and math.isfinite(q05) else None
+                    st.update_nested("packs", n, time_to_cutoff_s=q50 if math.isfinite(q50) else None, time_to_cutoff_sd=sd)
+                st.update(prediction={"time_s": t, "shaft_power_w": power, **pred.to_dict()})
+            except Exception:  # noqa: BLE001 - a failed prediction only leaves the old numbers
+                log.exception("prediction failed")
+            finally:
+                self._predicting = False
+
+        self._predictor.submit(run)
 
     def _check_faults(self, t: float) -> None:
         current = {(d.get("type"), d.get("component")): d for d in adapters.active_faults(self.diagnoser)}
