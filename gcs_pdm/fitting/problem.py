@@ -181,28 +181,46 @@ class _Problem:
         if self.n_residuals == 0:
             raise ValueError("no measured samples in the flights")
 
-    # subclasses: simulate one flight for a batch of physical value rows -> (N, n) predictions
-    def simulate(self, values: np.ndarray, f: Prepared) -> np.ndarray:  # pragma: no cover - abstract
+    #: per-flight extra unknowns (columns after the d parameters in U); 0 or len(flights)
+    n_extra: int = 0
+
+    # subclasses: simulate one flight for a batch of physical value rows -> (N, n) predictions;
+    # ``extra`` (N,) is this flight's extra unknown in unit coordinates, or None
+    def simulate(self, values: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError
 
-    def _residuals_serial(self, values: np.ndarray) -> np.ndarray:
+    @property
+    def row_slices(self) -> list[slice]:
+        """Rows of each flight in the residual vector."""
+        edges = np.concatenate([[0], np.cumsum([int(f.mask.sum()) for f in self.flights])])
+        return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+    def _residuals_serial(self, args: tuple[np.ndarray, np.ndarray | None]) -> np.ndarray:
+        values, extras = args
         out = np.empty((values.shape[0], self.n_residuals))
-        k = 0
-        for f in self.flights:
-            pred = self.simulate(values, f)
-            m = int(f.mask.sum())
-            out[:, k:k + m] = pred[:, f.mask] - f.target[f.mask]
-            k += m
+        for fi, (f, rows) in enumerate(zip(self.flights, self.row_slices)):
+            pred = self.simulate(values, f, None if extras is None else extras[:, fi])
+            out[:, rows] = pred[:, f.mask] - f.target[f.mask]
         # a diverged simulation (NaN/inf) is a very bad fit, not a crash
         np.nan_to_num(out, copy=False, nan=1e6, posinf=1e6, neginf=-1e6)
         return out
 
     def residuals(self, U: np.ndarray, parallel: bool = True) -> np.ndarray:
-        """(N, m) residuals (prediction - measurement, over every measured sample of every flight)."""
-        values = self.space.to_values(np.atleast_2d(U))
+        """(N, m) residuals (prediction - measurement, over every measured sample of every flight).
+
+        U is (N, d) — the free parameters — or (N, d + n_extra) with the per-flight extra unknowns.
+        """
+        U = np.atleast_2d(U)
+        d = self.space.dim
+        if U.shape[1] not in (d, d + self.n_extra):
+            raise ValueError(f"U: expected {d} or {d + self.n_extra} columns, got {U.shape[1]}")
+        values = self.space.to_values(U[:, :d])
+        extras = U[:, d:] if U.shape[1] > d else None
         if not parallel or self.workers <= 1 or values.shape[0] < 2:
-            return self._residuals_serial(values)
-        parts = list(self.mapper(self._residuals_serial, [values[s] for s in _chunks(values.shape[0], self.workers)]))
+            return self._residuals_serial((values, extras))
+        chunks = _chunks(values.shape[0], self.workers)
+        parts = list(self.mapper(self._residuals_serial,
+                                 [(values[c], None if extras is None else extras[c]) for c in chunks]))
         return np.concatenate(parts, axis=0)
 
     def mse(self, U: np.ndarray, parallel: bool = True) -> np.ndarray:
@@ -210,8 +228,8 @@ class _Problem:
         return np.einsum("ij,ij->i", r, r) / r.shape[1]
 
     def predictions(self, u: np.ndarray) -> list[np.ndarray]:
-        """Per-flight prediction (n,) for one point."""
-        values = self.space.to_values(np.atleast_2d(u))
+        """Per-flight prediction (n,) for one point (free parameters only)."""
+        values = self.space.to_values(np.atleast_2d(u)[:, :self.space.dim])
         return [self.simulate(values, f)[0] for f in self.flights]
 
 
@@ -219,7 +237,8 @@ class PackProblem(_Problem):
     """One pack's voltage or temperature; the free parameters replace those of ``base`` (12,)."""
 
     def __init__(self, flights: Sequence[Flight], base: np.ndarray, bounds: Sequence[Bound], target: str = "voltage",
-                 *, init_samples: int = 10, mapper: Mapper | None = None, workers: int = 1):
+                 *, init_samples: int = 10, mapper: Mapper | None = None, workers: int = 1,
+                 soc_offset_range: float = 0.0):
         if target not in ("voltage", "temperature"):
             raise ValueError(f"target must be 'voltage' or 'temperature', got {target!r}")
         bad = [f.name for f in flights if f.kind != BATTERY]
@@ -227,23 +246,35 @@ class PackProblem(_Problem):
             raise ValueError(f"not battery flights: {', '.join(bad)}")
         self.base = np.asarray(base, dtype=np.float64)
         self.target = target
+        #: per-flight initial-SoC corrections of up to ±soc_offset_range may be appended to U (LM only)
+        self.soc_offset_range = float(soc_offset_range)
         super().__init__(ParameterSpace(bounds), [prepare(f, target, init_samples) for f in flights], mapper, workers)
+        self.n_extra = len(self.flights) if self.soc_offset_range > 0 else 0
+
+    def soc_offset(self, extra: np.ndarray | None) -> np.ndarray | float:
+        """Initial-SoC correction for an extra unknown in unit coordinates (0.5 = none)."""
+        return 0.0 if extra is None else (np.asarray(extra) - 0.5) * 2.0 * self.soc_offset_range
 
     def pack_vectors(self, values: np.ndarray) -> np.ndarray:
         return pack_vectors_with(self.base, self.space.names, values)
 
-    def initial_states(self, P: np.ndarray, f: Prepared) -> np.ndarray:
-        soc = initial_soc(P, f.init_voltage, f.init_current)
+    def initial_states(self, P: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:
+        soc = initial_soc(P, f.init_voltage, f.init_current) + self.soc_offset(extra)
         return kernel.initial_pack_state(P, soc, f.init_temperature, f.init_current)
 
-    def simulate(self, values: np.ndarray, f: Prepared) -> np.ndarray:
+    def simulate(self, values: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:
         P = self.pack_vectors(values)
-        traj = kernel.simulate_packs(P, self.initial_states(P, f), f.dt, f.current, f.ambient)
+        traj = kernel.simulate_packs(P, self.initial_states(P, f, extra), f.dt, f.current, f.ambient)
         return traj.voltage if self.target == "voltage" else traj.temperature
 
     def initial_soc(self, u: np.ndarray) -> list[float]:
-        P = self.pack_vectors(self.space.to_values(np.atleast_2d(u)))
-        return [float(initial_soc(P, f.init_voltage, f.init_current)[0]) for f in self.flights]
+        """Initial SoC per flight for one point (with its per-flight corrections if u has them)."""
+        u = np.atleast_2d(u)
+        d = self.space.dim
+        P = self.pack_vectors(self.space.to_values(u[:, :d]))
+        return [float(initial_soc(P, f.init_voltage, f.init_current)[0]
+                      + self.soc_offset(u[0, d + i] if u.shape[1] > d else None))
+                for i, f in enumerate(self.flights)]
 
 
 class MotorProblem(_Problem):
@@ -265,6 +296,6 @@ class MotorProblem(_Problem):
             M[:, kernel.MOTOR_PARAMS.index(name)] = values[:, j]
         return M
 
-    def simulate(self, values: np.ndarray, f: Prepared) -> np.ndarray:
+    def simulate(self, values: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:
         M = self.motor_vectors(values)
         return kernel.simulate_motor_thermal(M, np.full(M.shape[0], f.init_temperature), f.dt, f.current, f.ambient)

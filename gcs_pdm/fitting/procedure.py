@@ -50,11 +50,14 @@ class FitSettings:
     #: set whose errors are reported beside the learned ones
     reference: str = "previous_si"
     init_samples: int = 10
+    #: LM also learns a per-training-flight initial-SoC correction of up to this much (0: off); the
+    #: first-samples estimate is noisy, and near the knee a 0.005 SoC error is a visible voltage error
+    soc_offset_range: float = 0.05
     workers: int = 2
 
     def to_dict(self) -> dict:
         return {"search": self.search.to_dict(), "base": self.base, "reference": self.reference,
-                "init_samples": self.init_samples, "workers": self.workers,
+                "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range, "workers": self.workers,
                 "cleaning": {k: v for k, v in self.cleaning.__dict__.items()}}
 
 
@@ -82,9 +85,12 @@ class StageResult:
     chosen: int
     evaluations: int
     seconds: float
+    #: training flights' initial SoC with their LM corrections (stages that learn them)
+    train_initial_soc: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {"stage": self.name, "target": self.target, "free": list(self.free),
+                "train_initial_soc": dict(self.train_initial_soc),
                 "bounds": {k: list(v) for k, v in self.bounds.items()}, "chosen": self.chosen,
                 "evaluations": self.evaluations, "seconds": self.seconds,
                 "candidates": [c.to_dict() for c in self.candidates]}
@@ -195,8 +201,8 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
                val: Sequence[Flight], search: SearchSettings, pool: ThreadPoolExecutor, workers: int,
                stepper: _Stepper, span: tuple[float, float], seed_offset: int) -> tuple[np.ndarray, StageResult, pb._Problem]:
     t0 = time.perf_counter()
-    prob = make(train, workers)
-    vprob = make(val, 1)
+    prob = make(train, workers, True)
+    vprob = make(val, 1, False)
     a, b = span
     sa_end = a + 0.65 * (b - a)
     rng = np.random.default_rng([search.seed, seed_offset])
@@ -206,9 +212,14 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
     stepper.check()
     stepper.report(sa_end, f"{name}: Levenberg-Marquardt")
 
+    d, n_extra = prob.space.dim, prob.n_extra
+
     def lm(u0: np.ndarray):
         stepper.check()
-        return levenberg_marquardt(lambda U: prob.residuals(U, parallel=False), u0, search)
+        # per-flight unknowns (initial-SoC corrections) start at "none" and join the LM only
+        start = np.concatenate([u0, np.full(n_extra, 0.5)])
+        return levenberg_marquardt(lambda U: prob.residuals(U, parallel=False), start, search,
+                                   shared=d, blocks=prob.row_slices if n_extra else None)
 
     done = 0
     lm_results = []
@@ -217,18 +228,21 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
         done += 1
         stepper.report(sa_end + (b - sa_end) * done / len(ann.best_u), f"{name}: Levenberg-Marquardt {done}/{len(ann.best_u)}")
     stepper.check()
-    U = np.array([r.u for r in lm_results])
+    U_full = np.array([r.u for r in lm_results])
+    U = U_full[:, :d]
     val_mse = vprob.mse(U, parallel=False)
     values = prob.space.to_values(U)
     candidates = [Candidate(start=i, sa_rmse=float(np.sqrt(ann.best_mse[i])), lm_rmse=float(np.sqrt(r.mse)),
-                            val_rmse=float(np.sqrt(val_mse[i])), lm_nfev=r.nfev + r.njev * prob.space.dim,
+                            val_rmse=float(np.sqrt(val_mse[i])), lm_nfev=r.nfev + r.njev * (d + (n_extra > 0)),
                             values={n: float(v) for n, v in zip(prob.space.names, values[i])})
                   for i, r in enumerate(lm_results)]
     chosen = int(np.argmin(val_mse))
     evaluations = ann.evaluations + sum(c.lm_nfev for c in candidates) + len(candidates)
     stage = StageResult(name=name, target=getattr(prob, "target", "temperature"), free=prob.space.names,
                         bounds={bd.name: (bd.lo, bd.hi) for bd in prob.space.bounds}, candidates=candidates,
-                        chosen=chosen, evaluations=int(evaluations), seconds=time.perf_counter() - t0)
+                        chosen=chosen, evaluations=int(evaluations), seconds=time.perf_counter() - t0,
+                        train_initial_soc=({f.name: v for f, v in zip(prob.flights, prob.initial_soc(U_full[chosen]))}
+                                           if n_extra else {}))
     log.info("%s: chose start %d, train RMSE %.4g, validation RMSE %.4g (%d evaluations, %.1f s)", name, chosen,
              candidates[chosen].lm_rmse, candidates[chosen].val_rmse, evaluations, stage.seconds)
     return U[chosen], stage, prob
@@ -287,14 +301,15 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     s = settings
     stepper.report(0.02, "electrical: annealing")
     with ThreadPoolExecutor(max_workers=max(1, s.workers)) as pool:
-        def make_el(flights, workers):
+        def make_el(flights, workers, training):
             return pb.PackProblem(flights, base_vec, pb.BATTERY_ELECTRICAL_BOUNDS, "voltage", init_samples=s.init_samples,
-                                  mapper=pool.map, workers=workers)
+                                  mapper=pool.map, workers=workers,
+                                  soc_offset_range=s.soc_offset_range if training else 0.0)
         u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"], s.search, pool,
                                           s.workers, stepper, (0.02, 0.55), 1)
         el_vec = prob_el.pack_vectors(prob_el.space.to_values(u_el))[0]
 
-        def make_th(flights, workers):
+        def make_th(flights, workers, training):
             return pb.PackProblem(flights, el_vec, pb.BATTERY_THERMAL_BOUNDS, "temperature", init_samples=s.init_samples,
                                   mapper=pool.map, workers=workers)
         u_th, st_th, prob_th = _run_stage("thermal", make_th, splits["train"], splits["validation"], s.search, pool,
@@ -339,7 +354,7 @@ def fit_motor(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Fli
     base_vec = builtin(s.base).motor_vector()
     ref_vec = builtin(s.reference).motor_vector()
     with ThreadPoolExecutor(max_workers=max(1, s.workers)) as pool:
-        def make(flights, workers):
+        def make(flights, workers, training):
             return pb.MotorProblem(flights, base_vec, pb.MOTOR_THERMAL_BOUNDS, init_samples=s.init_samples,
                                    mapper=pool.map, workers=workers)
         u, st, prob = _run_stage("thermal", make, splits["train"], splits["validation"], s.search, pool, s.workers,

@@ -114,9 +114,19 @@ class LMResult:
 
 
 def levenberg_marquardt(residuals: Callable[[np.ndarray], np.ndarray], u0: np.ndarray, settings: SearchSettings,
-                        ) -> LMResult:
-    """Refine ``u0`` with MINPACK's LM; ``residuals`` maps U (N, d) -> (N, m) in one batched call."""
-    d = u0.size
+                        *, shared: int | None = None, blocks: list[slice] | None = None) -> LMResult:
+    """Refine ``u0`` with MINPACK's LM; ``residuals`` maps U (N, n) -> (N, m) in one batched call.
+
+    Block-separable unknowns: with ``shared=d`` and ``blocks`` (one row slice per extra unknown), the
+    coordinates after the first d are per-block unknowns (e.g. each flight's initial SoC) that move
+    only their own rows. One shifted vector then moves all of them at once and gives every block's
+    derivative, so the Jacobian costs d + 1 vectors, not n.
+    """
+    n = u0.size
+    d = n if shared is None else int(shared)
+    extra = n - d
+    if extra and (blocks is None or len(blocks) != extra):
+        raise ValueError(f"blocks: need one row slice per extra unknown ({extra})")
     h = settings.lm_fd_step
     cache: dict[bytes, np.ndarray] = {}
 
@@ -128,12 +138,21 @@ def levenberg_marquardt(residuals: Callable[[np.ndarray], np.ndarray], u0: np.nd
 
     def jac(z: np.ndarray) -> np.ndarray:
         r0 = cache.get(z.tobytes())
-        shifted = np.tile(z, (d + (r0 is None), 1))
+        k = d + (1 if extra else 0)
+        shifted = np.tile(z, (k + (r0 is None), 1))
         shifted[np.arange(d), np.arange(d)] += h
+        if extra:
+            shifted[d, d:] += h
         R = residuals(_u_of_z(shifted))
         if r0 is None:
             r0 = R[-1]
-        return ((R[:d] - r0) / h).T
+        J = np.zeros((r0.size, n))
+        J[:, :d] = ((R[:d] - r0) / h).T
+        if extra:
+            col = (R[d] - r0) / h
+            for i, rows in enumerate(blocks):
+                J[rows, d + i] = col[rows]
+        return J
 
     z0 = _z_of_u(u0)
     res = least_squares(fun, z0, jac=jac, method="lm", max_nfev=settings.lm_max_nfev, x_scale=1.0)
