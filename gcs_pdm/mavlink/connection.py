@@ -165,7 +165,15 @@ class Link:
         except OSError as exc:
             log.warning("could not enlarge SO_RCVBUF: %s", exc)
             return
-        # Linux reports twice the granted size and caps it at net.core.rmem_max.
+        # Linux reports twice the granted size and caps it at net.core.rmem_max; a privileged
+        # process may go past the cap with SO_RCVBUFFORCE.
+        force = getattr(socket, "SO_RCVBUFFORCE", None)
+        if self.rcvbuf_effective < self.config.rcvbuf_bytes and force is not None:
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, force, self.config.rcvbuf_bytes)
+                self.rcvbuf_effective = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+            except OSError:
+                pass
         if self.rcvbuf_effective < self.config.rcvbuf_bytes:
             log.warning("SO_RCVBUF is %d bytes, asked for %d (raise net.core.rmem_max): fast bursts may drop",
                         self.rcvbuf_effective, self.config.rcvbuf_bytes)
