@@ -47,15 +47,15 @@ DEFAULT_RATES: dict[str, float] = {
 
 #: thinner rates for recorded fixtures (1 Hz battery/ESC telemetry keeps a 30 min flight small)
 RECORDING_RATES: dict[str, float] = {
-    "HEARTBEAT": 0.5,
+    "HEARTBEAT": 0.2,
     "SYS_STATUS": 0.1,
     "SYSTEM_TIME": 0.05,
     "BATTERY_STATUS": 1.0,
     "ESC_TELEMETRY_1_TO_4": 1.0,
-    "SCALED_PRESSURE": 0.5,
-    "GLOBAL_POSITION_INT": 0.5,
-    "VFR_HUD": 0.5,
-    "MISSION_CURRENT": 0.2,
+    "SCALED_PRESSURE": 0.2,
+    "GLOBAL_POSITION_INT": 0.2,
+    "VFR_HUD": 0.2,
+    "MISSION_CURRENT": 0.1,
 }
 
 
