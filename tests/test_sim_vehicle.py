@@ -161,3 +161,21 @@ def test_commands_replan_in_flight_and_set_current():
              if p.time_s > dict(vehicle.core.model.reached_log)[3] - 1]
     east, north = np.array(after).T
     assert east.min() < -700 and north.min() < -700
+
+
+def test_lockstep_flies_far_faster_than_real_time_with_simulated_message_time():
+    port = free_udp_port()
+    frames = []
+    with Link(LinkConfig(url=f"udpin:127.0.0.1:{port}")) as link:
+        link.add_frame_listener(frames.append)
+        with SimulatedVehicle(SimConfig(mission=tuple(SQUARE), start_delay_s=1.0), f"udpout:127.0.0.1:{port}",
+                              speedup=None) as vehicle:
+            started = time.monotonic()
+            final = vehicle.wait_finished(60)
+            wall = time.monotonic() - started
+            time.sleep(0.3)
+    assert final.landed
+    assert final.time_s / wall > 20  # a 4-minute flight in seconds (typically x100 or more)
+    packs = [f.time_s for f in frames if isinstance(f, PackFrame)]
+    assert len(packs) > 0.8 * 4 * 2 * final.time_s  # 2 Hz x 4 packs, 1 % dropped, none lost on loopback
+    assert np.all(np.diff(packs) >= 0) and packs[-1] == pytest.approx(final.time_s, abs=2.0)
