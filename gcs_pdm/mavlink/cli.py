@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
         return 0
     print(f"{summary['path']}: {summary['messages']} messages, {summary['frames']} frames "
-          f"in {summary['elapsed_s']:.3f} s ({summary['messages_per_s']} msg/s)")
+          f"in {summary['elapsed_s']:.3f} s ({summary['messages_per_s']} msg/s, frame consumer included)")
     print(f"  tlog: start {summary['tlog_start_utc']}, {summary['tlog_duration_s']} s; "
           f"frame time span {summary['frame_time_span_s']}")
     print(f"  vehicle: {summary['vehicle']}")

@@ -225,6 +225,10 @@ class Link:
         self._frame_listeners = self._frame_listeners + [callback]
 
     @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
     def target_system(self) -> int | None:
         return self.mapper.target_system
 
@@ -279,7 +283,10 @@ class Link:
             if msg is None:
                 conn.select(0.02)
                 continue
-            self.handle_message(msg)
+            try:
+                self.handle_message(msg)
+            except Exception:  # noqa: BLE001 - one bad packet or consumer must not stop the link
+                log.exception("link %s: failed to handle %s", self.config.url, msg.get_type())
 
     def _send_heartbeat(self) -> None:
         try:

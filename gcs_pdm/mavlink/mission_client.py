@@ -119,6 +119,8 @@ class MissionClient:
     # --- plumbing ----------------------------------------------------------------------------
 
     def _vehicle(self) -> tuple[int, int]:
+        if not self.link.running:
+            raise MissionError("the link's reader is not running: call link.start() first")
         sysid, compid = self._target
         if sysid is not None and compid is not None:
             return sysid, compid

@@ -69,7 +69,7 @@ class ReplaySummary:
             "scan": self.scan,
             "mapping": self.mapping,
             "vehicle": self.vehicle,
-            "frame_time_span_s": list(self.frame_time_span_s) if self.frame_time_span_s else None,
+            "frame_time_span_s": [round(t, 6) for t in self.frame_time_span_s] if self.frame_time_span_s else None,
             "tlog_start_utc": self.tlog_start_utc,
             "tlog_duration_s": self.tlog_duration_s,
             "elapsed_s": round(self.elapsed_s, 4),
