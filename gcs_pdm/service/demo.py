@@ -218,7 +218,11 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
                          mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0)
     service = Service(config)
     service.load_objectives_scenario(scenario)
-    http = HttpServer(service, config.http_host, config.http_port).start()
+    try:
+        http = HttpServer(service, config.http_host, config.http_port).start()
+    except RuntimeError:
+        out(f"port {config.http_port} is taken; the status page goes on a free port")
+        http = HttpServer(service, config.http_host, 0).start()
     out(f"gcs-pdm demo: status page {http.url}/  (API docs {http.url}/docs, token {token})")
     out(f"  vehicle: simulated Edge 540, hidden true parameters, x{speedup:g} real time, MAVLink udp 127.0.0.1:{port}")
     out(f"  mission: waypoints 1..10 in numbered order; the {FAULT_MOTOR} motor will lose "

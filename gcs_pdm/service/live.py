@@ -347,7 +347,16 @@ class LiveLoop:
     # --- decision worker -----------------------------------------------------------------------
 
     def _initial_download(self) -> None:
-        self.link.wait_for_vehicle(timeout=60.0)
+        """Wait (however long) for the vehicle's first heartbeat, then read its mission."""
+        while not self._stop.is_set():
+            try:
+                self.link.wait_for_vehicle(timeout=1.0)
+                break
+            except TimeoutError:
+                continue
+        else:
+            return
+        self.service.events.publish("link", connected=True, vehicle=[self.link.target_system, self.link.target_component])
         self.refresh_mission()
 
     def refresh_mission(self) -> list[M.MissionItem]:

@@ -84,9 +84,9 @@ def serve(config: ServiceConfig, objectives: str | None = None, stop: threading.
     service = Service(config)
     if objectives:
         service.load_objectives(objectives)
+    start_mavlink(service)
     http = HttpServer(service, config.http_host, config.http_port).start()
     log.info("HTTP API on %s (docs at /docs), MAVLink on %s, policy %s", http.url, config.mavlink_url, service.policy)
-    start_mavlink(service)
     stop = stop or threading.Event()
     try:
         while not stop.wait(0.5):

@@ -1,0 +1,97 @@
+"""Configuration (defaults < file < environment < overrides, errors naming the field) and `serve`."""
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+
+import httpx
+import pytest
+
+from gcs_pdm.service.config import ConfigError, ServiceConfig, load_config
+
+
+def test_defaults_are_documented_values():
+    c = load_config(env={})
+    assert c.mavlink_url == "udpin:0.0.0.0:14550" and c.http_host == "127.0.0.1" and c.http_port == 8000
+    assert c.policy == "auto" and c.parameter_set == "paper_si"
+    assert str(c.database).endswith("gcs_pdm.sqlite3")
+    # every field has a default, so an empty file is a valid configuration
+    assert all(not f.is_required() for f in ServiceConfig.model_fields.values())
+
+
+def test_file_then_env_then_overrides(tmp_path):
+    toml = tmp_path / "svc.toml"
+    toml.write_text('[service]\npolicy = "advise"\nhttp_port = 9001\nparticles = 12\n')
+    c = load_config(toml, env={})
+    assert (c.policy, c.http_port, c.particles) == ("advise", 9001, 12)
+    c = load_config(toml, env={"GCS_PDM_HTTP_PORT": "9100", "GCS_PDM_POLICY": "auto"})
+    assert (c.policy, c.http_port) == ("auto", 9100)
+    c = load_config(toml, env={"GCS_PDM_HTTP_PORT": "9100"}, http_port=9200)
+    assert c.http_port == 9200
+    js = tmp_path / "svc.json"
+    js.write_text(json.dumps({"db_path": str(tmp_path / "x.db")}))
+    assert load_config(env={"GCS_PDM_CONFIG": str(js)}).database == tmp_path / "x.db"
+
+
+@pytest.mark.parametrize("env,field", [
+    ({"GCS_PDM_POLICY": "sometimes"}, "policy"),
+    ({"GCS_PDM_HTTP_PORT": "eighty"}, "http_port"),
+    ({"GCS_PDM_PARTICLES": "0"}, "particles"),
+    ({"GCS_PDM_PLANNER": "magic"}, "planner"),
+])
+def test_bad_values_name_the_field(env, field):
+    with pytest.raises(ConfigError, match=f"^{field}:"):
+        load_config(env=env)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(ConfigError, match="nope.toml"):
+        load_config(tmp_path / "nope.toml", env={})
+    bad = tmp_path / "bad.toml"
+    bad.write_text("policy = \n")
+    with pytest.raises(ConfigError, match="bad.toml"):
+        load_config(bad, env={})
+    unknown = tmp_path / "unknown.toml"
+    unknown.write_text('polcy = "auto"\n')
+    with pytest.raises(ConfigError, match="^polcy:"):
+        load_config(unknown, env={})
+
+
+def _free_port(kind=socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_serve_starts_answers_and_stops(tmp_path):
+    from gcs_pdm.service.server import serve
+
+    port = _free_port()
+    cfg = load_config(env={}, data_dir=str(tmp_path), http_port=port, api_token="tok",
+                      mavlink_url=f"udpin:127.0.0.1:{_free_port(socket.SOCK_DGRAM)}")
+    stop = threading.Event()
+    rc = {}
+    t = threading.Thread(target=lambda: rc.setdefault("rc", serve(cfg, stop=stop)), daemon=True)
+    t.start()
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                h = httpx.get(f"http://127.0.0.1:{port}/health", timeout=1).json()
+                break
+            except httpx.HTTPError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
+        assert h["status"] == "ok" and h["link_connected"] is False
+        r = httpx.put(f"http://127.0.0.1:{port}/policy", json={"policy": "advise"},
+                      headers={"Authorization": "Bearer tok"})
+        assert r.json() == {"policy": "advise"}
+        tl = httpx.get(f"http://127.0.0.1:{port}/tlogs").json()
+        assert len(tl) == 1 and tl[0]["note"] == "live session"
+    finally:
+        stop.set()
+        t.join(15)
+    assert rc.get("rc") == 0
