@@ -15,6 +15,7 @@ from gcs_pdm.mavlink.replay import replay_tlog
 from gcs_pdm.mavlink.tlog import scan_tlog
 
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
+from mavlink_builders import PacketFactory  # noqa: E402
 from mavlink_peers import free_tcp_port, free_udp_port  # noqa: E402
 
 
@@ -168,3 +169,23 @@ def test_tcp_link_receives_from_a_tcp_server():
     finally:
         link.close()
         vehicle.close()
+
+
+def test_serial_link_over_a_pty():
+    pytest.importorskip("serial", reason="pyserial is needed for serial links")
+    import tty
+
+    master, slave = os.openpty()
+    tty.setraw(master)
+    tty.setraw(slave)
+    link = Link(LinkConfig(url=os.ttyname(slave), baud=115200, heartbeat_hz=20)).start()
+    try:
+        v = PacketFactory()
+        os.write(master, v.heartbeat() + v.position(1000) + v.battery(0, [4000] * 5, 100, 2000))
+        assert wait_for(lambda: link.received == 3)
+        assert dict(link.mapper.stats.frames_by_kind) == {"status": 1, "position": 1, "pack": 1}
+        assert wait_for(lambda: len(os.read(master, 4096)) > 0)  # the link's heartbeat goes out too
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
