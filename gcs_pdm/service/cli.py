@@ -21,6 +21,8 @@ def register(subparsers) -> None:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--timeout", type=float, default=170.0, help="wall-clock limit, s")
     d.add_argument("--no-compare", action="store_true", help="skip flying the original mission without the service")
+    d.add_argument("--export-tryout", metavar="DIR",
+                   help="only write the Table III mission (.plan) and objectives (JSON) to DIR, for deploy/")
     d.set_defaults(func=_demo)
 
 
@@ -42,7 +44,12 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from gcs_pdm.service.demo import print_summary, run_demo
+    from gcs_pdm.service.demo import export_tryout, print_summary, run_demo
+
+    if args.export_tryout:
+        for what, value in export_tryout(args.export_tryout).items():
+            print(f"{what}: {value}")
+        return 0
 
     # The demo's own lines are the show; the libraries' INFO chatter would bury them.
     logging.getLogger().setLevel(logging.WARNING)

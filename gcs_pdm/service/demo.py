@@ -93,6 +93,22 @@ def reward_of(reached_seqs, mission, scenario) -> tuple[list[int], float]:
     return nums, float(sum(reward[n] for n in nums))
 
 
+def export_tryout(folder: str | Path) -> dict[str, str]:
+    """The Table III mission (QGroundControl .plan, for the simulated vehicle or a GCS) and the
+    objectives (scenario JSON with rewards and limits, for ``gcs-pdm serve --objectives``)."""
+    from gcs_pdm.mavlink.mission_files import write_plan
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    sc, m = table3_mission()
+    h = sc.home
+    write_plan(folder / "table3_mission.plan", m.items, home=(h.lat_deg, h.lon_deg, h.ground_alt_m))
+    (folder / "table3_objectives.json").write_text(sc.to_json(indent=1))
+    ws = m.waypoint_seq
+    return {"mission": str(folder / "table3_mission.plan"), "objectives": str(folder / "table3_objectives.json"),
+            "fault": f"motor:{FAULT_MOTOR}:{FAULT_MAGNITUDE}@leg:{ws[2]}-{ws[3]}"}
+
+
 def fly_without_service(config, max_sim_s: float = 4 * 3600.0) -> dict:
     """The same vehicle, seed and fault, flying its original mission with nobody replanning
     (the steppable model, no network: as fast as the CPU allows)."""
