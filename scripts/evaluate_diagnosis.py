@@ -39,6 +39,7 @@ from gcs_pdm.models import kernel
 from gcs_pdm.models.params import PACK_NAMES, default_set
 from gcs_pdm.sim.truth import true_parameters
 
+STAMP_RESOLUTION_S = 5.0
 CONSEQUENCES = {PREDICTED_LIMIT_VIOLATION, DEGRADATION_RATE_DEVIATION}
 
 
@@ -126,39 +127,65 @@ def flights(quick: bool):
     for k, d in enumerate(degr[: (2 if quick else 6)]):
         specs.append(("pack degradation", dict(duration_s=1200.0, degradation=(d,)), 2013 + k, 300 + k))
     for k, (motor, m) in enumerate([("fwd", 0.9), ("aft", 0.8), ("fwd", 0.7), ("aft", 0.9)][: (2 if quick else 4)]):
-        specs.append(("infeasible after fault", dict(duration_s=1800.0, initial_soc=0.8, fault_motor=motor,
+        specs.append(("infeasible after fault", dict(duration_s=1800.0, initial_soc=0.7, fault_motor=motor,
                                                      fault_magnitude=m, fault_time_s=300.0 + 60 * k), 2013 + k, 400 + k))
     return specs
 
 
-def fixture_flights(root: Path):
-    """Recorded flights (tlog + truth json) from the simulated vehicle, if any."""
-    out = []
-    for tlog in sorted(root.glob("*.tlog")):
-        truth_path = tlog.with_suffix(".json")
-        truth = json.loads(truth_path.read_text()) if truth_path.is_file() else {}
-        out.append((tlog, truth))
-    return out
+def evaluate_fixtures(root: Path) -> dict:
+    """Replay the simulated vehicle's recorded flights (``manifest.json`` beside the tlogs) through
+    the pipeline and score them against the manifest's truth. No mission load is given (the
+    prognostic checks stay silent here).
 
-
-def evaluate_fixtures(root: Path) -> list[dict]:
+    The manifest's fault times are simulated time, which is the vehicle's boot clock, i.e. frame
+    time. Frames without a time field are stamped with the latest timed message ("hold last",
+    docs/mavlink.md), a resolution of up to ``STAMP_RESOLUTION_S`` in these recordings, so a
+    detection may carry a stamp up to that much before the onset."""
     from gcs_pdm.mavlink.replay import replay_tlog
 
+    manifest_path = root / "manifest.json"
+    if not manifest_path.is_file():
+        return {"flights": [], "note": f"no {manifest_path}"}
+    manifest = json.loads(manifest_path.read_text())
     rows = []
-    for tlog, truth in fixture_flights(root):
+    for fl in manifest.get("flights", []):
+        tlog = root / fl["tlog"]
+        if not tlog.is_file():
+            continue
         p = DiagnosisPipeline(default_set())
-        summary = replay_tlog(tlog, frame_consumer=p)
-        rows.append({"flight": tlog.name, "duration_s": summary.tlog_duration_s,
-                     "faults_raised": [{k: f[k] for k in ("type", "component", "magnitude", "time_s")}
-                                       for f in summary.faults],
-                     "truth": {k: truth[k] for k in truth if k in ("faults", "fault", "degradation", "injected")}})
-    return rows
+        replay_tlog(tlog, frame_consumer=p)
+        faults = p.faults
+        hits, false_alarms, used = [], [], set()
+        for inj in fl.get("faults", []):
+            onset = float(inj["time_s"])
+            match = next((f for f in faults if f.type == MOTOR_POWER_LOSS and f.component == inj["motor"]
+                          and f.time_s >= onset - STAMP_RESOLUTION_S and id(f) not in used), None)
+            if match is not None:
+                used.add(id(match))
+                hits.append({"type": MOTOR_POWER_LOSS, "component": inj["motor"], "delay_s": match.time_s - onset,
+                             "magnitude": match.magnitude, "true_magnitude": float(inj["magnitude"]), "lead_s": None})
+        first_onset = min((float(i["time_s"]) for i in fl.get("faults", [])), default=None)
+        for f in faults:
+            if id(f) in used:
+                continue
+            if f.type in CONSEQUENCES and first_onset is not None and f.time_s >= first_onset:
+                continue
+            false_alarms.append({k: f.to_dict()[k] for k in ("type", "component", "magnitude", "time_s")})
+        est = p.estimator.estimate()
+        final_soc = np.asarray(fl.get("final_soc", [np.nan] * 4), dtype=np.float64)
+        rows.append({"flight": fl["name"], "duration_s": fl.get("duration_s"), "injected": len(fl.get("faults", [])),
+                     "hits": hits, "false_alarms": false_alarms,
+                     "final_soc_error": [round(float(x), 4) for x in est.soc - final_soc],
+                     "final_soc_sd": [round(float(x), 4) for x in est.soc_sd]})
+    return {"flights": rows}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer flights (smoke run)")
     ap.add_argument("--fixtures", type=Path, default=Path("fixtures/flights"))
+    ap.add_argument("--no-fixtures", action="store_true", help="synthetic flights only")
+    ap.add_argument("--fixtures-only", action="store_true", help="recorded flights only")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     started = time.perf_counter()
@@ -166,7 +193,7 @@ def main(argv=None) -> int:
     per_class: dict[str, dict] = {}
     all_hits, soc_err_all, soc_z_all = [], [], []
     fault_free_hours, fault_free_alarms, total_hours, total_alarms = 0.0, 0, 0.0, 0
-    for cls, kw, truth_seed, seed in flights(args.quick):
+    for cls, kw, truth_seed, seed in ([] if args.fixtures_only else flights(args.quick)):
         flight = fly_synthetic(true_parameters(truth_seed), np.random.default_rng(seed), **kw)
         p, soc_err, soc_z = run_flight(flight, params)
         hits, fa, missed = score(flight, p)
@@ -226,8 +253,27 @@ def main(argv=None) -> int:
         "soc_within_2sd": round(float(np.mean(soc_z_all <= 2.0)), 3) if soc_z_all.size else None,
         "elapsed_s": None,
     }
-    fixtures = evaluate_fixtures(args.fixtures) if args.fixtures.is_dir() else []
-    result["fixture_flights"] = fixtures
+    fixtures = evaluate_fixtures(args.fixtures) if args.fixtures.is_dir() and not args.no_fixtures else {"flights": []}
+    fx = fixtures["flights"]
+    if fx:
+        fx_hits = [h for r in fx for h in r["hits"]]
+        fx_hours = sum((r["duration_s"] or 0.0) for r in fx) / 3600.0
+        fx_soc = np.array([e for r in fx for e in r["final_soc_error"]])
+        fx_z = np.abs(fx_soc) / np.array([s for r in fx for s in r["final_soc_sd"]])
+        result["fixtures"] = {
+            "flights": len(fx), "flight_hours": round(fx_hours, 2),
+            "injected": sum(r["injected"] for r in fx), "detected": len(fx_hits),
+            "mean_delay_s": round(float(np.mean([h["delay_s"] for h in fx_hits])), 1) if fx_hits else None,
+            "max_delay_s": round(float(np.max([h["delay_s"] for h in fx_hits])), 1) if fx_hits else None,
+            "mean_abs_magnitude_error": round(float(np.mean([abs(h["magnitude"] - h["true_magnitude"]) for h in fx_hits])), 3)
+            if fx_hits else None,
+            "false_alarms": sum(len(r["false_alarms"]) for r in fx),
+            "false_alarms_per_flight_hour": round(sum(len(r["false_alarms"]) for r in fx) / fx_hours, 3) if fx_hours else None,
+            "final_soc_rmse": round(float(np.sqrt(np.nanmean(fx_soc ** 2))), 4),
+            "final_soc_abs_error_max": round(float(np.nanmax(np.abs(fx_soc))), 4),
+            "final_soc_within_2sd": round(float(np.nanmean(fx_z <= 2.0)), 3),
+        }
+    result["fixture_flights"] = fx
     result["elapsed_s"] = round(time.perf_counter() - started, 1)
 
     print("| flights | n | flight h | expected | detected | detection rate | false alarms | false alarms / h | SoC RMS error | SoC p95 abs error | SoC within 2σ |")
@@ -246,6 +292,14 @@ def main(argv=None) -> int:
                                                               "mean_warning_before_failure_s")]
         print(f"| {ty} | " + " | ".join(str(x) for x in cells) + " |")
     print()
+    if "fixtures" in result:
+        fx = result["fixtures"]
+        print(f"Recorded flights ({args.fixtures}): {fx['flights']} flights, {fx['flight_hours']} h; motor faults "
+              f"{fx['detected']}/{fx['injected']} detected, mean delay {fx['mean_delay_s']} s (max {fx['max_delay_s']} s), "
+              f"mean abs magnitude error {fx['mean_abs_magnitude_error']}; false alarms {fx['false_alarms']} "
+              f"({fx['false_alarms_per_flight_hour']} per flight hour); final SoC error RMS {fx['final_soc_rmse']}, "
+              f"max {fx['final_soc_abs_error_max']}, within 2σ {fx['final_soc_within_2sd']}")
+        print()
     print(f"SoC error vs truth over all flights (every 10 s after the first minute): RMS {result['soc_rmse']}, "
           f"95th percentile |error| {result['soc_abs_error_p95']}, within 2σ {result['soc_within_2sd']}")
     print(json.dumps(result))

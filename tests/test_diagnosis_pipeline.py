@@ -80,3 +80,23 @@ def test_infeasible_mission_after_a_fault_is_predicted_and_the_rate_deviation_fi
     assert flight.info["failed_at_s"] is not None and limit[0].time_s < flight.info["failed_at_s"] - 120
     assert raised(p, DEGRADATION_RATE_DEVIATION)
     assert raised(p, MOTOR_POWER_LOSS)[0].component == "fwd"
+
+
+def test_recorded_fault_flight_replays_to_its_fault():
+    """The simulated vehicle's recording (fixtures/flights, manifest truth) through the real replay path."""
+    from pathlib import Path
+
+    from gcs_pdm.mavlink.replay import replay_tlog
+
+    root = Path(__file__).resolve().parent.parent / "fixtures" / "flights"
+    manifest = json.loads((root / "manifest.json").read_text())
+    flight = next(f for f in manifest["flights"] if f["name"] == "fault_01")
+    injected = flight["faults"][0]
+    p = DiagnosisPipeline(default_set())
+    summary = replay_tlog(root / flight["tlog"], frame_consumer=p)
+    assert [f["type"] for f in summary.faults] == [MOTOR_POWER_LOSS]
+    f = summary.faults[0]
+    assert f["component"] == injected["motor"]
+    assert f["magnitude"] == pytest.approx(injected["magnitude"], abs=0.02)
+    # frame time holds the last timed message (up to 5 s here), so allow that much before onset
+    assert -5.0 <= f["time_s"] - injected["time_s"] < 15.0

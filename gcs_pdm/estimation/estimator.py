@@ -109,6 +109,10 @@ class StateEstimator:
         self.motor_rpm = np.full(2, np.nan)
         #: charge drawn from each pack since its filter started (cleaned current × dt), C
         self.charge_c = np.zeros(4)
+        # currents of the frames that arrived while message time stood still (a link that stamps
+        # untimed messages with the last timed one): their mean is the current over the next step
+        self._i_sum = np.zeros(4)
+        self._i_n = np.zeros(4, dtype=np.int64)
         # per sensor channel: last message time it carried a value
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
@@ -174,6 +178,12 @@ class StateEstimator:
             self.pack_time[b] = t
             return
         dt = t - self.pack_time[b]
+        if math.isfinite(cur):
+            self._i_sum[b] += cur
+            self._i_n[b] += 1
+        if dt > 0 and self._i_n[b] > 0:
+            cur = self._i_sum[b] / self._i_n[b]
+            self._i_sum[b], self._i_n[b] = 0.0, 0
         if dt > self.config.long_gap_s:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
