@@ -102,12 +102,16 @@ def test_set_current_and_clear(client, vehicle):
 class ScriptedVehicle:
     """A pymavlink vehicle: answers uploads with legacy MISSION_REQUEST and a chosen final ACK."""
 
-    def __init__(self, final_result: int | None = mavlink2.MAV_MISSION_ACCEPTED, legacy: bool = True):
+    def __init__(self, final_result: int | None = mavlink2.MAV_MISSION_ACCEPTED, legacy: bool = True,
+                 crosstalk: bool = False):
         self.port = free_udp_port()
         self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=1, source_component=1,
                                                dialect="ardupilotmega")
         self.final_result = final_result
         self.legacy = legacy
+        # Mission traffic for another GCS (QGroundControl, 255/190) on the same link, as a router
+        # forwards it, plus an early ACCEPTED to us: none of it may end our upload.
+        self.crosstalk = crosstalk
         self.received: list = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -139,6 +143,11 @@ class ScriptedVehicle:
                     mav.mission_ack_send(msg.get_srcSystem(), msg.get_srcComponent(), self.final_result, 0)
 
     def _request(self, seq: int) -> None:
+        if self.crosstalk:
+            self.conn.mav.mission_ack_send(255, 190, mavlink2.MAV_MISSION_ACCEPTED, 0)
+            self.conn.mav.mission_request_int_send(255, 190, seq + 1, 0)
+            if seq == 1:
+                self.conn.mav.mission_ack_send(255, 195, mavlink2.MAV_MISSION_ACCEPTED, 0)
         if self.legacy:
             self.conn.mav.mission_request_send(255, 195, seq, 0)
         else:
@@ -190,6 +199,19 @@ def test_missing_ack_fails_after_retries():
             mc.upload(mission(4))
         assert time.monotonic() - started < 5
         assert mc.last_stats.attempts == 2
+    finally:
+        link.close()
+        v.close()
+
+
+def test_other_gcs_traffic_and_early_acks_do_not_end_an_upload():
+    v = ScriptedVehicle(legacy=False, crosstalk=True)
+    link, mc = scripted_client(v)
+    try:
+        items = mission(6)
+        mc.upload(items)
+        # Success was reported only after the vehicle had every item, in order, once.
+        assert [m.seq for m in v.received] == list(range(6))
     finally:
         link.close()
         v.close()
