@@ -2,7 +2,8 @@
 
 Scenarios: table3_{7,8,9,10} (fixtures/scenarios: the fault half way from waypoint 2 to 3, planning
 over the 5..8 waypoints not yet visited) and preflight_10 (all ten waypoints free, the fault known
-before take-off). Planning model: the scenario's own parameter set (paper_si). Reward = the
+before take-off) and random12_101 (twelve seeded random waypoints, all free: the exact search's
+scaling). Planning model: the scenario's own parameter set (paper_si). Reward = the
 planner's reward on that model (the same model the exact optimum is computed on).
 
     python benchmarks/bench_planner.py [--trials 30] [--particles 30]
@@ -27,7 +28,7 @@ from gcs_pdm.planning.local_search import pf_local_search  # noqa: E402
 from gcs_pdm.planning.particle_filter import particle_filter  # noqa: E402
 from gcs_pdm.planning.scenario import Scenario  # noqa: E402
 from gcs_pdm.planning.simulator import VehicleSimulator  # noqa: E402
-from gcs_pdm.planning.table3_scenario import preflight_scenario  # noqa: E402
+from gcs_pdm.planning.table3_scenario import preflight_scenario, random_field_scenario  # noqa: E402
 
 
 def timed(fn, *a, **kw):
@@ -56,6 +57,7 @@ def main() -> int:
     scenarios = [Scenario.from_json((ROOT / "fixtures" / "scenarios" / f"table3_{n}.json").read_text())
                  for n in (7, 8, 9, 10)]
     scenarios.append(preflight_scenario(10))
+    scenarios.append(random_field_scenario(12, seed=101))
     # compile/load the kernel outside the timings
     warm = VehicleSimulator(scenarios[0])
     particle_filter(warm, particles=2, seed=0)
@@ -76,9 +78,10 @@ def main() -> int:
             "pfls": {**ls, "pct_of_exact": 100.0 * ls["mean"] / ex.reward},
             "exact_airspeed_optimised": {"reward": ex_as.reward, "route": list(ex_as.numbers), "time_s": t_as},
         }
-        ok = row["pfls"]["pct_of_exact"] >= 99.5 and (len(sc.waypoints) < 10 or (
-            ls["median_time_s"] < 1.0 and t_ex < 10.0))
-        if sc.name == "table3_10":
+        # floors: PF+LS within 0.5 % of the optimum everywhere; at 10 waypoints (table3_10 is the
+        # paper's 10-waypoint scenario, preflight_10 has ten free) PF+LS median < 1 s, exact < 10 s
+        ok = row["pfls"]["pct_of_exact"] >= 99.5
+        if sc.name in ("table3_10", "preflight_10"):
             ok = ok and ls["median_time_s"] < 1.0 and t_ex < 10.0
         row["floors_ok"] = ok
         floors_ok &= ok

@@ -323,41 +323,46 @@ class VehicleSimulator:
             z = np.zeros(0)
             return RouteEvaluation(z.astype(bool), z.astype(np.int64), z, z, z, z, np.zeros((0, 4)), np.zeros((0, 4)),
                                    np.zeros((0, 2)), z, fail_leg=z.astype(np.int64), reached=z.astype(np.int64))
-        nodes = []
-        for r in routes:
-            r = [int(v) for v in r]
-            if any(v < 0 or v >= self.n for v in r) or len(set(r)) != len(r):
-                raise ValueError(f"route {r}: expected distinct waypoint indices in [0, {self.n})")
-            nodes.append([self.start_node] + r + [self.landing_node])
-        leg_steps = [legs.steps[np.array(p[:-1]), np.array(p[1:])] for p in nodes]
-        total = [int(s.sum()) for s in leg_steps]
-        n = max(max(total), 1)
+        # routes as a node matrix: start, waypoints, landing, then landing again as padding (a
+        # landing→landing leg has no samples)
+        lens = np.fromiter((len(r) for r in routes), dtype=np.int64, count=B)
+        flat = np.fromiter((int(v) for r in routes for v in r), dtype=np.int64, count=int(lens.sum()))
+        row = np.repeat(np.arange(B), lens)
+        if len(flat):
+            bad = (flat < 0) | (flat >= self.n)
+            if not bad.any():
+                count = np.zeros((B, self.n), dtype=np.int64)
+                np.add.at(count, (row, flat), 1)
+                bad = count[row, flat] > 1
+            if bad.any():
+                b = int(row[np.flatnonzero(bad)[0]])
+                raise ValueError(f"route {list(routes[b])}: expected distinct waypoint indices in [0, {self.n})")
+        width = int(lens.max()) + 2
+        nodes = np.full((B, width), self.landing_node, dtype=np.int64)
+        nodes[:, 0] = self.start_node
+        nodes[row, 1 + np.arange(len(flat)) - np.repeat(np.cumsum(lens) - lens, lens)] = flat
+        frm, to = nodes[:, :-1], nodes[:, 1:]
+        steps = legs.steps[frm, to]                       # (B, legs)
+        n = max(int(steps.sum(axis=1).max()), 1)
+        # left-align every route's samples (legs back to back), zero-padded at the end
+        mask = (np.arange(legs.dt.shape[2])[None, None, :] < steps[:, :, None]).reshape(B, -1)
+        bi, ki = np.nonzero(mask)
+        pos = (np.cumsum(mask, axis=1) - 1)[bi, ki]
         dt = np.zeros((B, n))
         pw = np.zeros((B, n))
         am = np.zeros((B, n))
-        for b, p in enumerate(nodes):
-            frm, to = np.array(p[:-1]), np.array(p[1:])
-            mask = np.arange(legs.dt.shape[2])[None, :] < legs.steps[frm, to][:, None]
-            k = total[b]
-            dt[b, :k] = legs.dt[frm, to][mask]
-            pw[b, :k] = legs.power[frm, to][mask]
-            am[b, :k] = legs.ambient[frm, to][mask]
+        dt[bi, pos] = legs.dt[frm, to].reshape(B, -1)[bi, ki]
+        pw[bi, pos] = legs.power[frm, to].reshape(B, -1)[bi, ki]
+        am[bi, pos] = legs.ambient[frm, to].reshape(B, -1)[bi, ki]
         st = self.start_state(B)
         run = kernel.simulate_powertrain(self._pp, self._mp, st.x, st.motor_temp, dt, pw, am, self._fault,
                                          limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
-        fail_leg = np.full(B, -1, dtype=np.int64)
-        reached = np.empty(B, dtype=np.int64)
-        reward_reached = np.empty(B)
-        for b, p in enumerate(nodes):
-            ends = np.cumsum(leg_steps[b])  # sample index just past each leg
-            if run.fail_step[b] >= 0:
-                fail_leg[b] = int(np.searchsorted(ends, run.fail_step[b], side="right"))
-                got = fail_leg[b]
-            else:
-                got = len(p) - 2
-            got = min(got, len(p) - 2)
-            reached[b] = got
-            reward_reached[b] = self.rewards[np.array(p[1:1 + got], dtype=np.int64)].sum() if got else 0.0
+        failed = run.fail_step >= 0
+        ends = np.cumsum(steps, axis=1)                   # sample index just past each leg
+        fail_leg = np.where(failed, (ends <= run.fail_step[:, None]).sum(axis=1), -1)
+        reached = np.where(failed, np.minimum(fail_leg, lens), lens)
+        gain = self.rewards[to] * (np.arange(width - 1)[None, :] < reached[:, None])
+        reward_reached = gain.sum(axis=1)
         final = FlightState(
             x=run.final_pack_state, motor_temp=run.final_motor_temp, node=np.full(B, self.landing_node),
             reward=reward_reached, energy_j=run.energy_j, time_s=run.elapsed_s,

@@ -93,3 +93,15 @@ def preflight_scenario(n_waypoints: int = 10, params: str | ParameterSet = "pape
                     faults=(TABLE3_FAULT,), limits=TABLE3_LIMITS,
                     params=params if isinstance(params, str) else params.to_dict(),
                     description=f"waypoints 1..{n_waypoints} all free, aft motor fault known before take-off")
+
+
+def random_field_scenario(n_waypoints: int = 12, seed: int = 101, params: str | ParameterSet = "paper_si") -> Scenario:
+    """``n_waypoints`` random waypoints in the same 10 km square (seeded), the Table III vehicle,
+    fault and limits, all free from take-off: a scaling case for the exact search."""
+    base = preflight_scenario(len(TABLE3_WAYPOINTS), params)
+    rng = np.random.default_rng(seed)
+    wps = tuple(Waypoint(i + 1, float(rng.uniform(-5000, 5000)), float(rng.uniform(-5000, 5000)),
+                         float(rng.choice([100.0, 150.0])), float(rng.integers(20, 90))) for i in range(n_waypoints))
+    return Scenario(name=f"random{n_waypoints}_{seed}", home=base.home, start=base.start, waypoints=wps,
+                    faults=base.faults, limits=base.limits, params=base.params,
+                    description=f"{n_waypoints} random waypoints (seed {seed}), aft motor fault known before take-off")
