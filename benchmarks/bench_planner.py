@@ -69,27 +69,32 @@ def main() -> int:
         ex, t_ex = timed(exact_search, sim)
         pf = trials(particle_filter, sim, args.trials, args.particles)
         ls = trials(pf_local_search, sim, args.trials, args.particles)
-        fast = VehicleSimulator(sc, optimise_airspeed=True)
-        ex_as, t_as = timed(exact_search, fast)
+        if len(sc.waypoints) <= 10:
+            ex_as, t_as = timed(exact_search, VehicleSimulator(sc, optimise_airspeed=True))
+            airspeed = {"reward": ex_as.reward, "route": list(ex_as.numbers), "time_s": t_as}
+        else:  # slower legs keep many more routes feasible: not part of this figure
+            airspeed = None
         row = {
             "free_waypoints": len(sc.waypoints),
             "exact": {"reward": ex.reward, "route": list(ex.numbers), "time_s": t_ex, "nodes": ex.stats["nodes"]},
             "pf": {**pf, "pct_of_exact": 100.0 * pf["mean"] / ex.reward},
             "pfls": {**ls, "pct_of_exact": 100.0 * ls["mean"] / ex.reward},
-            "exact_airspeed_optimised": {"reward": ex_as.reward, "route": list(ex_as.numbers), "time_s": t_as},
+            "exact_airspeed_optimised": airspeed,
         }
         # floors: PF+LS within 0.5 % of the optimum everywhere; at 10 waypoints (table3_10 is the
         # paper's 10-waypoint scenario, preflight_10 has ten free) PF+LS median < 1 s, exact < 10 s
-        ok = row["pfls"]["pct_of_exact"] >= 99.5
-        if sc.name in ("table3_10", "preflight_10"):
-            ok = ok and ls["median_time_s"] < 1.0 and t_ex < 10.0
-        row["floors_ok"] = ok
-        floors_ok &= ok
+        # (random12 has no floor: it shows how the search scales past the issue's range)
+        if sc.name.startswith(("table3_", "preflight_")):
+            ok = row["pfls"]["pct_of_exact"] >= 99.5
+            if sc.name in ("table3_10", "preflight_10"):
+                ok = ok and ls["median_time_s"] < 1.0 and t_ex < 10.0
+            row["floors_ok"] = ok
+            floors_ok &= ok
         out["scenarios"][sc.name] = row
         print(f"{sc.name:<13} free {len(sc.waypoints):>2}  exact {ex.reward:6.1f} in {t_ex:6.3f} s | "
               f"PF {pf['mean']:6.1f}({pf['std']:4.1f}) {row['pf']['pct_of_exact']:5.1f}% med {pf['median_time_s']*1e3:6.1f} ms | "
               f"PF+LS {ls['mean']:6.1f}({ls['std']:4.1f}) {row['pfls']['pct_of_exact']:5.1f}% med {ls['median_time_s']*1e3:6.1f} ms | "
-              f"exact w/ airspeed opt {ex_as.reward:6.1f}", flush=True)
+              f"exact w/ airspeed opt {airspeed['reward'] if airspeed else float('nan'):6.1f}", flush=True)
     out["floors_ok"] = floors_ok
     print(json.dumps(out))
     return 0
