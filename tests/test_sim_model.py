@@ -104,7 +104,7 @@ def test_too_long_a_mission_for_a_degraded_vehicle_ends_in_a_reported_failure():
     m = VehicleModel(cfg)
     events = run(m, max_s=7200)
     s = m.state()
-    assert s.failed and "cut-off" in s.failure or "depleted" in s.failure
+    assert s.failed and ("cut-off" in s.failure or "depleted" in s.failure)
     texts = [e.text for e in events if e.kind == "statustext"]
     assert any(t.startswith("FAILURE:") for t in texts)
     assert s.on_ground and not s.armed and not s.landed
@@ -154,3 +154,13 @@ def test_bad_initial_soc_is_refused():
         VehicleModel(SimConfig(initial_soc=1.5))
     with pytest.raises(ValueError, match="dt"):
         VehicleModel(SimConfig()).step(0.0)
+
+
+def test_a_failure_on_the_take_off_roll_stops_the_vehicle_on_the_ground():
+    m = VehicleModel(SimConfig(mission=tuple(SQUARE), initial_soc=0.004))
+    events = run(m, max_s=600)
+    s = m.state()
+    assert s.failed and s.on_ground and not s.armed and m.finished
+    assert s.time_s < 60  # it never got going
+    assert [e.seq for e in events if e.kind == "reached"] == []
+    assert any(e.kind == "statustext" and e.text.startswith("FAILURE:") for e in events)

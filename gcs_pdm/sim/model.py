@@ -306,7 +306,9 @@ class VehicleModel:
     @property
     def finished(self) -> bool:
         """On the ground after a flight (landed or failed), nothing left to fly."""
-        return self.kin.on_ground and self._airborne_once and not self.armed
+        if not self.kin.on_ground or self.armed:
+            return False
+        return self._airborne_once or self.failed
 
     def step(self, dt: float | None = None) -> list[Event]:
         """Advance the vehicle by ``dt`` seconds (default: the configured physics tick)."""
@@ -617,7 +619,12 @@ class VehicleModel:
         log.warning("vehicle failure at %.1f s: %s", self.time_s, self.failure)
         self._emit("failure", text=self.failure, severity=SEVERITY_CRITICAL)
         self._emit("statustext", text=f"FAILURE: {self.failure}"[:50], severity=SEVERITY_CRITICAL)
-        self._emit("statustext", text="Propulsion lost, gliding down"[:50], severity=SEVERITY_EMERGENCY)
+        if self.kin.on_ground:
+            # failed before or after flying: nothing to glide, the vehicle stops where it is
+            self._emit("statustext", text="Propulsion lost on the ground", severity=SEVERITY_EMERGENCY)
+            self.disarm(force=True)
+        else:
+            self._emit("statustext", text="Propulsion lost, gliding down", severity=SEVERITY_EMERGENCY)
 
     def _failure_detail(self, cause: int) -> str:
         lim = self.config.limits
