@@ -73,6 +73,12 @@ def test_fault_flight_shows_the_healthy_motor_loaded_in_the_telemetry():
     assert mean(healthy, t0 + 2, t0 + 30) > 3 * mean(dead, t0 + 2, t0 + 30)
     assert abs(mean(healthy, t0 - 30, t0 - 2) - mean(dead, t0 - 30, t0 - 2)) < 1.0
 
+    def temp(name, at):
+        return np.mean([fr.temperature_c for fr in motors if fr.motor == name and abs(fr.time_s - at) < 10])
+    # the healthy motor warms, the faulted one does not keep up with it
+    assert temp(healthy, t0 + 300) - temp(healthy, t0) > 2.0
+    assert temp(healthy, t0 + 300) - temp(dead, t0 + 300) > 4.0
+
 
 @pytest.mark.parametrize("name", ["learn_11", "fault_02"])
 def test_kernel_with_manifest_truth_reproduces_the_recorded_voltages(name):

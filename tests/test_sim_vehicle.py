@@ -179,3 +179,26 @@ def test_lockstep_flies_far_faster_than_real_time_with_simulated_message_time():
     packs = [f.time_s for f in frames if isinstance(f, PackFrame)]
     assert len(packs) > 0.8 * 4 * 2 * final.time_s  # 2 Hz x 4 packs, 1 % dropped, none lost on loopback
     assert np.all(np.diff(packs) >= 0) and packs[-1] == pytest.approx(final.time_s, abs=2.0)
+
+
+def test_a_failing_flight_is_reported_on_the_link():
+    from gcs_pdm.frames import StatusFrame, StatusTextFrame
+    from gcs_pdm.sim.faults import Degradation, parse_fault
+
+    far = mission_from_enu([(4000, 0, 150), (4000, 4000, 150), (0, 4000, 150), (4000, 0, 150)])
+    cfg = SimConfig(mission=tuple(far), initial_soc=0.35, start_delay_s=1.0,
+                    degradations=(Degradation("URA40", 0.8, 1.5),), faults=(parse_fault("motor:fwd:0.8@leg:2-3"),))
+    port = free_udp_port()
+    frames = []
+    with Link(LinkConfig(url=f"udpin:127.0.0.1:{port}")) as link:
+        link.add_frame_listener(frames.append)
+        with SimulatedVehicle(cfg, f"udpout:127.0.0.1:{port}", speedup=None) as vehicle:
+            final = vehicle.wait_finished(60)
+            time.sleep(1.5)  # a heartbeat or two after the crash
+    assert final.failed and not final.landed
+    texts = [f for f in frames if isinstance(f, StatusTextFrame)]
+    failure = [f for f in texts if f.text.startswith("FAILURE:")]
+    assert len(failure) == 1 and failure[0].severity == mavlink2.MAV_SEVERITY_CRITICAL
+    assert failure[0].time_s == pytest.approx(next(e.time_s for e in vehicle.events if e.kind == "failure"), abs=1.0)
+    status = [f for f in frames if isinstance(f, StatusFrame)]
+    assert status[-1].system_status == mavlink2.MAV_STATE_EMERGENCY and not status[-1].armed
