@@ -197,3 +197,35 @@ def test_messages_for_other_vehicles_are_ignored():
     msg = mav.mission_count_encode(7, 1, 2, 0)
     msg.pack(mav)
     assert srv.handle(mav.decode(msg.get_msgbuf()), 0.0) == []
+
+
+def test_commands_answer_with_acks_and_requested_messages():
+    from gcs_pdm.sim.commands import CommandHandler
+    from gcs_pdm.sim.telemetry import Telemetry
+
+    model = VehicleModel(SimConfig(mission=tuple(MISSION), autostart=False))
+    tel = Telemetry()
+    handler = CommandHandler(model, tel)
+    gcs = Gcs()
+
+    def command(cmd, *params):
+        p = list(params) + [0.0] * (7 - len(params))
+        return handler.handle(gcs._stamp(gcs.mav.command_long_encode(1, 1, cmd, 0, *p)))
+
+    ack, version = command(mavlink2.MAV_CMD_REQUEST_MESSAGE, mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED and (ack.target_system, ack.target_component) == GCS
+    assert version.capabilities & mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    ack, *batteries = command(mavlink2.MAV_CMD_REQUEST_MESSAGE, mavlink2.MAVLINK_MSG_ID_BATTERY_STATUS)
+    assert [b.id for b in batteries] == [0, 1, 2, 3]
+    (ack,) = command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink2.MAVLINK_MSG_ID_VFR_HUD, 100_000)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED and tel.rates["VFR_HUD"] == pytest.approx(10.0)
+    (ack,) = command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED and model.armed
+    (ack,) = command(mavlink2.MAV_CMD_DO_SET_MODE, 1, 11)
+    assert model.mode == "RTL"
+    ack, text = command(mavlink2.MAV_CMD_DO_SET_MODE, 1, 99)
+    assert ack.result == mavlink2.MAV_RESULT_DENIED and text.get_type() == "STATUSTEXT"
+    (ack,) = command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+    assert ack.result == mavlink2.MAV_RESULT_ACCEPTED and not model.armed  # on the ground: allowed
+    (ack,) = command(42424)
+    assert ack.result == mavlink2.MAV_RESULT_UNSUPPORTED

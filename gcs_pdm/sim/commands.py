@@ -1,5 +1,5 @@
 """COMMAND_LONG / SET_MODE handling of the simulated vehicle: arm, mission start, modes, RTL,
-set current item, message intervals. Every COMMAND_LONG gets a COMMAND_ACK (MAV_RESULT_UNSUPPORTED
+set current item, message intervals, message requests (AUTOPILOT_VERSION and the telemetry messages). Every COMMAND_LONG gets a COMMAND_ACK (MAV_RESULT_UNSUPPORTED
 for the commands this vehicle does not know)."""
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ class CommandHandler:
         self.system_id = system_id
         self.component_id = component_id
         self.mav = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        self._reply: list = []
 
     def handle(self, msg) -> list:
         mtype = msg.get_type()
@@ -36,11 +37,20 @@ class CommandHandler:
             return []
         if msg.target_system not in (0, self.system_id) or msg.target_component not in (0, self.component_id):
             return []
+        self._reply: list = []
         result, text = self._command(int(msg.command), msg)
         out = [self.mav.command_ack_encode(msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())]
         if text:
             out.append(self.mav.statustext_encode(mavlink2.MAV_SEVERITY_WARNING, text.encode()[:50]))
-        return out
+        return out + self._reply
+
+    def autopilot_version(self):
+        """What MAVSDK and QGroundControl ask first: MAVLink 2 and the INT mission protocol."""
+        caps = (mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT)
+        version = (4 << 24) | (5 << 16) | (0 << 8) | 255  # "4.5.0 official", ArduPlane-like
+        return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
+                                                 0x51D000000001)
 
     def _command(self, cmd: int, msg) -> tuple[int, str]:
         ok, fail = mavlink2.MAV_RESULT_ACCEPTED, mavlink2.MAV_RESULT_FAILED
@@ -76,5 +86,15 @@ class CommandHandler:
                 self.telemetry.set_rate(name, self.telemetry.config.rates_hz.get(name, DEFAULT_RATES[name]))
             else:
                 self.telemetry.set_rate(name, 1e6 / interval_us)
+            return ok, ""
+        if cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES or (
+                cmd == mavlink2.MAV_CMD_REQUEST_MESSAGE and int(msg.param1) == mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION):
+            self._reply.append(self.autopilot_version())
+            return ok, ""
+        if cmd == mavlink2.MAV_CMD_REQUEST_MESSAGE:
+            name = _MSG_NAME_BY_ID.get(int(msg.param1))
+            if name not in DEFAULT_RATES:
+                return mavlink2.MAV_RESULT_DENIED, ""
+            self._reply.extend(self.telemetry.build(name, m.state()))
             return ok, ""
         return mavlink2.MAV_RESULT_UNSUPPORTED, ""

@@ -159,6 +159,10 @@ class Telemetry:
                 out.extend(self.heartbeat(s))
         return out
 
+    def build(self, name: str, s: TruthState) -> list:
+        """One stream's message(s) now, outside the schedule (MAV_CMD_REQUEST_MESSAGE)."""
+        return _BUILDERS[name](self, s)
+
     # ---- message builders -----------------------------------------------------------------
 
     def _n(self, sigma: float) -> float:
