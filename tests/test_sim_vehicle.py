@@ -202,3 +202,35 @@ def test_a_failing_flight_is_reported_on_the_link():
     assert failure[0].time_s == pytest.approx(next(e.time_s for e in vehicle.events if e.kind == "failure"), abs=1.0)
     status = [f for f in frames if isinstance(f, StatusFrame)]
     assert status[-1].system_status == mavlink2.MAV_STATE_EMERGENCY and not status[-1].armed
+
+
+def test_mavsdk_as_an_independent_ground_station():
+    """MAVSDK's C++ mission client uploads, downloads and clears against the vehicle's server."""
+    pytest.importorskip("mavsdk", reason="the mavsdk package (test extra)")
+    from mavsdk import ComponentType, Configuration, Mavsdk
+    from mavsdk.plugins.mission_raw import MissionItem, MissionRaw, MissionRawResult
+
+    port = free_udp_port()
+    sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    assert int(sdk.add_any_connection(f"udpin://127.0.0.1:{port}")) == 0
+    vehicle = SimulatedVehicle(SimConfig(autostart=False), f"udpout:127.0.0.1:{port}", speedup=1.0).start()
+    try:
+        system = sdk.first_autopilot(10.0)
+        assert system is not None
+        mission_raw = MissionRaw(system)
+        items = [MissionItem(seq=i.seq, frame=i.frame, command=i.command, current=i.current,
+                             autocontinue=i.autocontinue, param1=i.param1, param2=i.param2, param3=i.param3,
+                             param4=0.0, x=i.x, y=i.y, z=i.z, mission_type=0) for i in SQUARE]
+        assert mission_raw.upload_mission(items) == MissionRawResult.SUCCESS
+        assert [(it.seq, it.command, it.x, it.y) for it in vehicle.core.model.mission] == \
+            [(it.seq, it.command, it.x, it.y) for it in SQUARE]
+        got = mission_raw.download_mission()
+        got = got[1] if isinstance(got, tuple) else got
+        assert [(it.seq, it.command, it.x, it.y, it.z) for it in got] == \
+            [(it.seq, it.command, it.x, it.y, it.z) for it in SQUARE]
+        assert mission_raw.clear_mission() == MissionRawResult.SUCCESS
+        # MAVSDK clears an ArduPilot by uploading a home item only: nothing left to fly
+        vehicle.wait_for(lambda st: st.mission_state == 1 and st.mission_count <= 1, 2.0)
+    finally:
+        vehicle.stop()
+        sdk.destroy()
