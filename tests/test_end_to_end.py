@@ -12,7 +12,7 @@ from gcs_pdm.service.demo import run_demo
 @pytest.mark.timeout(240)
 def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     lines: list[str] = []
-    r = run_demo(speedup=80.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=lines.append)
+    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=lines.append)
     text = "\n".join(lines)
     # without the service the vehicle fails
     assert r.original["failed"] and not r.original["landed"], r.original

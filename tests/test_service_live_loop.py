@@ -208,3 +208,33 @@ def test_choose_never_prefers_a_predicted_failure():
     # nothing feasible: the most reward before the failure, flagged for the operator
     best, why = choose([_c("planner", False, 100), _c("keep", False, 50), _c("home", False, 0)])
     assert best.name == "planner" and "operator" in why
+
+
+@pytest.mark.slow
+def test_soc_deviation_from_the_plan_triggers_a_replan(tmp_path, frames):
+    mission = original_mission()
+    svc, loop, link, vehicle = make_loop(tmp_path, "advise", mission)
+    try:
+        healthy = [f for f in frames if f.time_s < 150.0]
+        for fr in healthy:
+            loop.process(fr)
+        assert not svc.store.plans()
+        reasons = []
+        loop.request_replan = reasons.append
+        t = loop._time_s
+        soc = list(loop.estimator.estimate().soc)
+        # the last plan expected the packs to hold their charge: the observed discharge deviates
+        loop._expectation = {"t0": t - 100.0, "soc0": [min(1.0, s + 0.2) for s in soc], "soc1": [1.0] * 4,
+                             "duration_s": 1000.0}
+        loop._last_replan_s = -1e9
+        loop._check_deviation(t)
+        assert reasons and reasons[0].startswith("deviation: SoC")
+        assert any(e.kind == "fault" and e.data["kind"] == "soc_deviation" for e in svc.events.since(0))
+        # a plan that predicted this discharge does not trigger
+        reasons.clear()
+        loop._expectation = {"t0": t - 100.0, "soc0": soc, "soc1": [s - 0.5 for s in soc], "duration_s": 1000.0}
+        loop._last_replan_s = -1e9
+        loop._check_deviation(t)
+        assert reasons == []
+    finally:
+        svc.close()
