@@ -36,7 +36,8 @@ def test_tlog_gives_every_pack_and_the_motors(tlogs):
         assert r.rejected is None
         g = r.flights[0]
         truth_v = np.interp(g.time_s, rec.time_s, rec.truth["pack_voltage_v"][:, b])
-        assert np.nanmedian(np.abs(g.voltage_v - truth_v)) < 0.1
+        # same time base as the vehicle: the logged voltage follows the truth to within sensor noise
+        assert np.nanmedian(np.abs(g.voltage_v - truth_v)) < 0.04
     one = read_flights(path, "battery", pack="URA40")
     assert len(one) == 1 and one[0].name.endswith("URA40")
     motor = read_flights(path, "motor")[0]

@@ -2,8 +2,8 @@
 and writing a fit's outputs (``result.json``, ``predictions/<flight>.csv``, plots). Shell module: files.
 
 Tables: one flight per file with the columns of :mod:`gcs_pdm.fitting.tables` (extra columns are
-ignored). Tlogs go through the MAVLink engineer's reader (``gcs_pdm.mavlink.replay.replay_tlog`` and
-its frame mapping): every pack's ``PackFrame`` becomes a battery flight (ambient from
+ignored). Tlogs go through the MAVLink engineer's scanner and frame mapping (``gcs_pdm.mavlink``),
+stamped with the tlog record time (see ``_collect_tlog``): every pack's ``PackFrame`` becomes a battery flight (ambient from
 ``AmbientFrame``, interpolated to the pack's times), and the two ``MotorFrame`` streams become one
 motor flight (mean current, mean of the reported temperatures: one bracket sensor).
 """
@@ -61,15 +61,14 @@ class _FrameCollector:
         self.motors: dict[str, list[tuple]] = {}
         self.ambient: list[tuple] = []
 
-    def __call__(self, frame) -> None:
+    def __call__(self, frame, t: float) -> None:
         kind = type(frame).__name__
-        nan = float("nan")
         if kind == "PackFrame" and frame.pack in self.packs:
-            self.packs[frame.pack].append((frame.time_s, _f(frame.current_a), _f(frame.voltage_v), _f(frame.temperature_c)))
+            self.packs[frame.pack].append((t, _f(frame.current_a), _f(frame.voltage_v), _f(frame.temperature_c)))
         elif kind == "MotorFrame":
-            self.motors.setdefault(frame.motor, []).append((frame.time_s, _f(frame.current_a), _f(frame.temperature_c)))
+            self.motors.setdefault(frame.motor, []).append((t, _f(frame.current_a), _f(frame.temperature_c)))
         elif kind == "AmbientFrame":
-            self.ambient.append((frame.time_s, _f(frame.temperature_c) if frame.temperature_c is not None else nan))
+            self.ambient.append((t, _f(frame.temperature_c)))
 
 
 def _f(v) -> float:
@@ -84,15 +83,47 @@ def _interp(t: np.ndarray, ts: np.ndarray, xs: np.ndarray) -> np.ndarray:
     return np.interp(t, ts[ok][order], xs[ok][order])
 
 
+def _collect_tlog(path: Path, col: "_FrameCollector") -> None:
+    """Feed every packet of a tlog to the MAVLink engineer's frame mapping; stamp each frame with
+    its tlog record time.
+
+    Why not the frame's own ``time_s``: the vehicle clock stamps messages without a time field
+    (BATTERY_STATUS, ESC telemetry) "hold last" with the latest timed message, a resolution of that
+    stream's period (5 s in the simulated vehicle's logs) — 4 of 5 battery samples would share a
+    time. The tlog record time has the log's own resolution and is a property of the log, not of
+    this process's clock; times count from the log's first record. Frames the mapping held back until the vehicle clock synced arrive
+    together; they keep their back-dated spacing.
+    """
+    from gcs_pdm.mavlink.mapping import FrameMapper
+    from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes
+
+    mapper = FrameMapper()
+    stats = ScanStats()
+    recv = 0.0
+    first_us = None
+    for ts_us, msgid, sysid, compid, payload, _start, _end in scan_tlog_bytes(path.read_bytes(), stats):
+        if first_us is None:
+            first_us = ts_us
+        recv = (ts_us - first_us) / 1e6  # seconds from the log's first record
+        frames = mapper.feed(recv, msgid, sysid, compid, payload)
+        if frames:
+            latest = max(f.time_s for f in frames)
+            for f in frames:
+                col(f, recv - (latest - f.time_s))
+    for f in mapper.flush():
+        col(f, recv)
+    if stats.bad_crc or stats.garbage_bytes or stats.truncated_tail_bytes:
+        log.warning("%s: skipped %d bad-CRC packets, %d garbage bytes, %d truncated tail bytes", path.name,
+                    stats.bad_crc, stats.garbage_bytes, stats.truncated_tail_bytes)
+
+
 def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES) -> list[Flight]:
     """Battery flights (one per pack in ``packs``) or the motor flight of one tlog."""
-    from gcs_pdm.mavlink.replay import replay_tlog
-
     path = Path(path)
     if not path.is_file():
         raise FlightDataError(f"{path}: no such file")
     col = _FrameCollector()
-    replay_tlog(path, frame_consumer=col)
+    _collect_tlog(path, col)
     if not col.ambient:
         raise FlightDataError(f"{path}: no ambient temperature frames in the tlog")
     amb = np.array(col.ambient, dtype=np.float64)
