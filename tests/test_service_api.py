@@ -52,6 +52,7 @@ def test_health_and_status(client):
     ("post", "/missions/plans/1/approve", None),
     ("post", "/missions/plans/1/reject", None),
     ("post", "/missions/replan", None),
+    ("post", "/missions/refresh", None),
     ("put", "/policy", {"policy": "auto"}),
     ("post", "/parameter-sets", {"parameter_set": {}}),
     ("post", "/parameter-sets/paper_si/activate", None),
@@ -107,6 +108,7 @@ def test_missions_without_a_link(client, service):
     assert [p["id"] for p in client.get("/missions/history").json()] == [pid]
     assert client.get("/missions/uploads").json() == []
     assert client.post("/missions/replan", headers=AUTH).status_code == 409
+    assert client.post("/missions/refresh", headers=AUTH).status_code == 409
 
 
 def test_policy(client):

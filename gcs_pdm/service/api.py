@@ -135,6 +135,12 @@ def create_app(service) -> FastAPI:
         service.request_replan("operator")
         return S.JobCreated(id="replan", status="requested")
 
+    @app.post("/missions/refresh", response_model=S.JobCreated, status_code=202, dependencies=auth)
+    def refresh():
+        """Download the vehicle's mission again (after a ground station changed it)."""
+        service.refresh_mission()
+        return S.JobCreated(id="refresh", status="requested")
+
     @app.get("/policy", response_model=S.PolicyIn)
     def get_policy():
         return S.PolicyIn(policy=service.policy)

@@ -336,7 +336,12 @@ class LiveLoop:
 
     def _plan_then_next(self, reason: str, snap: Snapshot) -> None:
         while True:
-            self._guard(self._plan, reason, snap)
+            try:
+                self._plan(reason, snap)
+            except Exception as exc:  # noqa: BLE001 - recorded for the operator; the loop goes on
+                log.exception("replan (%s) failed", reason)
+                self.service.events.publish("plan", status="failed", time_s=snap.time_s, reason=reason,
+                                            error=f"{type(exc).__name__}: {exc}")
             with self._lock:
                 if self._pending is None:
                     self._busy = False
@@ -358,6 +363,10 @@ class LiveLoop:
             return
         self.service.events.publish("link", connected=True, vehicle=[self.link.target_system, self.link.target_component])
         self.refresh_mission()
+
+    def request_refresh(self) -> None:
+        """Read the vehicle's mission again (e.g. after the ground station changed it), on the worker."""
+        self._worker.submit(self._guard, self.refresh_mission)
 
     def refresh_mission(self) -> list[M.MissionItem]:
         items = self.mc.download()

@@ -129,6 +129,11 @@ class Service:
             raise Conflict("no vehicle link: nothing to replan")
         self.loop.request_replan(reason)
 
+    def refresh_mission(self) -> None:
+        if self.loop is None:
+            raise Conflict("no vehicle link: no mission to read")
+        self.loop.request_refresh()
+
     def set_policy(self, policy: str) -> None:
         self.policy = policy
         self.state.update(policy=policy)
