@@ -145,3 +145,12 @@ def test_chosen_route_completes_on_the_truth():
     p = pf_local_search(VehicleSimulator(sc, builtin("paper_si")), seed=0)
     ev = truth_sim.evaluate([p.route])
     assert ev.fail_leg[0] == -1 and ev.reward_reached[0] == p.reward > 0
+
+
+def test_beam_search_is_a_feasible_heuristic_and_exact_when_wide():
+    sim = VehicleSimulator(load(10), builtin("paper_si"))
+    ex = exact_search(sim)
+    narrow = exact_search(sim, beam=4, warm_start=False)
+    assert narrow.planner == "beam" and not narrow.stats["proven_optimal"]
+    assert narrow.feasible and narrow.reward <= ex.reward
+    assert exact_search(sim, beam=100_000, warm_start=False).reward == ex.reward

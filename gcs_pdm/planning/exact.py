@@ -71,11 +71,13 @@ def _pareto_keep(keys: np.ndarray, good: np.ndarray) -> np.ndarray:
 
 
 def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THETA, dominance: bool = True,
-                 warm_start: bool = True, should_stop: Callable[[], bool] | None = None) -> Plan:
+                 warm_start: bool = True, beam: int | None = None,
+                 should_stop: Callable[[], bool] | None = None) -> Plan:
     """The reward-optimal route (ties broken by the objective), proven under the assumptions above.
 
     ``warm_start`` seeds the incumbent with a local search from the empty route, so the bounds
-    prune from the first level on."""
+    prune from the first level on. ``beam`` (a heuristic, not exact) keeps only that many nodes per
+    level, those with the most reward plus reachable reward, then the best objective."""
     n = sim.n
     rewards = sim.rewards[:n]
     theta = tuple(float(t) for t in theta)
@@ -145,6 +147,12 @@ def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THET
             new_masks, new_reach = new_masks[keep], new_reach[keep]
             out = Outcome(*(getattr(out, f)[keep] for f in Outcome.__dataclass_fields__))
         obj = out.objective(theta)
+        if beam is not None and len(parent) > beam:
+            reach_r = (((new_reach[:, None] >> bits[None, :]) & 1) * rewards[None, :]).sum(axis=1)
+            top = np.lexsort((-obj, -(out.reward + reach_r)))[:beam]
+            parent, child, st, new_masks, new_reach = parent[top], child[top], st.take(top), new_masks[top], new_reach[top]
+            out = Outcome(*(getattr(out, f)[top] for f in Outcome.__dataclass_fields__))
+            obj = obj[top]
         i = rank(out.reward, obj)
         if better(float(out.reward[i]), float(obj[i]), best_r, best_o):
             best_r, best_o = float(out.reward[i]), float(obj[i])
@@ -153,8 +161,9 @@ def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THET
         frontier, masks, reach = st, new_masks, new_reach
         nodes += len(parent)
         log.debug("exact: level %d, %d nodes, best reward %.1f", level, len(parent), best_r)
-    return make_plan(sim, best_route, "exact", theta, nodes=nodes, simulated_rows=rows, levels=level,
-                     warm_start_routes=warm_routes, proven_optimal=not interrupted, interrupted=interrupted)
+    return make_plan(sim, best_route, "exact" if beam is None else "beam", theta, nodes=nodes, simulated_rows=rows,
+                     levels=level, warm_start_routes=warm_routes, proven_optimal=not interrupted and beam is None,
+                     interrupted=interrupted)
 
 
 def brute_force(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THETA, max_routes: int = 2_000_000,

@@ -1,13 +1,16 @@
 """Beyond the paper: the particle filter followed by local improvement ("pfls").
 
 The particle filter finds good waypoint *sets* quickly but its random orders leave easy gains:
-a cheaper order frees energy for one more waypoint. Local search takes the best few distinct
-routes the filter produced and repeatedly applies the best improving move among
+a cheaper order frees energy for one more waypoint. Local search takes the distinct routes of
+three seeded filters, plus the route of a beam search (the exact search keeping its 256 most
+promising nodes per level: it finds the other direction round a field, which moves one waypoint
+at a time cannot reach), and repeatedly applies the best improving move among
 
 * insert an unvisited waypoint anywhere,
 * replace a visited waypoint by an unvisited one (at any position),
 * relocate one waypoint, swap two, reverse a segment (2-opt),
 * drop one waypoint and insert two unvisited ones (when a waypoint blocks two better ones),
+* reverse the whole route and insert one unvisited waypoint,
 
 each neighbourhood flown whole in ONE ``evaluate`` call, until no move improves (reward first,
 then the objective Θᵀ{R, −C_h, −C_p}). Every route it returns has been flown whole and is feasible.
@@ -57,6 +60,13 @@ def neighbours(route: tuple[int, ...], n: int, *, wide: bool = True) -> list[tup
                     for j in range(L):
                         out.add(tuple(rest[:j] + [unvisited[a]] + rest[j:] + [unvisited[b]]))
                         out.add(tuple(rest[:j] + [unvisited[a], unvisited[b]] + rest[j:]))
+    if wide:
+        # fly it the other way round with one more waypoint (direction matters: climbs and the
+        # string that tires first differ)
+        back = r[::-1]
+        for u in unvisited:
+            for i in range(L + 1):
+                out.add(tuple(back[:i] + [u] + back[i:]))
     out.discard(tuple(r))
     return list(out)
 
@@ -94,9 +104,13 @@ def improve(sim: VehicleSimulator, route: Sequence[int], *, theta: Sequence[floa
 
 
 def pf_local_search(sim: VehicleSimulator, *, particles: int = 30, theta: Sequence[float] = DEFAULT_THETA,
-                    seed: int | np.random.Generator | None = 0, starts: int = 3,
+                    seed: int | np.random.Generator | None = 0, starts: int = 3, beam_width: int = 256,
                     should_stop: Callable[[], bool] | None = None) -> Plan:
-    """The stronger planner: Algorithm 1, then local search from its best ``starts`` distinct routes."""
+    """The stronger planner: Algorithm 1 (``starts`` seeded runs) and, with ``beam_width`` > 0, a
+    beam search (the exact search keeping that many nodes per level), then local search from each
+    distinct route found; the best result wins."""
+    from gcs_pdm.planning.exact import exact_search
+
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     seeds: list[tuple[int, ...]] = []
     pf_plans = []
@@ -106,6 +120,12 @@ def pf_local_search(sim: VehicleSimulator, *, particles: int = 30, theta: Sequen
         pf_plans.append(p)
         if p.route not in seeds:
             seeds.append(p.route)
+    beam_reward = None
+    if beam_width > 0 and not (should_stop is not None and should_stop()):
+        b = exact_search(sim, theta=theta, beam=beam_width, warm_start=False, should_stop=should_stop)
+        beam_reward = b.reward
+        if b.route not in seeds:
+            seeds.append(b.route)
     best = (pf_plans[0].route, pf_plans[0].reward if pf_plans[0].feasible else -1.0,
             pf_plans[0].objective if pf_plans[0].feasible else -np.inf)
     flown = 0
@@ -115,4 +135,4 @@ def pf_local_search(sim: VehicleSimulator, *, particles: int = 30, theta: Sequen
         if better(rw, ob, best[1], best[2]):
             best = (r, rw, ob)
     return make_plan(sim, best[0], "pfls", theta, particles=particles, starts=len(seeds),
-                     pf_reward=max(p.reward for p in pf_plans), local_search_routes=flown)
+                     pf_reward=max(p.reward for p in pf_plans), beam_reward=beam_reward, local_search_routes=flown)
