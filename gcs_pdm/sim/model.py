@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from gcs_pdm.missions import (GLOBAL_FRAMES, MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF,
+from gcs_pdm.missions import (MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF,
                               MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT, MissionItem)
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -204,9 +204,7 @@ class VehicleModel:
             seq = 1 if len(items) > 1 else 0
         else:
             seq = self.current_seq if 1 <= self.current_seq < len(items) else (1 if len(items) > 1 else 0)
-        self.mission_complete = False
-        if flying and self.mode == MODE_RTL and self.mission and not self._rtl_landing:
-            pass  # a new mission does not take the vehicle out of RTL; switching to AUTO does
+        self.mission_complete = False  # the mode stays: a vehicle in RTL keeps returning until set to AUTO
         self._set_current(seq, reset_leg=True)
         log.info("mission of %d items loaded; current item %d", len(items), seq)
 
@@ -481,9 +479,7 @@ class VehicleModel:
     def _fly_home(self, dt: float, seq: int = -1) -> tuple[float, bool]:
         k, lim = self.kin, self.config.flight_limits
         if k.on_ground:
-            if self._airborne_once:
-                return 0.0, True
-            return 0.0, True
+            return 0.0, True  # RTL on the ground: nowhere to return to
         if not self._rtl_landing:
             dist = self._steer(dt, 0.0, 0.0, max(lim.rtl_alt_m, 0.0))
             # start the approach far enough out to descend on the glide slope
