@@ -163,8 +163,34 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
             extra={"flight_time_s": p.flight_time_s, "health_cost": p.health_cost, "power_cost_mj": p.power_cost_mj,
                    "final_soc": list(p.final_soc), "fail_leg": p.fail_leg,
                    "mission": {"items": [item_to_json(i) for i in mp.items], "current_seq": mp.current_seq}}))
-    info = {"planner": getattr(planned, "planner", planner), "plan_time_s": plan_s, "scenario": scenario.to_dict()}
+    info = {"planner": getattr(planned, "planner", planner), "plan_time_s": plan_s, "scenario": scenario.to_dict(),
+            "loads": {name: route_load(sim, p.route) for name, p in plans.items()}}
     return cands, info
+
+
+def route_load(sim, route: Sequence[int]):
+    """The shaft-power profile of flying ``route`` then landing, as the estimator's ``FutureLoad``
+    (the planner's own leg samples, so prognosis and planning see one future)."""
+    from gcs_pdm.estimation.prediction import FutureLoad
+
+    nodes = [sim.start_node, *[int(r) for r in route], sim.landing_node]
+    legs = sim.legs
+    dt, power, amb = [], [], []
+    for a, b in zip(nodes[:-1], nodes[1:]):
+        k = int(legs.steps[a, b])
+        dt.append(legs.dt[a, b, :k])
+        power.append(legs.power[a, b, :k])
+        amb.append(legs.ambient[a, b, :k])
+    if not dt or sum(len(d) for d in dt) == 0:
+        return FutureLoad(np.zeros(1), np.zeros(1), 20.0)
+    return FutureLoad(np.concatenate(dt), np.concatenate(power), np.concatenate(amb))
+
+
+def set_mission_load(diagnoser, load, start_s: float) -> None:
+    """Tell the diagnoser's prognosis what the rest of the flight will ask of the powertrain."""
+    fn = getattr(diagnoser, "set_mission", None)
+    if fn is not None:
+        fn(load, start_s)
 
 
 # --- simulated vehicle -------------------------------------------------------------------------

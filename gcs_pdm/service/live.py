@@ -109,6 +109,7 @@ class LiveLoop:
         self._last_status_s = -math.inf
         self._last_replan_s = -math.inf
         self._expectation: dict | None = None
+        self._loads: dict[int, tuple] = {}  # plan id -> (FutureLoad of its route, message time)
         self._time_s: float | None = None
         self._ground_alt_amsl: float | None = None
         self._position = (math.nan, math.nan, math.nan)
@@ -151,12 +152,27 @@ class LiveLoop:
             except queue.Empty:
                 continue
             try:
-                self.process(frame)
+                if callable(frame):  # work handed over by the decision worker (see _on_telemetry_thread)
+                    frame()
+                else:
+                    self.process(frame)
             except Exception:  # noqa: BLE001 - one bad frame must not stop the loop
                 log.exception("frame %r could not be processed", frame)
 
+    def _on_telemetry_thread(self, fn) -> None:
+        """Run ``fn`` between two frames on the telemetry thread (the filters are not thread-safe)."""
+        self._frames.put(fn)
+
     def process(self, frame) -> None:
         """One frame, in message time (public so tests and replays can drive it directly)."""
+        if self._thread is None:  # driven directly: run the work handed over since the last frame
+            while True:
+                try:
+                    fn = self._frames.get_nowait()
+                except queue.Empty:
+                    break
+                if callable(fn):
+                    fn()
         self.frames_seen += 1
         st = self.service.state
         st.apply_frame(frame)
@@ -405,6 +421,7 @@ class LiveLoop:
             time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
             limits=svc.limits)
         chosen, why = choose(cands)
+        load = (info["loads"].get(chosen.name), snap.time_s)
         body = {"reason": reason, "policy": svc.policy, "parameter_set": self.params.name,
                 "faults": [dataclasses.asdict(f) for f in snap.faults], "fault_records": list(snap.fault_records),
                 "candidates": [c.to_dict() for c in cands], "chosen": chosen.to_dict(), "why": why,
@@ -413,7 +430,8 @@ class LiveLoop:
                 "scenario": info["scenario"], "visited": sorted(self.visited)}
         if chosen.name == "keep":
             pid = svc.store.add_plan(body, reason, "kept", snap.time_s)
-            self._expect(snap, chosen)
+            self._loads[pid] = load
+            self._expect(snap, chosen, pid)
             svc.events.publish("plan", id=pid, status="kept", time_s=snap.time_s, why=why, chosen=chosen.to_dict())
             return
         mission = chosen.extra["mission"]
@@ -422,6 +440,7 @@ class LiveLoop:
         body["current_seq"] = mission["current_seq"]
         auto = svc.policy == "auto" and chosen.feasible
         pid = svc.store.add_plan(body, reason, "approved" if auto else "proposed", snap.time_s)
+        self._loads[pid] = load
         svc.events.publish("plan", id=pid, status="approved" if auto else "proposed", time_s=snap.time_s, why=why,
                            chosen=chosen.to_dict(), keep=next((c.to_dict() for c in cands if c.name == "keep"), None))
         for old in svc.store.plans(status="proposed"):
@@ -433,7 +452,13 @@ class LiveLoop:
             self.statustext(f"PDM: plan {pid} proposed, reward {chosen.reward:g}; approve on gcs-pdm",
                             MAV_SEVERITY_WARNING)
 
-    def _expect(self, snap: Snapshot, chosen: Candidate) -> None:
+    def _expect(self, snap: Snapshot | None, chosen: Candidate, plan_id: int) -> None:
+        """What the chosen plan predicts, for the deviation check and the diagnoser's prognosis."""
+        load, start = self._loads.pop(plan_id, (None, None))
+        if load is not None and chosen.name != "home":
+            self._on_telemetry_thread(lambda: adapters.set_mission_load(self.diagnoser, load, start))
+        if snap is None:
+            return
         if snap.soc and chosen.extra.get("final_soc"):
             self._expectation = {"t0": snap.time_s, "soc0": list(snap.soc), "soc1": chosen.extra["final_soc"],
                                  "duration_s": chosen.extra.get("flight_time_s", 0.0)}
@@ -481,8 +506,7 @@ class LiveLoop:
             "stats": dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None})
         svc.store.set_plan_status(plan_id, "uploaded", status)
         self._set_mission(items_on_vehicle, source="upload")
-        if snap is not None:
-            self._expect(snap, chosen)
+        self._expect(snap, chosen, plan_id)
         svc.events.publish("upload", id=uid, plan_id=plan_id, status=status, route=list(chosen.route),
                            reward=chosen.reward, time_s=self._time_s)
         self.statustext(f"PDM: new mission uploaded, wp {','.join(map(str, chosen.route)) or 'home'}", MAV_SEVERITY_NOTICE)
