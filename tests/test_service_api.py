@@ -7,11 +7,9 @@ import time
 import pytest
 from fastapi.testclient import TestClient
 
-from gcs_pdm.models.params import builtin
 from gcs_pdm.service.api import create_app
 from gcs_pdm.service.config import load_config
 from gcs_pdm.service.runtime import Service
-from gcs_pdm.service.storage import Store
 
 TOKEN = "test-token-123"
 

@@ -7,7 +7,6 @@ record with the previous mission.
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np

@@ -305,14 +305,12 @@ def print_summary(r: DemoResult, out=print) -> None:
     p = r.predicted
     if p:
         k, n = p.get("keep", {}), p.get("planner", {})
-        chosen = "planner" if n else "keep"
         out(f"at t={p['at_time_s']:.1f} s, scored by the vehicle simulator on the TRUE parameters "
             f"(reward {p['collected_before']:g} already collected):")
         out(f"  original route {k.get('route')}: reward {k.get('reward_on_truth', 0):g}"
             f" ({'gets home' if k.get('feasible_on_truth') else 'fails: ' + str(k.get('failure_on_truth'))})")
         out(f"  replanned      {n.get('route')}: reward {n.get('reward_on_truth', 0):g}"
             f" ({'gets home' if n.get('feasible_on_truth') else 'fails: ' + str(n.get('failure_on_truth'))})")
-        del chosen
     if r.original:
         o = r.original
         out(f"flown without gcs-pdm: waypoints {o['reached']} (reward {o['reward']:g} reached, "

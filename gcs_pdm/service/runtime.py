@@ -3,7 +3,6 @@ live loop, wired together. The HTTP API and the CLI talk to this, never to the p
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from pathlib import Path
@@ -196,7 +195,3 @@ class Service:
         if not path.exists():
             return f"file {path} does not exist"
         return None
-
-
-def dump_json(obj) -> str:
-    return json.dumps(obj, indent=2, default=str)
