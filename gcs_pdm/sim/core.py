@@ -7,6 +7,8 @@ recorded fixture and a live flight are built by the same code.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 from gcs_pdm.sim.commands import CommandHandler
 from gcs_pdm.sim.mission_server import MissionServer, ServerTimeouts
 from gcs_pdm.sim.model import SimConfig, TruthState, VehicleModel
@@ -16,7 +18,7 @@ from gcs_pdm.sim.telemetry import COMPONENT_ID, SYSTEM_ID, Telemetry, TelemetryC
 def warm_up_kernel(config: SimConfig) -> None:
     """Load (or compile) the kernel's numba functions now, so the first ticks of a fast live run
     are not late: a throwaway vehicle takes off and rests."""
-    model = VehicleModel(config)
+    model = VehicleModel(replace(config, mission=(), faults=()))
     model.step()
     model.arm()
     model._powertrain(config.physics_dt_s, 100.0, True)

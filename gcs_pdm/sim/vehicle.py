@@ -106,6 +106,12 @@ class SimulatedVehicle:
         self.stop()
 
     @property
+    def model(self):
+        """The vehicle's :class:`~gcs_pdm.sim.model.VehicleModel` (owned by the vehicle thread: read
+        ``state`` instead while it runs, or change it through :meth:`call`)."""
+        return self.core.model
+
+    @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
