@@ -49,6 +49,21 @@ def register(subparsers) -> None:
     s.add_argument("--truth-seed", type=int, default=7)
     s.add_argument("--clean", action="store_true", help="noise only, no injected damage")
     s.set_defaults(func=run_synthetic)
+    st = sub.add_parser("set", help="fit all four packs and the motors from tlogs; write the learned parameter set")
+    st.add_argument("--train", nargs="+", type=Path, required=True)
+    st.add_argument("--val", nargs="+", type=Path, required=True)
+    st.add_argument("--test", nargs="+", type=Path, required=True)
+    st.add_argument("--out", type=Path, required=True, help="directory: <part>/result.json etc. and parameters.json")
+    st.add_argument("--set-out", type=Path, default=None, help="also write the learned set to this JSON file")
+    st.add_argument("--name", default="learned")
+    st.add_argument("--note", default="", help="free text stored in the set's provenance")
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--workers", type=int, default=2)
+    st.add_argument("--base", default="previous_si")
+    st.add_argument("--reference", default="previous_si")
+    st.add_argument("--no-plots", action="store_true")
+    st.add_argument("--quiet", action="store_true")
+    st.set_defaults(func=run_set)
     ls = sub.add_parser("learn-synthetic", help="learn a whole parameter set from synthetic flights of the simulated "
                                                 "vehicle (gcs_pdm.sim.truth) and write it as JSON")
     ls.add_argument("--out", type=Path, required=True, help="parameter set JSON to write")
@@ -188,4 +203,33 @@ def run_learn_synthetic(args: argparse.Namespace) -> int:
     for part, res in results.items():
         print(json.dumps({"part": part, **_summary(res)}))
     print(f"fit learn-synthetic: wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+def run_set(args: argparse.Namespace) -> int:
+    from gcs_pdm.fitting.learn_set import learn_from_tlogs
+    from gcs_pdm.fitting.logs import write_outputs
+    from gcs_pdm.fitting.procedure import FitSettings
+    from gcs_pdm.fitting.search import SearchSettings
+    from gcs_pdm.fitting.tables import FlightDataError
+
+    settings = FitSettings(search=SearchSettings(seed=args.seed), base=args.base, reference=args.reference,
+                           workers=args.workers)
+    try:
+        merged, results = learn_from_tlogs(args.train, args.val, args.test, settings, name=args.name,
+                                           provenance={"source": "gcs-pdm fit set", "note": args.note} if args.note
+                                           else {"source": "gcs-pdm fit set"},
+                                           progress=_ProgressLine("fit set: ", args.quiet))
+    except (FlightDataError, KeyError) as exc:
+        print(f"fit: {exc}", file=sys.stderr)
+        return 2
+    for part, res in results.items():
+        write_outputs(res, args.out / part, plots=not args.no_plots)
+        print(json.dumps({"part": part, **_summary(res)}))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "parameters.json").write_text(merged.to_json(indent=2))
+    if args.set_out is not None:
+        args.set_out.parent.mkdir(parents=True, exist_ok=True)
+        args.set_out.write_text(merged.to_json(indent=2))
+    print(f"fit set: results in {args.out}", file=sys.stderr)
     return 0

@@ -11,9 +11,10 @@ log-parameters makes R_cp1 ≈ 1e-16 Ω and C_b ≈ 2e4 F equally well condition
   current in, one bracket temperature out.
 
 Initial state per flight (it is not in the log; packs are not always full): the temperature starts
-at the median of the first ``init_samples`` measured temperatures; the state of charge is the one
-at which the model, for *this* parameter vector, gives the mean of the first ``init_samples``
-voltages at their mean current with both R–C pairs settled (bisection on the model's own
+at the median of the first ``init_samples // 2`` measured temperatures; the state of charge is the
+one at which the model, for *this* parameter vector, gives the mean voltage of the leading samples
+(at most ``init_samples``) whose current stays within 0.5 A (or 10 %) of the first one, at their
+mean current, with both R–C pairs settled (bisection on the model's own
 voltage–SoC curve, vectorised over the batch). Because it is recomputed for every vector, the
 initial SoC is profiled out of the search instead of traded off against C_b.
 
@@ -101,6 +102,11 @@ class Prepared:
     init_temperature: float
 
 
+#: a leading sample belongs to the initial-state window while its current stays this close to the first
+STEADY_CURRENT_A = 0.5
+STEADY_CURRENT_REL = 0.1
+
+
 def prepare(flight: Flight, target: str, init_samples: int = 10) -> Prepared:
     """Kernel inputs of a cleaned flight (no NaN in inputs, increasing time)."""
     if np.any(~np.isfinite(flight.current_a)) or np.any(~np.isfinite(flight.ambient_c)):
@@ -112,11 +118,19 @@ def prepare(flight: Flight, target: str, init_samples: int = 10) -> Prepared:
     if first_temp.size == 0:
         raise ValueError(f"{flight.name}: no temperature sample for the initial state")
     if flight.kind == BATTERY:
-        fin = np.flatnonzero(np.isfinite(flight.voltage_v))[:init_samples]
+        # only the leading samples at a steady current (the pack at rest before arming, or idling):
+        # once the current ramps up, the R-C pairs are charging and "settled" no longer holds
+        cur = flight.current_a
+        steady = np.abs(cur[:init_samples] - cur[0]) <= max(STEADY_CURRENT_A, STEADY_CURRENT_REL * abs(cur[0]))
+        n_steady = int(np.argmin(steady)) if not steady.all() else steady.size
+        window = np.arange(max(n_steady, 1))
+        fin = window[np.isfinite(flight.voltage_v[window])]
+        if fin.size == 0:
+            fin = np.flatnonzero(np.isfinite(flight.voltage_v))[:1]
         if fin.size == 0:
             raise ValueError(f"{flight.name}: no voltage sample for the initial state")
         init_v = float(np.mean(flight.voltage_v[fin]))
-        init_i = float(np.mean(flight.current_a[: fin[-1] + 1]))
+        init_i = float(np.mean(cur[: fin[-1] + 1]))
     else:
         init_v, init_i = float("nan"), float(flight.current_a[0])
     return Prepared(name=flight.name, dt=np.ascontiguousarray(flight.dt), current=np.ascontiguousarray(flight.current_a),
