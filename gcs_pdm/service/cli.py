@@ -19,6 +19,9 @@ def register(subparsers) -> None:
     d.add_argument("--http-port", type=int, default=8000, help="status page port (0: any free port)")
     d.add_argument("--data-dir", help="keep the database and tlog here (default: a temporary directory)")
     d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--params", default="learned",
+                   help="parameter set the service flies with: learned (fixtures/params/learned_sim.json), "
+                        "paper_si, previous_si")
     d.add_argument("--timeout", type=float, default=170.0, help="wall-clock limit, s")
     d.add_argument("--no-compare", action="store_true", help="skip flying the original mission without the service")
     d.add_argument("--export-tryout", metavar="DIR",
@@ -54,7 +57,7 @@ def _demo(args: argparse.Namespace) -> int:
     # The demo's own lines are the show; the libraries' INFO chatter would bury them.
     logging.getLogger().setLevel(logging.WARNING)
     result = run_demo(speedup=args.speedup, http_port=args.http_port, data_dir=args.data_dir, seed=args.seed,
-                      timeout_s=args.timeout, compare=not args.no_compare)
+                      timeout_s=args.timeout, compare=not args.no_compare, params=args.params)
     print_summary(result)
     if not result.landed:
         print("gcs-pdm demo: the vehicle did not land safely")

@@ -216,8 +216,25 @@ def summarise_predictions(service: Service) -> dict:
     return out
 
 
+LEARNED_SET = Path(__file__).resolve().parents[2] / "fixtures" / "params" / "learned_sim.json"
+
+
+def use_parameter_set(service: Service, which: str) -> str:
+    """``learned``: the set the fitting package learned from the simulated vehicle's recorded flights
+    (``fixtures/params/learned_sim.json``), imported with its provenance; else a stored set's name."""
+    if which != "learned":
+        service.activate_parameter_set(which)
+        return which
+    from gcs_pdm.models.params import ParameterSet
+
+    ps = ParameterSet.from_json(LEARNED_SET.read_text())
+    service.store.save_parameter_set(ps, provenance={"source": str(LEARNED_SET.name)}, overwrite=True)
+    service.activate_parameter_set(ps.name)
+    return ps.name
+
+
 def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None = None, seed: int = 0,
-             timeout_s: float = 170.0, out=print, compare: bool = True) -> DemoResult:
+             timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned") -> DemoResult:
     from gcs_pdm.service.adapters import start_sim_vehicle
     from gcs_pdm.service.server import HttpServer, start_mavlink, stop_mavlink
 
@@ -233,6 +250,9 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     config = load_config(env={}, data_dir=data_dir, api_token=token, policy="auto", http_port=http_port,
                          mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0)
     service = Service(config)
+    if params == "learned" and not LEARNED_SET.exists():
+        params = "paper_si"
+    params_name = use_parameter_set(service, params)
     service.load_objectives_scenario(scenario)
     try:
         http = HttpServer(service, config.http_host, config.http_port).start()
@@ -241,6 +261,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         http = HttpServer(service, config.http_host, 0).start()
     out(f"gcs-pdm demo: status page {http.url}/  (API docs {http.url}/docs, token {token})")
     out(f"  vehicle: simulated Edge 540, hidden true parameters, x{speedup:g} real time, MAVLink udp 127.0.0.1:{port}")
+    out(f"  service: policy auto, parameter set {params_name!r} (the vehicle's true parameters stay hidden)")
     out(f"  mission: waypoints 1..10 in numbered order; the {FAULT_MOTOR} motor will lose "
         f"{FAULT_MAGNITUDE:.0%} of its power half way from waypoint 2 to 3")
     printer = TerminalPrinter(service, out).start()
