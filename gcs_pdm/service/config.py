@@ -57,7 +57,8 @@ class ServiceConfig(BaseModel):
 
     @property
     def data_path(self) -> Path:
-        return Path(self.data_dir)
+        # absolute, so stored file paths stay valid whatever directory the next start runs in
+        return Path(self.data_dir).expanduser().resolve()
 
     @property
     def database(self) -> Path:

@@ -88,6 +88,11 @@ def serve(config: ServiceConfig, objectives: str | None = None, stop: threading.
     http = HttpServer(service, config.http_host, config.http_port).start()
     log.info("HTTP API on %s (docs at /docs), MAVLink on %s, policy %s", http.url, config.mavlink_url, service.policy)
     stop = stop or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        import signal
+
+        # systemd and docker stop with SIGTERM: close the link, the tlog and the database cleanly.
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         while not stop.wait(0.5):
             pass
