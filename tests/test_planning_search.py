@@ -154,3 +154,16 @@ def test_beam_search_is_a_feasible_heuristic_and_exact_when_wide():
     assert narrow.planner == "beam" and not narrow.stats["proven_optimal"]
     assert narrow.feasible and narrow.reward <= ex.reward
     assert exact_search(sim, beam=100_000, warm_start=False).reward == ex.reward
+
+
+@pytest.mark.parametrize("planner", ["pf", "exact", "pfls", "brute"])
+def test_no_waypoints_and_no_way_home(planner):
+    from gcs_pdm.planning.planners import plan_scenario
+
+    sc = load(7)
+    empty = plan_scenario(dataclasses.replace(sc, waypoints=()), planner)
+    assert empty.route == () and empty.feasible
+    dead = dataclasses.replace(sc, start=dataclasses.replace(sc.start, pack_soc=(0.02, 0.5, 0.02, 0.5)))
+    p = plan_scenario(dead, planner)
+    # nothing is reachable: the plan is the way home, reported as infeasible with its cause
+    assert p.route == () and not p.feasible and p.failure != "none"

@@ -31,7 +31,7 @@ import numpy as np
 
 from gcs_pdm.models import kernel
 from gcs_pdm.planning.plan import Plan, better, make_plan, rank
-from gcs_pdm.planning.simulator import DEFAULT_THETA, FlightState, Outcome, VehicleSimulator
+from gcs_pdm.planning.simulator import DEFAULT_THETA, FAILURE_NAMES, FlightState, Outcome, VehicleSimulator
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +98,7 @@ def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THET
     masks = np.zeros(1, dtype=np.int64)
     reach = np.full(1, (1 << n) - 1, dtype=np.int64)  # waypoints a node may still add
     if not root_out.feasible[0]:
-        log.warning("exact: the vehicle cannot get home even directly (%s)", root_out.cause[0])
+        log.warning("exact: the vehicle cannot get home even directly (%s)", FAILURE_NAMES[int(root_out.cause[0])])
         frontier = root.take(np.zeros(0, dtype=np.int64))
         routes, masks, reach = [], masks[:0], reach[:0]
     # the objective bound needs costs that only grow along a route, i.e. non-negative cost weights
