@@ -72,3 +72,30 @@ def test_future_load_validation_and_after():
     rest = load.after(5.0)
     assert rest.duration_s == pytest.approx(15.0) and rest.shaft_power_w[0] == 2.0
     assert load.after(0.0).duration_s == 20.0 and load.after(25.0).dt.size == 0
+
+
+def test_load_for_route_follows_the_planner_and_predicts_its_outcome():
+    from pathlib import Path
+
+    from gcs_pdm.estimation.prediction import load_for_route
+    from gcs_pdm.planning.scenario import Scenario
+    from gcs_pdm.planning.simulator import VehicleSimulator
+
+    root = Path(__file__).resolve().parent.parent / "fixtures" / "scenarios"
+    scenario = Scenario.from_json((root / "table3_10.json").read_text())
+    sim = VehicleSimulator(scenario)
+    route = [0, 1, 2]
+    load = load_for_route(sim, route)
+    nodes = [sim.start_node, *route, sim.landing_node]
+    legs_s = sum(float(sim.legs.duration_s[a, b]) for a, b in zip(nodes[:-1], nodes[1:]))
+    assert load.duration_s == pytest.approx(legs_s, rel=1e-6)
+    ps = sim.params
+    st = sim.initial
+    pred = predict(ps, st.pack_state, np.tile(np.eye(4) * 1e-9, (4, 1, 1)), st.motor_temp_c, np.zeros(2), load,
+                   rng=np.random.default_rng(0), n_samples=4, param_rel_sigma=0.0,
+                   fault=np.asarray(sim._fault[0]), limits=scenario.limits.kernel_limits())
+    ref = kernel.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], st.pack_state[None],
+                                     np.asarray(st.motor_temp_c)[None], load.dt, load.shaft_power_w, load.ambient_c,
+                                     sim._fault, limits=scenario.limits.kernel_limits().as_tuple(), stop_on_failure=True)
+    assert pred.p_failure == float(ref.failed[0])
+    assert pred.peak_motor_temp_c[:, 1] == pytest.approx(ref.max_motor_temp[0], abs=1e-6)

@@ -63,6 +63,25 @@ class FutureLoad:
         return FutureLoad(dt, np.asarray(self.shaft_power_w)[k:], amb)
 
 
+def load_for_route(simulator, route, *, from_node: int | None = None, land: bool = True) -> FutureLoad:
+    """The shaft-power load of flying ``route`` (waypoint indices) with the planner's vehicle
+    simulator (``gcs_pdm.planning.simulator.VehicleSimulator``: its sampled leg table), from
+    ``from_node`` (default: the scenario's start) and, with ``land``, on to the landing site."""
+    legs = simulator.legs
+    nodes = [simulator.start_node if from_node is None else int(from_node)] + [int(w) for w in route]
+    if land:
+        nodes.append(simulator.landing_node)
+    dt, power, ambient = [], [], []
+    for a, b in zip(nodes[:-1], nodes[1:]):
+        k = int(legs.steps[a, b])
+        dt.append(legs.dt[a, b, :k])
+        power.append(legs.power[a, b, :k])
+        ambient.append(legs.ambient[a, b, :k])
+    if not dt:
+        raise ValueError("load_for_route: empty route and no landing")
+    return FutureLoad(np.concatenate(dt), np.concatenate(power), np.concatenate(ambient))
+
+
 @dataclass(frozen=True)
 class Prediction:
     """Quantiles (5 %, 50 %, 95 %) over the Monte Carlo samples; ``inf`` = not reached within the horizon."""
