@@ -127,3 +127,17 @@ def test_steep_leg_spirals_at_the_climb_rate(sc9):
     tall = dataclasses.replace(sc9, waypoints=(Waypoint(1, sc9.start.east_m + 100.0, sc9.start.north_m, sc9.start.alt_m + 1000.0, 1.0),))
     sim = VehicleSimulator(tall, builtin("paper_si"))
     assert sim.legs.duration_s[sim.start_node, 0] == pytest.approx(1000.0 / tall.max_climb_rate_mps)
+
+
+def test_planned_routes_hold_at_1s():
+    """The routes the planners choose at the 10 s step keep their verdict flown at 1 s."""
+    from gcs_pdm.planning.exact import exact_search
+    from gcs_pdm.planning.particle_filter import particle_filter
+
+    for n in (8, 10):
+        sc = Scenario.from_json((FIXTURES / f"table3_{n}.json").read_text())
+        sim = VehicleSimulator(sc, builtin("paper_si"))
+        routes = [exact_search(sim).route] + [particle_filter(sim, particles=10, seed=s).route for s in range(3)]
+        coarse, fine = sim.evaluate(routes), sim.evaluate(routes, dt_s=1.0)
+        assert coarse.feasible.all() and fine.feasible.all()
+        np.testing.assert_array_equal(coarse.reward, fine.reward)
