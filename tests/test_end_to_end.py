@@ -45,3 +45,19 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     assert packs["LLF20"]["time_to_cutoff_s"] is not None  # the most drained pack, on the loaded string
     assert all(p["soc"] is not None and 0.0 <= p["soc"] <= 1.0 for p in packs.values())
     assert http["/status"]["prediction"]["n_samples"] > 0
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(240)
+def test_advise_policy_operator_approves_over_http(tmp_path):
+    lines: list[str] = []
+    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=1, timeout_s=180.0, out=lines.append,
+                 compare=False, policy="advise")
+    text = "\n".join(lines)
+    assert "PLAN     proposed" in text and "OPERATOR approves plan" in text, text
+    assert text.index("PLAN     proposed") < text.index("OPERATOR approves") < text.index("UPLOAD   plan 1: confirmed")
+    assert r.landed and not r.failed, (r.failure, text)
+    history = r.http["/missions/history"]
+    assert history[-1]["status"] == "uploaded"
+    notes = [h["note"] for h in history[-1]["history"]]
+    assert "demo operator" in notes

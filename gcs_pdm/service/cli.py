@@ -19,6 +19,8 @@ def register(subparsers) -> None:
     d.add_argument("--http-port", type=int, default=8000, help="status page port (0: any free port)")
     d.add_argument("--data-dir", help="keep the database and tlog here (default: a temporary directory)")
     d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--policy", choices=("auto", "advise"), default="auto",
+                   help="advise: plans are proposed and a scripted operator approves them over HTTP")
     d.add_argument("--params", default="learned",
                    help="parameter set the service flies with: learned (fixtures/params/learned_sim.json), "
                         "paper_si, previous_si")
@@ -57,7 +59,8 @@ def _demo(args: argparse.Namespace) -> int:
     # The demo's own lines are the show; the libraries' INFO chatter would bury them.
     logging.getLogger().setLevel(logging.WARNING)
     result = run_demo(speedup=args.speedup, http_port=args.http_port, data_dir=args.data_dir, seed=args.seed,
-                      timeout_s=args.timeout, compare=not args.no_compare, params=args.params)
+                      timeout_s=args.timeout, compare=not args.no_compare, params=args.params,
+                      policy=args.policy)
     print_summary(result)
     if not result.landed:
         print("gcs-pdm demo: the vehicle did not land safely")

@@ -178,6 +178,39 @@ class TerminalPrinter:
             self.out(f"{stamp} {who} STATUSTEXT '{d.get('text')}'")
 
 
+class Operator:
+    """In ``advise`` mode, an operator at the HTTP API who approves every feasible proposal."""
+
+    def __init__(self, base_url: str, token: str, out=print):
+        import httpx
+
+        self.client = httpx.Client(base_url=base_url, timeout=5.0, headers={"Authorization": f"Bearer {token}"})
+        self.out = out
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="demo-operator", daemon=True)
+        self.approved: list[int] = []
+
+    def start(self) -> "Operator":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.client.close()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.1):
+            try:
+                for plan in self.client.get("/missions/proposed").json():
+                    if plan["chosen"]["feasible"] and plan["id"] not in self.approved:
+                        r = self.client.post(f"/missions/plans/{plan['id']}/approve", json={"note": "demo operator"})
+                        self.approved.append(plan["id"])
+                        self.out(f"[         ] OPERATOR approves plan {plan['id']} over HTTP: {r.status_code}")
+            except Exception as exc:  # noqa: BLE001 - the operator retries
+                log.debug("operator: %s", exc)
+
+
 def summarise_predictions(service: Service) -> dict:
     """The first replan's current-mission and replanned routes, re-scored on the TRUE parameters."""
     from gcs_pdm.planning.plan import make_plan
@@ -234,7 +267,8 @@ def use_parameter_set(service: Service, which: str) -> str:
 
 
 def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None = None, seed: int = 0,
-             timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned") -> DemoResult:
+             timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned",
+             policy: str = "auto") -> DemoResult:
     from gcs_pdm.service.adapters import start_sim_vehicle
     from gcs_pdm.service.server import HttpServer, start_mavlink, stop_mavlink
 
@@ -247,7 +281,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         data_dir = tmp.name
     port = free_udp_port()
     token = new_token()
-    config = load_config(env={}, data_dir=data_dir, api_token=token, policy="auto", http_port=http_port,
+    config = load_config(env={}, data_dir=data_dir, api_token=token, policy=policy, http_port=http_port,
                          mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0)
     service = Service(config)
     if params == "learned" and not LEARNED_SET.exists():
@@ -261,10 +295,11 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         http = HttpServer(service, config.http_host, 0).start()
     out(f"gcs-pdm demo: status page {http.url}/  (API docs {http.url}/docs, token {token})")
     out(f"  vehicle: simulated Edge 540, hidden true parameters, x{speedup:g} real time, MAVLink udp 127.0.0.1:{port}")
-    out(f"  service: policy auto, parameter set {params_name!r} (the vehicle's true parameters stay hidden)")
+    out(f"  service: policy {policy}, parameter set {params_name!r} (the vehicle's true parameters stay hidden)")
     out(f"  mission: waypoints 1..10 in numbered order; the {FAULT_MOTOR} motor will lose "
         f"{FAULT_MAGNITUDE:.0%} of its power half way from waypoint 2 to 3")
     printer = TerminalPrinter(service, out).start()
+    operator = Operator(http.url, token, out).start() if policy == "advise" else None
     start_mavlink(service)
     vehicle = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry())
     last_status = -math.inf
@@ -282,6 +317,8 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         time.sleep(0.5)
     finally:
         vehicle.stop()
+        if operator is not None:
+            operator.stop()
         stop_mavlink(service)
         printer.stop()
     s = vehicle.state
