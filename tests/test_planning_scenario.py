@@ -57,6 +57,8 @@ def test_from_live_keeps_the_estimated_pack_states():
     (lambda d: d["faults"][0].update(motor="left"), "motor"),
     (lambda d: d.update(params="no_such_set"), "no built-in parameter set"),
     (lambda d: d["waypoints"][0].pop("east_m"), "east_m"),
+    (lambda d: d.update(version=2), "version"),
+    (lambda d: d.update(format="qgc-plan"), "format"),
 ])
 def test_bad_scenarios_name_the_field(edit, message):
     data = json.loads((FIXTURES / "table3_7.json").read_text())

@@ -224,6 +224,11 @@ class Scenario:
     def from_dict(cls, data: Mapping[str, Any]) -> "Scenario":
         if not isinstance(data, Mapping):
             raise ScenarioError("scenario: expected a JSON object")
+        if data.get("format", "gcs-pdm-scenario") != "gcs-pdm-scenario":
+            raise ScenarioError(f"format: expected 'gcs-pdm-scenario', got {data.get('format')!r}")
+        if int(data.get("version", FORMAT_VERSION)) > FORMAT_VERSION:
+            raise ScenarioError(f"version: this gcs-pdm reads scenario format {FORMAT_VERSION}, "
+                                f"got {data.get('version')!r}")
         try:
             hd = dict(data.get("home", {}))
             home = Home(**{k: float(v) for k, v in hd.items() if k in Home.__dataclass_fields__})
