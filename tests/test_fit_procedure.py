@@ -165,3 +165,22 @@ def test_block_separable_jacobian_equals_the_full_one():
     np.testing.assert_allclose(J_sep, J_full, atol=1e-6)
     assert J_sep[0:6, 3].max() == 0.0  # block 0's rows do not depend on block 1's unknown
     assert r.mse < 1e-12
+
+
+def test_canonical_relabels_the_slow_pair_and_keeps_the_voltage():
+    """Swapping (R_s, C_s) with (R_cp0, C_cp) leaves the plateau voltage unchanged; canonical() puts
+    the fast pair first."""
+    from gcs_pdm.fitting.problem import BATTERY_ELECTRICAL_BOUNDS, PackProblem
+
+    fl = generate_flights(synthetic_truth(seed=4), 1, seed=500, duration_s=900.0, damage=NO_DAMAGE)[0].packs["LLF20"]
+    prob = PackProblem([fl], builtin("paper_si").pack_matrix()[0], BATTERY_ELECTRICAL_BOUNDS, "voltage")
+    names = prob.space.names
+    v = np.array([builtin("paper_si").pack_matrix()[0][kernel.PACK_PARAMS.index(n)] for n in names])
+    slow = v.copy()
+    for a, b in (("R_s", "R_cp0"), ("C_s", "C_cp")):
+        slow[names.index(a)], slow[names.index(b)] = v[names.index(b)], v[names.index(a)]
+    u_fast, u_slow = prob.space.to_unit(v), prob.space.to_unit(slow)
+    assert prob.canonical(u_fast) is None
+    np.testing.assert_allclose(prob.canonical(u_slow), u_fast, atol=1e-12)
+    r_fast, r_slow = prob.residuals(np.array([u_fast, u_slow]))
+    assert np.sqrt(np.mean((r_fast - r_slow) ** 2)) < 2e-3  # the same circuit on the plateau

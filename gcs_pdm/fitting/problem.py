@@ -272,6 +272,26 @@ class PackProblem(_Problem):
     def pack_vectors(self, values: np.ndarray) -> np.ndarray:
         return pack_vectors_with(self.base, self.space.names, values)
 
+    def canonical(self, u: np.ndarray) -> np.ndarray | None:
+        """The same circuit with the R–C pairs relabelled if the R_s–C_s pair is the slower one, else None.
+
+        V = V_b - V_cp - V_s: the two pairs enter alike, and away from the knee (R_cp ≈ R_cp0) swapping
+        (R_s, C_s) with (R_cp0, C_cp) gives the same voltage. The model's reading is R_s–C_s the fast
+        (ohmic, sub-second) pair and R_cp–C_cp the slow (concentration) one.
+        """
+        names = self.space.names
+        need = ("R_s", "C_s", "R_cp0", "C_cp")
+        if not all(n in names for n in need):
+            return None
+        v = self.space.to_values(np.asarray(u, dtype=np.float64))
+        i = {n: names.index(n) for n in need}
+        if v[i["R_s"]] * v[i["C_s"]] <= v[i["R_cp0"]] * v[i["C_cp"]]:
+            return None
+        w = v.copy()
+        w[i["R_s"]], w[i["R_cp0"]] = v[i["R_cp0"]], v[i["R_s"]]
+        w[i["C_s"]], w[i["C_cp"]] = v[i["C_cp"]], v[i["C_s"]]
+        return np.clip(self.space.to_unit(w), 0.0, 1.0)
+
     def initial_states(self, P: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:
         soc = initial_soc(P, f.init_voltage, f.init_current) + self.soc_offset(extra)
         return kernel.initial_pack_state(P, soc, f.init_temperature, f.init_current)

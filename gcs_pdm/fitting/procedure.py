@@ -214,12 +214,27 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
 
     d, n_extra = prob.space.dim, prob.n_extra
 
+    canonical = getattr(prob, "canonical", None)
+
     def lm(u0: np.ndarray):
         stepper.check()
         # per-flight unknowns (initial-SoC corrections) start at "none" and join the LM only
         start = np.concatenate([u0, np.full(n_extra, 0.5)])
-        return levenberg_marquardt(lambda U: prob.residuals(U, parallel=False), start, search,
-                                   shared=d, blocks=prob.row_slices if n_extra else None)
+        res = levenberg_marquardt(lambda U: prob.residuals(U, parallel=False), start, search,
+                                  shared=d, blocks=prob.row_slices if n_extra else None)
+        swapped = canonical(res.u[:d]) if canonical is not None else None
+        if swapped is not None:
+            # the two R-C pairs of the circuit are interchangeable on the plateau: a solution with the
+            # slow pair labelled R_s-C_s is relabelled and refined; kept unless clearly worse
+            alt = levenberg_marquardt(lambda U: prob.residuals(U, parallel=False),
+                                      np.concatenate([swapped, res.u[d:]]), search,
+                                      shared=d, blocks=prob.row_slices if n_extra else None)
+            alt.nfev += res.nfev
+            alt.njev += res.njev
+            if alt.mse <= 1.01 * res.mse:
+                return alt
+            res.nfev, res.njev = alt.nfev, alt.njev
+        return res
 
     done = 0
     lm_results = []
