@@ -89,3 +89,5 @@ def test_perturbed_sets_differ_but_stay_physical():
     m, b = other.pack_matrix(), base.pack_matrix()
     end_r = m[:, 3] * np.exp(m[:, i_r2]) / (b[:, 3] * np.exp(b[:, i_r2]))
     assert np.all((end_r > 0.85 - 1e-9) & (end_r < 1.15 + 1e-9))
+    i_cmax = PACK_PARAMS.index("C_max")
+    np.testing.assert_array_equal(m[:, i_cmax], b[:, i_cmax])

@@ -59,11 +59,12 @@ def test_motor_fault_shifts_power_to_the_healthy_motor(m):
     power = float(PT.shaft_power(25.0))
     healthy = _flight(power, 30)
     faulted = _flight(power, 30, (PT.MotorFault("aft", m),), fault_drag=0.1)
+    motor = PS.motor
     v_fwd = faulted.pack_voltage[0, 0, 0] + faulted.pack_voltage[0, 0, 2]
     v_aft = faulted.pack_voltage[0, 0, 1] + faulted.pack_voltage[0, 0, 3]
     i_fwd, i_aft = faulted.motor_current[0, 1]
-    motor = PS.motor
-    p_tot = power * (1 + 0.5 * 0.1 * m)
+    # the faulted rotor's propeller drag and its unpowered friction/core loss load the shaft
+    p_tot = power * (1 + 0.5 * 0.1 * m) + m * motor.I_0 * faulted.pack_voltage[0, 0, [1, 3]].sum()
     # recover each motor's shaft power from its electrical input: P = V I - R I^2 - I_0' V
     shaft_fwd = v_fwd * i_fwd - motor.R_w * i_fwd**2 - motor.I_0 * v_fwd
     shaft_aft = v_aft * i_aft - motor.R_w * i_aft**2 - motor.I_0 * (1 - m) * v_aft
@@ -75,6 +76,8 @@ def test_motor_fault_shifts_power_to_the_healthy_motor(m):
     longer_f = _flight(power, 600, (PT.MotorFault("aft", m),))
     assert longer_f.max_motor_temp[0, 0] > longer_h.max_motor_temp[0, 0] + 1.0
     assert longer_f.max_pack_temp[0, 0] > longer_h.max_pack_temp[0, 0]
+    # a fault never makes flying cheaper
+    assert longer_f.energy_j[0] > longer_h.energy_j[0]
 
 
 def test_a_faulted_vehicle_fails_where_a_healthy_one_does_not():
@@ -117,6 +120,14 @@ def test_batched_powertrain_equals_single_runs():
                                     faults[j], record=True)
         np.testing.assert_array_equal(run.pack_voltage[j], one.pack_voltage[0])
         np.testing.assert_array_equal(run.energy_j[j], one.energy_j[0])
+
+
+def test_motor_thermal_broadcasts_one_parameter_row_over_many_motors():
+    m = PS.motor_vector()
+    dt = np.ones(3)
+    temp = K.simulate_motor_thermal(m, [20.0, 30.0], dt, np.full((2, 3), 10.0), 20.0)
+    for j, t0 in enumerate((20.0, 30.0)):
+        np.testing.assert_array_equal(temp[j], K.simulate_motor_thermal(m, t0, dt, np.full(3, 10.0), 20.0)[0])
 
 
 def test_fault_inputs_are_validated():

@@ -140,7 +140,7 @@ def _simulate_packs(params, x0, dt, current, ambient, max_dt, voltage, temperatu
 
 @njit(**_JIT)
 def _simulate_motor_thermal(params, temp0, dt, current, ambient, out):
-    n_vec = params.shape[0]
+    n_vec = out.shape[0]
     n = current.shape[1]
     for j in range(n_vec):
         m = params[j if params.shape[0] > 1 else 0]
@@ -343,9 +343,16 @@ def _simulate_powertrain(pack_params, motor_params, x0, tm0, dt, shaft_power, fa
         for k in range(n):
             h = dt[di, k]
             p_dem = shaft_power[si, k]
-            # each motor owes half the shaft power; a faulted rotor still spins and adds drag, and the
-            # healthy motor makes up what the faulted one cannot deliver
-            p_tot = p_dem * (1.0 + 0.5 * fault_drag * (f[0] + f[1])) if p_dem > 0.0 else p_dem
+            vbus[0] = v[0] + v[2]
+            vbus[1] = v[1] + v[3]
+            # each motor owes half the shaft power; the healthy motor makes up what the faulted one
+            # cannot deliver. A faulted rotor still turns with the shaft: its propeller-side drag
+            # (fault_drag of its share) and its own friction and core loss, which it no longer
+            # powers (m I_0 V), become load on the shaft
+            p_tot = p_dem
+            if p_dem > 0.0:
+                p_tot = p_dem * (1.0 + 0.5 * fault_drag * (f[0] + f[1])) \
+                    + (f[0] * vbus[0] + f[1] * vbus[1]) * m[M_I0]
             cause = FAIL_NONE
             if cap0 + cap1 <= 0.0:
                 share[0] = 0.0
@@ -364,8 +371,6 @@ def _simulate_powertrain(pack_params, motor_params, x0, tm0, dt, shaft_power, fa
                 else:
                     share[0] += 0.5 * shortfall
                     share[1] += 0.5 * shortfall
-            vbus[0] = v[0] + v[2]
-            vbus[1] = v[1] + v[3]
             for q in range(N_MOTORS):
                 capability = cap0 if q == 0 else cap1
                 i_q = _motor_current(m, vbus[q], share[q], capability)

@@ -357,9 +357,9 @@ def default_set() -> ParameterSet:
 
 def perturbed(base: ParameterSet, rng: np.random.Generator, rel: float = 0.1, name: str = "perturbed",
               ) -> ParameterSet:
-    """A set whose every parameter differs from ``base`` by a random factor in [1-rel, 1+rel]
+    """A set whose parameters differ from ``base`` by random factors in [1-rel, 1+rel]
     (log-uniform) — used for hidden "true" vehicles and synthetic flights. q_max keeps tracking
-    C_b so a full pack stays at 4.2 V/cell."""
+    C_b so a full pack stays at 4.2 V/cell, and C_max stays at the rated capacity."""
     from gcs_pdm.models.kernel import PACK_PARAMS
 
     packs = {}
@@ -374,7 +374,9 @@ def perturbed(base: ParameterSet, rng: np.random.Generator, rel: float = 0.1, na
         v[i_r2] = base_v[i_r2] * (1.0 + rng.uniform(-rel, rel) / 10.0)
         v[i_r1] = v[i_r1] * np.exp(base_v[i_r2] - v[i_r2])
         v[i_qmax] = v[i_cb] * PACK_FULL_VOLTAGE
-        v[i_cmax] = min(v[i_cmax], v[i_qmax])
+        # a pack holds its rated capacity (capacity loss is pack degradation, modelled apart): it
+        # cannot be learned from flights that never reach empty, so it must not hide in the truth
+        v[i_cmax] = min(base_v[i_cmax], v[i_qmax])
         packs[n] = pack_from_vector(v)
     m = motor_vector(base.motor) * np.exp(rng.uniform(np.log(1 - rel), np.log(1 + rel), size=5))
     return ParameterSet(name=name, packs=packs, motor=motor_from_vector(m),
