@@ -237,3 +237,27 @@ def test_soc_deviation_from_the_plan_triggers_a_replan(tmp_path, frames):
         assert reasons == []
     finally:
         svc.close()
+
+
+@pytest.mark.slow
+def test_operator_fault_before_telemetry_is_planned_once_the_state_is_known(tmp_path, frames):
+    mission = original_mission()
+    svc, loop, link, vehicle = make_loop(tmp_path, "advise", mission)
+    try:
+        fid = svc.declare_fault("motor_power_loss", "aft", 0.7, "seen on the GCS", replan=True)
+        assert svc.store.faults(active_only=True)[0]["source"] == "operator" and not svc.store.plans()
+        loop.process(MissionProgressFrame(0.5, None, mission.waypoint_seq[1]))
+        loop.process(MissionProgressFrame(0.6, None, mission.waypoint_seq[2]))
+        loop.process(MissionProgressFrame(0.7, mission.waypoint_seq[3], None))
+        for fr in (f for f in frames if f.time_s < 120.0):  # healthy telemetry: only the operator knows
+            loop.process(fr)
+        deadline = time.monotonic() + 30
+        while (loop._busy or not svc.store.plans()) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        plan = svc.store.plans()[0]
+        assert plan["trigger"] == "operator: motor_power_loss aft 0.70"
+        assert plan["faults"] == [{"motor": "aft", "magnitude": 0.7, "kind": "motor_power_loss"}]
+        assert svc.store.faults(active_only=True)[0]["id"] == fid
+        assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(0.3)
+    finally:
+        svc.close()

@@ -109,6 +109,7 @@ class LiveLoop:
         self._last_status_s = -math.inf
         self._last_replan_s = -math.inf
         self._expectation: dict | None = None
+        self._deferred: str | None = None  # a replan asked for before the estimator had a state
         self._loads: dict[int, tuple] = {}  # plan id -> (FutureLoad of its route, message time)
         self._time_s: float | None = None
         self._ground_alt_amsl: float | None = None
@@ -224,6 +225,8 @@ class LiveLoop:
                                                                                        self.link.target_component]})
         self._check_faults(t)
         self._check_deviation(t)
+        if self._deferred is not None and self.estimator.ready():
+            self.request_replan(self._deferred)
         if t - self._last_predict_s >= PREDICT_PERIOD_S:
             self._last_predict_s = t
             self._predict(t)
@@ -331,7 +334,9 @@ class LiveLoop:
         """Queue a replan from the present state (call on the telemetry thread, or any thread)."""
         if not self.estimator.ready():
             log.info("replan (%s) deferred: estimator not ready", reason)
+            self._deferred = reason
             return
+        self._deferred = None
         snap = self.snapshot()
         self._last_replan_s = snap.time_s
         with self._lock:
