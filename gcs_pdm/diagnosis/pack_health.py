@@ -31,7 +31,7 @@ from gcs_pdm.models.params import PACK_NAMES
 @dataclass(frozen=True)
 class PackHealthConfig:
     check_every_s: float = 60.0
-    min_history_s: float = 360.0
+    min_history_s: float = 240.0
     min_samples: int = 150
     min_soc: float = 0.2
     #: a capacity estimate means little before a good part of the pack has been used: early on a
@@ -70,27 +70,34 @@ def _scaled(params: np.ndarray, theta: np.ndarray) -> np.ndarray:
 
 
 def fit_pack_residual(params: np.ndarray, t: np.ndarray, current: np.ndarray, voltage: np.ndarray,
-                      ambient: np.ndarray, min_soc: float = 0.2, iterations: int = 10) -> tuple | None:
+                      ambient: np.ndarray, min_soc: float = 0.2, iterations: int = 10,
+                      fit_capacity: bool = True) -> tuple | None:
     """Gauss–Newton fit of theta = (resistance scale, capacity scale, initial SoC) to a pack's
     voltage record, through the kernel (Jacobian by forward differences: the base and three
     perturbed vectors in ONE ``simulate_packs`` call per iteration). Spikes are cut with a MAD rule.
 
     Returns (theta, standard errors, residual rms, samples used) or None if the record cannot
-    separate the parameters (too short, or a current that never changes)."""
+    separate the parameters (too short, or a current that never changes). With ``fit_capacity``
+    False the capacity scale stays at 1 (its standard error is then inf): early in a flight the
+    record cannot tell a small pack from a weak one, and holding the capacity lets the resistance
+    be read correctly from the current steps alone."""
     dt = np.diff(t, prepend=t[0])
     if t.size < 20 or np.ptp(current) < 1.0:
         return None
     best = None
     # a short record can be explained almost as well by a weak pack as by a small one: start from
     # both readings (and from nominal) and keep the best fit, so the search is not trapped
-    for r_scale, c_scale in ((1.0, 1.0), (2.0, 1.0), (1.0, 0.7)):
-        fit = _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale)
+    starts = ((1.0, 1.0), (2.0, 1.0), (1.0, 0.7)) if fit_capacity else ((1.0, 1.0), (2.0, 1.0))
+    for r_scale, c_scale in starts:
+        fit = _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale,
+                            fit_capacity)
         if fit is not None and (best is None or fit[2] < best[2]):
             best = fit
     return best
 
 
-def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale):
+def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale, fit_capacity):
+    free = np.array([True, fit_capacity, True])
     # start from the SoC the first reading implies (the capacity scale leaves the open-circuit
     # curve unchanged: q_max and C_max scale with C_b)
     r_cp = params[kernel.I_RCP0] + params[kernel.I_RCP1] * math.exp(params[kernel.I_RCP2] * 0.5)
@@ -115,7 +122,8 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
         mad = 1.4826 * np.median(np.abs(res - np.median(res))) + 1e-6
         keep = keep & ~(np.abs(r - np.median(res)) > 5.0 * mad)
         use = use & keep
-        step, *_ = np.linalg.lstsq(jac[use], r[use], rcond=None)
+        step = np.zeros(3)
+        step[free], *_ = np.linalg.lstsq(jac[use][:, free], r[use], rcond=None)
         # a trust region: the knee makes the first linearisation poor far from the answer
         step = step * min(1.0, float(np.min(max_step / (np.abs(step) + 1e-12))))
         theta = theta + step
@@ -126,8 +134,10 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
             break
     res = r[use] - jac[use] @ step
     n = int(use.sum())
-    sigma2 = float(res @ res) / max(n - 3, 1)
-    cov = sigma2 * np.linalg.pinv(jac[use].T @ jac[use])
+    sigma2 = float(res @ res) / max(n - int(free.sum()), 1)
+    jf = jac[use][:, free]
+    cov = np.full((3, 3), np.inf)
+    cov[np.ix_(free, free)] = sigma2 * np.linalg.pinv(jf.T @ jf)
     # residuals of a model mismatch are correlated over the R_cp–C_cp time constant and longer:
     # count one independent sample per 30 s rather than per frame
     span = float(t[-1] - t[0])
@@ -163,24 +173,25 @@ class PackHealthMonitor:
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
                 continue
             arr = np.asarray(buf)
-            fit = fit_pack_residual(self.params[b], arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc)
+            p = self.params[b]
+            drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
+            fit = fit_pack_residual(p, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc,
+                                    fit_capacity=drawn >= self.config.min_drawn_for_capacity)
             if fit is None:
                 continue
             theta, se, rms, n = fit
-            p = self.params[b]
             r_nom = p[kernel.I_RS] + p[kernel.I_RCP0]
             est = PackHealthEstimate(name, n, float(theta[2]), float((theta[0] - 1.0) * r_nom), float(theta[0] - 1.0),
                                      float(theta[1]), float(1.0 - theta[1]), float(se[0]), float(se[1]), rms)
             self.latest[name] = est
             cfg = self.config
-            drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
             for ty, value, se_v, hi, lo in ((PACK_CAPACITY_LOSS, est.capacity_loss, est.se_capacity_loss,
                                              cfg.capacity_loss_raise, cfg.capacity_loss_clear),
                                             (PACK_RESISTANCE_RISE, est.resistance_rise, est.se_resistance_rise,
                                              cfg.resistance_rise_raise, cfg.resistance_rise_clear)):
-                strong = value >= hi and value - 2.0 * se_v > lo
                 if ty == PACK_CAPACITY_LOSS and drawn < cfg.min_drawn_for_capacity:
-                    strong = False
+                    continue  # the fit held the capacity: no verdict on it yet
+                strong = value >= hi and value - 2.0 * se_v > lo
                 deb = self._debounce[(ty, name)]
                 ev = deb.update(time_s, strong, value < lo)
                 conf = 0.5 * (1.0 + math.erf((value - lo) / (max(se_v, 1e-6) * math.sqrt(2.0))))
