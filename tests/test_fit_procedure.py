@@ -123,7 +123,7 @@ def test_cli_fits_csv_flights_and_rejects_bad_input(tmp_path, capsys):
                "--out", str(out), "--starts", "2", "--sa-generations", "10", "--lm-max-nfev", "5", "--quiet"])
     assert rc == 0
     d = json.loads((out / "result.json").read_text())
-    assert d["component"] == "motor" and set(d["learned"]) == {"C_t", "h"}
+    assert d["component"] == "motor" and set(d["learned"]) == {"C_t", "h", "P_iron"}
     assert (out / "predictions" / f"{fl[2].name}_motor.csv").is_file()
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,current_a\n0,1\n")

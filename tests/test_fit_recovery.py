@@ -89,5 +89,6 @@ def test_motor_recovers_thermal_parameters(flights, truth):
     res = fit_motor(mf[:6], mf[6:8], mf[8:], SETTINGS)
     assert res.parameters["C_t"] / truth.motor.C_t == pytest.approx(1.0, abs=0.05)
     assert res.parameters["h"] / truth.motor.h == pytest.approx(1.0, abs=0.05)
+    assert res.parameters["P_iron"] / truth.motor.P_iron == pytest.approx(1.0, abs=0.10)
     true_err = evaluate_motor(truth.motor_vector(), mf[8:], SETTINGS)["overall"]["temperature"]["rmse"]
     assert res.errors["learned"]["test"]["overall"]["temperature"]["rmse"] <= 1.10 * true_err

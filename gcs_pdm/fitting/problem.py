@@ -64,6 +64,8 @@ BATTERY_THERMAL_BOUNDS: tuple[Bound, ...] = (
 MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
     Bound("C_t", 100.0, 3000.0, "J/K", "motor (~0.6 kg copper/iron) and its aluminium bracket"),
     Bound("h", 0.2, 10.0, "W/K", "propeller-wash cooled out-runner"),
+    # R_w (data sheet) stays fixed and anchors the heat scale; the constant core loss is learned
+    Bound("P_iron", 1.0, 60.0, "W", "core loss heating the motor: 0.05-3 % of a 2 kW out-runner's power"),
 )
 
 

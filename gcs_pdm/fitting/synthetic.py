@@ -66,13 +66,14 @@ class SyntheticFlight:
 
 def synthetic_truth(seed: int = 7, spread: float = 0.2, base: str = "paper_si") -> ParameterSet:
     """Hidden "true" parameters for synthetic tests: every learnable parameter of ``base`` moved by up
-    to ``spread`` (log-uniform, seeded). The motor's electrical data (R_w, I_0, P_iron), which the
-    fitter does not learn, stay those of ``base``."""
+    to ``spread`` (log-uniform, seeded). The motor's R_w and I_0, which the fitter does not learn
+    (data-sheet values), stay those of ``base``."""
     b = builtin(base)
     p = perturbed(b, np.random.default_rng(seed), rel=spread, name=f"synthetic_truth_{seed}")
     m = b.motor_vector().copy()
     mv = p.motor_vector()
-    m[kernel.M_CT], m[kernel.M_H] = mv[kernel.M_CT], mv[kernel.M_H]
+    for k in (kernel.M_CT, kernel.M_H, kernel.M_PIRON):
+        m[k] = mv[k]
     return p.replace(motor=motor_from_vector(m))
 
 
