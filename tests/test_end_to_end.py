@@ -45,6 +45,7 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     assert packs["LLF20"]["time_to_cutoff_s"] is not None  # the most drained pack, on the loaded string
     assert all(p["soc"] is not None and 0.0 <= p["soc"] <= 1.0 for p in packs.values())
     assert http["/status"]["prediction"]["n_samples"] > 0
+    assert http["/status"]["link"]["frames"] > 1000 and http["/status"]["link"]["frames_dropped"] == 0
 
 
 @pytest.mark.slow

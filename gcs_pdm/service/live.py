@@ -221,8 +221,9 @@ class LiveLoop:
             for i, n in enumerate(MOTOR_NAMES):
                 st.update_nested("motors", n, temperature_c=float(est.motor_temp_c[i]),
                                  temperature_sd=float(est.motor_temp_sd[i]))
-        st.update(link={"connected": True, "received": self.link.received, "vehicle": [self.link.target_system,
-                                                                                       self.link.target_component]})
+        st.update(link={"connected": True, "received": self.link.received, "frames": self.frames_seen,
+                        "frames_dropped": self.frames_dropped,
+                        "vehicle": [self.link.target_system, self.link.target_component]})
         self._check_faults(t)
         self._check_deviation(t)
         if self._deferred is not None and self.estimator.ready():
