@@ -147,11 +147,11 @@ class StateEstimator:
     def _pack(self, f: PackFrame) -> None:
         b = self._pack_index.get(f.pack)
         if b is None:
-            self.counters["unknown_pack"] += 1
+            self._skip("unknown_pack", f"pack frame for unknown pack {f.pack!r} skipped")
             return
         t = float(f.time_s)
-        if t < self.pack_time[b]:
-            self.counters["out_of_order"] += 1
+        if not t >= self.pack_time[b]:
+            self._skip("out_of_order", f"pack {f.pack}: frame at {t} s older than the last ({self.pack_time[b]} s) skipped")
             return
         cur = _num(f.current_a)
         ref = self._reference_current(b, t)
@@ -195,11 +195,11 @@ class StateEstimator:
     def _motor(self, f: MotorFrame) -> None:
         q = self._motor_index.get(f.motor)
         if q is None:
-            self.counters["unknown_motor"] += 1
+            self._skip("unknown_motor", f"motor frame for unknown motor {f.motor!r} skipped")
             return
         t = float(f.time_s)
-        if t < self.motor_time[q]:
-            self.counters["out_of_order"] += 1
+        if not t >= self.motor_time[q]:
+            self._skip("out_of_order", f"motor {f.motor}: frame at {t} s older than the last ({self.motor_time[q]} s) skipped")
             return
         cur = _num(f.current_a)
         if math.isfinite(cur):
@@ -239,6 +239,12 @@ class StateEstimator:
         row[[kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX]] *= float(capacity_scale)
         self.packs.set_params(b, row)
         self.counters["parameter_updates"] += 1
+
+    def _skip(self, kind: str, message: str) -> None:
+        """Count a skipped frame; warn on the first of each kind (the counters tell the rest)."""
+        if not self.counters[kind]:
+            log.warning("%s (further ones counted in Estimate.counters[%r])", message, kind)
+        self.counters[kind] += 1
 
     # ---- read-outs --------------------------------------------------------------------------------
     def missing(self, now: float | None = None) -> tuple[str, ...]:
