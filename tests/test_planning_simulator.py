@@ -57,8 +57,12 @@ def test_coarse_planning_step_gives_the_1s_verdicts(sim9):
     coarse = sim9.evaluate(routes)
     fine = sim9.evaluate(routes, dt_s=1.0)
     assert coarse.feasible.any() and (~coarse.feasible).any()
-    np.testing.assert_array_equal(coarse.feasible, fine.feasible)
-    np.testing.assert_array_equal(coarse.reward, fine.reward)
+    # never optimistic: what the planning step calls feasible flies at 1 s too ...
+    assert not np.any(coarse.feasible & ~fine.feasible)
+    # ... and it gives up at most a sliver at the boundary (the verdict margin)
+    assert np.mean(coarse.feasible == fine.feasible) > 0.99
+    same = coarse.feasible == fine.feasible
+    np.testing.assert_array_equal(coarse.reward[same], fine.reward[same])
     assert np.abs(coarse.final_soc - fine.final_soc).max() < 0.01
 
 
