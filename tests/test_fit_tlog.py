@@ -58,3 +58,18 @@ def test_cli_fits_all_packs_from_tlogs(tlogs, tmp_path):
         assert d["pack"] == p
     ps = ParameterSet.from_json((out / "parameters.json").read_text())
     assert set(ps.provenance["packs"]) == set(PACK_NAMES)
+
+
+def test_cli_fit_set_learns_packs_and_motors(tlogs, tmp_path):
+    (a, _), (b, _), (c, _) = tlogs
+    out = tmp_path / "set"
+    set_file = tmp_path / "learned.json"
+    rc = main(["fit", "set", "--train", str(a), "--val", str(b), "--test", str(c), "--out", str(out),
+               "--set-out", str(set_file), "--name", "learned_t", "--starts", "2", "--sa-generations", "8",
+               "--lm-max-nfev", "4", "--quiet", "--no-plots"])
+    assert rc == 0
+    ps = ParameterSet.from_json(set_file.read_text())
+    assert ps.name == "learned_t" and set(ps.provenance["packs"]) == set(PACK_NAMES) and "motor" in ps.provenance
+    m = json.loads((out / "motor" / "result.json").read_text())
+    assert ps.motor.C_t == m["parameters"]["C_t"] and ps.motor.P_iron == m["parameters"]["P_iron"]
+    assert ps.provenance["files"]["test"] == [str(c)]

@@ -58,6 +58,10 @@ def register(subparsers) -> None:
     st.add_argument("--name", default="learned")
     st.add_argument("--note", default="", help="free text stored in the set's provenance")
     st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--starts", type=int, default=10)
+    st.add_argument("--sa-generations", type=int, default=None)
+    st.add_argument("--sa-proposals", type=int, default=None)
+    st.add_argument("--lm-max-nfev", type=int, default=None)
     st.add_argument("--workers", type=int, default=2)
     st.add_argument("--base", default="previous_si")
     st.add_argument("--reference", default="previous_si")
@@ -213,14 +217,13 @@ def run_set(args: argparse.Namespace) -> int:
     from gcs_pdm.fitting.search import SearchSettings
     from gcs_pdm.fitting.tables import FlightDataError
 
-    settings = FitSettings(search=SearchSettings(seed=args.seed), base=args.base, reference=args.reference,
-                           workers=args.workers)
     try:
+        settings = _settings(args)
         merged, results = learn_from_tlogs(args.train, args.val, args.test, settings, name=args.name,
                                            provenance={"source": "gcs-pdm fit set", "note": args.note} if args.note
                                            else {"source": "gcs-pdm fit set"},
                                            progress=_ProgressLine("fit set: ", args.quiet))
-    except (FlightDataError, KeyError) as exc:
+    except (FlightDataError, KeyError, ValueError) as exc:
         print(f"fit: {exc}", file=sys.stderr)
         return 2
     for part, res in results.items():
