@@ -31,7 +31,7 @@ def fit(flights):
 
 
 def test_result_json_round_trip_and_fields(fit):
-    d = json.loads(json.dumps(fit.to_dict()))
+    d = json.loads(json.dumps(fit.to_dict(), allow_nan=False))  # strict JSON
     assert d["component"] == "battery" and d["pack"] == "ULA20"
     assert set(d["learned"]) == {"R_s", "R_p", "R_cp0", "R_cp1", "R_cp2", "C_s", "C_b", "C_cp", "C_t", "h"}
     for which in ("learned", "reference"):

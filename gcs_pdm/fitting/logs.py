@@ -197,7 +197,7 @@ def write_outputs(result: "FitResult", out_dir: str | Path, plots: bool = True) 
     (out / "predictions").mkdir(parents=True, exist_ok=True)
     written: dict[str, Path] = {}
     res_path = out / "result.json"
-    res_path.write_text(json.dumps(result.to_dict(), indent=2, allow_nan=True))
+    res_path.write_text(json.dumps(result.to_dict(), indent=2, allow_nan=False))
     written["result"] = res_path
     for p in result.predictions:
         cols = {"time_s": p.time_s}

@@ -141,8 +141,9 @@ class FitResult:
         return motor_from_vector(np.array([self.parameters[k] for k in kernel.MOTOR_PARAMS]))
 
     def to_dict(self) -> dict:
-        """The ``result.json`` document (docs/fitting.md describes every field)."""
-        return {
+        """The ``result.json`` document (docs/fitting.md describes every field); strict JSON: an
+        error that could not be computed (no samples) is null, never NaN."""
+        return _json_safe({
             "format": "gcs-pdm-fit/1",
             "component": self.component,
             "pack": self.pack,
@@ -157,7 +158,19 @@ class FitResult:
             "rejected": [r.to_dict() for r in self.rejected],
             "provenance": {"settings": self.settings.to_dict(), "seed": self.settings.search.seed,
                            "seconds": self.seconds, "method": "SA x starts -> LM each -> lowest validation error"},
-        }
+        })
+
+
+def _json_safe(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
 
 
 # ---- helpers ---------------------------------------------------------------------------------------
