@@ -5,7 +5,7 @@
 1. clean every flight (:mod:`gcs_pdm.fitting.cleaning`); rejected flights are reported, not dropped;
 2. per stage — battery: *electrical* (R_s, R_p, R_cp0, R_cp1, R_cp2, C_s, C_b, C_cp on voltage),
    then *thermal* (C_t, h on pack temperature, with the learned circuit's R); motor: *thermal*
-   (C_t, h on the bracket temperature) — simulated annealing from ``starts`` random points inside
+   (C_t, h, P_iron on the bracket temperature) — simulated annealing from ``starts`` random points inside
    the expected ranges, Levenberg–Marquardt from each annealing result, and the LM solution with the
    lowest validation error kept;
 3. errors (RMSE, mean absolute, max; temperatures in °C and °F) per flight and overall for train,
@@ -373,7 +373,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
 def fit_motor(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
               settings: FitSettings = FitSettings(), *, progress: Progress | None = None,
               should_stop: ShouldStop | None = None) -> FitResult:
-    """Learn the motors' thermal parameters (C_t, h) from mean motor current and the bracket sensor."""
+    """Learn the motors' thermal parameters (C_t, h and the core loss P_iron) from the mean motor
+    current and the bracket sensor."""
     t_start = time.perf_counter()
     stepper = _Stepper(progress, should_stop)
     stepper.report(0.0, "cleaning")
