@@ -122,7 +122,11 @@ class MotorPowerLossDetector:
                     self._active_samples[name].append(mq)
                 mag = float(np.mean(self._active_samples[name])) if self._active_samples[name] else mq
                 conf = _phi((mq - self.config.clear_threshold) / spread) if deb.active else 0.0
-                rpm_expected = float(shaft_rpm((p0 + p1) / (1.0 + 0.05 * abs(med))))
+                # the propeller gets what the motors deliver less the faulted rotor's drag (kernel:
+                # fault_drag = 0.1 of its share) and its unpowered no-load loss
+                v_f = v_fwd if med > 0 else v_aft
+                p_prop = (p0 + p1 - abs(med) * self.motor[kernel.M_I0] * v_f) / (1.0 + 0.05 * abs(med))
+                rpm_expected = float(shaft_rpm(max(p_prop, 0.0)))
                 evidence = {"median_m": round(med, 4), "n_samples": len(self._active_samples[name]),
                             "power_fwd_w": round(p0, 1), "power_aft_w": round(p1, 1),
                             "current_fwd_a": round(i_fwd, 2), "current_aft_a": round(i_aft, 2),

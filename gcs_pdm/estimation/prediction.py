@@ -249,9 +249,18 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
 
 def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
                            fault: np.ndarray | None = None, **kw) -> Prediction:
-    """``predict`` from a ``StateEstimator``'s current state."""
+    """``predict`` from a ``StateEstimator``'s current state and its own (possibly adopted) parameters.
+
+    The samples' SoC spread is the estimate's full one: the filter's covariance plus the capacity
+    mismatch the estimator adds to ``Estimate.soc_sd`` (``EstimatorConfig.capacity_rel_sigma``),
+    which the filter cannot see but which biases its SoC just the same."""
     tm, tm_sd = estimator.motors.temperature()
     tm = np.where(np.isfinite(tm), tm, estimator.ambient_c)
     tm_sd = np.where(np.isfinite(tm_sd), tm_sd, 2.0)
-    return predict((estimator.packs.params, estimator.motors.params[0]), estimator.packs.mean, estimator.packs.cov, tm, tm_sd, load, rng=rng,
+    packs = estimator.packs
+    cov = packs.cov.copy()
+    soc = kernel.state_of_charge(packs.params, packs.mean)
+    extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * packs.params[:, kernel.I_CMAX]
+    cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    return predict((packs.params, estimator.motors.params[0]), packs.mean, cov, tm, tm_sd, load, rng=rng,
                    n_samples=n_samples, fault=fault, **kw)
