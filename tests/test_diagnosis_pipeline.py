@@ -100,3 +100,26 @@ def test_recorded_fault_flight_replays_to_its_fault():
     assert f["magnitude"] == pytest.approx(injected["magnitude"], abs=0.02)
     # frame time holds the last timed message (up to 5 s here), so allow that much before onset
     assert -5.0 <= f["time_s"] - injected["time_s"] < 15.0
+
+
+def test_disordered_and_malformed_frames_do_not_break_the_pipeline():
+    from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
+
+    flight = fly_synthetic(true_parameters(), np.random.default_rng(26), duration_s=400.0)
+    frames = list(flight.frames)
+    rng = np.random.default_rng(0)
+    # swap neighbours here and there, and sprinkle junk
+    for k in rng.choice(len(frames) - 1, size=200, replace=False):
+        frames[k], frames[k + 1] = frames[k + 1], frames[k]
+    frames.insert(500, PackFrame(float("nan"), "LLF20", 20.0, 10.0, 25.0))
+    frames.insert(600, MotorFrame(100.0, "middle", 10.0, 4000.0, 30.0))
+    frames.insert(700, AmbientFrame(100.0, None))
+    p = DiagnosisPipeline(default_set())
+    for fr in frames:
+        p(fr)
+    c = p.estimator.estimate().counters
+    assert c["out_of_order"] > 0 and c["unknown_motor"] == 1
+    assert p.faults == []
+    e = p.estimator.estimate()
+    k = min(int(np.searchsorted(flight.time_s, e.time_s)), flight.time_s.size - 1)
+    assert np.all(np.abs(e.soc - flight.soc[k]) < 3 * e.soc_sd)

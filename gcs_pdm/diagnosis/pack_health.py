@@ -159,8 +159,10 @@ class PackHealthMonitor:
 
     def add(self, b: int, time_s: float, current_a: float, voltage_v: float, ambient_c: float,
             ) -> None:
-        if not (math.isfinite(current_a) and math.isfinite(voltage_v)):
+        if not (math.isfinite(current_a) and math.isfinite(voltage_v) and math.isfinite(time_s)):
             return
+        if self._buf[b] and time_s < self._buf[b][-1][0]:
+            return  # out of order: the estimator drops (and counts) it too
         self._buf[b].append((time_s, current_a, voltage_v, ambient_c))
 
     def check(self, time_s: float) -> list[tuple[str, Fault]]:
