@@ -16,7 +16,8 @@ a predicted limit violation on a flight that did fail). A limit violation predic
 vehicle finished counts as a false alarm. Recorded flights in ``fixtures/flights/`` (tlog + truth json)
 are replayed too when present.
 
-Run: ``python scripts/evaluate_diagnosis.py`` (about 3 minutes on one core; ``--quick`` for fewer flights).
+Run: ``python scripts/evaluate_diagnosis.py`` (1.5–5 minutes on one core; ``--quick`` for fewer flights,
+``--fixtures-only`` / ``--no-fixtures`` for one half).
 """
 from __future__ import annotations
 
