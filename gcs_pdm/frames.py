@@ -10,8 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Union
 
-PACK_NAMES: tuple[str, ...] = ("LLF20", "ULA20", "LRF40", "URA40")
-MOTOR_NAMES: tuple[str, ...] = ("fwd", "aft")
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES  # noqa: F401 (the one definition)
 
 
 @dataclass(frozen=True, slots=True)

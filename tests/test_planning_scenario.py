@@ -7,8 +7,8 @@ import pytest
 
 from gcs_pdm.models.params import builtin
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
-from gcs_pdm.planning.scenario import (Home, PlanLimits, Scenario, ScenarioError, Waypoint, enu_from_geodetic,
-                                       geodetic_from_enu)
+from gcs_pdm.geo import enu_from_geodetic, geodetic_from_enu
+from gcs_pdm.planning.scenario import Home, PlanLimits, Scenario, ScenarioError, Waypoint
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
 

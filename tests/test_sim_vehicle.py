@@ -16,7 +16,7 @@ from gcs_pdm.mavlink.dialect import mavlink2, mavutil
 from gcs_pdm.mavlink.mission_client import MissionClient
 from gcs_pdm.missions import as_sent, same_items
 from gcs_pdm.models import kernel
-from gcs_pdm.sim.flight import enu_from_geodetic
+from gcs_pdm.geo import enu_from_geodetic
 from gcs_pdm.sim.model import SimConfig
 from gcs_pdm.sim.routes import mission_from_enu
 from gcs_pdm.sim.vehicle import SimulatedVehicle

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 from gcs_pdm import missions
 from gcs_pdm.missions import MissionItem
 from gcs_pdm.planning.plan import Plan
-from gcs_pdm.planning.scenario import Scenario, geodetic_from_enu
+from gcs_pdm.geo import geodetic_from_enu
+from gcs_pdm.planning.scenario import Scenario
 
 MAV_CMD_DO_CHANGE_SPEED = 178
 SPEED_TYPE_AIRSPEED = 0.0

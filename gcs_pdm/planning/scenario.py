@@ -16,29 +16,16 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from gcs_pdm.geo import enu_from_geodetic, geodetic_from_enu  # noqa: F401 (geodetic_from_enu: service)
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, builtin
 from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState
 
-EARTH_RADIUS_M = 6_371_000.0
 FORMAT_VERSION = 1
 
 
 class ScenarioError(ValueError):
     """A scenario that cannot be planned; the message names the offending field."""
-
-
-def enu_from_geodetic(lat_deg: float, lon_deg: float, home_lat_deg: float, home_lon_deg: float) -> tuple[float, float]:
-    """(east, north) metres of a point about home (equirectangular; fine over tens of km)."""
-    north = math.radians(lat_deg - home_lat_deg) * EARTH_RADIUS_M
-    east = math.radians(lon_deg - home_lon_deg) * EARTH_RADIUS_M * math.cos(math.radians(home_lat_deg))
-    return east, north
-
-
-def geodetic_from_enu(east_m: float, north_m: float, home_lat_deg: float, home_lon_deg: float) -> tuple[float, float]:
-    lat = home_lat_deg + math.degrees(north_m / EARTH_RADIUS_M)
-    lon = home_lon_deg + math.degrees(east_m / (EARTH_RADIUS_M * math.cos(math.radians(home_lat_deg))))
-    return lat, lon
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,6 @@ from dataclasses import dataclass
 
 from gcs_pdm.models.powertrain import EDGE_540, G, Airframe
 
-EARTH_RADIUS_M = 6_371_000.0
-
 
 @dataclass(frozen=True)
 class FlightLimits:
@@ -60,19 +58,6 @@ class Kinematics:
 
 def wrap_pi(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def enu_from_geodetic(lat_deg: float, lon_deg: float, home_lat_deg: float, home_lon_deg: float) -> tuple[float, float]:
-    """(east, north) m of a point about home (equirectangular; well under a metre over a few km)."""
-    north = math.radians(lat_deg - home_lat_deg) * EARTH_RADIUS_M
-    east = math.radians(lon_deg - home_lon_deg) * EARTH_RADIUS_M * math.cos(math.radians(home_lat_deg))
-    return east, north
-
-
-def geodetic_from_enu(east_m: float, north_m: float, home_lat_deg: float, home_lon_deg: float) -> tuple[float, float]:
-    lat = home_lat_deg + math.degrees(north_m / EARTH_RADIUS_M)
-    lon = home_lon_deg + math.degrees(east_m / (EARTH_RADIUS_M * math.cos(math.radians(home_lat_deg))))
-    return lat, lon
 
 
 def course_heading(course_rad: float, airspeed: float, wind_en: tuple[float, float]) -> float:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from gcs_pdm.geo import enu_from_geodetic, geodetic_from_enu
 from gcs_pdm.missions import (MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF,
                               MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT, MissionItem)
 from gcs_pdm.models import kernel
@@ -340,7 +341,7 @@ class VehicleModel:
         if item.x == 0 and item.y == 0:
             east, north = self.kin.east_m, self.kin.north_m
         else:
-            east, north = flight.enu_from_geodetic(item.x / 1e7, item.y / 1e7, c.home_lat_deg, c.home_lon_deg)
+            east, north = enu_from_geodetic(item.x / 1e7, item.y / 1e7, c.home_lat_deg, c.home_lon_deg)
         alt = float(item.z)
         if item.frame in (MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT):
             alt -= c.home_alt_m
@@ -653,7 +654,7 @@ class VehicleModel:
 
     def state(self) -> TruthState:
         k, c = self.kin, self.config
-        lat, lon = flight.geodetic_from_enu(k.east_m, k.north_m, c.home_lat_deg, c.home_lon_deg)
+        lat, lon = geodetic_from_enu(k.east_m, k.north_m, c.home_lat_deg, c.home_lon_deg)
         rho = float(air_density(c.home_alt_m + k.alt_m, c.ground_temp_c))
         v = kernel.terminal_voltage(self._pack_matrix, self.pack_state)
         return TruthState(

@@ -9,7 +9,7 @@ from typing import Sequence
 
 from gcs_pdm import missions
 from gcs_pdm.missions import MissionItem, renumber
-from gcs_pdm.sim.flight import geodetic_from_enu
+from gcs_pdm.geo import geodetic_from_enu
 from gcs_pdm.sim.model import MAV_CMD_DO_CHANGE_SPEED
 
 
