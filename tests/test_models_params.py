@@ -91,3 +91,17 @@ def test_perturbed_sets_differ_but_stay_physical():
     assert np.all((end_r > 0.85 - 1e-9) & (end_r < 1.15 + 1e-9))
     i_cmax = PACK_PARAMS.index("C_max")
     np.testing.assert_array_equal(m[:, i_cmax], b[:, i_cmax])
+
+
+def test_degraded_pack_holds_less_and_resists_more():
+    base = P.default_set()
+    aged = P.degraded(base, "LRF40", capacity=0.8, resistance=1.5)
+    b0, b1 = base.packs["LRF40"].battery, aged.packs["LRF40"].battery
+    assert b1.C_max == pytest.approx(0.8 * b0.C_max) and b1.C_b == pytest.approx(0.8 * b0.C_b)
+    assert b1.q_max / b1.C_b == pytest.approx(21.0)  # still full at 4.2 V/cell
+    assert b1.R_s == pytest.approx(1.5 * b0.R_s) and b1.R_cp0 == pytest.approx(1.5 * b0.R_cp0)
+    assert b1.C_s == b0.C_s and aged.packs["LLF20"] == base.packs["LLF20"]
+    with pytest.raises(P.ParameterError, match="no pack"):
+        P.degraded(base, "XYZ", 0.9)
+    with pytest.raises(P.ParameterError, match="LRF40"):
+        P.degraded(base, "LRF40", capacity=0.0)

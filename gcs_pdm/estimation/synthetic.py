@@ -17,7 +17,7 @@ import numpy as np
 
 from gcs_pdm.frames import AirdataFrame, AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, pack_from_vector, pack_vector
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, degraded
 from gcs_pdm.models.powertrain import (Limits, PowertrainState, air_density, ambient_temperature, shaft_power,
                                        shaft_rpm)
 
@@ -97,14 +97,8 @@ def mission_profile(rng: np.random.Generator, duration_s: float = 1200.0, step_s
 
 def degrade(params: ParameterSet, degradation: tuple[PackDegradation, ...]) -> ParameterSet:
     out = params
-    ix = {k: kernel.PACK_PARAMS.index(k) for k in ("C_b", "q_max", "C_max", "R_s", "R_cp0")}
     for d in degradation:
-        v = pack_vector(out.packs[d.pack]).copy()
-        for k in ("C_b", "q_max", "C_max"):
-            v[ix[k]] *= d.capacity
-        for k in ("R_s", "R_cp0"):
-            v[ix[k]] *= d.resistance
-        out = out.with_pack(d.pack, pack_from_vector(v))
+        out = degraded(out, d.pack, d.capacity, d.resistance)
     return out
 
 

@@ -355,6 +355,21 @@ def default_set() -> ParameterSet:
     return BUILTIN_SETS[DEFAULT_SET_NAME]
 
 
+def degraded(params: ParameterSet, pack: str, capacity: float = 1.0, resistance: float = 1.0) -> ParameterSet:
+    """``params`` with one pack aged: its charge-holding capacitance and capacity scaled by
+    ``capacity`` (C_b, q_max, C_max together, so it is still full at 4.2 V/cell) and its plateau
+    resistances R_s and R_cp0 by ``resistance``."""
+    if pack not in params.packs:
+        raise ParameterError(f"packs: no pack {pack!r}; have {', '.join(PACK_NAMES)}")
+    if not (capacity > 0.0 and resistance > 0.0):
+        raise ParameterError(f"degradation of {pack}: capacity and resistance factors must be > 0, "
+                             f"got {capacity!r}, {resistance!r}")
+    b = params.packs[pack].battery
+    aged = dataclasses.replace(b, C_b=b.C_b * capacity, q_max=b.q_max * capacity, C_max=b.C_max * capacity,
+                               R_s=b.R_s * resistance, R_cp0=b.R_cp0 * resistance)
+    return params.with_pack(pack, PackParams(aged, params.packs[pack].thermal))
+
+
 def perturbed(base: ParameterSet, rng: np.random.Generator, rel: float = 0.1, name: str = "perturbed",
               ) -> ParameterSet:
     """A set whose parameters differ from ``base`` by random factors in [1-rel, 1+rel]

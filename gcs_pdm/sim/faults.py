@@ -16,8 +16,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from gcs_pdm.models import kernel
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, pack_from_vector, pack_vector
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, degraded
 
 
 class FaultSpecError(ValueError):
@@ -144,14 +143,8 @@ def parse_degradation(text: str) -> Degradation:
 def apply_degradation(params: ParameterSet, degradations: "tuple[Degradation, ...] | list[Degradation]") -> ParameterSet:
     """The parameter set with each degradation applied (several on one pack compound)."""
     out = params
-    ix = {k: kernel.PACK_PARAMS.index(k) for k in ("C_b", "q_max", "C_max", "R_s", "R_cp0")}
     for d in degradations:
-        v = pack_vector(out.packs[d.pack]).copy()
-        for k in ("C_b", "q_max", "C_max"):
-            v[ix[k]] *= d.capacity
-        for k in ("R_s", "R_cp0"):
-            v[ix[k]] *= d.resistance
-        out = out.with_pack(d.pack, pack_from_vector(v))
+        out = degraded(out, d.pack, d.capacity, d.resistance)
     if degradations:
         out = out.replace(name=f"{params.name}+degraded",
                           provenance={**dict(params.provenance), "degradation": [d.describe() for d in degradations]})
