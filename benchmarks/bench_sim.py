@@ -1,4 +1,4 @@
-"""Speed of the simulated vehicle: ``python -m gcs_pdm.sim.bench`` prints ONE JSON object on its last line.
+"""Speed of the simulated vehicle: ``python benchmarks/bench_sim.py`` prints ONE JSON object on its last line.
 
 Figures: simulated seconds per wall second of a lock-step offline flight (model + kernel + telemetry
 encoding at the live default rates and at the recording rates), and the wall time of one physics tick.
