@@ -45,7 +45,16 @@ def _serve(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"gcs-pdm serve: {exc}")
         return 2
-    return serve(config, objectives=args.objectives)
+    from gcs_pdm.service.storage import Conflict, NotFound
+
+    try:
+        return serve(config, objectives=args.objectives)
+    except NotFound as exc:  # e.g. parameter_set names no stored set
+        print(f"gcs-pdm serve: not found: {exc.args[0]}")
+        return 2
+    except Conflict as exc:
+        print(f"gcs-pdm serve: {exc}")
+        return 2
 
 
 def _demo(args: argparse.Namespace) -> int:
