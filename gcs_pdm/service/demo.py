@@ -178,13 +178,30 @@ class TerminalPrinter:
             self.out(f"{stamp} {who} STATUSTEXT '{d.get('text')}'")
 
 
+def http_json(base_url: str, path: str, body: dict | None = None, token: str | None = None) -> tuple[int, object]:
+    """One JSON request with the standard library (the demo needs no HTTP client package)."""
+    import json
+    import urllib.error
+    import urllib.request
+
+    req = urllib.request.Request(base_url + path, method="GET" if body is None else "POST",
+                                 data=None if body is None else json.dumps(body).encode())
+    req.add_header("Content-Type", "application/json")
+    if token:
+        req.add_header("Authorization", f"Bearer {token}")
+    try:
+        with urllib.request.urlopen(req, timeout=5.0) as resp:
+            return resp.status, json.loads(resp.read() or b"null")
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read() or b"null")
+
+
 class Operator:
     """In ``advise`` mode, an operator at the HTTP API who approves every feasible proposal."""
 
     def __init__(self, base_url: str, token: str, out=print):
-        import httpx
-
-        self.client = httpx.Client(base_url=base_url, timeout=5.0, headers={"Authorization": f"Bearer {token}"})
+        self.base_url = base_url
+        self.token = token
         self.out = out
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="demo-operator", daemon=True)
@@ -197,16 +214,16 @@ class Operator:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
-        self.client.close()
 
     def _run(self) -> None:
         while not self._stop.wait(0.1):
             try:
-                for plan in self.client.get("/missions/proposed").json():
+                for plan in http_json(self.base_url, "/missions/proposed")[1]:
                     if plan["chosen"]["feasible"] and plan["id"] not in self.approved:
-                        r = self.client.post(f"/missions/plans/{plan['id']}/approve", json={"note": "demo operator"})
+                        code, _ = http_json(self.base_url, f"/missions/plans/{plan['id']}/approve",
+                                            {"note": "demo operator"}, self.token)
                         self.approved.append(plan["id"])
-                        self.out(f"[         ] OPERATOR approves plan {plan['id']} over HTTP: {r.status_code}")
+                        self.out(f"[         ] OPERATOR approves plan {plan['id']} over HTTP: {code}")
             except Exception as exc:  # noqa: BLE001 - the operator retries
                 log.debug("operator: %s", exc)
 
@@ -335,11 +352,8 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
                         fault_injected_s=injected, sim_time_s=float(s.time_s))
     result.predicted = summarise_predictions(service)
     try:
-        import httpx
-
-        with httpx.Client(base_url=http.url, timeout=5.0) as client:
-            result.http = {path: client.get(path).json() for path in ("/status", "/faults", "/missions/history",
-                                                                       "/missions/uploads", "/missions/current")}
+        result.http = {path: http_json(http.url, path)[1] for path in ("/status", "/faults", "/missions/history",
+                                                                        "/missions/uploads", "/missions/current")}
     except Exception as exc:  # noqa: BLE001 - the summary does not depend on it
         log.warning("could not read the HTTP API at the end: %s", exc)
     if compare:
