@@ -18,7 +18,7 @@ from gcs_pdm.estimation.synthetic import fly_synthetic
 from gcs_pdm.frames import MissionProgressFrame, PositionFrame
 from gcs_pdm.planning.mission import plan_to_mission
 from gcs_pdm.planning.plan import make_plan
-from gcs_pdm.planning.scenario import geodetic_from_enu
+from gcs_pdm.geo import geodetic_from_enu
 from gcs_pdm.planning.simulator import VehicleSimulator, original_order
 from gcs_pdm.planning.table3_scenario import TABLE3_HOME, TABLE3_WAYPOINTS, preflight_scenario
 from gcs_pdm.service.config import load_config

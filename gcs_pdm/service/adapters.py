@@ -129,7 +129,8 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
     ArduPilot layout and the item to make current after the upload)."""
     from gcs_pdm.planning.mission import plan_to_mission
     from gcs_pdm.planning.plan import make_plan
-    from gcs_pdm.planning.scenario import Home, Scenario, Waypoint, enu_from_geodetic
+    from gcs_pdm.geo import enu_from_geodetic
+    from gcs_pdm.planning.scenario import Home, Scenario, Waypoint
     from gcs_pdm.planning.simulator import VehicleSimulator
     from gcs_pdm.service.live import item_to_json
 

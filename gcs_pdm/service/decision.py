@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 from gcs_pdm import missions as M
+from gcs_pdm.geo import EARTH_RADIUS_M
 
-EARTH_RADIUS_M = 6_371_008.8
 #: a mission waypoint within this distance of a catalogue waypoint is that waypoint
 MATCH_RADIUS_M = 30.0
 

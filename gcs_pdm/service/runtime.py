@@ -73,7 +73,7 @@ class Service:
         return self.load_objectives_scenario(Scenario.from_json(Path(path).read_text()))
 
     def load_objectives_scenario(self, sc) -> list[CatalogueWaypoint]:
-        from gcs_pdm.planning.scenario import geodetic_from_enu
+        from gcs_pdm.geo import geodetic_from_enu
 
         h = sc.home
         cat = []
