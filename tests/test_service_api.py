@@ -51,6 +51,7 @@ def test_health_and_status(client):
     ("post", "/missions/plans/1/reject", None),
     ("post", "/missions/replan", None),
     ("post", "/missions/refresh", None),
+    ("post", "/missions/uploads/1/revert", None),
     ("put", "/policy", {"policy": "auto"}),
     ("post", "/parameter-sets", {"parameter_set": {}}),
     ("post", "/parameter-sets/paper_si/activate", None),
@@ -107,6 +108,10 @@ def test_missions_without_a_link(client, service):
     assert client.get("/missions/uploads").json() == []
     assert client.post("/missions/replan", headers=AUTH).status_code == 409
     assert client.post("/missions/refresh", headers=AUTH).status_code == 409
+    assert client.post("/missions/uploads/7/revert", headers=AUTH).status_code == 404
+    uid = service.store.add_upload(pid, "confirmed", {"items": [item], "previous_items": [item]})
+    r = client.post(f"/missions/uploads/{uid}/revert", headers=AUTH)
+    assert r.status_code == 409 and "no vehicle link" in r.json()["detail"]
 
 
 def test_policy(client):

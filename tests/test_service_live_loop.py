@@ -154,6 +154,16 @@ def test_auto_policy_diagnoses_replans_uploads_and_confirms(tmp_path, frames):
         assert loop.mission_items is not None and M.same_items(loop.mission_items, vehicle.items)
         kinds = [e.kind for e in svc.events.since(0)]
         assert kinds.index("fault") < kinds.index("plan") < kinds.index("upload")
+        # the operator puts the original mission back: it is uploaded whole, resuming at waypoint 3
+        n_up = len(vehicle.uploads)
+        rid = svc.revert_upload(uploads[-1]["id"], "operator knows better")
+        deadline = time.monotonic() + 20
+        while len(vehicle.uploads) == n_up and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.2)
+        assert M.same_items([M.as_sent(i) for i in vehicle.uploads[-1]], [M.as_sent(i) for i in mission.items])
+        assert vehicle.current == mission.waypoint_seq[3]
+        assert svc.store.plan(rid)["status"] == "uploaded" and svc.store.plan(rid)["trigger"].startswith("operator: revert")
     finally:
         svc.close()
 

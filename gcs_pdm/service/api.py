@@ -130,6 +130,12 @@ def create_app(service) -> FastAPI:
     def uploads(limit: int = Query(100, ge=1, le=1000)):
         return _finite(service.store.uploads(limit=limit))
 
+    @app.post("/missions/uploads/{upload_id}/revert", response_model=S.PlanOut, status_code=202, dependencies=auth)
+    def revert(upload_id: int, body: S.Decision | None = None):
+        """Upload again the mission that this upload replaced (the operator's choice; not re-planned)."""
+        pid = service.revert_upload(upload_id, (body or S.Decision()).note)
+        return _finite(service.store.plan(pid))
+
     @app.post("/missions/replan", response_model=S.JobCreated, status_code=202, dependencies=auth)
     def replan():
         service.request_replan("operator")

@@ -30,8 +30,8 @@ from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, St
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service import adapters
-from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, remaining_route, route_of_items,
-                                      same_mission)
+from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, match_items, remaining_route,
+                                      route_of_items, same_mission)
 
 log = logging.getLogger(__name__)
 
@@ -201,8 +201,6 @@ class LiveLoop:
     def _reached(self, seq: int, t: float) -> None:
         if not self.mission_items or not self.catalogue:
             return
-        from gcs_pdm.service.decision import match_items
-
         number = match_items(self.mission_items, self.catalogue).get(seq)
         if number is not None and number not in self.visited:
             self.visited.add(number)
@@ -478,6 +476,26 @@ class LiveLoop:
                          chosen["reward_reached"], chosen["objective"], chosen.get("cause"),
                          {k: chosen[k] for k in ("final_soc", "flight_time_s") if k in chosen})
         self._worker.submit(self._guard, self.upload, plan_id, items, cand, None, plan.get("current_seq", 1))
+
+    def revert(self, upload: dict, note: str) -> int:
+        """A plan that restores ``upload``'s previous mission, uploaded on the worker; its id."""
+        items = [item_from_json(d) for d in upload["previous_items"]]
+        route = tuple(route_of_items(items, self.catalogue or []))
+        current = self.service.state.get("mission")["current_seq"]
+        # resume where the restored mission would have the vehicle: its first unvisited waypoint
+        seq_of = {n: s for s, n in match_items(items, self.catalogue or []).items()}
+        todo = [seq_of[n] for n in route if n not in self.visited and n in seq_of]
+        current_seq = min(todo) if todo else max(len(items) - 1, 1)
+        chosen = Candidate("revert", route, True, 0.0, 0.0, 0.0, None, {})
+        body = {"reason": f"operator: revert upload {upload['id']}", "policy": self.service.policy,
+                "parameter_set": self.params.name, "chosen": chosen.to_dict(), "why": note or "operator revert",
+                "candidates": [], "items": [item_to_json(i) for i in items], "current_seq": current_seq,
+                "previous_items": [item_to_json(i) for i in (self.mission_items or [])], "vehicle_item_before": current}
+        pid = self.service.store.add_plan(body, body["reason"], "approved", self._time_s)
+        self.service.events.publish("plan", id=pid, status="approved", time_s=self._time_s, reason=body["reason"],
+                                    chosen=chosen.to_dict())
+        self._worker.submit(self._guard, self.upload, pid, items, chosen, None, current_seq)
+        return pid
 
     def upload(self, plan_id: int, items: list[M.MissionItem], chosen: Candidate, snap: Snapshot | None,
                current_seq: int = 1) -> bool:

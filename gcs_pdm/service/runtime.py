@@ -128,6 +128,17 @@ class Service:
             raise Conflict("no vehicle link: nothing to replan")
         self.loop.request_replan(reason)
 
+    def revert_upload(self, upload_id: int, note: str = "") -> int:
+        """Put back the mission an upload replaced (the operator's explicit choice: not re-planned)."""
+        up = next((u for u in self.store.uploads(limit=100000) if u["id"] == upload_id), None)
+        if up is None:
+            raise NotFound(f"upload {upload_id}")
+        if not up.get("previous_items"):
+            raise Conflict(f"upload {upload_id} recorded no previous mission")
+        if self.loop is None:
+            raise Conflict("no vehicle link: a mission cannot be uploaded")
+        return self.loop.revert(up, note)
+
     def refresh_mission(self) -> None:
         if self.loop is None:
             raise Conflict("no vehicle link: no mission to read")
