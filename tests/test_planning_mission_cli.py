@@ -10,7 +10,8 @@ from gcs_pdm.mavlink.mission_files import format_wpl, parse_wpl
 from gcs_pdm.models.params import builtin
 from gcs_pdm.planning.exact import exact_search
 from gcs_pdm.planning.mission import MAV_CMD_DO_CHANGE_SPEED, plan_to_mission
-from gcs_pdm.planning.scenario import Scenario, geodetic_from_enu
+from gcs_pdm.geo import geodetic_from_enu
+from gcs_pdm.planning.scenario import Scenario
 from gcs_pdm.planning.simulator import VehicleSimulator
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"

@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from gcs_pdm.geo import enu_from_geodetic, geodetic_from_enu  # noqa: F401 (geodetic_from_enu: service)
+from gcs_pdm.geo import enu_from_geodetic
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, builtin
 from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState
