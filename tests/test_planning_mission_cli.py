@@ -2,6 +2,7 @@
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from gcs_pdm import missions
@@ -105,3 +106,24 @@ def test_cli_scenarios_are_the_fixtures(tmp_path, capsys):
         assert made == kept
         for key, value in start_kept.items():
             assert start_made[key] == pytest.approx(value, rel=1e-9, abs=1e-5), key
+
+
+def test_truth_scoring_counts_a_missed_reserve_as_a_failed_plan():
+    import itertools
+
+    from gcs_pdm.planning.experiment import score_on_truth
+    from gcs_pdm.planning.exact import exact_search
+    from gcs_pdm.planning.simulator import FAIL_RESERVE, VehicleSimulator
+    from gcs_pdm.sim.truth import true_parameters
+
+    sc = Scenario.from_json((Path(__file__).resolve().parents[1] / "fixtures" / "scenarios" / "table3_9.json").read_text())
+    truth = VehicleSimulator(sc, true_parameters())
+    routes = [r for k in range(1, 6) for r in itertools.permutations(range(len(sc.waypoints)), k)][::5]
+    ev = truth.evaluate(routes)
+    score, lost, reserve_missed = score_on_truth(truth, routes)
+    assert reserve_missed.any() and ev.feasible.any()
+    assert np.all(score[reserve_missed] == 0) and np.all(score[lost] == 0)
+    np.testing.assert_array_equal(score[ev.feasible], ev.reward_reached[ev.feasible])
+    assert np.all(reserve_missed == (ev.cause == FAIL_RESERVE))
+    # the exact optimum under the same rules bounds every score
+    assert score.max() <= exact_search(truth).reward

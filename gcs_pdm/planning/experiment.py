@@ -8,13 +8,14 @@ For each sub-scenario (waypoints 1..n, the fault half way from 2 to 3, planning 
 * the stronger planner (PF + local search) with the learned parameters.
 
 Scoring ("rewards scored by the true vehicle model"): the chosen route is flown on the truth from
-the same start. It scores the rewards of its waypoints if the true vehicle gets home without a
-physical failure (pack cut-off or depletion, a temperature limit); a vehicle lost before landing
-scores 0 — a crashed aircraft delivers nothing — and is counted as "lost". The landing reserve is
-a planning margin, not a physical limit: a route that lands inside it still scores, and is counted
-as "reserve missed". Two references: ℛ is the exact optimum on the truth under the planners' own
-rules (reserve kept) — the route a planner with a perfect model would choose; ℛ₀ is the exact
-optimum on the truth with no reserve, which no route can beat. Rewards shown are those of the
+the same start, and judged by the rules the planners were given: it scores the rewards of its
+waypoints if the true vehicle gets home inside every limit with the landing reserve kept, and 0
+otherwise. A vehicle lost before landing (pack cut-off or depletion, a temperature limit) is
+counted as "lost"; one that lands inside the reserve — the operator's safety margin, which the
+plan promised to keep — is counted as "reserve missed". A model that is optimistic about energy
+thus pays for the plans it could not keep. Two references: ℛ is the exact optimum on the truth
+under those rules — the route a planner with a perfect model would choose, and a bound on every
+score; ℛ₀ is the exact optimum on the truth with no reserve. Rewards shown are those of the
 replanned waypoints (3..n); waypoints 1 and 2 (``reward_collected``) were collected before the
 fault by every planner alike.
 """
@@ -77,7 +78,7 @@ def score_on_truth(truth_sim: VehicleSimulator, routes: Sequence[Sequence[int]])
     ev = truth_sim.evaluate(routes)
     lost = ev.fail_leg >= 0
     reserve_missed = ev.cause == FAIL_RESERVE
-    score = np.where(lost, 0.0, ev.reward_reached)
+    score = np.where(ev.feasible, ev.reward_reached, 0.0)
     return score, lost, reserve_missed
 
 
@@ -122,7 +123,7 @@ def format_table3(rows: Sequence[Table3Row], *, prior_name: str, learned_name: s
     if note:
         lines.append(note)
     lines.append(f"rewards of the replanned waypoints 3..n (waypoints 1, 2 = {collected:g} collected before the fault); "
-                 "a vehicle lost before landing scores 0")
+                 "a route that does not get home with the landing reserve kept scores 0")
     lines.append("ℛ = exact optimum on the truth with the landing reserve, ℛ₀ = without; lost / reserve missed = "
                  "trials (prior / learned / PF+LS)")
     head = (f"{'scenario':<9} {'ℛ':>5} {'ℛ₀':>5}  {'μ_R(σ_R) prior':>15}  {'μ*_R(σ*_R) learned':>18}  "
