@@ -116,6 +116,25 @@ class RouteEvaluation(Outcome):
     reached: np.ndarray = None   # (B,) number of route waypoints reached
 
 
+def _sampled_legs(info: np.ndarray, dt_s: float) -> LegTable:
+    """Legs (m, m, [duration, distance, power, ambient, airspeed]) cut into equal samples of at most
+    ``dt_s``, padded to the longest leg."""
+    m = info.shape[0]
+    steps = np.where(info[..., 0] > 0, np.ceil(info[..., 0] / dt_s - 1e-9), 0).astype(np.int64)
+    L = max(int(steps.max()), 1)
+    dt = np.zeros((m, m, L))
+    power = np.zeros((m, m, L))
+    amb = np.zeros((m, m, L))
+    for i in range(m):
+        for j in range(m):
+            k = steps[i, j]
+            if k:
+                dt[i, j, :k] = info[i, j, 0] / k
+                power[i, j, :k] = info[i, j, 2]
+                amb[i, j, :k] = info[i, j, 3]
+    return LegTable(dt, power, amb, steps, info[..., 0], info[..., 1], info[..., 4])
+
+
 class VehicleSimulator:
     """Flies candidate routes of one scenario on one parameter set (the planner's model)."""
 
@@ -191,19 +210,7 @@ class VehicleSimulator:
                 info[i, j] = self._leg_profile(places[i], places[j], nominal)
         if optimise:
             info = self._optimise_airspeeds(places, info, np.asarray(candidates, dtype=np.float64))
-        steps = np.where(info[..., 0] > 0, np.ceil(info[..., 0] / self.dt_s - 1e-9), 0).astype(np.int64)
-        L = max(int(steps.max()), 1)
-        dt = np.zeros((m, m, L))
-        power = np.zeros((m, m, L))
-        amb = np.zeros((m, m, L))
-        for i in range(m):
-            for j in range(m):
-                k = steps[i, j]
-                if k:
-                    dt[i, j, :k] = info[i, j, 0] / k
-                    power[i, j, :k] = info[i, j, 2]
-                    amb[i, j, :k] = info[i, j, 3]
-        return LegTable(dt, power, amb, steps, info[..., 0], info[..., 1], info[..., 4])
+        return _sampled_legs(info, self.dt_s)
 
     def _optimise_airspeeds(self, places: np.ndarray, info: np.ndarray, candidates: np.ndarray) -> np.ndarray:
         """Per leg, the candidate airspeed that draws the least electrical energy from the start
@@ -317,20 +324,7 @@ class VehicleSimulator:
         other._set_verdict_limits()
         info = np.stack([self.legs.duration_s, self.legs.distance_m, self.legs.power[..., 0],
                          self.legs.ambient[..., 0], self.legs.airspeed], axis=-1)
-        steps = np.where(info[..., 0] > 0, np.ceil(info[..., 0] / other.dt_s - 1e-9), 0).astype(np.int64)
-        L = max(int(steps.max()), 1)
-        m = info.shape[0]
-        dt = np.zeros((m, m, L))
-        power = np.zeros((m, m, L))
-        amb = np.zeros((m, m, L))
-        for i in range(m):
-            for j in range(m):
-                k = steps[i, j]
-                if k:
-                    dt[i, j, :k] = info[i, j, 0] / k
-                    power[i, j, :k] = info[i, j, 2]
-                    amb[i, j, :k] = info[i, j, 3]
-        other.legs = LegTable(dt, power, amb, steps, info[..., 0], info[..., 1], info[..., 4])
+        other.legs = _sampled_legs(info, other.dt_s)
         return other
 
     def _evaluate(self, routes: Sequence[Sequence[int]]) -> RouteEvaluation:
