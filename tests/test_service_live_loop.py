@@ -7,6 +7,7 @@ record with the previous mission.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -269,5 +270,72 @@ def test_operator_fault_before_telemetry_is_planned_once_the_state_is_known(tmp_
         assert plan["faults"] == [{"motor": "aft", "magnitude": 0.7, "kind": "motor_power_loss"}]
         assert svc.store.faults(active_only=True)[0]["id"] == fid
         assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(0.3)
+    finally:
+        svc.close()
+
+
+# --- upload outcomes, driven directly (no flight, no planner) ------------------------------------
+
+class SetCurrentFails(FakeVehicleMissions):
+    """The mission is accepted, then MISSION_SET_CURRENT is lost."""
+
+    def set_current(self, seq):
+        from gcs_pdm.mavlink.mission_client import MissionTimeout
+
+        raise MissionTimeout("set_current: no MISSION_CURRENT")
+
+
+class AlteredReadback(FakeVehicleMissions):
+    """The vehicle stores something other than what was sent (a waypoint moved)."""
+
+    def upload(self, items):
+        super().upload(items)
+        wp = next(i for i in self.items if i.command == M.MAV_CMD_NAV_WAYPOINT)
+        self.items[wp.seq] = M.as_sent(dataclasses.replace(wp, lat_deg=wp.lat_deg + 0.01))
+
+
+def _direct_loop(tmp_path, vehicle_cls, mission):
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy="auto"))
+    svc.load_objectives_scenario(preflight_scenario(10))
+    link = FakeLink()
+    vehicle = vehicle_cls(mission.items)
+    loop = LiveLoop(svc, link, vehicle)
+    svc.attach_loop(loop)
+    loop._initial_download()
+    return svc, loop, link, vehicle
+
+
+def _new_mission():
+    """The Table III mission flown in another order: a plan the loop might upload."""
+    sc = preflight_scenario(10)
+    sim = VehicleSimulator(sc, true_parameters())
+    order = list(reversed(original_order(sc)))
+    return plan_to_mission(sc, make_plan(sim, order, "reversed"), airborne=True)
+
+
+def _upload_direct(svc, loop, new):
+    cand = Candidate("planner", tuple(range(10, 0, -1)), True, 100.0, 100.0, 100.0, None,
+                     {"final_soc": [0.5] * 4, "flight_time_s": 600.0})
+    pid = svc.store.add_plan({"items": [], "chosen": cand.to_dict()}, "test", "approved", 0.0)
+    loop._expectation = {"t0": 0.0, "soc0": [1.0] * 4, "soc1": [0.9] * 4, "duration_s": 10.0}
+    ok = loop.upload(pid, list(new.items), cand, None, new.current_seq)
+    return pid, ok
+
+
+def test_set_current_failure_after_upload_is_uploaded_unconfirmed_not_failed(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, SetCurrentFails, mission)
+    try:
+        pid, ok = _upload_direct(svc, loop, new)
+        assert ok is False
+        assert svc.store.plan(pid)["status"] == "uploaded_unconfirmed"
+        up = svc.store.uploads()[0]
+        assert up["status"] == "uploaded_unconfirmed" and "set_current" in up["error"]
+        # the vehicle has the NEW mission: the loop must know it (read back), not the old one
+        assert M.same_items(loop.mission_items, vehicle.items)
+        assert not M.same_items(loop.mission_items, [M.as_sent(i) for i in mission.items])
+        texts = statustexts(link)
+        assert any("unconfirmed" in t for t in texts) and not any("new mission uploaded" in t for t in texts)
+        assert [m.severity for m in link.sent if m.get_type() == "STATUSTEXT"][-1] == 4
     finally:
         svc.close()

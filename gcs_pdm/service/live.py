@@ -506,6 +506,21 @@ class LiveLoop:
 
         try:
             stats = self.mc.upload(items)
+        except (MissionError, OSError) as exc:
+            # Usually the vehicle keeps its mission; but if only the final MISSION_ACK was lost it
+            # may hold the new one: read back what is really on board when the link allows.
+            on_board = self._readback()
+            uid = svc.store.add_upload(plan_id, "failed", {"error": str(exc), "items": [item_to_json(i) for i in items],
+                                                           "previous_items": [item_to_json(i) for i in previous]})
+            svc.store.set_plan_status(plan_id, "upload_failed", str(exc))
+            if on_board is not None:
+                self._set_mission(on_board, source="download")
+            svc.events.publish("upload", id=uid, plan_id=plan_id, status="failed", error=str(exc), time_s=self._time_s)
+            log.error("upload of plan %d failed (%s); mission on board: %s", plan_id, exc,
+                      "unknown" if on_board is None else f"{len(on_board)} items read back")
+            self.statustext(f"PDM: upload of plan {plan_id} failed", MAV_SEVERITY_WARNING)
+            return False
+        try:
             # An airborne vehicle heads for the first item of the new route, never the take-off
             # (gcs_pdm.planning.mission documents the layout).
             self.mc.set_current(current_seq)
@@ -516,12 +531,24 @@ class LiveLoop:
                 items_on_vehicle = back
             else:
                 items_on_vehicle = items
-        except MissionError as exc:
-            uid = svc.store.add_upload(plan_id, "failed", {"error": str(exc), "items": [item_to_json(i) for i in items],
-                                                           "previous_items": [item_to_json(i) for i in previous]})
-            svc.store.set_plan_status(plan_id, "upload_failed", str(exc))
-            svc.events.publish("upload", id=uid, plan_id=plan_id, status="failed", error=str(exc), time_s=self._time_s)
-            log.error("upload of plan %d failed, the vehicle keeps its mission: %s", plan_id, exc)
+        except (MissionError, OSError) as exc:
+            # The vehicle accepted the new mission, but its current item (or the readback) is not
+            # confirmed: an airborne vehicle might head for the take-off item. Tell the operator.
+            on_board = self._readback()
+            uid = svc.store.add_upload(plan_id, "uploaded_unconfirmed", {
+                "error": str(exc), "items": [item_to_json(i) for i in items],
+                "previous_items": [item_to_json(i) for i in previous], "route": list(chosen.route),
+                "time_s": self._time_s, "current_seq": current_seq,
+                "stats": dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None})
+            svc.store.set_plan_status(plan_id, "uploaded_unconfirmed", str(exc))
+            self._set_mission(on_board if on_board is not None else items,
+                              source="download" if on_board is not None else "upload")
+            self._expectation = None
+            svc.events.publish("upload", id=uid, plan_id=plan_id, status="uploaded_unconfirmed", error=str(exc),
+                               route=list(chosen.route), time_s=self._time_s)
+            log.error("plan %d uploaded but not confirmed (%s): check the vehicle's mission and current item",
+                      plan_id, exc)
+            self.statustext(f"PDM: mission sent, wp {current_seq} unconfirmed: CHECK", MAV_SEVERITY_WARNING)
             return False
         status = "confirmed" if confirmed else ("sent" if confirmed is None else "mismatch")
         uid = svc.store.add_upload(plan_id, status, {
@@ -535,6 +562,14 @@ class LiveLoop:
                            reward=chosen.reward, time_s=self._time_s)
         self.statustext(f"PDM: new mission uploaded, wp {','.join(map(str, chosen.route)) or 'home'}", MAV_SEVERITY_NOTICE)
         return status != "mismatch"
+
+    def _readback(self) -> list[M.MissionItem] | None:
+        """The vehicle's mission as downloaded now, or None if it cannot be read."""
+        try:
+            return self.mc.download()
+        except Exception as exc:  # noqa: BLE001 - the caller records what it knows without it
+            log.warning("mission readback failed: %s", exc)
+            return None
 
     def statustext(self, text: str, severity: int = MAV_SEVERITY_NOTICE) -> None:
         """Tell the operator through the ground station (STATUSTEXT, 50 characters)."""
