@@ -290,8 +290,8 @@ class AlteredReadback(FakeVehicleMissions):
 
     def upload(self, items):
         super().upload(items)
-        wp = next(i for i in self.items if i.command == M.MAV_CMD_NAV_WAYPOINT)
-        self.items[wp.seq] = M.as_sent(dataclasses.replace(wp, lat_deg=wp.lat_deg + 0.01))
+        wp = next(i for i in self.items if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
+        self.items[wp.seq] = M.as_sent(dataclasses.replace(wp, z=wp.z + 30.0))
 
 
 def _direct_loop(tmp_path, vehicle_cls, mission):
@@ -336,6 +336,25 @@ def test_set_current_failure_after_upload_is_uploaded_unconfirmed_not_failed(tmp
         assert not M.same_items(loop.mission_items, [M.as_sent(i) for i in mission.items])
         texts = statustexts(link)
         assert any("unconfirmed" in t for t in texts) and not any("new mission uploaded" in t for t in texts)
+        assert [m.severity for m in link.sent if m.get_type() == "STATUSTEXT"][-1] == 4
+    finally:
+        svc.close()
+
+
+def test_readback_mismatch_is_not_uploaded_and_arms_no_expectation(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, AlteredReadback, mission)
+    try:
+        loop._loads[1] = ("load", 0.0)
+        pid, ok = _upload_direct(svc, loop, new)
+        assert ok is False
+        assert svc.store.plan(pid)["status"] == "upload_mismatch"
+        assert svc.store.uploads()[0]["status"] == "mismatch"
+        assert loop._expectation is None
+        # the loop knows what is really on board, not what it meant to send
+        assert M.same_items(loop.mission_items, vehicle.items)
+        texts = statustexts(link)
+        assert any("readback differs" in t for t in texts) and not any("new mission uploaded" in t for t in texts)
         assert [m.severity for m in link.sent if m.get_type() == "STATUSTEXT"][-1] == 4
     finally:
         svc.close()

@@ -555,13 +555,23 @@ class LiveLoop:
             "items": [item_to_json(i) for i in items], "previous_items": [item_to_json(i) for i in previous],
             "route": list(chosen.route), "time_s": self._time_s,
             "stats": dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None})
-        svc.store.set_plan_status(plan_id, "uploaded", status)
         self._set_mission(items_on_vehicle, source="upload")
+        if status == "mismatch":
+            # What the vehicle holds is not the plan: no prediction of ours describes it.
+            svc.store.set_plan_status(plan_id, "upload_mismatch", "mission readback differs from the plan")
+            self._loads.pop(plan_id, None)
+            self._expectation = None
+            svc.events.publish("upload", id=uid, plan_id=plan_id, status=status, route=list(chosen.route),
+                               reward=chosen.reward, time_s=self._time_s)
+            log.error("plan %d: the mission read back differs from the one uploaded", plan_id)
+            self.statustext("PDM: mission readback differs: CHECK", MAV_SEVERITY_WARNING)
+            return False
+        svc.store.set_plan_status(plan_id, "uploaded", status)
         self._expect(snap, chosen, plan_id)
         svc.events.publish("upload", id=uid, plan_id=plan_id, status=status, route=list(chosen.route),
                            reward=chosen.reward, time_s=self._time_s)
         self.statustext(f"PDM: new mission uploaded, wp {','.join(map(str, chosen.route)) or 'home'}", MAV_SEVERITY_NOTICE)
-        return status != "mismatch"
+        return True
 
     def _readback(self) -> list[M.MissionItem] | None:
         """The vehicle's mission as downloaded now, or None if it cannot be read."""
