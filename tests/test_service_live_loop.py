@@ -358,3 +358,55 @@ def test_readback_mismatch_is_not_uploaded_and_arms_no_expectation(tmp_path):
         assert [m.severity for m in link.sent if m.get_type() == "STATUSTEXT"][-1] == 4
     finally:
         svc.close()
+
+
+def _fake_candidates(keep_reward, planner_reward):
+    def plan_candidates(*args, **kwargs):
+        cands = [Candidate("planner", (10, 9), True, planner_reward, planner_reward, planner_reward, None, {}),
+                 Candidate("keep", (3, 4), True, keep_reward, keep_reward, keep_reward, None, {}),
+                 Candidate("home", (), True, 0.0, 0.0, 0.0, None, {})]
+        return cands, {"loads": {}, "plan_time_s": 0.0, "planner": "fake", "scenario": None}
+    return plan_candidates
+
+
+def _snap(loop):
+    from gcs_pdm.service.live import Snapshot
+
+    st = loop.estimator.powertrain_state()
+    return Snapshot(time_s=10.0, state=st, position=(0.0, 0.0, 0.0), ambient_c=20.0, faults=(),
+                    fault_records=(), current_seq=3, soc=())
+
+
+def test_a_kept_plan_supersedes_older_proposals_which_can_no_longer_be_approved(tmp_path, monkeypatch):
+    from gcs_pdm.service import adapters
+    from gcs_pdm.service.storage import Conflict
+
+    mission = original_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, mission)
+    svc.set_policy("advise")
+    try:
+        old = svc.store.add_plan({"items": [], "chosen": {}}, "earlier fault", "proposed", 1.0)
+        monkeypatch.setattr(adapters, "plan_candidates", _fake_candidates(keep_reward=300, planner_reward=100))
+        loop._plan("later: keep is best", _snap(loop))
+        assert svc.store.plans()[0]["status"] == "kept"
+        assert svc.store.plan(old)["status"] == "superseded"
+        with pytest.raises(Conflict):
+            svc.approve(old)
+        assert vehicle.uploads == []
+    finally:
+        svc.close()
+
+
+def test_plan_transition_is_conditional(tmp_path):
+    mission = original_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, mission)
+    try:
+        pid = svc.store.add_plan({"items": []}, "t", "proposed", 1.0)
+        svc.store.set_plan_status(pid, "superseded", "by a newer plan")  # e.g. between read and approve
+        assert svc.store.transition_plan(pid, "proposed", "approved") is False
+        assert svc.store.plan(pid)["status"] == "superseded"
+        pid2 = svc.store.add_plan({"items": []}, "t", "proposed", 1.0)
+        assert svc.store.transition_plan(pid2, "proposed", "approved") is True
+        assert svc.store.plan(pid2)["status"] == "approved"
+    finally:
+        svc.close()

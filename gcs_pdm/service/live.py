@@ -434,6 +434,7 @@ class LiveLoop:
                 "scenario": info["scenario"], "visited": sorted(self.visited)}
         if chosen.name == "keep":
             pid = svc.store.add_plan(body, reason, "kept", snap.time_s)
+            self._supersede_proposals(pid)
             self._loads[pid] = load
             self._expect(snap, chosen, pid)
             svc.events.publish("plan", id=pid, status="kept", time_s=snap.time_s, why=why, chosen=chosen.to_dict())
@@ -447,14 +448,19 @@ class LiveLoop:
         self._loads[pid] = load
         svc.events.publish("plan", id=pid, status="approved" if auto else "proposed", time_s=snap.time_s, why=why,
                            chosen=chosen.to_dict(), keep=next((c.to_dict() for c in cands if c.name == "keep"), None))
-        for old in svc.store.plans(status="proposed"):
-            if old["id"] != pid:
-                svc.store.set_plan_status(old["id"], "superseded", f"by plan {pid}")
+        self._supersede_proposals(pid)
         if auto:
             self.upload(pid, items, chosen, snap, mission["current_seq"])
         else:
             self.statustext(f"PDM: plan {pid} proposed, reward {chosen.reward:g}; approve on gcs-pdm",
                             MAV_SEVERITY_WARNING)
+
+    def _supersede_proposals(self, pid: int) -> None:
+        """A newer plan (kept, proposed or approved) makes every older proposal stale."""
+        for old in self.service.store.plans(status="proposed", limit=100000):
+            if old["id"] != pid and self.service.store.transition_plan(old["id"], "proposed", "superseded",
+                                                                       f"by plan {pid}"):
+                self.service.events.publish("plan", id=old["id"], status="superseded", by=pid)
 
     def _expect(self, snap: Snapshot | None, chosen: Candidate, plan_id: int) -> None:
         """What the chosen plan predicts, for the deviation check and the diagnoser's prognosis."""

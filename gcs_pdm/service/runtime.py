@@ -114,13 +114,16 @@ class Service:
         self._proposed(plan_id)
         if self.loop is None:
             raise Conflict("no vehicle link: a plan cannot be uploaded")
-        self.store.set_plan_status(plan_id, "approved", note or "operator")
+        # conditional: a newer plan may have superseded this one since it was read
+        if not self.store.transition_plan(plan_id, "proposed", "approved", note or "operator"):
+            raise Conflict(f"plan {plan_id} is {self.store.plan(plan_id)['status']}, not proposed")
         self.events.publish("plan", id=plan_id, status="approved", by="operator")
         self.loop.approve(plan_id)
 
     def reject(self, plan_id: int, note: str = "") -> None:
         self._proposed(plan_id)
-        self.store.set_plan_status(plan_id, "rejected", note or "operator")
+        if not self.store.transition_plan(plan_id, "proposed", "rejected", note or "operator"):
+            raise Conflict(f"plan {plan_id} is {self.store.plan(plan_id)['status']}, not proposed")
         self.events.publish("plan", id=plan_id, status="rejected", by="operator")
 
     def request_replan(self, reason: str) -> None:

@@ -251,6 +251,18 @@ class Store:
             self._db.execute("UPDATE plans SET status=?, body=?, updated_at=? WHERE id=?",
                              (status, _dumps(body), self._clock(), plan_id))
 
+    def transition_plan(self, plan_id: int, from_status: str, to_status: str, note: str | None = None) -> bool:
+        """Set the plan's status to ``to_status`` only if it is ``from_status`` now (atomically); whether it was."""
+        with self._lock:
+            row = self._db.execute("SELECT body FROM plans WHERE id=? AND status=?", (plan_id, from_status)).fetchone()
+            if row is None:
+                return False
+            body = json.loads(row["body"])
+            body.setdefault("history", []).append({"status": to_status, "at": self._clock(), "note": note})
+            cur = self._db.execute("UPDATE plans SET status=?, body=?, updated_at=? WHERE id=? AND status=?",
+                                   (to_status, _dumps(body), self._clock(), plan_id, from_status))
+            return cur.rowcount == 1
+
     def plan(self, plan_id: int) -> dict:
         row = self._db.execute("SELECT * FROM plans WHERE id=?", (plan_id,)).fetchone()
         if row is None:
