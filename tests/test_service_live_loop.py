@@ -410,3 +410,35 @@ def test_plan_transition_is_conditional(tmp_path):
         assert svc.store.plan(pid2)["status"] == "approved"
     finally:
         svc.close()
+
+
+class LinkDown(FakeVehicleMissions):
+    def upload(self, items):
+        raise OSError("network is unreachable")
+
+
+def test_an_os_error_during_upload_is_recorded_as_failed(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, LinkDown, mission)
+    try:
+        pid, ok = _upload_direct(svc, loop, new)
+        assert ok is False and svc.store.plan(pid)["status"] == "upload_failed"
+        up = svc.store.uploads()[0]
+        assert up["status"] == "failed" and "unreachable" in up["error"]
+        assert M.same_items(loop.mission_items, [M.as_sent(i) for i in mission.items])
+    finally:
+        svc.close()
+
+
+def test_an_approved_upload_disarms_the_old_expectation_and_sets_the_current_item(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, mission)
+    try:
+        svc.state.update(mission={"current_seq": 1})
+        pid, ok = _upload_direct(svc, loop, new)  # snap=None, as for an approval or a revert
+        assert ok is True and svc.store.plan(pid)["status"] == "uploaded"
+        assert loop._expectation is None
+        assert vehicle.current == new.current_seq
+        assert svc.state.snapshot()["mission"]["current_seq"] == new.current_seq
+    finally:
+        svc.close()

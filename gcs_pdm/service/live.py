@@ -467,6 +467,8 @@ class LiveLoop:
         load, start = self._loads.pop(plan_id, (None, None))
         if load is not None and chosen.name != "home":
             self._on_telemetry_thread(lambda: adapters.set_mission_load(self.diagnoser, load, start))
+        # the previous plan's prediction no longer describes the mission on board
+        self._expectation = None
         if snap is None:
             return
         if snap.soc and chosen.extra.get("final_soc"):
@@ -530,6 +532,7 @@ class LiveLoop:
             # An airborne vehicle heads for the first item of the new route, never the take-off
             # (gcs_pdm.planning.mission documents the layout).
             self.mc.set_current(current_seq)
+            svc.state.update(mission={"current_seq": current_seq})
             confirmed = None
             if svc.config.confirm_download:
                 back = self.mc.download()
