@@ -157,13 +157,68 @@ def test_files_and_tlogs(client, service):
     assert r.status_code == 422 and "body.file" in fields_of(r)
     r = client.post("/files", files={"file": ("empty.csv", b"")}, headers=AUTH)
     assert r.status_code == 422
-    r = client.post("/files", files={"file": ("f1.csv", b"time_s,LLF20_voltage_v\n0,20.1\n")}, headers=AUTH)
+    r = client.post("/files", files={"file": ("f1.csv", GOOD_CSV)}, headers=AUTH)
     assert r.status_code == 201 and r.json()["kind"] == "csv" and r.json()["size_bytes"] > 0
-    r = client.post("/files", files={"file": ("../../evil.tlog", b"\x00" * 16)}, headers=AUTH)
+    tlog = _tlog_bytes()
+    r = client.post("/files", files={"file": ("../../evil.tlog", tlog)}, headers=AUTH)
     assert r.status_code == 201 and r.json()["filename"] == "evil.tlog"
     assert len(client.get("/files").json()) == 2
     tl = client.get("/tlogs").json()
-    assert len(tl) == 1 and tl[0]["path"].startswith(str(service.config.data_path)) and tl[0]["size_bytes"] == 16
+    assert len(tl) == 1 and tl[0]["path"].startswith(str(service.config.data_path)) and tl[0]["size_bytes"] == len(tlog)
+
+
+GOOD_CSV = b"time_s,current_a,voltage_v,temperature_c,ambient_c\n0,10,20.1,25,20\n1,10,20.0,25.1,20\n"
+
+
+def _tlog_bytes() -> bytes:
+    import struct
+
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    out = b""
+    for k in range(3):
+        pkt = mav.heartbeat_encode(1, 3, 0, 0, 4).pack(mav)
+        out += struct.pack(">Q", 1_700_000_000_000_000 + k * 1_000_000) + pkt
+    return out
+
+
+def test_garbage_flight_files_are_rejected_and_not_indexed(client, service):
+    for name, data in (("junk.tlog", b"\x00" * 16), ("junk.tlog", b"hello world, not mavlink" * 10),
+                       ("f1.csv", b"time_s,LLF20_voltage_v\n0,20.1\n"), ("bin.csv", b"\x89PNG\r\n\x1a\n\x00\x00"),
+                       ("junk.parquet", b"not parquet at all")):
+        r = client.post("/files", files={"file": (name, data)}, headers=AUTH)
+        assert r.status_code == 422 and "body.file" in fields_of(r), (name, r.text)
+    assert client.get("/files").json() == [] and client.get("/tlogs").json() == []
+
+
+def test_bad_last_event_id_is_not_a_server_error(client, service):
+    service.events.publish("policy", policy="auto")
+    with client.stream("GET", "/events", headers={"Last-Event-ID": "abc"}) as r:
+        assert r.status_code == 200
+        first = next(r.iter_lines())
+        assert first.startswith(":")
+
+
+def test_fit_settings_are_validated_up_front(client, service):
+    fid = client.post("/files", files={"file": ("f1.csv", GOOD_CSV)}, headers=AUTH).json()["id"]
+    flights = {"train": [{"file_id": fid}], "validation": [{"file_id": fid}]}
+    for settings, field in (({"sa_starts": 3}, "body.settings.sa_starts"),
+                            ({"search": {"sa_starts": 3}}, "body.settings.search.sa_starts"),
+                            ({"search": {"starts": "many"}}, "body.settings.search.starts"),
+                            ({"workers": 1.5}, "body.settings.workers"),
+                            ({"base": "paper_si"}, "body.settings.base"),
+                            ({"cleaning": 3}, "body.settings.cleaning")):
+        r = client.post("/jobs/fit", json={"flights": flights, "settings": settings}, headers=AUTH)
+        assert r.status_code == 422 and field in fields_of(r), (settings, r.text)
+    assert client.get("/jobs").json() == []
+
+
+def test_a_directory_is_not_a_flight_file(client, service):
+    (service.config.data_path / "adir.csv").mkdir()
+    ref = {"path": str(service.config.data_path / "adir.csv")}
+    r = client.post("/jobs/fit", json={"flights": {"train": [ref], "validation": [ref]}}, headers=AUTH)
+    assert r.status_code == 422 and "body.flights.train.0" in fields_of(r)
 
 
 def test_fit_job_validation(client, service):

@@ -201,6 +201,9 @@ def create_app(service) -> FastAPI:
             raise HTTPException(413, detail=f"file: larger than {MAX_UPLOAD_BYTES} bytes")
         if not data:
             raise _unprocessable("file", "empty file")
+        problem = await asyncio.to_thread(service.check_upload, name, kind, data)
+        if problem:
+            raise _unprocessable("file", problem)
         file_id = service.save_upload(name, kind, data)
         return service.store.file(file_id)
 
@@ -225,6 +228,11 @@ def create_app(service) -> FastAPI:
                 problem = service.check_flight_ref(ref)
                 if problem:
                     raise _unprocessable(f"flights.{split}.{i}", problem)
+        from gcs_pdm.service.fit_jobs import check_settings
+
+        bad = check_settings(body.settings)
+        if bad:
+            raise _unprocessable(*bad)
         job_id = service.runner.submit("fit", body.model_dump())
         return S.JobCreated(id=job_id, status="queued")
 
@@ -264,7 +272,10 @@ def create_app(service) -> FastAPI:
     @app.get("/events")
     async def events(request: Request, since: int | None = Query(None, ge=0)):
         """Server-Sent Events: one ``event: <kind>`` per fault, plan, upload, job change, status tick."""
-        start = since if since is not None else int(request.headers.get("last-event-id", service.events.last_seq))
+        start = since
+        if start is None:
+            header = request.headers.get("last-event-id", "").strip()
+            start = int(header) if header.isdigit() else service.events.last_seq
 
         async def stream():
             seq = start

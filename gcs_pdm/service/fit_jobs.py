@@ -18,6 +18,49 @@ from gcs_pdm.service.jobs import JobCancelled
 log = logging.getLogger(__name__)
 
 
+#: the request's ``settings``: top-level FitSettings fields a client may set (``base`` is the job's
+#: ``base_set``), with ``search`` and ``cleaning`` as objects of SearchSettings/CleaningSettings fields
+SETTINGS_TOP = ("search", "cleaning", "reference", "init_samples", "soc_offset_range", "workers")
+
+
+def _type_ok(value, default) -> bool:
+    if isinstance(default, bool):
+        return isinstance(value, bool)
+    if isinstance(default, int):
+        return isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(default, float):
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    return isinstance(value, type(default))
+
+
+def check_settings(settings: dict) -> tuple[str, str] | None:
+    """The first bad key of a fit request's ``settings`` as (dotted field, message), or None."""
+    import dataclasses
+
+    from gcs_pdm.fitting.cleaning import CleaningSettings
+    from gcs_pdm.fitting.procedure import FitSettings
+    from gcs_pdm.fitting.search import SearchSettings
+
+    defaults = FitSettings()
+    for key, value in settings.items():
+        if key not in SETTINGS_TOP:
+            return f"settings.{key}", f"unknown fit setting {key!r}; expected one of {', '.join(SETTINGS_TOP)}"
+        if key in ("search", "cleaning"):
+            cls = SearchSettings if key == "search" else CleaningSettings
+            if not isinstance(value, dict):
+                return f"settings.{key}", f"{key} must be an object of {cls.__name__} fields"
+            fields = {f.name: getattr(cls(), f.name) for f in dataclasses.fields(cls)}
+            for k, v in value.items():
+                if k not in fields:
+                    return (f"settings.{key}.{k}",
+                            f"unknown {key} setting {k!r}; expected one of {', '.join(fields)}")
+                if not _type_ok(v, fields[k]):
+                    return f"settings.{key}.{k}", f"expected {type(fields[k]).__name__}, got {v!r}"
+        elif not _type_ok(value, getattr(defaults, key)):
+            return f"settings.{key}", f"expected {type(getattr(defaults, key)).__name__}, got {value!r}"
+    return None
+
+
 def make_fit_job(service) -> Callable:
     def fit_job(request: dict, progress: Callable[[float, str], None], should_stop: Callable[[], bool]) -> dict:
         from gcs_pdm.fitting.logs import read_flights, write_outputs
@@ -32,6 +75,10 @@ def make_fit_job(service) -> Callable:
         base = service.store.parameter_set(request["base_set"])
         opts = dict(request.get("settings") or {})
         search = SearchSettings(**opts.pop("search", {}))
+        if "cleaning" in opts:
+            from gcs_pdm.fitting.cleaning import CleaningSettings
+
+            opts["cleaning"] = CleaningSettings(**opts["cleaning"])
         ref_name = opts.pop("reference", "previous_si")
         settings = FitSettings(search=search, base=base.name if base.name in BUILTIN_SETS else "paper_si",
                                reference=ref_name, **opts)

@@ -172,6 +172,35 @@ class Service:
 
     # --- files -------------------------------------------------------------------------------------
 
+    @staticmethod
+    def check_upload(filename: str, kind: str, data: bytes) -> str | None:
+        """Why an uploaded flight file cannot be used, or None (a tlog needs one valid MAVLink packet;
+        a table must be readable by gcs_pdm.fitting.logs with at least a motor flight's columns)."""
+        import tempfile
+
+        if kind == "tlog":
+            from gcs_pdm.mavlink.tlog import scan_tlog_bytes
+
+            try:
+                first = next(iter(scan_tlog_bytes(data)), None)
+            except Exception as exc:  # noqa: BLE001 - any scanner failure means "not a tlog"
+                return f"not a MAVLink tlog ({type(exc).__name__}: {exc})"
+            return None if first is not None else "not a MAVLink tlog: no valid packet found"
+        from gcs_pdm.fitting.logs import read_table
+        from gcs_pdm.fitting.tables import MOTOR, FlightDataError
+
+        suffix = Path(filename).suffix.lower()
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / f"upload{suffix}"
+            path.write_bytes(data)
+            try:
+                read_table(path, MOTOR, name=filename)
+            except FlightDataError as exc:
+                return str(exc).replace(str(path), filename)
+            except Exception as exc:  # noqa: BLE001 - a damaged table
+                return f"{filename}: cannot read table ({type(exc).__name__}: {exc})"
+        return None
+
     def save_upload(self, filename: str, kind: str, data: bytes) -> str:
         folder = self.config.data_path / "uploads"
         folder.mkdir(parents=True, exist_ok=True)
@@ -206,6 +235,6 @@ class Service:
             return f"not found: {exc.args[0]}"
         except PermissionError as exc:
             return str(exc)
-        if not path.exists():
-            return f"file {path} does not exist"
+        if not path.is_file():
+            return f"file {path} does not exist or is not a file"
         return None

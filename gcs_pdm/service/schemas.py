@@ -177,7 +177,8 @@ class FitJobIn(BaseModel):
     flights: FitFlights
     base_set: str = Field("paper_si", description="parameter set the fitted values are merged into")
     save_as: str | None = Field(None, pattern=r"^[A-Za-z0-9_.\-]+$", description="store the result under this name")
-    settings: dict[str, Any] = Field(default_factory=dict, description="passed to the fitter (e.g. sa_starts, seed)")
+    settings: dict[str, Any] = Field(default_factory=dict, description="fitter settings: search {starts, seed, sa_generations, ...}, cleaning {...}, "
+                                       "reference, init_samples, soc_offset_range, workers; unknown keys are 422")
 
 
 class JobOut(BaseModel):
