@@ -331,3 +331,22 @@ def test_sse_stream_delivers_events(client, service):
                 break
     payload = json.loads(text.split("event: fault", 1)[1].split("data: ", 1)[1].split("\n", 1)[0])
     assert payload["data"]["target"] == "aft" and payload["kind"] == "fault"
+
+
+def test_fit_save_as_is_checked_up_front(client, service):
+    from gcs_pdm.service.fit_jobs import check_save_as
+
+    fid = client.post("/files", files={"file": ("f1.csv", GOOD_CSV)}, headers=AUTH).json()["id"]
+    flights = {"train": [{"file_id": fid}], "validation": [{"file_id": fid}]}
+    exported = client.get("/parameter-sets/previous_si").json()
+    for name in ("mine", "flying"):
+        assert client.post("/parameter-sets", json={"parameter_set": exported, "name": name},
+                           headers=AUTH).status_code == 201
+    assert client.post("/parameter-sets/flying/activate", headers=AUTH).status_code == 200
+    for save_as, overwrite in (("paper_si", True), ("flying", True), ("mine", False)):
+        r = client.post("/jobs/fit", json={"flights": flights, "save_as": save_as, "overwrite": overwrite},
+                        headers=AUTH)
+        assert r.status_code == 422 and "body.save_as" in fields_of(r), (save_as, r.text)
+    assert client.get("/jobs").json() == []
+    # an existing user set that is not active may be replaced when asked to; a new name always
+    assert check_save_as(service, "mine", True) is None and check_save_as(service, "new_one") is None

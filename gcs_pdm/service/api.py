@@ -228,7 +228,11 @@ def create_app(service) -> FastAPI:
                 problem = service.check_flight_ref(ref)
                 if problem:
                     raise _unprocessable(f"flights.{split}.{i}", problem)
-        from gcs_pdm.service.fit_jobs import check_settings
+        from gcs_pdm.service.fit_jobs import check_save_as, check_settings
+
+        problem = check_save_as(service, body.save_as, body.overwrite)
+        if problem:
+            raise _unprocessable("save_as", problem)
 
         bad = check_settings(body.settings)
         if bad:

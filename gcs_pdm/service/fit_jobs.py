@@ -61,6 +61,23 @@ def check_settings(settings: dict) -> tuple[str, str] | None:
     return None
 
 
+def check_save_as(service, name: str | None, overwrite: bool = False) -> str | None:
+    """Why ``save_as`` cannot take the fit's result, or None: never a built-in or the active set
+    (the vehicle's estimator and planner use it), an existing set only with ``overwrite``."""
+    if not name:
+        return None
+    existing = {p["name"]: p for p in service.store.parameter_sets()}
+    if name not in existing:
+        return None
+    if existing[name].get("builtin"):
+        return f"{name!r} is a built-in parameter set"
+    if name == service.store.active_parameter_set_name():
+        return f"{name!r} is the active parameter set"
+    if not overwrite:
+        return f"parameter set {name!r} exists (set overwrite to replace it)"
+    return None
+
+
 def make_fit_job(service) -> Callable:
     def fit_job(request: dict, progress: Callable[[float, str], None], should_stop: Callable[[], bool]) -> dict:
         from gcs_pdm.fitting.logs import read_flights, write_outputs
@@ -112,11 +129,23 @@ def make_fit_job(service) -> Callable:
                                name=request.get("save_as") or f"fit_{request.get('_job_id', 'job')}",
                                provenance={"source": "fit job", "job": request.get("_job_id")})
         body["parameter_set"] = merged.to_dict()
-        if request.get("save_as"):
-            service.store.save_parameter_set(merged, provenance={"source": "fit", "job": request.get("_job_id")},
-                                             overwrite=True)
-            body["saved_as"] = merged.name
         (job_dir / "result.json").write_text(json.dumps(body, default=str, indent=1))
+        if request.get("save_as"):
+            # checked at submission; checked again now (the set may have been activated meanwhile). A
+            # refusal keeps the result (result.json and the job's result hold the merged set).
+            problem = check_save_as(service, merged.name, bool(request.get("overwrite")))
+            if problem is None:
+                try:
+                    service.store.save_parameter_set(merged, provenance={"source": "fit", "job": request.get("_job_id")},
+                                                     overwrite=bool(request.get("overwrite")))
+                except Exception as exc:  # noqa: BLE001 - recorded in the result, the fit is kept
+                    problem = str(exc)
+            if problem is None:
+                body["saved_as"] = merged.name
+            else:
+                log.warning("fit %s: result not saved as %r: %s", request.get("_job_id"), merged.name, problem)
+                body["save_error"] = problem
+            (job_dir / "result.json").write_text(json.dumps(body, default=str, indent=1))
         return body
 
     return fit_job

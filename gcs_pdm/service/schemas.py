@@ -176,7 +176,9 @@ class FitJobIn(BaseModel):
     packs: list[PackName] = Field(default_factory=lambda: list(PACK_NAMES), min_length=1)
     flights: FitFlights
     base_set: str = Field("paper_si", description="parameter set the fitted values are merged into")
-    save_as: str | None = Field(None, pattern=r"^[A-Za-z0-9_.\-]+$", description="store the result under this name")
+    save_as: str | None = Field(None, pattern=r"^[A-Za-z0-9_.\-]+$",
+                                description="store the result under this name (a new one, unless overwrite)")
+    overwrite: bool = Field(False, description="save_as may replace an existing user set (never a built-in or the active set)")
     settings: dict[str, Any] = Field(default_factory=dict, description="fitter settings: search {starts, seed, sa_generations, ...}, cleaning {...}, "
                                        "reference, init_samples, soc_offset_range, workers; unknown keys are 422")
 
