@@ -442,3 +442,30 @@ def test_an_approved_upload_disarms_the_old_expectation_and_sets_the_current_ite
         assert svc.state.snapshot()["mission"]["current_seq"] == new.current_seq
     finally:
         svc.close()
+
+
+def test_operator_calls_from_other_threads_run_on_the_telemetry_thread(tmp_path):
+    import threading
+
+    mission = original_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, mission)
+    seen = []
+    ready = loop.estimator.ready
+
+    def spy():
+        seen.append(threading.current_thread().name)
+        return ready()
+
+    loop.estimator.ready = spy
+    loop.start()
+    try:
+        loop.declare_fault("aft", 0.5, replan=True)  # as an HTTP handler would, from another thread
+        loop.request_replan("operator")
+        deadline = time.monotonic() + 10
+        while len(seen) < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert len(seen) >= 2 and set(seen) == {"telemetry"}, seen
+        assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(0.5)
+    finally:
+        loop.stop()
+        svc.close()

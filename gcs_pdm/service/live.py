@@ -161,7 +161,8 @@ class LiveLoop:
                 log.exception("frame %r could not be processed", frame)
 
     def _on_telemetry_thread(self, fn) -> None:
-        """Run ``fn`` between two frames on the telemetry thread (the filters are not thread-safe)."""
+        """Run ``fn`` between two frames on the telemetry thread (the filters are not thread-safe);
+        driven directly, before the next :meth:`process`."""
         self._frames.put(fn)
 
     def process(self, frame) -> None:
@@ -329,8 +330,17 @@ class LiveLoop:
                         faults=tuple(self._all_motor_faults(dicts)), fault_records=tuple(dicts),
                         current_seq=self.service.state.get("mission")["current_seq"], soc=soc)
 
+    def _elsewhere(self) -> bool:
+        """Called from another thread than the running telemetry thread (e.g. an HTTP handler)? The
+        estimator and diagnoser are not thread-safe: such calls are handed to the telemetry thread.
+        Driven directly (no thread started, tests and replays) the caller is the telemetry thread."""
+        return self._thread is not None and threading.current_thread() is not self._thread
+
     def request_replan(self, reason: str) -> None:
-        """Queue a replan from the present state (call on the telemetry thread, or any thread)."""
+        """Queue a replan from the present state (any thread: the snapshot is taken on the telemetry thread)."""
+        if self._elsewhere():
+            self._on_telemetry_thread(lambda: self.request_replan(reason))
+            return
         if not self.estimator.ready():
             log.info("replan (%s) deferred: estimator not ready", reason)
             self._deferred = reason
@@ -346,12 +356,18 @@ class LiveLoop:
         self._worker.submit(self._plan_then_next, reason, snap)
 
     def declare_fault(self, motor: str, magnitude: float, replan: bool) -> None:
+        if self._elsewhere():
+            self._on_telemetry_thread(lambda: self.declare_fault(motor, magnitude, replan))
+            return
         self._operator_faults[motor] = magnitude
         self._update_motor_health(None)
         if replan:
             self.request_replan(f"operator: motor_power_loss {motor} {magnitude:.2f}")
 
     def clear_operator_fault(self, motor: str) -> None:
+        if self._elsewhere():
+            self._on_telemetry_thread(lambda: self.clear_operator_fault(motor))
+            return
         self._operator_faults.pop(motor, None)
 
     def _plan_then_next(self, reason: str, snap: Snapshot) -> None:
