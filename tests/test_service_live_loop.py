@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -468,4 +469,25 @@ def test_operator_calls_from_other_threads_run_on_the_telemetry_thread(tmp_path)
         assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(0.5)
     finally:
         loop.stop()
+        svc.close()
+
+
+def test_home_at_zero_zero_is_ignored_and_home_follows_each_download(tmp_path):
+    mission = original_mission()
+    no_fix = [dataclasses.replace(mission.items[0], x=0, y=0)] + list(mission.items[1:])
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, SimpleNamespace(items=no_fix))
+    try:
+        assert loop.home is None  # no GPS fix: (0, 0) is not a place to land
+        vehicle.items = [M.as_sent(i) for i in mission.items]
+        loop.refresh_mission()
+        assert loop.home is not None and loop.home[:2] == pytest.approx((mission.items[0].lat_deg,
+                                                                          mission.items[0].lon_deg), abs=1e-6)
+        moved = dataclasses.replace(mission.items[0], x=mission.items[0].x + 1000)  # re-homed at arming
+        vehicle.items = [M.as_sent(moved)] + [M.as_sent(i) for i in mission.items[1:]]
+        loop.refresh_mission()
+        assert loop.home[0] == pytest.approx(M.as_sent(moved).lat_deg, abs=1e-9)
+        vehicle.items = [M.as_sent(i) for i in no_fix]  # fix lost again: the known home stays
+        loop.refresh_mission()
+        assert loop.home[0] == pytest.approx(M.as_sent(moved).lat_deg, abs=1e-9)
+    finally:
         svc.close()

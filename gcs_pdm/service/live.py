@@ -412,10 +412,16 @@ class LiveLoop:
     def _set_mission(self, items: list[M.MissionItem], source: str) -> None:
         self.mission_items = list(items)
         self.mission_time_s = self._time_s
-        if items and self.home is None:
+        if items:
+            # Home (seq 0) is the vehicle's: it moves when the vehicle re-homes (e.g. at arming), so
+            # every mission read refreshes it. (0, 0) is a vehicle without a GPS fix, never a home.
             h = items[0]
             absolute = h.frame in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT)
-            self.home = (h.lat_deg, h.lon_deg, float(h.z) if absolute else 0.0)
+            if math.isfinite(h.lat_deg) and math.isfinite(h.lon_deg) and not (h.lat_deg == 0.0 and h.lon_deg == 0.0):
+                self.home = (h.lat_deg, h.lon_deg, float(h.z) if absolute else 0.0)
+            else:
+                log.warning("the vehicle's home item is (%s, %s): no GPS fix yet; home %s", h.lat_deg, h.lon_deg,
+                            "unknown" if self.home is None else "kept from an earlier read")
         if self.catalogue is None and items:
             self.catalogue = catalogue_from_items(items, reward=1.0)
             log.info("no mission objectives configured: each of the %d waypoints is worth 1", len(self.catalogue))
