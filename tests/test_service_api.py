@@ -350,3 +350,12 @@ def test_fit_save_as_is_checked_up_front(client, service):
     assert client.get("/jobs").json() == []
     # an existing user set that is not active may be replaced when asked to; a new name always
     assert check_save_as(service, "mine", True) is None and check_save_as(service, "new_one") is None
+
+
+def test_activation_says_what_it_changes(client, service):
+    exported = client.get("/parameter-sets/previous_si").json()
+    assert client.post("/parameter-sets", json={"parameter_set": exported, "name": "bench_2"},
+                       headers=AUTH).status_code == 201
+    assert client.post("/parameter-sets/bench_2/activate", headers=AUTH).status_code == 200
+    ev = [e for e in client.get("/events/poll?since=0").json() if e["kind"] == "parameter_set"][-1]
+    assert "next replan" in ev["data"]["applies_to"] and "next service start" in ev["data"]["applies_to"]

@@ -21,6 +21,10 @@ log = logging.getLogger(__name__)
 FIXTURES = Path(__file__).resolve().parents[2] / "fixtures"
 
 
+#: what activating a parameter set changes while the service runs (told to the operator)
+APPLIES_TO = "planning from the next replan; the estimator and diagnoser at the next service start"
+
+
 class Service:
     def __init__(self, config: ServiceConfig, store: Store | None = None):
         self.config = config
@@ -157,9 +161,11 @@ class Service:
         self.params = ps
         self.state.update(parameter_set=name)
         if self.loop is not None:
-            # The filters keep their state; planning uses the new set from the next replan on.
+            # The filters keep their state (and the parameters they were built with: rebuilding them
+            # mid-flight would throw away the SoC/temperature estimate); planning uses the new set
+            # from the next replan on. A restart builds the estimator and diagnoser from it.
             self.loop.params = ps
-        self.events.publish("parameter_set", name=name)
+        self.events.publish("parameter_set", name=name, applies_to=APPLIES_TO)
         return ps
 
     def current_mission(self) -> dict:
