@@ -139,8 +139,10 @@ def test_auto_policy_diagnoses_replans_uploads_and_confirms(tmp_path, frames):
         by_name = {c["name"]: c for c in plan["candidates"]}
         assert set(by_name) == {"planner", "keep", "home"}
         assert by_name["keep"]["route"] == [3, 4, 5, 6, 7, 8, 9, 10]
-        # never a route predicted to fail while a feasible one exists
-        assert chosen["feasible"] and chosen["reward"] >= max(c["reward"] for c in plan["candidates"] if c["feasible"])
+        # never a route predicted to fail while a feasible one exists; among feasible ones the best
+        # objective wins (decision.choose ranks by objective, not by reward)
+        assert chosen["feasible"]
+        assert chosen["objective"] >= max(c["objective"] for c in plan["candidates"] if c["feasible"]) - 1e-9
         if plan["status"] == "kept":
             pytest.fail("the original order should not be flyable with the fault (Table III scenario)")
         assert plan["status"] == "uploaded"
@@ -491,3 +493,29 @@ def test_home_at_zero_zero_is_ignored_and_home_follows_each_download(tmp_path):
         assert loop.home[0] == pytest.approx(M.as_sent(moved).lat_deg, abs=1e-9)
     finally:
         svc.close()
+
+
+def test_choose_ranks_feasible_routes_by_objective_not_reward():
+    best, _ = choose([_c("planner", True, 400, obj=0.2), _c("keep", True, 300, obj=0.5), _c("home", True, 0, obj=0.0)])
+    assert best.name == "keep"
+    best, _ = choose([_c("planner", True, 200, obj=0.9), _c("keep", True, 300, obj=0.5), _c("home", True, 0, obj=0.0)])
+    assert best.name == "planner"
+
+
+def test_same_mission_compares_what_the_vehicle_stores():
+    from gcs_pdm.service.decision import same_mission
+
+    items = list(original_mission().items)
+    sent = [M.as_sent(i) for i in items]
+    assert same_mission(items, sent)
+    # the vehicle's own home at seq 0 and the current flag are not mission content
+    back = [dataclasses.replace(sent[0], x=sent[0].x + 500)] + [dataclasses.replace(i, current=1) for i in sent[1:]]
+    assert same_mission(items, back)
+    # a moved waypoint, a changed command, a missing or an extra item are
+    k = next(i.seq for i in sent if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
+    assert not same_mission(items, sent[:k] + [dataclasses.replace(sent[k], z=sent[k].z + 1.0)] + sent[k + 1:])
+    assert not same_mission(items, sent[:k] + [dataclasses.replace(sent[k], y=sent[k].y + 100)] + sent[k + 1:])
+    assert not same_mission(items, sent[:-1])
+    assert not same_mission(items, sent + [sent[-1]])
+    land = len(sent) - 1
+    assert not same_mission(items, sent[:land] + [dataclasses.replace(sent[land], command=M.MAV_CMD_NAV_WAYPOINT)])
