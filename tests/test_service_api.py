@@ -208,7 +208,8 @@ def test_fit_settings_are_validated_up_front(client, service):
                             ({"search": {"starts": "many"}}, "body.settings.search.starts"),
                             ({"workers": 1.5}, "body.settings.workers"),
                             ({"base": "paper_si"}, "body.settings.base"),
-                            ({"cleaning": 3}, "body.settings.cleaning")):
+                            ({"cleaning": 3}, "body.settings.cleaning"),
+                            ({"reference": "nope"}, "body.settings.reference")):
         r = client.post("/jobs/fit", json={"flights": flights, "settings": settings}, headers=AUTH)
         assert r.status_code == 422 and field in fields_of(r), (settings, r.text)
     assert client.get("/jobs").json() == []

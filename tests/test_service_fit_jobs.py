@@ -92,3 +92,37 @@ def test_fit_job_from_recorded_tlogs_in_the_index(tmp_path):
         assert (tmp_path / "jobs" / job["id"] / "result.json").exists()
     finally:
         svc.close()
+
+
+@pytest.mark.slow
+def test_fit_over_a_user_set_keeps_its_fixed_values(tmp_path):
+    """The values a fit does not learn (here the motor's R_w and I_0) come from the base set asked
+    for, a user's set too — not from paper_si."""
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN))
+    try:
+        client = TestClient(create_app(svc))
+        exported = client.get("/parameter-sets/paper_si").json()
+        exported["motor"]["R_w"], exported["motor"]["I_0"] = 0.045, 2.1
+        assert client.post("/parameter-sets", json={"parameter_set": exported, "name": "bench_motor"},
+                           headers=AUTH).status_code == 201
+        truth = synthetic_truth(seed=3)
+        ids = []
+        for seed in range(3):
+            f = generate_flight(truth, seed, duration_s=600.0, dt=2.0, damage=None).motor
+            r = client.post("/files", files={"file": (f"motor{seed}.csv", _csv(f))}, headers=AUTH)
+            assert r.status_code == 201, r.text
+            ids.append(r.json()["id"])
+        body = {"component": "motor", "base_set": "bench_motor",
+                "flights": {"train": [{"file_id": ids[0]}], "validation": [{"file_id": ids[1]}],
+                            "test": [{"file_id": ids[2]}]},
+                "settings": {"search": {"starts": 2, "sa_generations": 6, "lm_max_nfev": 3, "seed": 1}, "workers": 1}}
+        r = client.post("/jobs/fit", json=body, headers=AUTH)
+        assert r.status_code == 202, r.text
+        job = svc.runner.wait(r.json()["id"], timeout=240)
+        assert job["status"] == "succeeded", job["error"]
+        result = client.get(f"/jobs/{job['id']}/result").json()
+        assert result["fits"]["motor"]["parameters"]["R_w"] == pytest.approx(0.045)
+        assert result["fits"]["motor"]["parameters"]["I_0"] == pytest.approx(2.1)
+        assert result["parameter_set"]["motor"]["R_w"] == pytest.approx(0.045)
+    finally:
+        svc.close()

@@ -315,13 +315,17 @@ def _pack_traces(vec: np.ndarray, flights: Sequence[Flight], init_samples: int) 
 
 def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
                 settings: FitSettings = FitSettings(), *, pack: str | None = None,
-                progress: Progress | None = None, should_stop: ShouldStop | None = None) -> FitResult:
-    """Learn one pack's circuit and thermal parameters from its flights (the paper's procedure)."""
+                progress: Progress | None = None, should_stop: ShouldStop | None = None,
+                base_set: ParameterSet | None = None) -> FitResult:
+    """Learn one pack's circuit and thermal parameters from its flights (the paper's procedure).
+
+    The values not learned come from ``base_set`` if given (any set, e.g. a user's), else from the
+    built-in ``settings.base``."""
     t_start = time.perf_counter()
     stepper = _Stepper(progress, should_stop)
     stepper.report(0.0, "cleaning")
     splits, reports, rejected = _clean_splits({"train": train, "validation": val, "test": test}, BATTERY, settings.cleaning)
-    base_set = builtin(settings.base)
+    base_set = base_set if base_set is not None else builtin(settings.base)
     ref_set = builtin(settings.reference)
     pack_name = pack if pack in PACK_NAMES else PACK_NAMES[0]
     base_vec = base_set.pack_matrix()[PACK_NAMES.index(pack_name)]
@@ -372,15 +376,15 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
 
 def fit_motor(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
               settings: FitSettings = FitSettings(), *, progress: Progress | None = None,
-              should_stop: ShouldStop | None = None) -> FitResult:
+              should_stop: ShouldStop | None = None, base_set: ParameterSet | None = None) -> FitResult:
     """Learn the motors' thermal parameters (C_t, h and the core loss P_iron) from the mean motor
-    current and the bracket sensor."""
+    current and the bracket sensor; the other values from ``base_set`` (else ``settings.base``)."""
     t_start = time.perf_counter()
     stepper = _Stepper(progress, should_stop)
     stepper.report(0.0, "cleaning")
     splits, reports, rejected = _clean_splits({"train": train, "validation": val, "test": test}, MOTOR, settings.cleaning)
     s = settings
-    base_vec = builtin(s.base).motor_vector()
+    base_vec = (base_set if base_set is not None else builtin(s.base)).motor_vector()
     ref_vec = builtin(s.reference).motor_vector()
     with ThreadPoolExecutor(max_workers=max(1, s.workers)) as pool:
         def make(flights, workers, training):

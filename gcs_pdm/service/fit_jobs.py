@@ -58,6 +58,11 @@ def check_settings(settings: dict) -> tuple[str, str] | None:
                     return f"settings.{key}.{k}", f"expected {type(fields[k]).__name__}, got {v!r}"
         elif not _type_ok(value, getattr(defaults, key)):
             return f"settings.{key}", f"expected {type(getattr(defaults, key)).__name__}, got {value!r}"
+        elif key == "reference":
+            from gcs_pdm.models.params import BUILTIN_SETS
+
+            if value not in BUILTIN_SETS:
+                return f"settings.{key}", f"reference must be a built-in set: {', '.join(BUILTIN_SETS)}"
     return None
 
 
@@ -83,7 +88,6 @@ def make_fit_job(service) -> Callable:
         from gcs_pdm.fitting.logs import read_flights, write_outputs
         from gcs_pdm.fitting.procedure import FitSettings, fit_battery, fit_motor, merge_results
         from gcs_pdm.fitting.search import FitCancelled, SearchSettings
-        from gcs_pdm.models.params import BUILTIN_SETS
 
         job_dir = service.config.data_path / "jobs" / request.get("_job_id", "fit")
         job_dir.mkdir(parents=True, exist_ok=True)
@@ -97,8 +101,8 @@ def make_fit_job(service) -> Callable:
 
             opts["cleaning"] = CleaningSettings(**opts["cleaning"])
         ref_name = opts.pop("reference", "previous_si")
-        settings = FitSettings(search=search, base=base.name if base.name in BUILTIN_SETS else "paper_si",
-                               reference=ref_name, **opts)
+        # the values not learned come from the requested base set itself (a user's set too)
+        settings = FitSettings(search=search, base=base.name, reference=ref_name, **opts)
         targets = list(request["packs"]) if component == "battery" else [None]
         results, body = {}, {"component": component, "fits": {}, "plots": {}}
         for k, pack in enumerate(targets):
@@ -115,10 +119,10 @@ def make_fit_job(service) -> Callable:
             try:
                 if component == "battery":
                     res = fit_battery(splits["train"], splits["validation"], splits["test"], settings, pack=pack,
-                                      progress=part, should_stop=should_stop)
+                                      progress=part, should_stop=should_stop, base_set=base)
                 else:
                     res = fit_motor(splits["train"], splits["validation"], splits["test"], settings,
-                                    progress=part, should_stop=should_stop)
+                                    progress=part, should_stop=should_stop, base_set=base)
             except FitCancelled as exc:
                 raise JobCancelled(str(exc)) from None
             results[label] = res
