@@ -519,3 +519,21 @@ def test_same_mission_compares_what_the_vehicle_stores():
     assert not same_mission(items, sent + [sent[-1]])
     land = len(sent) - 1
     assert not same_mission(items, sent[:land] + [dataclasses.replace(sent[land], command=M.MAV_CMD_NAV_WAYPOINT)])
+
+
+def test_operator_faults_are_kept_per_fault_and_the_worst_per_motor_counts(tmp_path):
+    mission = original_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, mission)
+    try:
+        strong = svc.declare_fault("motor_power_loss", "aft", 0.7, "seen on the GCS", replan=False)
+        weak = svc.declare_fault("motor_power_loss", "aft", 0.3, "a second look", replan=False)
+        aft = [f for f in loop._all_motor_faults([]) if f.motor == "aft"]
+        assert len(aft) == 1 and aft[0].magnitude == pytest.approx(0.7)  # not the last declared
+        svc.clear_fault(weak)  # clearing one leaves the other in force
+        aft = [f for f in loop._all_motor_faults([]) if f.motor == "aft"]
+        assert len(aft) == 1 and aft[0].magnitude == pytest.approx(0.7)
+        svc.clear_fault(strong)
+        assert not [f for f in loop._all_motor_faults([]) if f.motor == "aft"]
+        assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(1.0)
+    finally:
+        svc.close()

@@ -105,7 +105,8 @@ class LiveLoop:
         self.reward_collected = 0.0
         # diagnosis bookkeeping
         self._fault_ids: dict[tuple[str, str], tuple[int, float]] = {}
-        self._operator_faults: dict[str, float] = {}
+        # operator faults by fault id (or by motor when declared without one) -> (motor, magnitude)
+        self._operator_faults: dict[object, tuple[str, float]] = {}
         self._last_status_s = -math.inf
         self._last_replan_s = -math.inf
         self._expectation: dict | None = None
@@ -297,7 +298,10 @@ class LiveLoop:
 
     def _all_motor_faults(self, fault_dicts=None) -> list[MotorFault]:
         dicts = list(fault_dicts if fault_dicts is not None else adapters.active_faults(self.diagnoser))
-        dicts += [{"type": "motor_power_loss", "component": m, "magnitude": v} for m, v in self._operator_faults.items()]
+        worst: dict[str, float] = {}
+        for m, v in self._operator_faults.values():  # several declared on one motor: the worst counts
+            worst[m] = max(v, worst.get(m, 0.0))
+        dicts += [{"type": "motor_power_loss", "component": m, "magnitude": v} for m, v in worst.items()]
         return adapters.motor_faults(dicts)
 
     def _check_deviation(self, t: float) -> None:
@@ -355,20 +359,26 @@ class LiveLoop:
             self._busy = True
         self._worker.submit(self._plan_then_next, reason, snap)
 
-    def declare_fault(self, motor: str, magnitude: float, replan: bool) -> None:
+    def declare_fault(self, motor: str, magnitude: float, replan: bool, fault_id: int | None = None) -> None:
         if self._elsewhere():
-            self._on_telemetry_thread(lambda: self.declare_fault(motor, magnitude, replan))
+            self._on_telemetry_thread(lambda: self.declare_fault(motor, magnitude, replan, fault_id))
             return
-        self._operator_faults[motor] = magnitude
+        self._operator_faults[fault_id if fault_id is not None else ("motor", motor)] = (motor, magnitude)
         self._update_motor_health(None)
         if replan:
             self.request_replan(f"operator: motor_power_loss {motor} {magnitude:.2f}")
 
-    def clear_operator_fault(self, motor: str) -> None:
+    def clear_operator_fault(self, motor: str, fault_id: int | None = None) -> None:
+        """Clear one operator fault (by its id; without one, every operator fault on ``motor``)."""
         if self._elsewhere():
-            self._on_telemetry_thread(lambda: self.clear_operator_fault(motor))
+            self._on_telemetry_thread(lambda: self.clear_operator_fault(motor, fault_id))
             return
-        self._operator_faults.pop(motor, None)
+        if fault_id is not None:
+            self._operator_faults.pop(fault_id, None)
+        else:
+            for key in [k for k, (m, _) in self._operator_faults.items() if m == motor]:
+                del self._operator_faults[key]
+        self._update_motor_health(None)
 
     def _plan_then_next(self, reason: str, snap: Snapshot) -> None:
         while True:

@@ -96,7 +96,7 @@ class Service:
                                     "note": note, "type": kind, "component": motor}, "operator")
         self.events.publish("fault", id=fid, time_s=t, kind=kind, target=motor, magnitude=magnitude, source="operator")
         if self.loop is not None:
-            self.loop.declare_fault(motor, magnitude, replan)
+            self.loop.declare_fault(motor, magnitude, replan, fault_id=fid)
         return fid
 
     def clear_fault(self, fault_id: int) -> None:
@@ -105,7 +105,7 @@ class Service:
             raise NotFound(f"fault {fault_id}")
         self.store.clear_fault(fault_id)
         if self.loop is not None and fault["source"] == "operator" and fault["target"]:
-            self.loop.clear_operator_fault(fault["target"])
+            self.loop.clear_operator_fault(fault["target"], fault_id=fault_id)
         self.events.publish("fault", id=fault_id, cleared=True, source="operator")
 
     def _proposed(self, plan_id: int) -> dict:
