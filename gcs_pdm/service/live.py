@@ -582,6 +582,7 @@ class LiveLoop:
                 "time_s": self._time_s, "current_seq": current_seq,
                 "stats": dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None})
             svc.store.set_plan_status(plan_id, "uploaded_unconfirmed", str(exc))
+            self._loads.pop(plan_id, None)
             self._set_mission(on_board if on_board is not None else items,
                               source="download" if on_board is not None else "upload")
             self._expectation = None
