@@ -1,6 +1,8 @@
 """Tlogs of the simulated vehicle read into per-pack battery flights and one motor flight, and fitted
 through the command line (all four packs from one set of tlogs)."""
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -73,3 +75,26 @@ def test_cli_fit_set_learns_packs_and_motors(tlogs, tmp_path):
     m = json.loads((out / "motor" / "result.json").read_text())
     assert ps.motor.C_t == m["parameters"]["C_t"] and ps.motor.P_iron == m["parameters"]["P_iron"]
     assert ps.provenance["files"]["test"] == [str(c)]
+
+
+# Real logs of other people's autopilots (../shared/tlogs): none carries per-pack temperatures, so
+# none can train a per-pack model, and each must say why rather than fit garbage or crash.
+TLOG_DIR = Path(os.environ.get("GCS_PDM_TLOG_DIR", Path(__file__).parents[1] / ".." / "shared" / "tlogs"))
+REAL_LOG_REASONS = {
+    "MarcusUWA_EAICS_flight.tlog": "0 BATTERY_STATUS messages",
+    "UAVLogViewer_vtol.tlog": "0 BATTERY_STATUS messages",
+    "jschall_magfit_scaling_test.tlog": "0 BATTERY_STATUS messages",
+    "ahmadkhanfar_TLOG_test.tlog": "100% of temperature_c missing",
+    "clydemcqueen_pymavlink_bug_2023-04-18.tlog": "100% of temperature_c missing",
+}
+
+
+@pytest.mark.skipif(not TLOG_DIR.is_dir(), reason=f"shared tlog corpus not found at {TLOG_DIR}")
+@pytest.mark.parametrize("name", sorted(REAL_LOG_REASONS))
+def test_fit_on_a_real_autopilot_log_fails_with_its_reason(name, tmp_path, capsys):
+    log = str(TLOG_DIR / name)
+    rc = main(["fit", "battery", "--pack", "LLF20", "--train", log, "--val", log, "--test", log,
+               "--out", str(tmp_path / "out"), "--starts", "1", "--no-plots", "--quiet"])
+    assert rc == 2
+    assert REAL_LOG_REASONS[name] in capsys.readouterr().err
+    assert not (tmp_path / "out" / "result.json").exists()

@@ -53,6 +53,9 @@ def read_table(path: str | Path, kind: str, name: str | None = None) -> Flight:
     return flight_from_columns(name, kind, df, source={"file": str(path)})
 
 
+_BATTERY_STATUS_ID = 147
+
+
 class _FrameCollector:
     """Collects pack, motor and ambient frames from a tlog replay."""
 
@@ -60,6 +63,7 @@ class _FrameCollector:
         self.packs: dict[str, list[tuple]] = {p: [] for p in PACK_NAMES}
         self.motors: dict[str, list[tuple]] = {}
         self.ambient: list[tuple] = []
+        self.battery_status_messages = 0  # all BATTERY_STATUS packets, to explain a pack with no frames
 
     def __call__(self, frame, t: float) -> None:
         kind = type(frame).__name__
@@ -104,6 +108,8 @@ def _collect_tlog(path: Path, col: "_FrameCollector") -> None:
     for ts_us, msgid, sysid, compid, payload, _start, _end in scan_tlog_bytes(path.read_bytes(), stats):
         if first_us is None:
             first_us = ts_us
+        if msgid == _BATTERY_STATUS_ID:
+            col.battery_status_messages += 1
         recv = (ts_us - first_us) / 1e6  # seconds from the log's first record
         frames = mapper.feed(recv, msgid, sysid, compid, payload)
         if frames:
@@ -132,7 +138,10 @@ def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES) 
         for p in packs:
             rows = np.array(col.packs[p], dtype=np.float64).reshape(-1, 4)
             if rows.shape[0] == 0:
-                raise FlightDataError(f"{path}: no frames for pack {p}")
+                raise FlightDataError(
+                    f"{path}: no frames for pack {p} (BATTERY_STATUS id {PACK_NAMES.index(p)} from the vehicle; "
+                    f"the log holds {col.battery_status_messages} BATTERY_STATUS messages in all; "
+                    "a per-pack fit needs per-pack battery telemetry)")
             t = rows[:, 0]
             out.append(flight_from_columns(f"{path.stem}_{p}", BATTERY, {
                 "time_s": t, "current_a": rows[:, 1], "voltage_v": rows[:, 2], "temperature_c": rows[:, 3],
