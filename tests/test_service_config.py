@@ -46,6 +46,29 @@ def test_bad_values_name_the_field(env, field):
         load_config(env=env)
 
 
+def test_every_configurable_planner_runs(monkeypatch):
+    """The names the config accepts are exactly the ones the planner adapter can run."""
+    import importlib
+    import typing
+
+    from gcs_pdm.service.adapters import run_planner
+
+    # modules, not the package's re-exported functions of the same names
+    exact, local_search, particle_filter = (importlib.import_module(f"gcs_pdm.planning.{m}")
+                                            for m in ("exact", "local_search", "particle_filter"))
+
+    ran = []
+    monkeypatch.setattr(local_search, "pf_local_search", lambda sim, **kw: ran.append("pfls"))
+    monkeypatch.setattr(particle_filter, "particle_filter", lambda sim, **kw: ran.append("pf"))
+    monkeypatch.setattr(exact, "exact_search", lambda sim, **kw: ran.append("exact"))
+    names = typing.get_args(ServiceConfig.model_fields["planner"].annotation)
+    assert {"auto", "pfls", "pf", "exact"} <= set(names)  # the names docs/service.md lists
+    for name in names:
+        assert load_config(env={"GCS_PDM_PLANNER": name}).planner == name
+        run_planner(name, sim=None, particles=3, seed=0, deadline_s=1.0)
+    assert ran == ["pfls" if n in ("auto", "stronger", "pfls") else n for n in names]
+
+
 def test_bad_files(tmp_path):
     with pytest.raises(ConfigError, match="nope.toml"):
         load_config(tmp_path / "nope.toml", env={})

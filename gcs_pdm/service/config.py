@@ -46,7 +46,8 @@ class ServiceConfig(BaseModel):
     # --- decision loop -----------------------------------------------------------------------
     policy: Literal["auto", "advise"] = Field("auto", description="auto: upload and tell the operator; advise: propose, operator approves")
     parameter_set: str = Field("paper_si", description="parameter set active at start-up (name in the store)")
-    planner: Literal["auto", "stronger", "pf", "exact"] = Field("auto", description="auto: the strongest planner available (else exact search)")
+    planner: Literal["auto", "pfls", "stronger", "pf", "exact"] = Field(
+        "auto", description="auto (= pfls, alias stronger): PF + local search; pf: Algorithm 1 alone; exact: branch and bound")
     particles: int = Field(30, ge=1, le=10_000)
     planner_deadline_s: float = Field(20.0, gt=0, description="wall-clock budget of one planning run")
     planner_seed: int = 0
