@@ -400,6 +400,41 @@ def test_a_kept_plan_supersedes_older_proposals_which_can_no_longer_be_approved(
         svc.close()
 
 
+def test_an_infeasible_kept_mission_warns_the_operator(tmp_path, monkeypatch):
+    """Nothing gets home and the current mission reaches the most: it is kept (nothing better to
+    upload), but the operator is told at once, loudly, instead of a silent 'kept' record."""
+    from gcs_pdm.service import adapters
+
+    def plan_candidates(*args, **kwargs):
+        cands = [Candidate("planner", (10, 9), False, 0.0, 120.0, -1.0, "pack below cut-off", {}),
+                 Candidate("keep", (3, 4), False, 0.0, 200.0, -1.0, "pack below cut-off", {}),
+                 Candidate("home", (), False, 0.0, 0.0, -1.0, "pack below cut-off", {})]
+        return cands, {"loads": {}, "plan_time_s": 0.0, "planner": "fake", "scenario": None}
+
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, original_mission())
+    try:
+        monkeypatch.setattr(adapters, "plan_candidates", plan_candidates)
+        loop._plan("fault", _snap(loop))
+        plan = svc.store.plans()[0]
+        assert plan["status"] == "kept" and "operator decision needed" in plan["why"]
+        assert vehicle.uploads == []
+        crit = [m for m in link.sent if m.get_type() == "STATUSTEXT" and m.severity == 2]
+        assert len(crit) == 1 and "no route gets home" in crit[0].text
+        assert len(crit[0].text) <= 50
+    finally:
+        svc.close()
+
+    # a feasible kept mission stays quiet
+    svc, loop, link, vehicle = _direct_loop(tmp_path / "quiet", FakeVehicleMissions, original_mission())
+    try:
+        monkeypatch.setattr(adapters, "plan_candidates", _fake_candidates(keep_reward=300, planner_reward=100))
+        loop._plan("fault", _snap(loop))
+        assert svc.store.plans()[0]["status"] == "kept"
+        assert not [m for m in link.sent if m.get_type() == "STATUSTEXT" and m.severity == 2]
+    finally:
+        svc.close()
+
+
 def test_plan_transition_is_conditional(tmp_path):
     mission = original_mission()
     svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, mission)

@@ -50,8 +50,10 @@ class EstimatorConfig:
     #: relative uncertainty of the parameter set's capacity against the real pack (1σ). No
     #: telemetry can remove it within a flight — the voltage-to-charge map carries the same
     #: mismatch — so it is added to the filter's SoC spread: σ² = σ_filter² + (σ_cap (1 - SoC))².
-    #: 0.12: the SoC error follows the ratio C_b/C_max, and two independent ±15 % log-uniform
-    #: factors (the simulated vehicle's spread, close to an uncalibrated set's) give 0.12
+    #: 0.12: the SoC error follows C_b, ±15 % log-uniform in the simulated vehicle's truth (close to
+    #: an uncalibrated set's spread), which alone is 0.087; the other parameters' mismatch in the
+    #: voltage-to-charge map adds to it, and with 0.12 the measured 2σ coverage is still only
+    #: 89-94 % (docs/estimation.md), so a smaller value would be overconfident
     capacity_rel_sigma: float = 0.12
 
 

@@ -36,6 +36,7 @@ from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, m
 log = logging.getLogger(__name__)
 
 PREDICT_PERIOD_S = 10.0
+MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 #: a diagnosed magnitude that changes by this much is a new fault for the planner
@@ -469,7 +470,12 @@ class LiveLoop:
             self._supersede_proposals(pid)
             self._loads[pid] = load
             self._expect(snap, chosen, pid)
-            svc.events.publish("plan", id=pid, status="kept", time_s=snap.time_s, why=why, chosen=chosen.to_dict())
+            svc.events.publish("plan", id=pid, status="kept", time_s=snap.time_s, why=why, chosen=chosen.to_dict(),
+                               operator_decision_needed=not chosen.feasible)
+            if not chosen.feasible:
+                # Nothing gets home, and the current mission reaches the most before it fails: there
+                # is nothing better to upload, but the operator must hear it now, not find it later.
+                self.statustext("PDM: no route gets home, mission kept: DECIDE", MAV_SEVERITY_CRITICAL)
             return
         mission = chosen.extra["mission"]
         items = [item_from_json(d) for d in mission["items"]]
