@@ -1,7 +1,7 @@
 """Tlogs of the simulated vehicle read into per-pack battery flights and one motor flight, and fitted
 through the command line (all four packs from one set of tlogs)."""
 import json
-import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +14,9 @@ from gcs_pdm.models.params import PACK_NAMES, ParameterSet
 from gcs_pdm.sim.model import SimConfig
 from gcs_pdm.sim.record import fly
 from gcs_pdm.sim.routes import mission_from_enu
+
+sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
+from tlog_corpus import TLOG_DIR, needs_corpus  # noqa: E402
 
 ROUTE = mission_from_enu([(4000, 0, 100), (4000, 4000, 150), (0, 4000, 100), (0, 0, 100)])
 
@@ -79,7 +82,6 @@ def test_cli_fit_set_learns_packs_and_motors(tlogs, tmp_path):
 
 # Real logs of other people's autopilots (../shared/tlogs): none carries per-pack temperatures, so
 # none can train a per-pack model, and each must say why rather than fit garbage or crash.
-TLOG_DIR = Path(os.environ.get("GCS_PDM_TLOG_DIR", Path(__file__).parents[1] / ".." / "shared" / "tlogs"))
 REAL_LOG_REASONS = {
     "MarcusUWA_EAICS_flight.tlog": "0 BATTERY_STATUS messages",
     "UAVLogViewer_vtol.tlog": "0 BATTERY_STATUS messages",
@@ -89,7 +91,7 @@ REAL_LOG_REASONS = {
 }
 
 
-@pytest.mark.skipif(not TLOG_DIR.is_dir(), reason=f"shared tlog corpus not found at {TLOG_DIR}")
+@needs_corpus
 @pytest.mark.parametrize("name", sorted(REAL_LOG_REASONS))
 def test_fit_on_a_real_autopilot_log_fails_with_its_reason(name, tmp_path, capsys):
     log = str(TLOG_DIR / name)

@@ -17,6 +17,7 @@ from gcs_pdm.mavlink.tlog import scan_tlog
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from mavlink_builders import PacketFactory  # noqa: E402
 from mavlink_peers import free_tcp_port, free_udp_port  # noqa: E402
+from tlog_corpus import TLOG_DIR  # noqa: E402
 
 
 def fake_vehicle(port: int, **kwargs):
@@ -125,9 +126,6 @@ def test_signing_key_formats(tmp_path):
     (tmp_path / "empty").write_text("   \n")
     with pytest.raises(ValueError, match="empty"):
         load_signing_key(tmp_path / "empty")
-
-
-TLOG_DIR = Path(os.environ.get("GCS_PDM_TLOG_DIR", Path(__file__).parents[1] / ".." / "shared" / "tlogs"))
 
 
 @pytest.mark.skipif(not (TLOG_DIR / "MarcusUWA_EAICS_flight.tlog").is_file(), reason=f"no tlog corpus at {TLOG_DIR}")

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import os
 import random
 import subprocess
 import sys
@@ -17,9 +16,9 @@ from gcs_pdm.mavlink.tlog import ScanStats, TlogWriter, scan_tlog, scan_tlog_byt
 
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from mavlink_builders import PacketFactory, tlog_record  # noqa: E402
+from tlog_corpus import TLOG_DIR, needs_corpus  # noqa: E402
 
 REPO = Path(__file__).parents[1]
-TLOG_DIR = Path(os.environ.get("GCS_PDM_TLOG_DIR", REPO / ".." / "shared" / "tlogs"))
 
 # Per file: valid packets, bad-CRC packets, frames by kind. Packet counts equal pymavlink's reader
 # (README of the corpus and test_counts_match_pymavlink below); frame counts are what the default
@@ -39,10 +38,6 @@ EXPECTED = {
     "jschall_magfit_scaling_test.tlog": (2632, 0, {"airdata": 140, "ambient": 140, "mission_progress": 140,
                                                    "position": 140, "status": 48, "statustext": 5}),
 }
-
-needs_corpus = pytest.mark.skipif(not TLOG_DIR.is_dir(),
-                                  reason=f"shared tlog corpus not found at {TLOG_DIR} (set GCS_PDM_TLOG_DIR)")
-
 
 def corpus_files() -> list[Path]:
     return sorted(TLOG_DIR.glob("*.tlog")) if TLOG_DIR.is_dir() else []

@@ -53,9 +53,6 @@ def read_table(path: str | Path, kind: str, name: str | None = None) -> Flight:
     return flight_from_columns(name, kind, df, source={"file": str(path)})
 
 
-_BATTERY_STATUS_ID = 147
-
-
 class _FrameCollector:
     """Collects pack, motor and ambient frames from a tlog replay."""
 
@@ -98,8 +95,11 @@ def _collect_tlog(path: Path, col: "_FrameCollector") -> None:
     this process's clock; times count from the log's first record. Frames the mapping held back until the vehicle clock synced arrive
     together; they keep their back-dated spacing.
     """
+    from gcs_pdm.mavlink.dialect import MESSAGE_IDS_BY_NAME
     from gcs_pdm.mavlink.mapping import FrameMapper
     from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes
+
+    battery_status = MESSAGE_IDS_BY_NAME["BATTERY_STATUS"]
 
     mapper = FrameMapper()
     stats = ScanStats()
@@ -108,7 +108,7 @@ def _collect_tlog(path: Path, col: "_FrameCollector") -> None:
     for ts_us, msgid, sysid, compid, payload, _start, _end in scan_tlog_bytes(path.read_bytes(), stats):
         if first_us is None:
             first_us = ts_us
-        if msgid == _BATTERY_STATUS_ID:
+        if msgid == battery_status:
             col.battery_status_messages += 1
         recv = (ts_us - first_us) / 1e6  # seconds from the log's first record
         frames = mapper.feed(recv, msgid, sysid, compid, payload)
