@@ -25,6 +25,7 @@ from gcs_pdm.planning.simulator import VehicleSimulator, original_order
 from gcs_pdm.planning.table3_scenario import TABLE3_HOME, TABLE3_WAYPOINTS, preflight_scenario
 from gcs_pdm.service.config import load_config
 from gcs_pdm.service.decision import Candidate, choose
+from gcs_pdm.diagnosis.faults import operator_fault
 from gcs_pdm.service.live import LiveLoop
 from gcs_pdm.service.runtime import Service
 from gcs_pdm.sim.truth import true_parameters
@@ -497,7 +498,7 @@ def test_operator_calls_from_other_threads_run_on_the_telemetry_thread(tmp_path)
     loop.estimator.ready = spy
     loop.start()
     try:
-        loop.declare_fault("aft", 0.5, replan=True)  # as an HTTP handler would, from another thread
+        loop.declare_fault(operator_fault("aft", 0.5, None), replan=True)  # as an HTTP handler would, from another thread
         loop.request_replan("operator")
         deadline = time.monotonic() + 10
         while len(seen) < 2 and time.monotonic() < deadline:

@@ -1,14 +1,16 @@
 """Faults as the diagnoser reports them: (type, magnitude, time, evidence, confidence).
 
-``Fault.to_dict()`` is a stable contract: the service stores it and the planner turns a
-``motor_power_loss`` into ``powertrain.MotorFault(component, magnitude)``. Keys are never renamed;
-new keys may be added.
+One vocabulary end to end: the diagnoser raises :class:`Fault` objects, the service passes them on
+unchanged (an operator-declared fault is a ``Fault`` too, see :func:`operator_fault`), and the
+planner's view is :func:`motor_faults` (the worst ``powertrain.MotorFault`` per motor).
+``Fault.to_dict()`` is a stable contract (the service stores it): keys are never renamed; new keys
+may be added.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Iterable
 
 from gcs_pdm.models.powertrain import MotorFault
 
@@ -86,6 +88,27 @@ class Fault:
                        updated_s=d.get("updated_s"), cleared_s=d.get("cleared_s"))
         except KeyError as exc:
             raise ValueError(f"fault: missing field {exc.args[0]!r}") from None
+
+
+def operator_fault(motor: str, magnitude: float, time_s: float | None) -> Fault:
+    """A motor power loss the operator declared (seen on the ground station): certain, no evidence.
+
+    ``time_s`` is the message time of the declaration (NaN before any telemetry)."""
+    return Fault(MOTOR_POWER_LOSS, motor, float(magnitude), math.nan if time_s is None else float(time_s), 1.0,
+                 {"source": "operator"})
+
+
+def motor_faults(faults: Iterable[Fault]) -> list[MotorFault]:
+    """The planner's view: one ``MotorFault`` per motor with an active power loss, the worst one
+    when several are reported on a motor (diagnosed and declared, or declared twice)."""
+    worst: dict[str, MotorFault] = {}
+    for f in faults:
+        if f.type != MOTOR_POWER_LOSS or not f.active:
+            continue
+        mf = f.as_motor_fault()
+        if mf.motor not in worst or mf.magnitude > worst[mf.motor].magnitude:
+            worst[mf.motor] = mf
+    return [worst[m] for m in sorted(worst)]
 
 
 def _jsonable(x: Any) -> Any:

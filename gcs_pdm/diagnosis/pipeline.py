@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from gcs_pdm.diagnosis.faults import Fault
+from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, Fault
 from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, MotorPowerLossDetector
 from gcs_pdm.diagnosis.pack_health import PackHealthConfig, PackHealthMonitor
 from gcs_pdm.diagnosis.prognosis import PrognosisConfig, PrognosisMonitor
@@ -106,8 +106,6 @@ class DiagnosisPipeline:
     def _adopt_pack_degradation(self) -> None:
         """Let the estimator (and so the predictions) run each degraded pack on its diagnosed
         capacity and resistance; back to the parameter set when the fault clears."""
-        from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE
-
         for name in PACK_NAMES:
             est = self.pack_health.latest.get(name)
             cap = self.pack_health.faults.get((PACK_CAPACITY_LOSS, name))

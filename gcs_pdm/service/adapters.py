@@ -6,12 +6,14 @@ adapters only translate between the service's plain values and the packages' typ
 """
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from gcs_pdm.diagnosis.faults import Fault
 from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service.decision import Candidate, CatalogueWaypoint
@@ -31,24 +33,21 @@ def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Se
                    *, horizon_s: float = 3600.0, step_s: float = 10.0, n_samples: int = 64, seed: int = 0):
     """A Monte Carlo time-to-cut-off prediction at the present load, as a callable to run elsewhere.
 
-    The estimator's arrays are copied here (on the telemetry thread) so the prediction can run on a
-    worker while the filters move on."""
-    from gcs_pdm.estimation.prediction import FutureLoad, predict
+    The estimator is copied here (on the telemetry thread) so the prediction can run on a worker
+    while the filters move on; the prediction itself is the estimation package's
+    ``predict_from_estimator`` (the diagnoser's prognosis uses the same one, capacity spread included)."""
+    from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator
     from gcs_pdm.models.powertrain import Limits, fault_vector
 
-    tm, tm_sd = estimator.motors.temperature()
-    tm = np.where(np.isfinite(tm), tm, estimator.ambient_c)
-    tm_sd = np.where(np.isfinite(tm_sd), tm_sd, 2.0)
-    params = (np.array(estimator.packs.params, copy=True), np.array(estimator.motors.params[0], copy=True))
-    mean, cov = np.array(estimator.packs.mean, copy=True), np.array(estimator.packs.cov, copy=True)
+    frozen = copy.deepcopy(estimator)
     load = FutureLoad.constant(shaft_power_w, horizon_s, step_s, ambient_c)
     fv = fault_vector(list(faults))
     lim = limits or Limits()
 
     def run():
-        return predict(params, mean, cov, np.array(tm, copy=True), np.array(tm_sd, copy=True), load,
-                       rng=np.random.default_rng(seed), n_samples=n_samples, fault=fv, limits=lim, trajectories=False,
-                       stop_on_failure=False)  # each pack to its own cut-off, not only the first
+        return predict_from_estimator(frozen, load, rng=np.random.default_rng(seed), n_samples=n_samples, fault=fv,
+                                      limits=lim, trajectories=False,
+                                      stop_on_failure=False)  # each pack to its own cut-off, not only the first
 
     return run
 
@@ -67,29 +66,9 @@ def estimator_of(diagnoser):
     return getattr(diagnoser, "estimator", None)
 
 
-def active_faults(diagnoser) -> list[dict]:
-    """The diagnoser's active faults as ``Fault.to_dict()`` dicts (type, component, magnitude, ...)."""
-    faults = getattr(diagnoser, "active_faults", None)
-    if faults is None:
-        faults = getattr(diagnoser, "faults")
-    if callable(faults):
-        faults = faults()
-    out = []
-    for f in faults:
-        d = f.to_dict() if hasattr(f, "to_dict") else dict(f)
-        if d.get("active", True):
-            out.append(d)
-    return out
-
-
-def motor_faults(fault_dicts: Sequence[dict]) -> list[MotorFault]:
-    """The planner's view: one MotorFault per motor power loss (the largest if reported twice)."""
-    worst: dict[str, float] = {}
-    for d in fault_dicts:
-        if d.get("type", d.get("kind")) == "motor_power_loss":
-            motor = d.get("component", d.get("target"))
-            worst[motor] = max(worst.get(motor, 0.0), float(d["magnitude"]))
-    return [MotorFault(m, min(max(v, 0.0), 1.0)) for m, v in sorted(worst.items())]
+def active_faults(diagnoser) -> list[Fault]:
+    """The diagnoser's active faults (typed: ``gcs_pdm.diagnosis.faults.Fault``)."""
+    return list(diagnoser.active_faults())
 
 
 # --- planning ----------------------------------------------------------------------------------

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from gcs_pdm import missions as M
+from gcs_pdm.diagnosis.faults import Fault, motor_faults
 from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusTextFrame
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
@@ -66,7 +67,7 @@ class Snapshot:
     position: tuple[float, float, float]  # lat, lon, altitude above home
     ambient_c: float
     faults: tuple[MotorFault, ...]
-    fault_records: tuple[dict, ...]
+    fault_records: tuple[Fault, ...]  # the diagnoser's active faults (operator faults are in ``faults``)
     current_seq: int | None
     soc: tuple[float, ...]
 
@@ -106,8 +107,8 @@ class LiveLoop:
         self.reward_collected = 0.0
         # diagnosis bookkeeping
         self._fault_ids: dict[tuple[str, str], tuple[int, float]] = {}
-        # operator faults by fault id (or by motor when declared without one) -> (motor, magnitude)
-        self._operator_faults: dict[object, tuple[str, float]] = {}
+        # operator faults by fault id (or by motor when declared without one)
+        self._operator_faults: dict[object, Fault] = {}
         self._last_status_s = -math.inf
         self._last_replan_s = -math.inf
         self._expectation: dict | None = None
@@ -267,43 +268,40 @@ class LiveLoop:
         self._predictor.submit(run)
 
     def _check_faults(self, t: float) -> None:
-        current = {(d.get("type"), d.get("component")): d for d in adapters.active_faults(self.diagnoser)}
+        current = {f.key: f for f in adapters.active_faults(self.diagnoser)}
         new_or_grown = []
-        for key, d in current.items():
-            mag = float(d.get("magnitude", 0.0))
+        for key, f in current.items():
             known = self._fault_ids.get(key)
-            if known is None or abs(mag - known[1]) >= MAGNITUDE_STEP:
+            if known is None or abs(f.magnitude - known[1]) >= MAGNITUDE_STEP:
                 if known is not None:
                     self.service.store.clear_fault(known[0])
-                fid = self.service.store.add_fault(
-                    {"time_s": d.get("time_s", t), "kind": key[0], "target": key[1], "magnitude": mag, **d}, "diagnoser")
-                self._fault_ids[key] = (fid, mag)
-                new_or_grown.append(d)
-                self.service.events.publish("fault", id=fid, time_s=t, kind=key[0], target=key[1], magnitude=mag,
-                                            confidence=d.get("confidence"), source="diagnoser")
-                log.info("fault at t=%.1f s: %s %s magnitude %.2f", t, key[0], key[1], mag)
+                fid = self.service.store.add_fault(f, "diagnoser")
+                self._fault_ids[key] = (fid, f.magnitude)
+                new_or_grown.append(f)
+                self.service.events.publish("fault", id=fid, time_s=t, kind=f.type, target=f.component,
+                                            magnitude=f.magnitude, confidence=f.confidence, source="diagnoser")
+                log.info("fault at t=%.1f s: %s %s magnitude %.2f", t, f.type, f.component, f.magnitude)
         for key in [k for k in self._fault_ids if k not in current]:
             fid, _ = self._fault_ids.pop(key)
             self.service.store.clear_fault(fid)
             self.service.events.publish("fault", id=fid, time_s=t, kind=key[0], target=key[1], cleared=True)
-        self._update_motor_health(current.values())
+        self._update_motor_health(list(current.values()))
         if new_or_grown:
-            self.request_replan("fault: " + ", ".join(f"{d.get('type')} {d.get('component')}" for d in new_or_grown))
+            self.request_replan("fault: " + ", ".join(f"{f.type} {f.component}" for f in new_or_grown))
 
-    def _update_motor_health(self, fault_dicts) -> None:
-        faults = self._all_motor_faults(fault_dicts)
+    def _update_motor_health(self, diagnosed: list[Fault] | None) -> None:
+        faults = self._all_motor_faults(diagnosed)
         for n in MOTOR_NAMES:
             f = next((x for x in faults if x.motor == n), None)
             self.service.state.update_nested("motors", n, health=1.0 - (f.magnitude if f else 0.0),
                                              fault={"kind": f.kind, "magnitude": f.magnitude} if f else None)
 
-    def _all_motor_faults(self, fault_dicts=None) -> list[MotorFault]:
-        dicts = list(fault_dicts if fault_dicts is not None else adapters.active_faults(self.diagnoser))
-        worst: dict[str, float] = {}
-        for m, v in self._operator_faults.values():  # several declared on one motor: the worst counts
-            worst[m] = max(v, worst.get(m, 0.0))
-        dicts += [{"type": "motor_power_loss", "component": m, "magnitude": v} for m, v in worst.items()]
-        return adapters.motor_faults(dicts)
+    def _all_motor_faults(self, diagnosed: list[Fault] | None = None) -> list[MotorFault]:
+        """The planner's view of the diagnosed (default: the diagnoser's active ones) and the
+        operator's faults together: the worst per motor."""
+        if diagnosed is None:
+            diagnosed = adapters.active_faults(self.diagnoser)
+        return motor_faults([*diagnosed, *self._operator_faults.values()])
 
     def _check_deviation(self, t: float) -> None:
         """A significant deviation of observed from predicted discharge (the paper's second trigger)."""
@@ -327,12 +325,12 @@ class LiveLoop:
         state = self.estimator.powertrain_state()
         state = PowertrainState(pack_state=np.array(state.pack_state, copy=True),
                                 motor_temp_c=np.array(state.motor_temp_c, copy=True))
-        dicts = adapters.active_faults(self.diagnoser)
+        diagnosed = adapters.active_faults(self.diagnoser)
         amb = self.service.state.get("ambient_c")
         soc = tuple(float(v) for v in self.estimator.estimate().soc) if self.estimator.ready() else ()
         return Snapshot(time_s=t, state=state, position=self._position,
                         ambient_c=float(amb) if amb is not None else 20.0,
-                        faults=tuple(self._all_motor_faults(dicts)), fault_records=tuple(dicts),
+                        faults=tuple(self._all_motor_faults(diagnosed)), fault_records=tuple(diagnosed),
                         current_seq=self.service.state.get("mission")["current_seq"], soc=soc)
 
     def _elsewhere(self) -> bool:
@@ -360,14 +358,16 @@ class LiveLoop:
             self._busy = True
         self._worker.submit(self._plan_then_next, reason, snap)
 
-    def declare_fault(self, motor: str, magnitude: float, replan: bool, fault_id: int | None = None) -> None:
+    def declare_fault(self, fault: Fault, replan: bool, fault_id: int | None = None) -> None:
+        """An operator-declared motor fault (``diagnosis.faults.operator_fault``), kept by its fault id
+        (without one, by motor: a second declaration on that motor replaces the first)."""
         if self._elsewhere():
-            self._on_telemetry_thread(lambda: self.declare_fault(motor, magnitude, replan, fault_id))
+            self._on_telemetry_thread(lambda: self.declare_fault(fault, replan, fault_id))
             return
-        self._operator_faults[fault_id if fault_id is not None else ("motor", motor)] = (motor, magnitude)
+        self._operator_faults[fault_id if fault_id is not None else ("motor", fault.component)] = fault
         self._update_motor_health(None)
         if replan:
-            self.request_replan(f"operator: motor_power_loss {motor} {magnitude:.2f}")
+            self.request_replan(f"operator: {fault.type} {fault.component} {fault.magnitude:.2f}")
 
     def clear_operator_fault(self, motor: str, fault_id: int | None = None) -> None:
         """Clear one operator fault (by its id; without one, every operator fault on ``motor``)."""
@@ -377,7 +377,7 @@ class LiveLoop:
         if fault_id is not None:
             self._operator_faults.pop(fault_id, None)
         else:
-            for key in [k for k, (m, _) in self._operator_faults.items() if m == motor]:
+            for key in [k for k, f in self._operator_faults.items() if f.component == motor]:
                 del self._operator_faults[key]
         self._update_motor_health(None)
 
@@ -460,7 +460,7 @@ class LiveLoop:
         chosen, why = choose(cands)
         load = (info["loads"].get(chosen.name), snap.time_s)
         body = {"reason": reason, "policy": svc.policy, "parameter_set": self.params.name,
-                "faults": [dataclasses.asdict(f) for f in snap.faults], "fault_records": list(snap.fault_records),
+                "faults": [dataclasses.asdict(f) for f in snap.faults], "fault_records": [f.to_dict() for f in snap.fault_records],
                 "candidates": [c.to_dict() for c in cands], "chosen": chosen.to_dict(), "why": why,
                 "previous_items": [item_to_json(i) for i in self.mission_items],
                 "previous_route": keep, "plan_time_s": info["plan_time_s"], "planner": info["planner"],

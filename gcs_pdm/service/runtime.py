@@ -7,6 +7,7 @@ import logging
 import time
 from pathlib import Path
 
+from gcs_pdm.diagnosis.faults import MOTOR_POWER_LOSS, operator_fault
 from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.service.config import ServiceConfig, new_token
 from gcs_pdm.service.decision import CatalogueWaypoint
@@ -92,11 +93,13 @@ class Service:
 
     def declare_fault(self, kind: str, motor: str, magnitude: float, note: str, replan: bool = True) -> int:
         t = self.state.get("time_s")
-        fid = self.store.add_fault({"time_s": t, "kind": kind, "target": motor, "magnitude": magnitude,
-                                    "note": note, "type": kind, "component": motor}, "operator")
+        if kind != MOTOR_POWER_LOSS:
+            raise ValueError(f"kind: an operator can declare {MOTOR_POWER_LOSS} only, not {kind!r}")
+        fault = operator_fault(motor, magnitude, t)
+        fid = self.store.add_fault(fault, "operator", note)
         self.events.publish("fault", id=fid, time_s=t, kind=kind, target=motor, magnitude=magnitude, source="operator")
         if self.loop is not None:
-            self.loop.declare_fault(motor, magnitude, replan, fault_id=fid)
+            self.loop.declare_fault(fault, replan, fault_id=fid)
         return fid
 
     def clear_fault(self, fault_id: int) -> None:

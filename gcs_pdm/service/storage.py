@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sqlite3
 import threading
 import time
@@ -17,6 +18,7 @@ import uuid
 from pathlib import Path
 from typing import Any, Iterable
 
+from gcs_pdm.diagnosis.faults import Fault
 from gcs_pdm.models.params import BUILTIN_SETS, ParameterSet
 
 log = logging.getLogger(__name__)
@@ -210,12 +212,18 @@ class Store:
 
     # --- faults --------------------------------------------------------------------------------
 
-    def add_fault(self, body: dict, source: str) -> int:
+    def add_fault(self, fault: Fault, source: str, note: str = "") -> int:
+        """Store ``fault`` (the diagnoser's or an operator's); the HTTP API shows its ``type`` as
+        ``kind`` and its ``component`` as ``target``. Its ``to_dict()`` is kept whole as the detail."""
+        body = fault.to_dict()
+        if not math.isfinite(body["time_s"]):  # declared before any telemetry: no message time
+            body["time_s"] = None
+        if note:
+            body["note"] = note
         with self._lock:
             cur = self._db.execute(
                 "INSERT INTO faults(time_s, kind, target, magnitude, source, active, body, created_at) VALUES(?,?,?,?,?,1,?,?)",
-                (body.get("time_s"), body.get("kind", "unknown"), body.get("target"), body.get("magnitude"),
-                 source, _dumps(body), self._clock()))
+                (body["time_s"], fault.type, fault.component, fault.magnitude, source, _dumps(body), self._clock()))
             return int(cur.lastrowid)
 
     def clear_fault(self, fault_id: int) -> None:
