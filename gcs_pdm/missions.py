@@ -7,7 +7,8 @@ that a mission survives upload, download and file round trips bit for bit.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import math
+from dataclasses import asdict, dataclass, fields, replace
 
 # MAV_CMD values used by the builders (common.xml).
 MAV_CMD_NAV_WAYPOINT = 16
@@ -140,3 +141,17 @@ def as_sent(item: MissionItem) -> MissionItem:
     """The item as it comes back from a vehicle: params and z are float32 on the wire."""
     return replace(item, param1=_f32(item.param1), param2=_f32(item.param2), param3=_f32(item.param3),
                    param4=_f32(item.param4), z=_f32(item.z))
+
+
+def item_to_json(item: MissionItem) -> dict:
+    """One item as JSON (the service stores and serves missions so): NaN params ("unchanged") become null."""
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(item).items()}
+
+
+def item_from_json(d: dict) -> MissionItem:
+    """The inverse of :func:`item_to_json` (a null param is NaN again); unknown keys are ignored."""
+    vals = {f.name: d[f.name] for f in fields(MissionItem) if f.name in d}
+    for k in ("param1", "param2", "param3", "param4"):
+        if vals.get(k) is None:
+            vals[k] = float("nan")
+    return MissionItem(**vals)

@@ -9,7 +9,6 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 
-PLANNERS = ("pf", "exact", "pfls", "brute")
 DEFAULT_LEARNED = Path("fixtures/params/learned_sim.json")
 
 
@@ -17,9 +16,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("plan", help="plan a route for a scenario file and print it",
                               description="Plan the best route for SCENARIO.json (format: docs/planning.md).")
     p.add_argument("scenario", type=Path, help="scenario JSON file")
-    p.add_argument("--planner", choices=PLANNERS, default="pfls",
-                   help="pf = the paper's Algorithm 1; exact = branch and bound; pfls = PF + local search; "
-                        "brute = every ordered subset (small scenarios only)")
+    from gcs_pdm.planning.planners import ALIASES, REGISTRY
+
+    p.add_argument("--planner", choices=(*REGISTRY, *ALIASES), default="pfls",
+                   help="; ".join([f"{e.name} = {e.summary}" for e in REGISTRY.values()]
+                                  + [f"{a} = {n}" for a, n in ALIASES.items()]))
     p.add_argument("--particles", type=int, default=30, help="particles K (pf, pfls)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dt", type=float, default=10.0, help="planning sample length, s")

@@ -31,6 +31,7 @@ import numpy as np
 
 from gcs_pdm.models import kernel
 from gcs_pdm.planning.plan import Plan, better, make_plan, rank
+from gcs_pdm.planning.route_moves import improve
 from gcs_pdm.planning.simulator import DEFAULT_THETA, FAILURE_NAMES, FlightState, Outcome, VehicleSimulator
 
 log = logging.getLogger(__name__)
@@ -88,8 +89,6 @@ def exact_search(sim: VehicleSimulator, *, theta: Sequence[float] = DEFAULT_THET
         else (-1.0, -np.inf)
     warm_routes = 0
     if warm_start and root_out.feasible[0]:
-        from gcs_pdm.planning.local_search import improve
-
         r, rw, ob, warm_routes = improve(sim, (), theta=theta, should_stop=should_stop)
         if better(rw, ob, best_r, best_o):
             best_route, best_r, best_o = r, rw, ob

@@ -1,31 +1,80 @@
-"""One entry point over the planners, for the CLI and the service."""
+"""The planner registry: every planner by name, with its aliases. The CLI (``gcs-pdm plan
+--planner``), the service's adapter and the service's configuration all read this one table.
+
+Adding a planner: write ``my_planner(sim, *, particles, seed, theta, should_stop) -> Plan`` (or
+wrap it), add one :class:`PlannerEntry` to ``REGISTRY``; the CLI's choices and the service's
+accepted ``planner`` values follow.
+"""
 from __future__ import annotations
 
+import importlib
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 from gcs_pdm.models.params import ParameterSet
-from gcs_pdm.planning.exact import brute_force, exact_search
-from gcs_pdm.planning.local_search import pf_local_search
-from gcs_pdm.planning.particle_filter import particle_filter
 from gcs_pdm.planning.plan import Plan
 from gcs_pdm.planning.scenario import Scenario
 from gcs_pdm.planning.simulator import DEFAULT_DT_S, DEFAULT_THETA, VehicleSimulator
 
-PLANNERS = ("pf", "exact", "pfls", "brute")
+StopCheck = Callable[[], bool]
+
+# The modules, not their functions (the package re-exports a function named ``particle_filter``):
+# the registry looks each planner up at call time, so a replaced one (a test's spy) is the one run.
+exact, local_search, particle_filter = (importlib.import_module(f"gcs_pdm.planning.{m}")
+                                        for m in ("exact", "local_search", "particle_filter"))
+
+
+@dataclass(frozen=True)
+class PlannerEntry:
+    name: str
+    run: Callable[..., Plan]   # (sim, *, particles, seed, theta, should_stop) -> Plan
+    summary: str
+    live: bool = True          # fast enough for the service's replans (brute force is not)
+
+
+REGISTRY: dict[str, PlannerEntry] = {e.name: e for e in (
+    PlannerEntry("pf", lambda sim, *, particles, seed, theta, should_stop: particle_filter.particle_filter(
+        sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop),
+        "the paper's Algorithm 1"),
+    PlannerEntry("exact", lambda sim, *, particles, seed, theta, should_stop: exact.exact_search(
+        sim, theta=theta, should_stop=should_stop),
+        "branch and bound"),
+    PlannerEntry("pfls", lambda sim, *, particles, seed, theta, should_stop: local_search.pf_local_search(
+        sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop),
+        "PF + local search (the stronger planner)"),
+    PlannerEntry("brute", lambda sim, *, particles, seed, theta, should_stop: exact.brute_force(sim, theta=theta),
+        "every ordered subset (small scenarios only)", live=False),
+)}
+
+#: other names for a planner: ``auto`` is the strongest one the package offers
+ALIASES = {"auto": "pfls", "stronger": "pfls"}
+
+#: every planner name (the CLI's choices)
+PLANNERS = tuple(REGISTRY)
+#: the names the service accepts (``planner`` setting): aliases first, then the live planners
+SERVICE_PLANNERS = (*ALIASES, *(name for name, e in REGISTRY.items() if e.live))
+
+
+def resolve(name: str) -> PlannerEntry:
+    """The planner called ``name`` (an alias resolves to its planner)."""
+    entry = REGISTRY.get(ALIASES.get(name, name))
+    if entry is None:
+        raise ValueError(f"planner: expected one of {(*ALIASES, *REGISTRY)}, got {name!r}")
+    return entry
+
+
+def run_planner(name: str, sim: VehicleSimulator, *, particles: int = 30, seed=0,
+                theta: Sequence[float] = DEFAULT_THETA, should_stop: StopCheck | None = None) -> Plan:
+    """Run the named planner (or alias) on ``sim``."""
+    return resolve(name).run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
 
 
 def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: ParameterSet | None = None,
                   particles: int = 30, seed: int = 0, theta: Sequence[float] = DEFAULT_THETA,
                   dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
-                  should_stop: Callable[[], bool] | None = None) -> Plan:
-    """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set)."""
+                  should_stop: StopCheck | None = None) -> Plan:
+    """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set);
+    the CLI's entry (the service builds its simulator itself: ``service.adapters.plan_candidates``)."""
+    entry = resolve(planner)
     sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed)
-    if planner == "pf":
-        return particle_filter(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
-    if planner == "pfls":
-        return pf_local_search(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
-    if planner == "exact":
-        return exact_search(sim, theta=theta, should_stop=should_stop)
-    if planner == "brute":
-        return brute_force(sim, theta=theta)
-    raise ValueError(f"planner: expected one of {PLANNERS}, got {planner!r}")
+    return entry.run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)

@@ -79,21 +79,11 @@ def _deadline(deadline_s: float) -> Callable[[], bool]:
 
 
 def run_planner(name: str, sim, *, particles: int, seed: int, deadline_s: float):
-    """The named planner of gcs_pdm.planning on ``sim``; returns its ``Plan``.
+    """The named planner of the registry (``gcs_pdm.planning.planners``; ``auto`` = ``pfls``) on
+    ``sim`` within a wall-clock deadline; returns its ``Plan``."""
+    from gcs_pdm.planning.planners import run_planner as run
 
-    ``auto`` is the strongest one the package offers (PF + local search, ``pfls``)."""
-    from gcs_pdm.planning.exact import exact_search
-    from gcs_pdm.planning.local_search import pf_local_search
-    from gcs_pdm.planning.particle_filter import particle_filter
-
-    stop = _deadline(deadline_s)
-    if name in ("auto", "stronger", "pfls"):
-        return pf_local_search(sim, particles=particles, seed=seed, should_stop=stop)
-    if name == "pf":
-        return particle_filter(sim, particles=particles, seed=seed, should_stop=stop)
-    if name == "exact":
-        return exact_search(sim, should_stop=stop)
-    raise ValueError(f"planner: unknown planner {name!r} (auto, pfls, pf, exact)")
+    return run(name, sim, particles=particles, seed=seed, should_stop=_deadline(deadline_s))
 
 
 def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequence[MotorFault],
@@ -106,12 +96,12 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
 
     Each candidate carries the mission that flies it (``extra["mission"]``: items in the planner's
     ArduPilot layout and the item to make current after the upload)."""
+    from gcs_pdm.missions import item_to_json
     from gcs_pdm.planning.mission import plan_to_mission
     from gcs_pdm.planning.plan import make_plan
     from gcs_pdm.geo import enu_from_geodetic
     from gcs_pdm.planning.scenario import Home, Scenario, Waypoint
     from gcs_pdm.planning.simulator import VehicleSimulator
-    from gcs_pdm.service.live import item_to_json
 
     lat0, lon0, alt0 = home
     wps = []

@@ -17,6 +17,8 @@ from typing import Any, Literal, Mapping
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from gcs_pdm.planning.planners import SERVICE_PLANNERS
+
 ENV_PREFIX = "GCS_PDM_"
 
 
@@ -46,7 +48,7 @@ class ServiceConfig(BaseModel):
     # --- decision loop -----------------------------------------------------------------------
     policy: Literal["auto", "advise"] = Field("auto", description="auto: upload and tell the operator; advise: propose, operator approves")
     parameter_set: str = Field("paper_si", description="parameter set active at start-up (name in the store)")
-    planner: Literal["auto", "pfls", "stronger", "pf", "exact"] = Field(
+    planner: Literal[SERVICE_PLANNERS] = Field(  # type: ignore[valid-type] - the registry's names
         "auto", description="auto (= pfls, alias stronger): PF + local search; pf: Algorithm 1 alone; exact: branch and bound")
     particles: int = Field(30, ge=1, le=10_000)
     planner_deadline_s: float = Field(20.0, gt=0, description="wall-clock budget of one planning run")

@@ -45,19 +45,6 @@ MAGNITUDE_STEP = 0.1
 STATUS_PERIOD_S = 1.0
 
 
-def item_to_json(item: M.MissionItem) -> dict:
-    d = dataclasses.asdict(item)
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
-
-
-def item_from_json(d: dict) -> M.MissionItem:
-    vals = {f.name: d[f.name] for f in dataclasses.fields(M.MissionItem) if f.name in d}
-    for k in ("param1", "param2", "param3", "param4"):
-        if vals.get(k) is None:
-            vals[k] = float("nan")
-    return M.MissionItem(**vals)
-
-
 @dataclasses.dataclass(frozen=True)
 class Snapshot:
     """What a replan starts from, taken on the telemetry thread."""
@@ -462,7 +449,7 @@ class LiveLoop:
         body = {"reason": reason, "policy": svc.policy, "parameter_set": self.params.name,
                 "faults": [dataclasses.asdict(f) for f in snap.faults], "fault_records": [f.to_dict() for f in snap.fault_records],
                 "candidates": [c.to_dict() for c in cands], "chosen": chosen.to_dict(), "why": why,
-                "previous_items": [item_to_json(i) for i in self.mission_items],
+                "previous_items": [M.item_to_json(i) for i in self.mission_items],
                 "previous_route": keep, "plan_time_s": info["plan_time_s"], "planner": info["planner"],
                 "scenario": info["scenario"], "visited": sorted(self.visited)}
         if chosen.name == "keep":
@@ -478,7 +465,7 @@ class LiveLoop:
                 self.statustext("PDM: no route gets home, mission kept: DECIDE", MAV_SEVERITY_CRITICAL)
             return
         mission = chosen.extra["mission"]
-        items = [item_from_json(d) for d in mission["items"]]
+        items = [M.item_from_json(d) for d in mission["items"]]
         body["items"] = mission["items"]
         body["current_seq"] = mission["current_seq"]
         auto = svc.policy == "auto" and chosen.feasible
@@ -516,7 +503,7 @@ class LiveLoop:
     def approve(self, plan_id: int) -> None:
         """Upload an operator-approved plan (runs on the decision worker)."""
         plan = self.service.store.plan(plan_id)
-        items = [item_from_json(d) for d in plan["items"]]
+        items = [M.item_from_json(d) for d in plan["items"]]
         chosen = plan["chosen"]
         cand = Candidate(chosen["name"], tuple(chosen["route"]), chosen["feasible"], chosen["reward"],
                          chosen["reward_reached"], chosen["objective"], chosen.get("cause"),
@@ -525,7 +512,7 @@ class LiveLoop:
 
     def revert(self, upload: dict, note: str) -> int:
         """A plan that restores ``upload``'s previous mission, uploaded on the worker; its id."""
-        items = [item_from_json(d) for d in upload["previous_items"]]
+        items = [M.item_from_json(d) for d in upload["previous_items"]]
         route = tuple(route_of_items(items, self.catalogue or []))
         current = self.service.state.get("mission")["current_seq"]
         # resume where the restored mission would have the vehicle: its first unvisited waypoint
@@ -535,8 +522,8 @@ class LiveLoop:
         chosen = Candidate("revert", route, True, 0.0, 0.0, 0.0, None, {})
         body = {"reason": f"operator: revert upload {upload['id']}", "policy": self.service.policy,
                 "parameter_set": self.params.name, "chosen": chosen.to_dict(), "why": note or "operator revert",
-                "candidates": [], "items": [item_to_json(i) for i in items], "current_seq": current_seq,
-                "previous_items": [item_to_json(i) for i in (self.mission_items or [])], "vehicle_item_before": current}
+                "candidates": [], "items": [M.item_to_json(i) for i in items], "current_seq": current_seq,
+                "previous_items": [M.item_to_json(i) for i in (self.mission_items or [])], "vehicle_item_before": current}
         pid = self.service.store.add_plan(body, body["reason"], "approved", self._time_s)
         self.service.events.publish("plan", id=pid, status="approved", time_s=self._time_s, reason=body["reason"],
                                     chosen=chosen.to_dict())
@@ -556,8 +543,8 @@ class LiveLoop:
             # Usually the vehicle keeps its mission; but if only the final MISSION_ACK was lost it
             # may hold the new one: read back what is really on board when the link allows.
             on_board = self._readback()
-            uid = svc.store.add_upload(plan_id, "failed", {"error": str(exc), "items": [item_to_json(i) for i in items],
-                                                           "previous_items": [item_to_json(i) for i in previous]})
+            uid = svc.store.add_upload(plan_id, "failed", {"error": str(exc), "items": [M.item_to_json(i) for i in items],
+                                                           "previous_items": [M.item_to_json(i) for i in previous]})
             svc.store.set_plan_status(plan_id, "upload_failed", str(exc))
             if on_board is not None:
                 self._set_mission(on_board, source="download")
@@ -583,8 +570,8 @@ class LiveLoop:
             # confirmed: an airborne vehicle might head for the take-off item. Tell the operator.
             on_board = self._readback()
             uid = svc.store.add_upload(plan_id, "uploaded_unconfirmed", {
-                "error": str(exc), "items": [item_to_json(i) for i in items],
-                "previous_items": [item_to_json(i) for i in previous], "route": list(chosen.route),
+                "error": str(exc), "items": [M.item_to_json(i) for i in items],
+                "previous_items": [M.item_to_json(i) for i in previous], "route": list(chosen.route),
                 "time_s": self._time_s, "current_seq": current_seq,
                 "stats": dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None})
             svc.store.set_plan_status(plan_id, "uploaded_unconfirmed", str(exc))
@@ -600,7 +587,7 @@ class LiveLoop:
             return False
         status = "confirmed" if confirmed else ("sent" if confirmed is None else "mismatch")
         uid = svc.store.add_upload(plan_id, status, {
-            "items": [item_to_json(i) for i in items], "previous_items": [item_to_json(i) for i in previous],
+            "items": [M.item_to_json(i) for i in items], "previous_items": [M.item_to_json(i) for i in previous],
             "route": list(chosen.route), "time_s": self._time_s,
             "stats": dataclasses.asdict(stats) if dataclasses.is_dataclass(stats) else None})
         self._set_mission(items_on_vehicle, source="upload")

@@ -174,7 +174,7 @@ class Service:
     def current_mission(self) -> dict:
         if self.loop is None or self.loop.mission_items is None:
             return {"items": None, "source": "none", "time_s": None}
-        from gcs_pdm.service.live import item_to_json
+        from gcs_pdm.missions import item_to_json
 
         return {"items": [item_to_json(i) for i in self.loop.mission_items], "source": "download",
                 "time_s": self.loop.mission_time_s}
