@@ -103,7 +103,7 @@ def make_loop(tmp_path, policy, mission, fail_uploads=0):
     vehicle = FakeVehicleMissions(mission.items, fail_uploads)
     loop = LiveLoop(svc, link, vehicle)
     svc.attach_loop(loop)
-    loop._initial_download()
+    loop.executor.initial_download()
     return svc, loop, link, vehicle
 
 
@@ -114,7 +114,7 @@ def run(loop, frames, mission):
     for fr in frames:
         loop.process(fr)
     deadline = time.monotonic() + 60
-    while (loop._busy or loop._pending) and time.monotonic() < deadline:
+    while loop.executor.busy and time.monotonic() < deadline:
         time.sleep(0.05)
 
 
@@ -235,20 +235,20 @@ def test_soc_deviation_from_the_plan_triggers_a_replan(tmp_path, frames):
         assert not svc.store.plans()
         reasons = []
         loop.request_replan = reasons.append
-        t = loop._time_s
+        t = loop.telemetry.time_s
         soc = list(loop.estimator.estimate().soc)
         # the last plan expected the packs to hold their charge: the observed discharge deviates
-        loop._expectation = {"t0": t - 100.0, "soc0": [min(1.0, s + 0.2) for s in soc], "soc1": [1.0] * 4,
+        loop.executor.expectation = {"t0": t - 100.0, "soc0": [min(1.0, s + 0.2) for s in soc], "soc1": [1.0] * 4,
                              "duration_s": 1000.0}
-        loop._last_replan_s = -1e9
-        loop._check_deviation(t)
+        loop.executor.last_replan_s = -1e9
+        loop.executor.check_deviation(t)
         assert reasons and reasons[0].startswith("deviation: SoC")
         assert any(e.kind == "fault" and e.data["kind"] == "soc_deviation" for e in svc.events.since(0))
         # a plan that predicted this discharge does not trigger
         reasons.clear()
-        loop._expectation = {"t0": t - 100.0, "soc0": soc, "soc1": [s - 0.5 for s in soc], "duration_s": 1000.0}
-        loop._last_replan_s = -1e9
-        loop._check_deviation(t)
+        loop.executor.expectation = {"t0": t - 100.0, "soc0": soc, "soc1": [s - 0.5 for s in soc], "duration_s": 1000.0}
+        loop.executor.last_replan_s = -1e9
+        loop.executor.check_deviation(t)
         assert reasons == []
     finally:
         svc.close()
@@ -267,7 +267,7 @@ def test_operator_fault_before_telemetry_is_planned_once_the_state_is_known(tmp_
         for fr in (f for f in frames if f.time_s < 120.0):  # healthy telemetry: only the operator knows
             loop.process(fr)
         deadline = time.monotonic() + 30
-        while (loop._busy or not svc.store.plans()) and time.monotonic() < deadline:
+        while (loop.executor.busy or not svc.store.plans()) and time.monotonic() < deadline:
             time.sleep(0.05)
         plan = svc.store.plans()[0]
         assert plan["trigger"] == "operator: motor_power_loss aft 0.70"
@@ -305,7 +305,7 @@ def _direct_loop(tmp_path, vehicle_cls, mission):
     vehicle = vehicle_cls(mission.items)
     loop = LiveLoop(svc, link, vehicle)
     svc.attach_loop(loop)
-    loop._initial_download()
+    loop.executor.initial_download()
     return svc, loop, link, vehicle
 
 
@@ -321,7 +321,7 @@ def _upload_direct(svc, loop, new):
     cand = Candidate("planner", tuple(range(10, 0, -1)), True, 100.0, 100.0, 100.0, None,
                      {"final_soc": [0.5] * 4, "flight_time_s": 600.0})
     pid = svc.store.add_plan({"items": [], "chosen": cand.to_dict()}, "test", "approved", 0.0)
-    loop._expectation = {"t0": 0.0, "soc0": [1.0] * 4, "soc1": [0.9] * 4, "duration_s": 10.0}
+    loop.executor.expectation = {"t0": 0.0, "soc0": [1.0] * 4, "soc1": [0.9] * 4, "duration_s": 10.0}
     ok = loop.upload(pid, list(new.items), cand, None, new.current_seq)
     return pid, ok
 
@@ -349,12 +349,12 @@ def test_readback_mismatch_is_not_uploaded_and_arms_no_expectation(tmp_path):
     mission, new = original_mission(), _new_mission()
     svc, loop, link, vehicle = _direct_loop(tmp_path, AlteredReadback, mission)
     try:
-        loop._loads[1] = ("load", 0.0)
+        loop.executor.loads[1] = ("load", 0.0)
         pid, ok = _upload_direct(svc, loop, new)
         assert ok is False
         assert svc.store.plan(pid)["status"] == "upload_mismatch"
         assert svc.store.uploads()[0]["status"] == "mismatch"
-        assert loop._expectation is None
+        assert loop.executor.expectation is None
         # the loop knows what is really on board, not what it meant to send
         assert M.same_items(loop.mission_items, vehicle.items)
         texts = statustexts(link)
@@ -391,7 +391,7 @@ def test_a_kept_plan_supersedes_older_proposals_which_can_no_longer_be_approved(
     try:
         old = svc.store.add_plan({"items": [], "chosen": {}}, "earlier fault", "proposed", 1.0)
         monkeypatch.setattr(adapters, "plan_candidates", _fake_candidates(keep_reward=300, planner_reward=100))
-        loop._plan("later: keep is best", _snap(loop))
+        loop.executor.plan("later: keep is best", _snap(loop))
         assert svc.store.plans()[0]["status"] == "kept"
         assert svc.store.plan(old)["status"] == "superseded"
         with pytest.raises(Conflict):
@@ -415,7 +415,7 @@ def test_an_infeasible_kept_mission_warns_the_operator(tmp_path, monkeypatch):
     svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, original_mission())
     try:
         monkeypatch.setattr(adapters, "plan_candidates", plan_candidates)
-        loop._plan("fault", _snap(loop))
+        loop.executor.plan("fault", _snap(loop))
         plan = svc.store.plans()[0]
         assert plan["status"] == "kept" and "operator decision needed" in plan["why"]
         assert vehicle.uploads == []
@@ -429,7 +429,7 @@ def test_an_infeasible_kept_mission_warns_the_operator(tmp_path, monkeypatch):
     svc, loop, link, vehicle = _direct_loop(tmp_path / "quiet", FakeVehicleMissions, original_mission())
     try:
         monkeypatch.setattr(adapters, "plan_candidates", _fake_candidates(keep_reward=300, planner_reward=100))
-        loop._plan("fault", _snap(loop))
+        loop.executor.plan("fault", _snap(loop))
         assert svc.store.plans()[0]["status"] == "kept"
         assert not [m for m in link.sent if m.get_type() == "STATUSTEXT" and m.severity == 2]
     finally:
@@ -476,7 +476,7 @@ def test_an_approved_upload_disarms_the_old_expectation_and_sets_the_current_ite
         svc.state.update(mission={"current_seq": 1})
         pid, ok = _upload_direct(svc, loop, new)  # snap=None, as for an approval or a revert
         assert ok is True and svc.store.plan(pid)["status"] == "uploaded"
-        assert loop._expectation is None
+        assert loop.executor.expectation is None
         assert vehicle.current == new.current_seq
         assert svc.state.snapshot()["mission"]["current_seq"] == new.current_seq
     finally:
@@ -563,13 +563,13 @@ def test_operator_faults_are_kept_per_fault_and_the_worst_per_motor_counts(tmp_p
     try:
         strong = svc.declare_fault("motor_power_loss", "aft", 0.7, "seen on the GCS", replan=False)
         weak = svc.declare_fault("motor_power_loss", "aft", 0.3, "a second look", replan=False)
-        aft = [f for f in loop._all_motor_faults([]) if f.motor == "aft"]
+        aft = [f for f in loop.faults.motor_faults([]) if f.motor == "aft"]
         assert len(aft) == 1 and aft[0].magnitude == pytest.approx(0.7)  # not the last declared
         svc.clear_fault(weak)  # clearing one leaves the other in force
-        aft = [f for f in loop._all_motor_faults([]) if f.motor == "aft"]
+        aft = [f for f in loop.faults.motor_faults([]) if f.motor == "aft"]
         assert len(aft) == 1 and aft[0].magnitude == pytest.approx(0.7)
         svc.clear_fault(strong)
-        assert not [f for f in loop._all_motor_faults([]) if f.motor == "aft"]
+        assert not [f for f in loop.faults.motor_faults([]) if f.motor == "aft"]
         assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(1.0)
     finally:
         svc.close()

@@ -163,11 +163,10 @@ class Service:
         ps = self.store.activate_parameter_set(name)
         self.params = ps
         self.state.update(parameter_set=name)
-        if self.loop is not None:
-            # The filters keep their state (and the parameters they were built with: rebuilding them
-            # mid-flight would throw away the SoC/temperature estimate); planning uses the new set
-            # from the next replan on. A restart builds the estimator and diagnoser from it.
-            self.loop.params = ps
+        # The live loop's filters keep their state (and the parameters they were built with:
+        # rebuilding them mid-flight would throw away the SoC/temperature estimate); its planning
+        # reads ``self.params``, so the new set applies from the next replan on. A restart builds
+        # the estimator and diagnoser from it.
         self.events.publish("parameter_set", name=name, applies_to=APPLIES_TO)
         return ps
 
