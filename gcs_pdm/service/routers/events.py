@@ -1,0 +1,41 @@
+"""``/events``: live updates, as Server-Sent Events or by polling."""
+from __future__ import annotations
+
+import asyncio
+import json
+
+from fastapi import APIRouter, Query, Request
+from fastapi.responses import StreamingResponse
+
+from gcs_pdm.service.routers.deps import ServiceDep, finite
+
+router = APIRouter(prefix="/events")
+
+
+@router.get("/poll")
+def events_poll(service: ServiceDep, since: int = Query(0, ge=0)) -> list[dict]:
+    return [finite(e.to_dict()) for e in service.events.since(since)]
+
+
+@router.get("")
+async def events(request: Request, service: ServiceDep, since: int | None = Query(None, ge=0)):
+    """Server-Sent Events: one ``event: <kind>`` per fault, plan, upload, job change, status tick."""
+    start = since
+    if start is None:
+        header = request.headers.get("last-event-id", "").strip()
+        start = int(header) if header.isdigit() else service.events.last_seq
+
+    async def stream():
+        seq = start
+        yield ": connected\n\n"
+        while not await request.is_disconnected():
+            batch = await asyncio.to_thread(service.events.wait, seq, 1.0)
+            if not batch:
+                yield ": keep-alive\n\n"
+                continue
+            for ev in batch:
+                seq = ev.seq
+                yield f"id: {ev.seq}\nevent: {ev.kind}\ndata: {json.dumps(finite(ev.to_dict()))}\n\n"
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})

@@ -1,0 +1,34 @@
+"""``/health``, ``/status`` and ``/policy``."""
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+import gcs_pdm
+from gcs_pdm.service import schemas as S
+from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite
+
+router = APIRouter()
+
+
+@router.get("/health", response_model=S.Health)
+def health(service: ServiceDep):
+    return S.Health(status="ok", version=gcs_pdm.__version__, schema_version=service.store.schema_version,
+                    link_connected=bool(service.state.get("link")["connected"]), policy=service.policy,
+                    active_parameter_set=service.store.active_parameter_set_name(),
+                    interrupted_jobs_at_start=service.store.interrupted_at_open)
+
+
+@router.get("/status", response_model=S.VehicleStatus)
+def status(service: ServiceDep):
+    return finite(service.state.snapshot())
+
+
+@router.get("/policy", response_model=S.PolicyIn)
+def get_policy(service: ServiceDep):
+    return S.PolicyIn(policy=service.policy)
+
+
+@router.put("/policy", response_model=S.PolicyIn, dependencies=AUTH)
+def set_policy(body: S.PolicyIn, service: ServiceDep):
+    service.set_policy(body.policy)
+    return S.PolicyIn(policy=service.policy)
