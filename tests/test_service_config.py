@@ -118,3 +118,14 @@ def test_serve_starts_answers_and_stops(tmp_path):
         stop.set()
         t.join(15)
     assert rc.get("rc") == 0
+
+
+def test_process_environment_is_read_and_booleans_parse(tmp_path, monkeypatch):
+    toml = tmp_path / "svc.toml"
+    toml.write_text('record_tlog = true\nconfirm_download = true\n')
+    monkeypatch.setenv("GCS_PDM_RECORD_TLOG", "false")
+    monkeypatch.setenv("GCS_PDM_CONFIG", str(toml))
+    c = load_config()  # env=None: os.environ, and the file it names
+    assert c.record_tlog is False and c.confirm_download is True
+    # a call with its own environment sees none of the process's
+    assert load_config(env={}).record_tlog is True

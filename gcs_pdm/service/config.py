@@ -1,4 +1,5 @@
-"""Service configuration: documented defaults < a TOML/JSON file < ``GCS_PDM_*`` environment variables.
+"""Service configuration: documented defaults < a TOML/JSON file < ``GCS_PDM_*`` environment variables
+< explicit overrides (the command line's options), layered by pydantic-settings.
 
 Pydantic validates every value, so a bad setting is rejected at start-up with the field named
 (``ConfigError: policy: Input should be 'auto' or 'advise'``). The file may be TOML (stdlib
@@ -12,10 +13,14 @@ import json
 import os
 import secrets
 import tomllib
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
+from pydantic.fields import FieldInfo
+from pydantic_settings import BaseSettings, EnvSettingsSource, PydanticBaseSettingsSource, SettingsConfigDict
+from pydantic_settings.sources.utils import parse_env_vars
 
 from gcs_pdm.planning.planners import SERVICE_PLANNERS
 
@@ -26,8 +31,30 @@ class ConfigError(ValueError):
     """A configuration value that cannot be used; the message names the field."""
 
 
-class ServiceConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+#: what one ``load_config`` call reads: the settings file (or None) and the environment
+_SOURCES: ContextVar[tuple[Path | None, Mapping[str, str]]] = ContextVar("config_sources", default=(None, os.environ))
+
+
+class _FileSource(PydanticBaseSettingsSource):
+    """The TOML/JSON settings file of this ``load_config`` call."""
+
+    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:
+        return None, field_name, False  # the whole file is read at once (__call__)
+
+    def __call__(self) -> dict[str, Any]:
+        path = _SOURCES.get()[0]
+        return _read_file(path) if path else {}
+
+
+class _EnvSource(EnvSettingsSource):
+    """``GCS_PDM_*`` variables from this call's environment (``os.environ`` unless a test passes one)."""
+
+    def _load_env_vars(self) -> Mapping[str, str | None]:
+        return parse_env_vars(_SOURCES.get()[1], self.case_sensitive, self.env_ignore_empty, self.env_parse_none_str)
+
+
+class ServiceConfig(BaseSettings):
+    model_config = SettingsConfigDict(extra="forbid", validate_assignment=True, env_prefix=ENV_PREFIX)
 
     # --- links -------------------------------------------------------------------------------
     mavlink_url: str = Field("udpin:0.0.0.0:14550", description="MAVLink connection (udpin:, udpout:, tcp:, serial)")
@@ -58,6 +85,12 @@ class ServiceConfig(BaseModel):
     confirm_download: bool = Field(True, description="confirm each upload by downloading the mission back")
     fit_workers: int = Field(1, ge=1, le=8, description="worker threads for fitting jobs")
 
+    @classmethod
+    def settings_customise_sources(cls, settings_cls, init_settings, env_settings, dotenv_settings,
+                                   file_secret_settings):
+        # first wins: overrides, then the environment, then the file; the defaults last
+        return init_settings, _EnvSource(settings_cls), _FileSource(settings_cls)
+
     @property
     def data_path(self) -> Path:
         # absolute, so stored file paths stay valid whatever directory the next start runs in
@@ -84,31 +117,20 @@ def _read_file(path: str | Path) -> dict[str, Any]:
     return dict(data.get("service", data))
 
 
-def _from_env(env: Mapping[str, str]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for name in ServiceConfig.model_fields:
-        key = ENV_PREFIX + name.upper()
-        if key in env:
-            out[name] = env[key]
-    return out
-
-
 def load_config(path: str | Path | None = None, env: Mapping[str, str] | None = None,
                 **overrides: Any) -> ServiceConfig:
     """Defaults, then the file (``path`` or ``$GCS_PDM_CONFIG``), then the environment, then overrides."""
     env = os.environ if env is None else env
-    values: dict[str, Any] = {}
     path = path or env.get(ENV_PREFIX + "CONFIG")
-    if path:
-        values.update(_read_file(path))
-    values.update(_from_env(env))
-    values.update({k: v for k, v in overrides.items() if v is not None})
+    token = _SOURCES.set((Path(path) if path else None, env))
     try:
-        return ServiceConfig(**values)
+        return ServiceConfig(**{k: v for k, v in overrides.items() if v is not None})
     except ValidationError as exc:
         err = exc.errors()[0]
         where = ".".join(str(x) for x in err["loc"]) or "config"
         raise ConfigError(f"{where}: {err['msg']}") from None
+    finally:
+        _SOURCES.reset(token)
 
 
 def new_token() -> str:
