@@ -1,10 +1,11 @@
 """Decision maker: the vehicle simulator, the particle-filter planner, the exact search, the stronger
 planner (PF + local search) and the mission they produce. See docs/planning.md.
 
-Typical use (the service)::
+Typical use (the CLI; the service does the same through ``gcs_pdm.service.adapters.plan_candidates``,
+which builds the ``VehicleSimulator`` itself and calls ``planners.run_planner``)::
 
-    scenario = Scenario.from_live(params, state, faults, waypoints, position_enu, home, limits)
-    plan = plan_scenario(scenario, "pfls")
+    scenario = Scenario.from_json(text)        # or Scenario.from_live(params, state, faults, ...)
+    plan = plan_scenario(scenario, "pfls")     # any name of planners.REGISTRY or ALIASES
     mission = plan_to_mission(scenario, plan, airborne=True)   # items + the seq to set current
 """
 from gcs_pdm.planning.exact import brute_force, exact_search
