@@ -141,19 +141,11 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
 def route_load(sim, route: Sequence[int]):
     """The shaft-power profile of flying ``route`` then landing, as the estimator's ``FutureLoad``
     (the planner's own leg samples, so prognosis and planning see one future)."""
-    from gcs_pdm.estimation.prediction import FutureLoad
+    from gcs_pdm.estimation.prediction import FutureLoad, load_for_route
 
-    nodes = [sim.start_node, *[int(r) for r in route], sim.landing_node]
-    legs = sim.legs
-    dt, power, amb = [], [], []
-    for a, b in zip(nodes[:-1], nodes[1:]):
-        k = int(legs.steps[a, b])
-        dt.append(legs.dt[a, b, :k])
-        power.append(legs.power[a, b, :k])
-        amb.append(legs.ambient[a, b, :k])
-    if not dt or sum(len(d) for d in dt) == 0:
-        return FutureLoad(np.zeros(1), np.zeros(1), 20.0)
-    return FutureLoad(np.concatenate(dt), np.concatenate(power), np.concatenate(amb))
+    load = load_for_route(sim, [int(r) for r in route])
+    # already at the landing site: nothing left to fly, a zero load (never an empty one)
+    return load if np.size(load.dt) else FutureLoad(np.zeros(1), np.zeros(1), 20.0)
 
 
 def set_mission_load(diagnoser, load, start_s: float) -> None:

@@ -122,23 +122,38 @@ def fly_without_service(config, max_sim_s: float = 4 * 3600.0) -> dict:
             "reached_seqs": [seq for seq, _t in model.reached_log], "time_s": float(s.time_s)}
 
 
-class TerminalPrinter:
-    """Prints the service's events as they happen (fault, plan, upload, mission progress, texts)."""
+class _Background:
+    """A daemon thread running ``self._run`` until ``stop()``."""
 
-    def __init__(self, service: Service, out=print):
-        self.service = service
-        self.out = out
+    JOIN_S = 2.0
+
+    def __init__(self, name: str):
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="demo-printer", daemon=True)
-        self.seq = 0
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
-    def start(self) -> "TerminalPrinter":
+    def _run(self) -> None:
+        raise NotImplementedError
+
+    def start(self):
         self._thread.start()
         return self
 
     def stop(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2)
+        self._thread.join(timeout=self.JOIN_S)
+
+
+class TerminalPrinter(_Background):
+    """Prints the service's events as they happen (fault, plan, upload, mission progress, texts)."""
+
+    def __init__(self, service: Service, out=print):
+        super().__init__("demo-printer")
+        self.service = service
+        self.out = out
+        self.seq = 0
+
+    def stop(self) -> None:
+        super().stop()
         for ev in self.service.events.since(self.seq):
             self._print(ev)
 
@@ -196,24 +211,17 @@ def http_json(base_url: str, path: str, body: dict | None = None, token: str | N
         return exc.code, json.loads(exc.read() or b"null")
 
 
-class Operator:
+class Operator(_Background):
     """In ``advise`` mode, an operator at the HTTP API who approves every feasible proposal."""
 
+    JOIN_S = 5.0
+
     def __init__(self, base_url: str, token: str, out=print):
+        super().__init__("demo-operator")
         self.base_url = base_url
         self.token = token
         self.out = out
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="demo-operator", daemon=True)
         self.approved: list[int] = []
-
-    def start(self) -> "Operator":
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
 
     def _run(self) -> None:
         while not self._stop.wait(0.1):

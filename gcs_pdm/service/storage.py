@@ -304,11 +304,15 @@ class Store:
                              (file_id, filename, path, kind, size_bytes, self._clock()))
         return file_id
 
-    def file(self, file_id: str) -> dict:
-        row = self._db.execute("SELECT * FROM files WHERE id=?", (file_id,)).fetchone()
+    def _one(self, sql: str, key: Any, what: str) -> dict:
+        """The one row ``sql`` selects for ``key``; NotFound(``what``) when there is none."""
+        row = self._db.execute(sql, (key,)).fetchone()
         if row is None:
-            raise NotFound(f"file {file_id!r}")
+            raise NotFound(what)
         return dict(row)
+
+    def file(self, file_id: str) -> dict:
+        return self._one("SELECT * FROM files WHERE id=?", file_id, f"file {file_id!r}")
 
     def files(self) -> list[dict]:
         return [dict(r) for r in self._db.execute("SELECT * FROM files ORDER BY created_at").fetchall()]
@@ -319,18 +323,13 @@ class Store:
             return int(self._db.execute("SELECT id FROM tlogs WHERE path=?", (path,)).fetchone()["id"])
 
     def close_tlog(self, tlog_id: int) -> None:
-        row = self._db.execute("SELECT path FROM tlogs WHERE id=?", (tlog_id,)).fetchone()
-        if row is None:
-            raise NotFound(f"tlog {tlog_id}")
-        size = Path(row["path"]).stat().st_size if Path(row["path"]).exists() else None
+        path = Path(self._one("SELECT path FROM tlogs WHERE id=?", tlog_id, f"tlog {tlog_id}")["path"])
+        size = path.stat().st_size if path.exists() else None
         with self._lock:
             self._db.execute("UPDATE tlogs SET ended_at=?, size_bytes=? WHERE id=?", (self._clock(), size, tlog_id))
 
     def tlog(self, tlog_id: int) -> dict:
-        row = self._db.execute("SELECT * FROM tlogs WHERE id=?", (tlog_id,)).fetchone()
-        if row is None:
-            raise NotFound(f"tlog {tlog_id}")
-        return dict(row)
+        return self._one("SELECT * FROM tlogs WHERE id=?", tlog_id, f"tlog {tlog_id}")
 
     def tlogs(self) -> list[dict]:
         return [dict(r) for r in self._db.execute("SELECT * FROM tlogs ORDER BY id").fetchall()]
