@@ -129,3 +129,22 @@ def test_process_environment_is_read_and_booleans_parse(tmp_path, monkeypatch):
     assert c.record_tlog is False and c.confirm_download is True
     # a call with its own environment sees none of the process's
     assert load_config(env={}).record_tlog is True
+
+
+def test_the_planner_registry_is_the_one_list():
+    """The CLI's --planner choices and the service's planner values both come from planners.REGISTRY."""
+    import argparse
+    import typing
+
+    from gcs_pdm.planning import cli as planning_cli
+    from gcs_pdm.planning.planners import ALIASES, REGISTRY, SERVICE_PLANNERS, resolve
+
+    parser = argparse.ArgumentParser()
+    planning_cli.register(parser.add_subparsers())
+    plan = next(a for a in parser._subparsers._group_actions[0].choices["plan"]._actions if a.dest == "planner")
+    assert set(plan.choices) == set(REGISTRY) | set(ALIASES)
+    assert typing.get_args(ServiceConfig.model_fields["planner"].annotation) == SERVICE_PLANNERS
+    assert "brute" in REGISTRY and "brute" not in SERVICE_PLANNERS  # too slow for a live replan
+    assert resolve("auto") is resolve("stronger") is REGISTRY["pfls"]
+    with pytest.raises(ValueError, match="^planner:"):
+        resolve("magic")

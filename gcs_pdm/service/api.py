@@ -15,7 +15,6 @@ from fastapi.responses import HTMLResponse, JSONResponse
 
 import gcs_pdm
 from gcs_pdm.service.routers import events, faults, files, health, jobs, missions, parameter_sets
-from gcs_pdm.service.status_page import STATUS_PAGE
 from gcs_pdm.service.storage import Conflict, NotFound
 
 log = logging.getLogger(__name__)
@@ -44,6 +43,8 @@ def create_app(service) -> FastAPI:
 
         app.include_router(console_router)
     else:
+        from gcs_pdm.service.status_page import STATUS_PAGE
+
         @app.get("/", response_class=HTMLResponse, include_in_schema=False)
         def status_page() -> str:
             return STATUS_PAGE
