@@ -223,7 +223,7 @@ class Store:
         with self._lock:
             cur = self._db.execute(
                 "INSERT INTO faults(time_s, kind, target, magnitude, source, active, body, created_at) VALUES(?,?,?,?,?,1,?,?)",
-                (body["time_s"], fault.type, fault.component, fault.magnitude, source, _dumps(body), self._clock()))
+                (body["time_s"], fault.type, fault.component, body["magnitude"], source, _dumps(body), self._clock()))
             return int(cur.lastrowid)
 
     def clear_fault(self, fault_id: int) -> None:
