@@ -6,7 +6,9 @@
 
 Flight files are CSV/Parquet tables (one pack or the motors) or tlogs (all four packs and the
 motors). With tlogs, ``--pack all`` fits every pack into ``DIR/<pack>/`` and writes the merged
-learned set to ``DIR/parameters.json``.
+learned set to ``DIR/parameters.json``. An autopilot's own log (ArduPilot DataFlash ``.bin``, PX4
+ULog ``.ulg``; gcs_pdm.logs) holds the batteries it has: ``--pack all`` fits those (instance i is
+pack i, as BATTERY_STATUS id i in tlogs).
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="fit_command", metavar="WHAT")
     for what in ("battery", "motor"):
         q = sub.add_parser(what, help=f"fit the {what} parameters")
-        q.add_argument("--train", nargs="+", type=Path, required=True, help="training flights (CSV, Parquet or tlog)")
+        q.add_argument("--train", nargs="+", type=Path, required=True, help="training flights (CSV, Parquet, tlog, ArduPilot .bin or PX4 .ulg)")
         q.add_argument("--val", nargs="+", type=Path, required=True, help="validation flights (select among LM solutions)")
         q.add_argument("--test", nargs="+", type=Path, required=True, help="test flights (errors reported)")
         q.add_argument("--out", type=Path, required=True, help="output directory")
@@ -123,7 +125,7 @@ def _summary(res) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcs_pdm.fitting.logs import read_flights, write_outputs
+    from gcs_pdm.fitting.logs import AUTOPILOT_LOG_SUFFIXES, log_packs, read_flights, write_outputs
     from gcs_pdm.fitting.procedure import fit_battery, fit_motor, merge_results
     from gcs_pdm.fitting.tables import FlightDataError
     from gcs_pdm.models.params import builtin
@@ -136,8 +138,15 @@ def run(args: argparse.Namespace) -> int:
         print(f"fit: {exc}", file=sys.stderr)
         return 2
     any_tlog = any(p.suffix.lower() == ".tlog" for p in args.train + args.val + args.test)
+    autopilot_log = args.train[0].suffix.lower() in AUTOPILOT_LOG_SUFFIXES
     pack_arg = getattr(args, "pack", None)
-    if kind == "battery":
+    if kind == "battery" and autopilot_log and pack_arg in (None, "all"):
+        try:  # an autopilot's log has its own batteries (instance i = pack i): fit those it has
+            packs = log_packs(args.train[0])
+        except FlightDataError as exc:
+            print(f"fit: {exc}", file=sys.stderr)
+            return 2
+    elif kind == "battery":
         packs = (PACK_NAMES if pack_arg in (None, "all") else (pack_arg,)) if any_tlog else (pack_arg or "LLF20",)
         if not any_tlog and "all" in packs:
             print("fit: a table holds one pack; name it with --pack (or give tlogs for --pack all)", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""Reading flight logs (CSV, Parquet, MAVLink tlog) into :class:`~gcs_pdm.fitting.tables.Flight` s,
+"""Reading flight logs (CSV, Parquet, MAVLink tlog, autopilot .bin/.ulg via gcs_pdm.logs) into :class:`~gcs_pdm.fitting.tables.Flight` s,
 and writing a fit's outputs (``result.json``, ``predictions/<flight>.csv``, plots). Shell module: files.
 
 Tables: one flight per file with the columns of :mod:`gcs_pdm.fitting.tables` (extra columns are
@@ -28,6 +28,7 @@ log = logging.getLogger(__name__)
 
 TABLE_SUFFIXES = (".csv", ".parquet", ".pq")
 TLOG_SUFFIXES = (".tlog",)
+AUTOPILOT_LOG_SUFFIXES = (".bin", ".ulg")  # ArduPilot DataFlash, PX4 ULog (gcs_pdm.logs)
 
 
 def read_table(path: str | Path, kind: str, name: str | None = None) -> Flight:
@@ -175,9 +176,24 @@ def read_flights(path: str | Path, kind: str, pack: str = "all") -> list[Flight]
         if bad:
             raise FlightDataError(f"unknown pack {bad[0]!r}; expected one of {', '.join(PACK_NAMES)} or all")
         return read_tlog(path, kind, packs)
+    if suffix in AUTOPILOT_LOG_SUFFIXES:
+        from gcs_pdm.logs.series import battery_flights, motor_flight, read_log
+
+        if not path.is_file():
+            raise FlightDataError(f"{path}: no such file")
+        series = read_log(path)
+        return battery_flights(series, pack) if kind == BATTERY else [motor_flight(series)]
     if suffix in TABLE_SUFFIXES:
         return [read_table(path, kind)]
-    raise FlightDataError(f"{path}: unknown flight file type {path.suffix!r} (use .csv, .parquet or .tlog)")
+    raise FlightDataError(f"{path}: unknown flight file type {path.suffix!r} "
+                          "(use .csv, .parquet, .tlog, .bin or .ulg)")
+
+
+def log_packs(path: str | Path) -> tuple[str, ...]:
+    """The packs an autopilot log (``.bin``/``.ulg``) has, by the project's pack names."""
+    from gcs_pdm.logs.series import read_log
+
+    return tuple(read_log(path).packs())
 
 
 def write_table(flight: Flight, path: str | Path) -> Path:

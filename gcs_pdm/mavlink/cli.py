@@ -11,7 +11,7 @@ from gcs_pdm.mavlink.mapping import FrameMapper, MappingError
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("replay", help="replay a tlog through the telemetry mapping and summarise it")
+    p = subparsers.add_parser("replay", help="replay a tlog (or an ArduPilot .bin / PX4 .ulg log) through the telemetry frames and summarise it")
     p.add_argument("file", type=Path, help="tlog file (8-byte big-endian µs timestamp + packet records)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--speed", type=float, default=None, help="pace at this multiple of real time (default: as fast as possible)")
@@ -43,6 +43,9 @@ def run(args: argparse.Namespace) -> int:
             consumer = DiagnosisPipeline()
         except ImportError as exc:
             logging.getLogger(__name__).warning("replay without diagnosis: %s", exc)
+    if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
+        from gcs_pdm.logs.replay import print_replay
+        return print_replay(args.file, consumer, as_json=args.json)
     summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
                           frame_consumer=consumer).to_dict()
     if args.json:

@@ -273,55 +273,70 @@ class MissionClient:
                  self.last_stats.resends)
         return items
 
-    def _request_count(self, sub, vehicle) -> int:
-        t = self.timeouts
-        request = self.link.mav.mission_request_list_encode(vehicle[0], vehicle[1], MAV_MISSION_TYPE_MISSION)
-        # A vehicle still busy with an earlier transfer (e.g. waiting for an ACK we sent and it
-        # lost) only answers once that one times out: keep asking for the spec's full budget.
-        give_up = time.monotonic() + t.retries * t.default_s
+    def _ask(self, sub, vehicle, request, reply, *, spec_s: float, floor_s: float, give_up_s: float,
+             failure: str):
+        """Send ``request`` until ``reply(msg)`` returns something other than None, and return that.
+
+        The one send/retry loop of the GCS-driven exchanges: each send waits the adaptive timeout
+        (``spec_s`` at most, ``floor_s`` at least) for an answer from the vehicle; the exchange gives
+        up only after ``give_up_s`` *and* the spec's number of retries (a vehicle still busy with an
+        earlier transfer answers only once that one times out). Karn's rule: only an answer to the
+        first send is an RTT sample. ``failure`` (with ``{sends}``) is the MissionTimeout message.
+        ``reply`` may raise (e.g. MissionRejected) to end the exchange.
+        """
+        give_up = time.monotonic() + give_up_s
         sends = 0
-        while time.monotonic() < give_up or sends <= t.retries:
+        while time.monotonic() < give_up or sends <= self.timeouts.retries:
             sends += 1
             self.link.send(request)
             sent_at = time.monotonic()
-            deadline = sent_at + self.rtt.timeout(t.default_s, t.min_item_s * 5)
+            deadline = sent_at + self.rtt.timeout(spec_s, floor_s)
             while (remaining := deadline - time.monotonic()) > 0:
                 msg = sub.get(timeout=remaining)
-                if msg is None or not self._for_us(msg, vehicle) or not self._mission_type_ok(msg):
+                if msg is None or not self._for_us(msg, vehicle):
                     continue
-                if msg.get_type() == "MISSION_COUNT":
-                    if sends == 1:  # Karn: a reply to a re-sent request is no RTT sample
+                result = reply(msg)
+                if result is not None:
+                    if sends == 1:
                         self.rtt.sample(time.monotonic() - sent_at)
-                    return msg.count
-                if msg.get_type() == "MISSION_ACK" and msg.type != MAV_MISSION_ACCEPTED:
-                    raise MissionRejected("mission download", msg.type)
+                    return result
             self.last_stats.resends += 1
-        raise MissionTimeout(f"mission download: no MISSION_COUNT after {sends} MISSION_REQUEST_LIST")
+        raise MissionTimeout(failure.format(sends=sends))
+
+    def _request_count(self, sub, vehicle) -> int:
+        t = self.timeouts
+
+        def reply(msg):
+            if not self._mission_type_ok(msg):
+                return None
+            if msg.get_type() == "MISSION_COUNT":
+                return msg.count
+            if msg.get_type() == "MISSION_ACK" and msg.type != MAV_MISSION_ACCEPTED:
+                raise MissionRejected("mission download", msg.type)
+            return None
+
+        request = self.link.mav.mission_request_list_encode(vehicle[0], vehicle[1], MAV_MISSION_TYPE_MISSION)
+        return self._ask(sub, vehicle, request, reply, spec_s=t.default_s, floor_s=t.min_item_s * 5,
+                         give_up_s=t.retries * t.default_s,
+                         failure="mission download: no MISSION_COUNT after {sends} MISSION_REQUEST_LIST")
 
     def _request_item(self, sub, vehicle, seq: int) -> MissionItem:
         t = self.timeouts
+
+        def reply(msg):
+            if not self._mission_type_ok(msg):
+                return None
+            mtype = msg.get_type()
+            if mtype in ("MISSION_ITEM_INT", "MISSION_ITEM") and msg.seq == seq:
+                return _item_from_message(msg)
+            if mtype == "MISSION_ACK" and msg.type != MAV_MISSION_ACCEPTED:
+                raise MissionRejected(f"mission download (item {seq})", msg.type)
+            return None
+
         request = self.link.mav.mission_request_int_encode(vehicle[0], vehicle[1], seq, MAV_MISSION_TYPE_MISSION)
-        give_up = time.monotonic() + t.retries * t.item_s + t.item_s
-        sends = 0
-        while time.monotonic() < give_up or sends <= t.retries:
-            self.link.send(request)
-            sends += 1
-            if sends == 1:
-                sent_at = time.monotonic()
-            deadline = time.monotonic() + self.rtt.timeout(t.item_s, t.min_item_s)
-            while (remaining := deadline - time.monotonic()) > 0:
-                msg = sub.get(timeout=remaining)
-                if msg is None or not self._for_us(msg, vehicle) or not self._mission_type_ok(msg):
-                    continue
-                mtype = msg.get_type()
-                if mtype in ("MISSION_ITEM_INT", "MISSION_ITEM") and msg.seq == seq:
-                    if sends == 1:  # Karn: a reply to a re-sent request is no RTT sample
-                        self.rtt.sample(time.monotonic() - sent_at)
-                    return _item_from_message(msg)
-                if mtype == "MISSION_ACK" and msg.type != MAV_MISSION_ACCEPTED:
-                    raise MissionRejected(f"mission download (item {seq})", msg.type)
-            self.last_stats.resends += 1
-        raise MissionTimeout(f"mission download: item {seq} not received after {sends} requests")
+        return self._ask(sub, vehicle, request, reply, spec_s=t.item_s, floor_s=t.min_item_s,
+                         give_up_s=t.retries * t.item_s + t.item_s,
+                         failure=f"mission download: item {seq} not received after {{sends}} requests")
 
     # --- clear / set current ---------------------------------------------------------------
 
@@ -329,28 +344,22 @@ class MissionClient:
         """Delete the vehicle's mission (MISSION_CLEAR_ALL until MISSION_ACK)."""
         t = self.timeouts
         vehicle = self._vehicle()
+
+        def reply(msg):
+            if msg.get_type() != "MISSION_ACK":
+                return None
+            if not self._mission_type_ok(msg) and msg.mission_type != mavlink2.MAV_MISSION_TYPE_ALL:
+                return None
+            if msg.type == MAV_MISSION_ACCEPTED:
+                return True
+            raise MissionRejected("mission clear", msg.type)
+
         request = self.link.mav.mission_clear_all_encode(vehicle[0], vehicle[1], MAV_MISSION_TYPE_MISSION)
         with self.link.subscribe(MISSION_MESSAGES) as sub:
             sub.drain()
-            give_up = time.monotonic() + t.retries * t.default_s
-            sends = 0
-            while time.monotonic() < give_up or sends <= t.retries:
-                sends += 1
-                self.link.send(request)
-                sent_at = time.monotonic()
-                deadline = sent_at + self.rtt.timeout(t.default_s, t.min_item_s * 5)
-                while (remaining := deadline - time.monotonic()) > 0:
-                    msg = sub.get(timeout=remaining)
-                    if msg is None or msg.get_type() != "MISSION_ACK" or not self._for_us(msg, vehicle):
-                        continue
-                    if not self._mission_type_ok(msg) and msg.mission_type != mavlink2.MAV_MISSION_TYPE_ALL:
-                        continue
-                    if msg.type == MAV_MISSION_ACCEPTED:
-                        if sends == 1:
-                            self.rtt.sample(time.monotonic() - sent_at)
-                        return
-                    raise MissionRejected("mission clear", msg.type)
-        raise MissionTimeout(f"mission clear: no MISSION_ACK after {sends} MISSION_CLEAR_ALL")
+            self._ask(sub, vehicle, request, reply, spec_s=t.default_s, floor_s=t.min_item_s * 5,
+                      give_up_s=t.retries * t.default_s,
+                      failure="mission clear: no MISSION_ACK after {sends} MISSION_CLEAR_ALL")
 
     def set_current(self, seq: int) -> None:
         """Make item ``seq`` current; confirmed by the vehicle's MISSION_CURRENT (spec: no ACK)."""

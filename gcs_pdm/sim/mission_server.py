@@ -68,6 +68,23 @@ def validate_item(item: MissionItem) -> int:
     return mavlink2.MAV_MISSION_ACCEPTED
 
 
+def arduplane_stored(item: MissionItem, config) -> MissionItem:
+    """``item`` as stock ArduPlane reads it back (observed in ../shared/logs/, README there): item 0
+    is home, frame 6 reads back as 3 and 5/2 as 0, NaN params as 0, NAV_LAND's param4 as 1,
+    altitude in whole centimetres, autocontinue 1."""
+    from dataclasses import replace
+    if item.seq == 0:
+        return MissionItem(seq=0, frame=0, command=16, current=0, autocontinue=1, param1=0.0, param2=0.0,
+                           param3=0.0, param4=0.0, x=round(config.home_lat_deg * 1e7),
+                           y=round(config.home_lon_deg * 1e7), z=float(config.home_alt_m))
+    params = [0.0 if p != p else p for p in (item.param1, item.param2, item.param3, item.param4)]
+    if item.command == 21:  # MAV_CMD_NAV_LAND
+        params[3] = -1.0 if params[3] < 0 else 1.0
+    frame = {6: 3, 5: 0, 2: 0, 11: 10}.get(item.frame, item.frame)
+    return replace(item, frame=frame, autocontinue=1, param1=params[0], param2=params[1], param3=params[2],
+                   param4=params[3], z=round(item.z * 100) / 100)
+
+
 def item_from_message(msg) -> MissionItem:
     if msg.get_type() == "MISSION_ITEM":  # legacy: degrees as float
         from gcs_pdm.missions import xy_scale
@@ -92,6 +109,8 @@ class MissionServer:
         self.mav = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self.upload: _Upload | None = None
         self.stats = {"uploads": 0, "rejected": 0, "cancelled": 0, "rerequests": 0, "downloads": 0}
+        # Store items the way stock ArduPlane does (docs/mavlink.md), to test read-back comparison.
+        self.store_like_arduplane = False
 
     def for_me(self, msg) -> bool:
         ts = getattr(msg, "target_system", None)
@@ -166,7 +185,7 @@ class MissionServer:
             log.warning("mission upload rejected at item %d (command %d, frame %d): result %d",
                         item.seq, item.command, item.frame, result)
             return [self._ack(gcs, result)]
-        up.items.append(item)
+        up.items.append(arduplane_stored(item, self.model.config) if self.store_like_arduplane else item)
         up.retries = 0
         if len(up.items) < up.count:
             up.deadline = now + self.timeouts.item_s
