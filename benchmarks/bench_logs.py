@@ -26,7 +26,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from gcs_pdm.logs.dataflash import read_dataflash  # noqa: E402
-from gcs_pdm.logs.series import battery_flights, motor_flight, read_log  # noqa: E402
+from gcs_pdm.logs.reader import read_log  # noqa: E402
+from gcs_pdm.logs.series import battery_flights, motor_flight  # noqa: E402
 
 SOURCE = REPO / ".." / "shared" / "logs" / "arduplane_sitl_stock.bin"
 FLOOR_S = 10.0

@@ -15,7 +15,8 @@ from gcs_pdm.fitting.logs import read_flights
 from gcs_pdm.fitting.tables import FlightDataError
 from gcs_pdm.frames import MotorFrame, PackFrame, StatusTextFrame
 from gcs_pdm.logs.dataflash import DataFlashError, read_dataflash
-from gcs_pdm.logs.series import battery_flights, frames, motor_flight, read_log
+from gcs_pdm.logs.reader import read_log
+from gcs_pdm.logs.series import battery_flights, frames, motor_flight
 
 LOGS = Path(__file__).resolve().parent.parent / ".." / "shared" / "logs"
 BIN = LOGS / "arduplane_sitl_stock.bin"

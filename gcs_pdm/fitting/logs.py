@@ -177,7 +177,8 @@ def read_flights(path: str | Path, kind: str, pack: str = "all") -> list[Flight]
             raise FlightDataError(f"unknown pack {bad[0]!r}; expected one of {', '.join(PACK_NAMES)} or all")
         return read_tlog(path, kind, packs)
     if suffix in AUTOPILOT_LOG_SUFFIXES:
-        from gcs_pdm.logs.series import battery_flights, motor_flight, read_log
+        from gcs_pdm.logs.reader import read_log
+        from gcs_pdm.logs.series import battery_flights, motor_flight
 
         if not path.is_file():
             raise FlightDataError(f"{path}: no such file")
@@ -191,7 +192,7 @@ def read_flights(path: str | Path, kind: str, pack: str = "all") -> list[Flight]
 
 def log_packs(path: str | Path) -> tuple[str, ...]:
     """The packs an autopilot log (``.bin``/``.ulg``) has, by the project's pack names."""
-    from gcs_pdm.logs.series import read_log
+    from gcs_pdm.logs.reader import read_log
 
     return tuple(read_log(path).packs())
 

@@ -15,7 +15,8 @@ from gcs_pdm.frames import FRAME_KIND_OF
 
 
 def replay_log(path: str | Path, frame_consumer=None) -> dict:
-    from gcs_pdm.logs.series import frames, read_log
+    from gcs_pdm.logs.reader import read_log
+    from gcs_pdm.logs.series import frames
 
     started = time.perf_counter()
     series = read_log(path)

@@ -136,19 +136,3 @@ def frames(series: LogSeries) -> list:
     out += [StatusTextFrame(float(t), 6, text) for t, text in series.texts]  # MSG carries no severity
     out.sort(key=lambda f: f.time_s)
     return out
-
-
-LOG_SUFFIXES = (".bin", ".ulg")
-
-
-def read_log(path: str | Path) -> LogSeries:
-    """A DataFlash (``.bin``) or ULog (``.ulg``) file as :class:`LogSeries`, by extension."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".bin":
-        from gcs_pdm.logs.dataflash import series_from_dataflash
-        return series_from_dataflash(path)
-    if suffix == ".ulg":
-        from gcs_pdm.logs.ulog import series_from_ulog
-        return series_from_ulog(path)
-    raise FlightDataError(f"{path}: not an autopilot log (expected {' or '.join(LOG_SUFFIXES)})")
