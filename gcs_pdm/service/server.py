@@ -47,7 +47,9 @@ class HttpServer:
 def start_mavlink(service: Service):
     """Open the link, start the live loop; returns the loop (``service.loop``)."""
     from gcs_pdm.mavlink.connection import Link, LinkConfig
+    from gcs_pdm.mavlink.mapping import FrameMapper
     from gcs_pdm.mavlink.mission_client import MissionClient
+    from gcs_pdm.mavlink.plausibility import PhysicalEnvelope
     from gcs_pdm.service.live import LiveLoop
 
     cfg = service.config
@@ -56,9 +58,12 @@ def start_mavlink(service: Service):
         folder = cfg.data_path / "tlogs"
         folder.mkdir(parents=True, exist_ok=True)
         tlog_path = str(folder / time.strftime("live_%Y%m%dT%H%M%S.tlog"))
+    target = None if cfg.target_system == "auto" else cfg.target_system
+    # Frames are gated against what the active parameter set's packs can physically report.
+    mapper = FrameMapper(target_system=target, envelope=PhysicalEnvelope.from_parameter_set(service.params))
     link = Link(LinkConfig(url=cfg.mavlink_url, source_system=cfg.source_system,
                            source_component=cfg.source_component, signing_key_file=cfg.signing_key_file,
-                           tlog_path=tlog_path)).start()
+                           target_system=target, tlog_path=tlog_path), mapper).start()
     if tlog_path:
         service.store.add_tlog(tlog_path, note="live session")
     loop = LiveLoop(service, link, MissionClient(link))
