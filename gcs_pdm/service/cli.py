@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 
 
 def register(subparsers) -> None:
@@ -48,29 +49,38 @@ def _target_system(text: str) -> int | str:
 
 
 def _serve(args: argparse.Namespace) -> int:
+    """Start-up failures are one line on stderr and exit 2 (systemd restarts; no traceback)."""
     from gcs_pdm.service.config import ConfigError, load_config
-    from gcs_pdm.service.server import serve
+
+    def fail(message: str) -> int:
+        print(f"gcs-pdm serve: {message}", file=sys.stderr)
+        return 2
 
     host = port = None
     if args.http:
         host, _, port_text = args.http.rpartition(":")
-        port = int(port_text)
+        try:
+            port = int(port_text)
+        except ValueError:
+            return fail(f"--http {args.http!r}: expected HOST:PORT")
     try:
         config = load_config(args.config, mavlink_url=args.mavlink_url, policy=args.policy, data_dir=args.data_dir,
                              http_host=host or None, http_port=port, target_system=args.target_system)
     except ConfigError as exc:
-        print(f"gcs-pdm serve: {exc}")
-        return 2
+        return fail(str(exc))
+    from gcs_pdm.service.server import StartupError, serve
     from gcs_pdm.service.storage import Conflict, NotFound
 
     try:
         return serve(config, objectives=args.objectives)
+    except StartupError as exc:
+        return fail(str(exc))
     except NotFound as exc:  # e.g. parameter_set names no stored set
-        print(f"gcs-pdm serve: not found: {exc.args[0]}")
-        return 2
+        return fail(f"not found: {exc.args[0]}")
     except Conflict as exc:
-        print(f"gcs-pdm serve: {exc}")
-        return 2
+        return fail(str(exc))
+    except OSError as exc:  # e.g. a data directory that cannot be created
+        return fail(f"{exc.strerror or exc}{': ' + str(exc.filename) if exc.filename else ''}")
 
 
 def _demo(args: argparse.Namespace) -> int:
