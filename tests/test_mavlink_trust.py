@@ -153,20 +153,33 @@ def test_hostile_timestamps_between_the_vehicles_never_win():
     assert m.clock.now < 100 and m.clock.rejected == 100 and m.clock.jumps == 0
 
 
+def test_a_flood_of_agreeing_lies_loses_to_the_vehicle():
+    """Hundreds of consistent lies of two types between two of the vehicle's messages: not adopted."""
+    v, m = PacketFactory(), FrameMapper()
+    boot = _flying(m, v)
+    for second in range(10):
+        for k in range(300):
+            recv = 1.0 + second + k / 300
+            feed(m, v.pressure(0xFFFFF000 + k), recv)
+            feed(m, v.position(0xFFFFF000 + k), recv)
+        feed(m, v.position(boot + 1000 * second), 1.0 + second + 0.999)  # the vehicle at 1 Hz
+    assert m.clock.now < 100 and m.clock.jumps == 0 and m.clock.reboots == 0
+
+
 def test_a_real_outage_is_accepted_when_the_streams_agree():
     v, m = PacketFactory(), FrameMapper()
     boot = _flying(m, v)
     later = boot + 60_000  # one minute without telemetry
-    out = []
-    for k in range(VehicleClock.CONFIRM_SAMPLES):
-        out += feed(m, v.position(later + 100 * k), 61.0 + 0.1 * k)
-        out += feed(m, v.pressure(later + 100 * k + 5), 61.0 + 0.1 * k)
-    assert m.clock.jumps == 1 and m.clock.now == pytest.approx((later + 100 * (VehicleClock.CONFIRM_SAMPLES - 1) + 5) / 1000)
+    steps = int(VehicleClock.CONFIRM_SPAN_S / 0.5) + 1  # two streams at 2 Hz for the confirmation span
+    for k in range(steps):
+        feed(m, v.position(later + 500 * k), 61.0 + 0.5 * k)
+        feed(m, v.pressure(later + 500 * k + 5), 61.0 + 0.5 * k)
+    assert m.clock.jumps == 1 and m.clock.now == pytest.approx((later + 500 * (steps - 1) + 5) / 1000)
     # one stream alone is not enough to jump
     m2 = FrameMapper()
     _flying(m2, v)
-    for k in range(3 * VehicleClock.CONFIRM_SAMPLES):
-        feed(m2, v.position(later + 100 * k), 61.0 + 0.1 * k)
+    for k in range(3 * steps):
+        feed(m2, v.position(later + 500 * k), 61.0 + 0.5 * k)
     assert m2.clock.jumps == 0 and m2.clock.now < 100
 
 

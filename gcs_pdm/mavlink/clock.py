@@ -14,10 +14,11 @@ Policy (docs/mavlink.md, "Message time"):
 
 Trust (docs/operations.md, "Safety"): one timestamp never moves message time. A sample more than
 ``MAX_STEP_S`` ahead of the accepted time, or more than ``REBOOT_BACKSTEP_S`` behind it, is only a
-*candidate*; it is adopted when ``CONFIRM_SAMPLES`` consecutive timed messages agree with it — from
-at least ``CONFIRM_TYPES`` message types, or from any type when time went back to near zero (a
-reboot). A sample consistent with the accepted time resets the candidate, so a sender injecting
-odd timestamps between the vehicle's own never wins while the vehicle is heard. Everything else is
+*candidate*; it is adopted when ``CONFIRM_SAMPLES`` consecutive timed messages agree with it over at
+least ``CONFIRM_SPAN_S`` of receive time — from at least ``CONFIRM_TYPES`` message types, or from any
+type when time went back to near zero (a reboot). A sample consistent with the accepted time resets
+the candidate, so a sender injecting odd timestamps between the vehicle's own never wins while the
+vehicle is heard, however fast it floods (the vehicle's timed streams run at several Hz). Everything else is
 counted in ``rejected`` and its message gives no frame. The first time is acquired the same way.
 """
 from __future__ import annotations
@@ -54,6 +55,7 @@ class VehicleClock:
     MAX_STEP_S = 10.0
     CONFIRM_SAMPLES = 4
     CONFIRM_TYPES = 2
+    CONFIRM_SPAN_S = 2.0
     # The first time is adopted from this many consecutive agreeing samples (so one odd packet
     # before the vehicle's own cannot set it); frames wait meanwhile and are dated afterwards.
     ACQUIRE_SAMPLES = 2
@@ -116,7 +118,7 @@ class VehicleClock:
             if last is None:
                 if c.count < self.ACQUIRE_SAMPLES:
                     return Verdict.ACQUIRING
-            elif c.count < self.CONFIRM_SAMPLES:
+            elif c.count < self.CONFIRM_SAMPLES or recv_s - c.first_recv_s < self.CONFIRM_SPAN_S:
                 return self._reject(boot_s)
             if last is not None:
                 back = c.first_boot_s < last
