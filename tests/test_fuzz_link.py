@@ -83,43 +83,103 @@ def _hostile_datagrams(rng: random.Random):
             yield rng.choice(hostile_foreign)
 
 
-@pytest.mark.slow
-def test_hostile_traffic_changes_nothing(tmp_path):
-    udp, http = _free(socket.SOCK_DGRAM), _free(socket.SOCK_STREAM)
-    base = f"http://127.0.0.1:{http}"
-    env = dict(os.environ, GCS_PDM_API_TOKEN=TOKEN)
-    env.pop("GCS_PDM_CONFIG", None)
-    serve = subprocess.Popen(
-        [sys.executable, "-m", "gcs_pdm.cli", "serve", "--mavlink", f"udpin:127.0.0.1:{udp}",
-         "--http", f"127.0.0.1:{http}", "--data-dir", str(tmp_path / "data"), "--policy", "advise",
-         "--objectives", str(REPO / "deploy" / "table3_objectives.json")],
-        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=open(tmp_path / "serve.log", "w"))
-    sim = subprocess.Popen(
-        [sys.executable, "-m", "gcs_pdm.cli", "sim", "--connect", f"udpout:127.0.0.1:{udp}", "--speedup", "5",
-         "--mission", str(REPO / "deploy" / "table3_mission.plan"), "--start-delay", "1", "--duration", "120"],
-        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=open(tmp_path / "sim.log", "w"))
-    client = httpx.Client(base_url=base, timeout=5)
-    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        def status() -> dict:
-            return client.get("/status").json()
+class Running:
+    """`gcs-pdm serve` on free loopback ports, and (on request) `gcs-pdm sim` sending to it."""
 
-        # the service follows the sim: voltages from every pack, message time running
-        deadline = time.monotonic() + 60
+    def __init__(self, tmp_path: Path):
+        self.tmp_path = tmp_path
+        self.udp, http = _free(socket.SOCK_DGRAM), _free(socket.SOCK_STREAM)
+        self.env = dict(os.environ, GCS_PDM_API_TOKEN=TOKEN)
+        self.env.pop("GCS_PDM_CONFIG", None)
+        self.serve = subprocess.Popen(
+            [sys.executable, "-m", "gcs_pdm.cli", "serve", "--mavlink", f"udpin:127.0.0.1:{self.udp}",
+             "--http", f"127.0.0.1:{http}", "--data-dir", str(tmp_path / "data"), "--policy", "advise",
+             "--objectives", str(REPO / "deploy" / "table3_objectives.json")],
+            cwd=REPO, env=self.env, stdout=subprocess.DEVNULL, stderr=open(tmp_path / "serve.log", "w"))
+        self.sim = None
+        self.client = httpx.Client(base_url=f"http://127.0.0.1:{http}", timeout=5)
+
+    def start_sim(self) -> None:
+        self.sim = subprocess.Popen(
+            [sys.executable, "-m", "gcs_pdm.cli", "sim", "--connect", f"udpout:127.0.0.1:{self.udp}",
+             "--speedup", "5", "--mission", str(REPO / "deploy" / "table3_mission.plan"), "--start-delay", "1",
+             "--duration", "120"],
+            cwd=REPO, env=self.env, stdout=subprocess.DEVNULL, stderr=open(self.tmp_path / "sim.log", "w"))
+
+    def alive(self) -> None:
+        assert self.serve.poll() is None, (self.tmp_path / "serve.log").read_text()[-3000:]
+
+    def status(self) -> dict:
+        return self.client.get("/status").json()
+
+    def wait(self, condition, what: str, timeout: float = 60.0):
+        deadline = time.monotonic() + timeout
         while True:
             try:
-                s = status()
-                if s.get("time_s") and all(p.get("voltage_v") for p in s["packs"].values()):
-                    break
+                value = condition()
+                if value:
+                    return value
             except httpx.HTTPError:
                 pass
-            assert serve.poll() is None, (tmp_path / "serve.log").read_text()[-3000:]
-            assert time.monotonic() < deadline, "the service never followed the sim"
+            self.alive()
+            assert time.monotonic() < deadline, what
             time.sleep(0.2)
+
+    def following_sim(self) -> dict:
+        s = self.status()
+        return s if s.get("time_s") and all(p.get("voltage_v") for p in s["packs"].values()) else None
+
+    def close(self) -> None:
+        self.client.close()
+        procs = [p for p in (self.sim, self.serve) if p is not None]
+        for proc in procs:
+            proc.terminate()
+        for proc in procs:
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+
+
+@pytest.fixture
+def running(tmp_path):
+    r = Running(tmp_path)
+    yield r
+    r.close()
+
+
+@pytest.mark.slow
+def test_a_foreign_vehicle_heard_first_is_never_tracked(running):
+    """Issue 12: one HEARTBEAT from system 42 before the vehicle's made the service track it for good."""
+    intruder = PacketFactory(42, 1)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        running.wait(lambda: running.status(), "the service never answered", timeout=30)
+        for _ in range(5):
+            tx.sendto(intruder.heartbeat(), ("127.0.0.1", running.udp))
+            tx.sendto(intruder.battery(0, [4242] * 10, 100, 2000), ("127.0.0.1", running.udp))
+            time.sleep(0.05)
+        running.start_sim()
+        s = running.wait(running.following_sim, "the service never followed the sim")
+        assert s["link"]["vehicle"] == [1, 1]
+        # the packs show the sim's 5S voltages, never the intruder's 42.42 V
+        assert all(15 < p["voltage_v"] < 22 for p in s["packs"].values()), s["packs"]
+    finally:
+        tx.close()
+
+
+@pytest.mark.slow
+def test_hostile_traffic_changes_nothing(running):
+    running.start_sim()
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    client, status, udp = running.client, running.status, running.udp
+    try:
+        running.wait(running.following_sim, "the service never followed the sim")
         time.sleep(2.0)  # let the filters and the first checks settle before measuring memory
         faults_before = client.get("/faults").json()
         plans_before = client.get("/missions/history").json() + client.get("/missions/proposed").json()
-        rss_before = _rss_kib(serve.pid)
+        rss_before = _rss_kib(running.serve.pid)
         time_before = status()["time_s"]
 
         envelope = PhysicalEnvelope.from_parameter_set(builtin("paper_si"))
@@ -134,7 +194,7 @@ def test_hostile_traffic_changes_nothing(tmp_path):
             sent += 200
             time.sleep(0.03)  # ~6,000 datagrams/s: a flood, yet the vehicle's packets still get through
             if sent % 10_000 == 0:
-                assert serve.poll() is None, (tmp_path / "serve.log").read_text()[-3000:]
+                running.alive()
                 s = status()
                 times.append(s["time_s"])
                 for name, pack in s["packs"].items():
@@ -144,7 +204,7 @@ def test_hostile_traffic_changes_nothing(tmp_path):
         fuzz_s = time.monotonic() - started
         time.sleep(2.0)
 
-        assert serve.poll() is None, (tmp_path / "serve.log").read_text()[-3000:]
+        running.alive()
         s = status()
         assert s["time_s"] > time_before + 10 and times == sorted(times), (time_before, times, s["time_s"])
         for name, pack in s["packs"].items():
@@ -154,17 +214,8 @@ def test_hostile_traffic_changes_nothing(tmp_path):
                 assert -40 <= pack["temperature_c"] <= 100, (name, pack)
         assert client.get("/faults").json() == faults_before
         assert client.get("/missions/history").json() + client.get("/missions/proposed").json() == plans_before
-        rss_after = _rss_kib(serve.pid)
+        rss_after = _rss_kib(running.serve.pid)
         assert rss_after <= 1.2 * rss_before, (rss_before, rss_after)
         print(f"fuzz: {sent} datagrams in {fuzz_s:.1f} s; RSS {rss_before} -> {rss_after} KiB")
     finally:
         tx.close()
-        client.close()
-        for proc in (sim, serve):
-            proc.terminate()
-        for proc in (sim, serve):
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
