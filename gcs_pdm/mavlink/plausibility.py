@@ -89,33 +89,32 @@ class FrameGate:
 
     envelope: PhysicalEnvelope
     gated: Counter = field(default_factory=Counter)  # (kind, field, reason) -> count
-    _checks: dict = field(init=False, repr=False)
+    _by_class: dict = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._checks = _checks(self.envelope)
+        # frame class -> (kind, ((field, range or per-key ranges, per key?), ...)), resolved once
+        checks = _checks(self.envelope)
+        self._by_class = {cls: (kind, tuple((name, allowed, isinstance(allowed, Mapping))
+                                            for name, allowed in checks.get(kind, {}).items()))
+                          for cls, kind in FRAME_KIND_OF.items()}
 
     def __call__(self, frame):
-        kind = FRAME_KIND_OF.get(type(frame))
-        checks = self._checks.get(kind)
-        if not checks:
-            return frame
-        changes = {}
-        for name, allowed in checks.items():
+        kind, checks = self._by_class.get(type(frame), (None, ()))
+        changes = None
+        for name, allowed, per_key in checks:
             value = getattr(frame, name)
             if value is None:
                 continue
-            if isinstance(allowed, Mapping):
+            if per_key:
                 allowed = allowed.get(getattr(frame, kind, None))
                 if allowed is None:
                     continue
-            if not math.isfinite(value):
-                reason = "not_finite"
-            elif value < allowed[0]:
-                reason = "below_range"
-            elif value > allowed[1]:
-                reason = "above_range"
-            else:
+            if allowed[0] <= value <= allowed[1]:  # the common case; NaN fails it
                 continue
+            reason = "not_finite" if not math.isfinite(value) else (
+                "below_range" if value < allowed[0] else "above_range")
+            if changes is None:
+                changes = {}
             changes[name] = None
             self.gated[(kind, name, reason)] += 1
         return dataclasses.replace(frame, **changes) if changes else frame
