@@ -218,3 +218,16 @@ def test_gate_handles_non_finite_and_huge_values():
     assert gate(AmbientFrame(1.0, 21.0)) == AmbientFrame(1.0, 21.0)
     assert gate.counts() == {"motor.temperature_c.above_range": 1, "pack.current_a.below_range": 1,
                              "pack.temperature_c.below_range": 1, "pack.voltage_v.not_finite": 1}
+
+
+def test_service_setting_target_system_takes_an_id_or_auto():
+    from gcs_pdm.service.config import ConfigError, load_config
+
+    assert load_config(env={}).target_system == 1
+    assert load_config(env={"GCS_PDM_TARGET_SYSTEM": "auto"}).target_system == "auto"
+    assert load_config(env={"GCS_PDM_TARGET_SYSTEM": "7"}).target_system == 7
+    for bad in ("any", "0", "256"):
+        with pytest.raises(ConfigError, match="^target_system"):
+            load_config(env={"GCS_PDM_TARGET_SYSTEM": bad})
+    with pytest.raises(ConfigError, match="^source_system"):
+        load_config(env={"GCS_PDM_SOURCE_SYSTEM": "255"})  # the GCS's id is not ours
