@@ -231,3 +231,20 @@ def test_service_setting_target_system_takes_an_id_or_auto():
             load_config(env={"GCS_PDM_TARGET_SYSTEM": bad})
     with pytest.raises(ConfigError, match="^source_system"):
         load_config(env={"GCS_PDM_SOURCE_SYSTEM": "255"})  # the GCS's id is not ours
+
+
+def test_vehicle_silence_counts_only_the_tracked_vehicles_heartbeats():
+    link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))  # never opened: packets injected
+    vehicle, intruder = PacketFactory(1, 1), PacketFactory(42, 1)
+
+    def inject(packet: bytes) -> None:
+        from gcs_pdm.mavlink.dialect import mavlink2
+        msg = mavlink2.MAVLink(None).decode(bytearray(packet))
+        link.handle_message(msg)
+
+    inject(intruder.heartbeat())
+    assert link.vehicle_silent_s() is None  # a stranger's heartbeat is not the vehicle's
+    inject(vehicle.heartbeat())
+    assert 0 <= link.vehicle_silent_s() < 1
+    import time
+    assert link.vehicle_silent_s(now=time.monotonic() + 5) > 4.9

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
-from gcs_pdm.mavlink.dialect import DIALECT, mavlink2, mavutil
+from gcs_pdm.mavlink.dialect import DIALECT, MESSAGE_IDS_BY_NAME, mavlink2, mavutil
 from gcs_pdm.mavlink.mapping import FrameMapper, ForeignSystem
 from gcs_pdm.mavlink.tlog import TlogWriter
 from gcs_pdm.mavlink.wire import split_packet
@@ -39,6 +39,7 @@ log = logging.getLogger(__name__)
 DEFAULT_SOURCE_SYSTEM = 245
 DEFAULT_SOURCE_COMPONENT = mavlink2.MAV_COMP_ID_PATHPLANNER
 DEFAULT_RCVBUF_BYTES = 4 * 1024 * 1024
+HEARTBEAT_ID = MESSAGE_IDS_BY_NAME["HEARTBEAT"]
 # ArduPilot's and PX4's default system id: the vehicle we track unless told otherwise.
 DEFAULT_TARGET_SYSTEM = 1
 # Loopback and a port of its own: a router or the ground station forwards the vehicle to it
@@ -193,6 +194,8 @@ class Link:
         self.bad_data = 0
         self.sent = 0
         self.rcvbuf_effective: int | None = None
+        # monotonic time of the tracked vehicle's last HEARTBEAT (for "link lost" decisions)
+        self._vehicle_heartbeat_at: float | None = None
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -320,11 +323,18 @@ class Link:
         """Other systems that sent vehicle heartbeats on this link (never tracked)."""
         return list(self.mapper.foreign_systems.values())
 
+    def vehicle_silent_s(self, now: float | None = None) -> float | None:
+        """Wall seconds since the tracked vehicle's last HEARTBEAT; None if it was never heard.
+        (Wall time on purpose: a silent vehicle sends no message time to measure silence by.)"""
+        if self._vehicle_heartbeat_at is None:
+            return None
+        return (time.monotonic() if now is None else now) - self._vehicle_heartbeat_at
+
     def trust_report(self) -> dict:
         """What the link refused to believe, for /status: foreign vehicles, rejected timestamps,
         values outside the physical envelope, packets that did not parse."""
         stats = self.mapper.stats
-        return {"target_system": self.mapper.target_system,
+        return {"target_system": self.mapper.target_system, "vehicle_silent_s": self.vehicle_silent_s(),
                 "foreign_systems": [f.to_dict() for f in self.foreign_systems],
                 "clock": self.mapper.clock.to_dict(), "time_rejected": stats.time_rejected,
                 "gated": stats.to_dict()["gated"], "bad_data": self.bad_data, "other_source": stats.other_source}
@@ -402,6 +412,9 @@ class Link:
         packet = split_packet(bytes(raw))
         if packet is not None:
             frames = self.mapper.feed(recv_us / 1e6, packet.msgid, packet.sysid, packet.compid, packet.payload)
+            if (packet.msgid == HEARTBEAT_ID and self.mapper.locked and packet.sysid == self.mapper.target_system
+                    and packet.compid == self.mapper.target_component):
+                self._vehicle_heartbeat_at = time.monotonic()
             for frame in frames:
                 for listener in self._frame_listeners:
                     try:
