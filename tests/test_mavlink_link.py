@@ -90,9 +90,9 @@ def test_live_frames_equal_replayed_frames(tmp_path):
     assert ura == PackFrame(60.005, "URA40", pytest.approx(20.5), 15.0, pytest.approx(25.03))
     assert [f for f in live if isinstance(f, MotorFrame)][:2] == [
         MotorFrame(60.005, "fwd", 12.0, 5400, 60), MotorFrame(60.005, "aft", 9.9, 5300, 58)]
-    # The tlog holds what was sent too: the service's own heartbeats as 255/195.
+    # The tlog holds what was sent too: the service's own heartbeats as 245/195 (not the GCS's 255).
     sources = {(sysid, compid) for _, _, sysid, compid, *_ in scan_tlog(tlog)}
-    assert sources == {(1, 1), (255, 195)}
+    assert sources == {(1, 1), (245, 195)}
 
 
 def test_signed_link_accepts_signed_and_rejects_unsigned(tmp_path):
@@ -179,9 +179,9 @@ def test_serial_link_over_a_pty():
     link = Link(LinkConfig(url=os.ttyname(slave), baud=115200, heartbeat_hz=20)).start()
     try:
         v = PacketFactory()
-        os.write(master, v.heartbeat() + v.position(1000) + v.battery(0, [4000] * 5, 100, 2000))
-        assert wait_for(lambda: link.received == 3)
-        assert dict(link.mapper.stats.frames_by_kind) == {"status": 1, "position": 1, "pack": 1}
+        os.write(master, v.heartbeat() + v.position(1000) + v.position(1100) + v.battery(0, [4000] * 5, 100, 2000))
+        assert wait_for(lambda: link.received == 4)
+        assert dict(link.mapper.stats.frames_by_kind) == {"status": 1, "position": 2, "pack": 1}
         assert wait_for(lambda: len(os.read(master, 4096)) > 0)  # the link's heartbeat goes out too
     finally:
         link.close()

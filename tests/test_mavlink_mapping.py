@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from gcs_pdm.frames import AirdataFrame, AmbientFrame, MotorFrame, PackFrame, PositionFrame, StatusFrame
+from gcs_pdm.mavlink.clock import VehicleClock
 from gcs_pdm.mavlink.mapping import FrameMapper, MappingError, default_mapping
 from gcs_pdm.mavlink.wire import split_packet
 
@@ -20,7 +21,11 @@ def feed(mapper: FrameMapper, packet: bytes, recv_s: float):
 
 
 def started(mapper: FrameMapper, v: PacketFactory, boot_ms: int = 5000, recv_s: float = 100.0) -> list:
-    return feed(mapper, v.heartbeat(), recv_s) + feed(mapper, v.position(boot_ms), recv_s)
+    """Heartbeat, then the same position until the clock has confirmed the vehicle's time."""
+    out = feed(mapper, v.heartbeat(), recv_s)
+    for _ in range(VehicleClock.ACQUIRE_SAMPLES):
+        out += feed(mapper, v.position(boot_ms), recv_s)
+    return out
 
 
 def test_units_and_keys():
@@ -38,7 +43,7 @@ def test_units_and_keys():
 
 
 def test_not_available_sentinels_become_none():
-    v, m = PacketFactory(), FrameMapper()
+    v, m = PacketFactory(), FrameMapper(envelope=None)  # 76 V is no pack of the default set
     started(m, v)
     # No cell voltages, current -1 (not measured), temperature INT16_MAX (unknown).
     frame, = feed(m, v.pack(v.mav.battery_status_encode(0, 0, 0, 32767, [65535] * 10, -1, -1, -1, -1)), 100.1)
@@ -116,20 +121,28 @@ def test_untimed_messages_take_the_latest_vehicle_time_not_receive_time():
 def test_reboot_keeps_time_running_forward():
     v, m = PacketFactory(), FrameMapper()
     feed(m, v.heartbeat(), 0.0)
+    feed(m, v.position(599_900), 9.9)
     before = feed(m, v.position(600_000), 10.0)[-1].time_s
-    after = feed(m, v.position(1_500), 12.0)[-1].time_s  # rebooted: time_boot_ms restarts
     assert before == 600.0
-    assert after == pytest.approx(602.0)  # continues after the 2 s receive gap
+    # Rebooted: time_boot_ms restarts. One message is not proof; consistent follow-ups near zero,
+    # over the confirmation span, are.
+    span_steps = int(VehicleClock.CONFIRM_SPAN_S / 0.5)
+    for k in range(span_steps):
+        assert feed(m, v.position(1_500 + 500 * k), 12.0 + 0.5 * k) == []
+    after = feed(m, v.position(1_500 + 500 * span_steps), 12.0 + 0.5 * span_steps)[-1].time_s
+    assert after == pytest.approx(602.0 + 0.5 * span_steps)  # after the 2 s receive gap
     assert m.clock.reboots == 1
-    assert feed(m, v.position(2_500), 13.0)[-1].time_s == pytest.approx(603.0)
+    assert feed(m, v.position(1_500 + 500 * (span_steps + 1)), 13.0 + 0.5 * span_steps)[-1].time_s == pytest.approx(
+        602.0 + 0.5 * (span_steps + 1))
 
 
 def test_frames_before_the_first_timed_message_are_back_dated():
     v, m = PacketFactory(), FrameMapper()
     assert feed(m, v.heartbeat(), 50.0) == []  # waits for the clock
-    frames = feed(m, v.position(7_000), 50.5)
-    assert [type(f) for f in frames] == [StatusFrame, PositionFrame]
-    assert frames[0].time_s == pytest.approx(6.5) and frames[1].time_s == 7.0
+    assert feed(m, v.position(7_000), 50.5) == []  # one timestamp does not set the clock...
+    frames = feed(m, v.position(7_100), 50.6)  # ...two that agree do
+    assert [type(f) for f in frames] == [StatusFrame, PositionFrame, PositionFrame]
+    assert [f.time_s for f in frames] == [pytest.approx(6.5), 7.0, 7.1]
 
 
 def test_vehicle_without_time_fields_falls_back_to_receive_time():

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from gcs_pdm.mavlink.connection import Link, LinkConfig
+from gcs_pdm.mavlink.connection import DEFAULT_SOURCE_SYSTEM as OUR_SYSTEM, Link, LinkConfig
 from gcs_pdm.mavlink.dialect import mavlink2, mavutil
 from gcs_pdm.mavlink.mission_client import MissionClient, MissionError, MissionRejected, MissionTimeouts
 from gcs_pdm.missions import MissionItem, as_sent, renumber, same_items, takeoff, waypoint
@@ -147,11 +147,11 @@ class ScriptedVehicle:
             self.conn.mav.mission_ack_send(255, 190, mavlink2.MAV_MISSION_ACCEPTED, 0)
             self.conn.mav.mission_request_int_send(255, 190, seq + 1, 0)
             if seq == 1:
-                self.conn.mav.mission_ack_send(255, 195, mavlink2.MAV_MISSION_ACCEPTED, 0)
+                self.conn.mav.mission_ack_send(OUR_SYSTEM, 195, mavlink2.MAV_MISSION_ACCEPTED, 0)
         if self.legacy:
-            self.conn.mav.mission_request_send(255, 195, seq, 0)
+            self.conn.mav.mission_request_send(OUR_SYSTEM, 195, seq, 0)
         else:
-            self.conn.mav.mission_request_int_send(255, 195, seq, 0)
+            self.conn.mav.mission_request_int_send(OUR_SYSTEM, 195, seq, 0)
 
     def close(self) -> None:
         self._stop.set()

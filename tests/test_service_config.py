@@ -14,7 +14,7 @@ from gcs_pdm.service.config import ConfigError, ServiceConfig, load_config
 
 def test_defaults_are_documented_values():
     c = load_config(env={})
-    assert c.mavlink_url == "udpin:0.0.0.0:14550" and c.http_host == "127.0.0.1" and c.http_port == 8000
+    assert c.mavlink_url == "udpin:127.0.0.1:14551" and c.target_system == 1 and c.source_system != 255 and c.http_host == "127.0.0.1" and c.http_port == 8000
     assert c.policy == "auto" and c.parameter_set == "paper_si"
     assert str(c.database).endswith("gcs_pdm.sqlite3")
     # every field has a default, so an empty file is a valid configuration

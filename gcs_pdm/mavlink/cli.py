@@ -48,9 +48,16 @@ def run(args: argparse.Namespace) -> int:
         return print_replay(args.file, consumer, as_json=args.json)
     summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
                           frame_consumer=consumer).to_dict()
+    # 2: nothing could be read; 1: read, but neither packs nor motors could be diagnosed.
+    diagnosable = summary["frames_by_kind"].get("pack") or summary["frames_by_kind"].get("motor")
+    status = 2 if not summary["readable"] else (0 if diagnosable else 1)
     if args.json:
         print(json.dumps(summary))
-        return 0
+        return status
+    if not summary["readable"]:
+        print(f"replay: {args.file}: could not be read: {summary['not_diagnosed'][0].removeprefix('nothing: ')}",
+              file=sys.stderr)
+        return status
     print(f"{summary['path']}: {summary['messages']} messages, {summary['frames']} frames "
           f"in {summary['elapsed_s']:.3f} s ({summary['messages_per_s']} msg/s, frame consumer included)")
     print(f"  tlog: start {summary['tlog_start_utc']}, {summary['tlog_duration_s']} s; "
@@ -62,5 +69,10 @@ def run(args: argparse.Namespace) -> int:
     print("  messages by type:")
     for name, count in summary["messages_by_type"].items():
         print(f"    {name:<28} {count}")
-    print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}")
-    return 0
+    print(f"  time: {summary['mapping']['time_rejected']} messages with a rejected timestamp; "
+          f"values outside the physical envelope: {summary['mapping']['gated'] or 'none'}")
+    for reason in summary["not_diagnosed"]:
+        print(f"  not diagnosed: {reason}")
+    print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}"
+          + ("" if diagnosable else " (nothing could be diagnosed: see above)"))
+    return status

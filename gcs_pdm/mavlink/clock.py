@@ -11,17 +11,56 @@ Policy (docs/mavlink.md, "Message time"):
 * Until the first timed message arrives, frames wait (at most ``sync_window_s`` of receive time)
   and are then back-dated by their receive-time distance to it. If none arrives within the
   window, the clock falls back for good to receive time (the tlog timestamp in replay).
+
+Trust (docs/operations.md, "Safety"): one timestamp never moves message time. A sample more than
+``MAX_STEP_S`` ahead of the accepted time, or more than ``REBOOT_BACKSTEP_S`` behind it, is only a
+*candidate*; it is adopted when ``CONFIRM_SAMPLES`` consecutive timed messages agree with it over at
+least ``CONFIRM_SPAN_S`` of receive time — from at least ``CONFIRM_TYPES`` message types, or from any
+type when time went back to near zero (a reboot). A sample consistent with the accepted time resets
+the candidate, so a sender injecting odd timestamps between the vehicle's own never wins while the
+vehicle is heard, however fast it floods (the vehicle's timed streams run at several Hz). Everything else is
+counted in ``rejected`` and its message gives no frame. The first time is acquired the same way.
 """
 from __future__ import annotations
 
+import enum
 import logging
 
 log = logging.getLogger(__name__)
 
 
+class Verdict(enum.Enum):
+    """Why ``on_time_boot`` gave no time."""
+
+    FALLBACK = "fallback"  # the clock runs on receive time
+    ACQUIRING = "acquiring"  # no time adopted yet: hold the frame
+    REJECTED = "rejected"  # the timestamp disagrees with the vehicle's accepted time: drop the frame
+
+
+class _Candidate:
+    __slots__ = ("first_boot_s", "first_recv_s", "latest_boot_s", "types", "count")
+
+    def __init__(self, boot_s: float, recv_s: float, msgid):
+        self.first_boot_s = self.latest_boot_s = boot_s
+        self.first_recv_s = recv_s
+        self.types = {msgid}
+        self.count = 1
+
+
 class VehicleClock:
-    # time_boot_ms going back by more than this is a reboot, not reordering between streams.
+    # time_boot_ms going back by more than this is a reboot (or a lie), not reordering between streams.
     REBOOT_BACKSTEP_S = 2.0
+    # Consecutive vehicle timestamps further apart than this are a jump to be confirmed (a link
+    # outage, a reboot, or a hostile packet); the vehicle's timed streams run at >= 1 Hz.
+    MAX_STEP_S = 10.0
+    CONFIRM_SAMPLES = 4
+    CONFIRM_TYPES = 2
+    CONFIRM_SPAN_S = 2.0
+    # The first time is adopted from this many consecutive agreeing samples (so one odd packet
+    # before the vehicle's own cannot set it); frames wait meanwhile and are dated afterwards.
+    ACQUIRE_SAMPLES = 2
+    # A reboot is evident when time goes back to below this.
+    NEAR_BOOT_S = 120.0
 
     def __init__(self, sync_window_s: float = 30.0):
         self.sync_window_s = sync_window_s
@@ -30,23 +69,73 @@ class VehicleClock:
         self.now: float | None = None  # latest vehicle time (s), epoch-adjusted
         self.epoch_s = 0.0
         self.reboots = 0
+        self.jumps = 0  # forward jumps adopted (after a link outage)
+        self.rejected = 0  # timestamps that did not move message time
         self._last_boot_s: float | None = None
         self._last_timed_recv_s: float | None = None
         self._first_recv_s: float | None = None
+        self._candidate: _Candidate | None = None
 
-    def on_time_boot(self, boot_s: float, recv_s: float) -> float | None:
-        """A message carrying ``time_boot_ms`` arrived; returns its time, or None in fallback mode."""
+    def to_dict(self) -> dict:
+        return {"synced": self.synced, "fallback": self.fallback, "now_s": self.now, "reboots": self.reboots,
+                "jumps": self.jumps, "rejected": self.rejected}
+
+    def _consistent(self, boot_s: float, ref_s: float) -> bool:
+        return ref_s - self.REBOOT_BACKSTEP_S <= boot_s <= ref_s + self.MAX_STEP_S
+
+    def agrees(self, boot_s: float) -> bool:
+        """Whether a ``time_boot_ms`` (s) agrees with the accepted vehicle time."""
+        return self._last_boot_s is not None and self._consistent(boot_s, self._last_boot_s)
+
+    def _note_candidate(self, boot_s: float, recv_s: float, msgid) -> _Candidate:
+        c = self._candidate
+        if c is not None and self._consistent(boot_s, c.latest_boot_s):
+            c.count += 1
+            c.types.add(msgid)
+            c.latest_boot_s = max(c.latest_boot_s, boot_s)
+        else:
+            c = self._candidate = _Candidate(boot_s, recv_s, msgid)
+        return c
+
+    def _reject(self, boot_s: float) -> Verdict:
+        self.rejected += 1
+        if self.rejected in (1, 10, 100) or self.rejected % 1000 == 0:
+            log.warning("vehicle time_boot_ms %.3f s disagrees with the vehicle's time %.3f s: ignored (%d so far)",
+                        boot_s, self._last_boot_s or 0.0, self.rejected)
+        return Verdict.REJECTED
+
+    def on_time_boot(self, boot_s: float, recv_s: float, msgid=None) -> float | Verdict:
+        """A message carrying ``time_boot_ms`` arrived: its message time, or why it has none."""
         if self.fallback:
-            return None
-        if self._last_boot_s is not None and boot_s < self._last_boot_s - self.REBOOT_BACKSTEP_S:
-            gap = max(0.0, recv_s - (self._last_timed_recv_s or recv_s))
-            self.epoch_s = (self.now or 0.0) + gap - boot_s
-            self.reboots += 1
-            log.warning("vehicle rebooted (time_boot_ms %.3f s -> %.3f s); time continues at %.3f s",
-                        self._last_boot_s, boot_s, boot_s + self.epoch_s)
-            self._last_boot_s = boot_s
-        elif self._last_boot_s is None or boot_s > self._last_boot_s:
-            self._last_boot_s = boot_s
+            return Verdict.FALLBACK
+        last = self._last_boot_s
+        if last is not None and self._consistent(boot_s, last):
+            self._candidate = None
+            if boot_s > last:
+                self._last_boot_s = boot_s
+        else:
+            c = self._note_candidate(boot_s, recv_s, msgid)
+            if last is None:
+                if c.count < self.ACQUIRE_SAMPLES:
+                    return Verdict.ACQUIRING
+            elif c.count < self.CONFIRM_SAMPLES or recv_s - c.first_recv_s < self.CONFIRM_SPAN_S:
+                return self._reject(boot_s)
+            if last is not None:
+                back = c.first_boot_s < last
+                if len(c.types) < self.CONFIRM_TYPES and not (back and c.first_boot_s < self.NEAR_BOOT_S):
+                    return self._reject(boot_s)
+                if back:
+                    gap = max(0.0, c.first_recv_s - (self._last_timed_recv_s or c.first_recv_s))
+                    self.epoch_s = (self.now or 0.0) + gap - c.first_boot_s
+                    self.reboots += 1
+                    log.warning("vehicle rebooted (time_boot_ms %.3f s -> %.3f s); time continues at %.3f s",
+                                last, c.first_boot_s, c.first_boot_s + self.epoch_s)
+                else:
+                    self.jumps += 1
+                    log.warning("vehicle time jumped %.3f s -> %.3f s (confirmed by %d messages of %d types)",
+                                last, c.first_boot_s, c.count, len(c.types))
+            self._last_boot_s = c.latest_boot_s
+            self._candidate = None
         t = boot_s + self.epoch_s
         if self.now is None or t > self.now:
             self.now = t

@@ -9,40 +9,102 @@ the telemetry consumer and the mission client never steal each other's messages.
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import logging
+import os
 import queue
+import re
 import socket
+import stat
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
-from gcs_pdm.mavlink.dialect import DIALECT, mavlink2, mavutil
-from gcs_pdm.mavlink.mapping import FrameMapper
+from gcs_pdm.mavlink.dialect import DIALECT, MESSAGE_IDS_BY_NAME, mavlink2, mavutil
+from gcs_pdm.mavlink.mapping import FrameMapper, ForeignSystem
 from gcs_pdm.mavlink.tlog import TlogWriter
 from gcs_pdm.mavlink.wire import split_packet
 
 log = logging.getLogger(__name__)
 
-# The service is one more component on the vehicle's link. System 255 is the GCS system id that
-# ArduPilot expects (SYSID_MYGCS / SYSID_ENFORCE); component 195 is MAV_COMP_ID_PATHPLANNER
+# The service is one more system on the vehicle's link, NOT the ground station: system 255 is the
+# GCS's id (ArduPilot's MAV_GCS_SYSID, formerly SYSID_MYGCS) and a heartbeat from it counts as "GCS
+# alive", so sending as 255 would hide a real loss of the ground station from the GCS failsafe.
+# 245 is ours: high, like ground-side tools, clear of vehicles (1..) and of 255/254 used by
+# ground stations (docs/operations.md, "Safety"). Component 195 is MAV_COMP_ID_PATHPLANNER
 # ("supplies a mission flight plan"), which neither QGroundControl nor Mission Planner (190) use.
-DEFAULT_SOURCE_SYSTEM = 255
+DEFAULT_SOURCE_SYSTEM = 245
 DEFAULT_SOURCE_COMPONENT = mavlink2.MAV_COMP_ID_PATHPLANNER
 DEFAULT_RCVBUF_BYTES = 4 * 1024 * 1024
+HEARTBEAT_ID = MESSAGE_IDS_BY_NAME["HEARTBEAT"]
+# ArduPilot's and PX4's default system id: the vehicle we track unless told otherwise.
+DEFAULT_TARGET_SYSTEM = 1
+# Loopback and a port of its own: a router or the ground station forwards the vehicle to it
+# (14550 is QGroundControl's; 0.0.0.0 would take packets from anyone on the network).
+DEFAULT_URL = "udpin:127.0.0.1:14551"
+
+
+class LinkError(RuntimeError):
+    """A link that cannot be opened; the message says why in one line."""
+
+
+_NET_URL = re.compile(r"^(udpin|udpout|udp|tcp|tcpin):([^:]+):(\d{1,5})$")
+
+
+def check_link_url(url: str) -> tuple[str, str, int] | tuple[str, str]:
+    """``(scheme, host, port)`` for a network link or ``("serial", device)``; LinkError if unusable.
+
+    pymavlink guesses a lot from a bare string (a regular file is read as a log, a path under
+    /bin/ is executed), so only these forms get to it: udpin:/udpout:/udp:/tcp:/tcpin:HOST:PORT
+    and an existing character device (a serial port).
+    """
+    m = _NET_URL.match(url)
+    if m:
+        port = int(m.group(3))
+        if not 0 < port < 65536:
+            raise LinkError(f"MAVLink URL {url!r}: port {port} is out of range 1..65535")
+        return m.group(1), m.group(2), port
+    if ":" in url and not url.startswith("/"):
+        raise LinkError(f"MAVLink URL {url!r} not understood: use udpin:HOST:PORT, udpout:HOST:PORT, "
+                        "tcp:HOST:PORT, tcpin:HOST:PORT or a serial device such as /dev/ttyUSB0")
+    try:
+        mode = os.stat(url).st_mode
+    except FileNotFoundError:
+        raise LinkError(f"serial device {url} does not exist") from None
+    except OSError as exc:
+        raise LinkError(f"serial device {url}: {exc.strerror}") from None
+    if not stat.S_ISCHR(mode):
+        raise LinkError(f"{url} is not a serial device (for a recorded log use `gcs-pdm replay`)")
+    return "serial", url
+
+
+def _check_udp_port_free(host: str, port: int) -> None:
+    """Two listeners on one UDP port would each get some of the vehicle's packets, silently
+    (pymavlink binds with SO_REUSEADDR, which Linux lets two sockets share): refuse instead."""
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.bind((host, port))  # no SO_REUSEADDR: fails if anyone holds the port
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            raise LinkError(f"MAVLink port udpin:{host}:{port} is already in use (another gcs-pdm, a router or "
+                            "a ground station?)") from None
+        raise LinkError(f"cannot listen on udpin:{host}:{port}: {exc.strerror or exc}") from None
+    finally:
+        probe.close()
 
 
 @dataclass
 class LinkConfig:
     """Everything needed to open a link; all of it can come from the service's config file."""
 
-    url: str  # udpin:0.0.0.0:14550, udpout:host:14550, tcp:host:5760, /dev/ttyUSB0
+    url: str = DEFAULT_URL  # udpin:127.0.0.1:14551, udpout:host:14550, tcp:host:5760, /dev/ttyUSB0
     baud: int = 57600
     source_system: int = DEFAULT_SOURCE_SYSTEM
     source_component: int = DEFAULT_SOURCE_COMPONENT
-    target_system: int | None = None  # None: the first autopilot heartbeat
+    target_system: int | None = DEFAULT_TARGET_SYSTEM  # None ("auto"): the first autopilot heartbeat
     target_component: int | None = None
     signing_key_file: str | None = None  # 32 raw bytes, 64 hex digits, or a passphrase (SHA-256)
     allow_unsigned: bool = False  # with signing: accept unsigned packets too
@@ -132,21 +194,41 @@ class Link:
         self.bad_data = 0
         self.sent = 0
         self.rcvbuf_effective: int | None = None
+        # monotonic time of the tracked vehicle's last HEARTBEAT (for "link lost" decisions)
+        self._vehicle_heartbeat_at: float | None = None
 
     # --- lifecycle ---------------------------------------------------------------------------
 
     def open(self) -> "Link":
+        """Open the connection; LinkError (one line) for a bad URL, a taken port, a missing device or key."""
         cfg = self.config
-        self.conn = mavutil.mavlink_connection(
-            cfg.url, baud=cfg.baud, source_system=cfg.source_system, source_component=cfg.source_component,
-            dialect=DIALECT, autoreconnect=cfg.url.startswith("tcp"))
+        where = check_link_url(cfg.url)
+        key = None
+        if cfg.signing_key_file:
+            try:
+                key = load_signing_key(cfg.signing_key_file)
+            except OSError as exc:
+                raise LinkError(f"signing key file {cfg.signing_key_file}: {exc.strerror or exc}") from None
+            except ValueError as exc:
+                raise LinkError(str(exc)) from None
+        if where[0] in ("udpin", "udp"):
+            _check_udp_port_free(where[1], where[2])
+        try:
+            self.conn = mavutil.mavlink_connection(
+                cfg.url, baud=cfg.baud, source_system=cfg.source_system, source_component=cfg.source_component,
+                dialect=DIALECT, autoreconnect=cfg.url.startswith("tcp"))
+        except (OSError, ValueError) as exc:
+            raise LinkError(f"cannot open MAVLink link {cfg.url}: {getattr(exc, 'strerror', None) or exc}") from None
         if getattr(self.conn, "WIRE_PROTOCOL_VERSION", "2.0") != "2.0":
             raise RuntimeError("pymavlink did not select MAVLink 2 (MAVLINK20 must be set before import)")
         self.conn.mav.srcSystem = cfg.source_system
         self.conn.mav.srcComponent = cfg.source_component
+        if where[0] in ("udpin", "udp"):
+            # pymavlink bound with SO_REUSEADDR; clearing it makes a second listener's bind fail
+            # (Linux checks the flag of the socket already bound) rather than share our packets.
+            self.conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 0)
         self._enlarge_receive_buffer()
-        if cfg.signing_key_file:
-            key = load_signing_key(cfg.signing_key_file)
+        if key is not None:
             allow = (lambda _mav, _msgid: True) if cfg.allow_unsigned else None
             self.conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=allow,
                                     initial_timestamp=None, link_id=0)
@@ -236,6 +318,27 @@ class Link:
     def target_component(self) -> int | None:
         return self.mapper.target_component
 
+    @property
+    def foreign_systems(self) -> list[ForeignSystem]:
+        """Other systems that sent vehicle heartbeats on this link (never tracked)."""
+        return list(self.mapper.foreign_systems.values())
+
+    def vehicle_silent_s(self, now: float | None = None) -> float | None:
+        """Wall seconds since the tracked vehicle's last HEARTBEAT; None if it was never heard.
+        (Wall time on purpose: a silent vehicle sends no message time to measure silence by.)"""
+        if self._vehicle_heartbeat_at is None:
+            return None
+        return (time.monotonic() if now is None else now) - self._vehicle_heartbeat_at
+
+    def trust_report(self) -> dict:
+        """What the link refused to believe, for /status: foreign vehicles, rejected timestamps,
+        values outside the physical envelope, packets that did not parse."""
+        stats = self.mapper.stats
+        return {"target_system": self.mapper.target_system, "vehicle_silent_s": self.vehicle_silent_s(),
+                "foreign_systems": [f.to_dict() for f in self.foreign_systems],
+                "clock": self.mapper.clock.to_dict(), "time_rejected": stats.time_rejected,
+                "gated": stats.to_dict()["gated"], "bad_data": self.bad_data, "other_source": stats.other_source}
+
     def wait_for_vehicle(self, timeout: float = 10.0) -> tuple[int, int]:
         """Block until the vehicle's heartbeat has been seen; its (system, component)."""
         deadline = time.monotonic() + timeout
@@ -309,6 +412,9 @@ class Link:
         packet = split_packet(bytes(raw))
         if packet is not None:
             frames = self.mapper.feed(recv_us / 1e6, packet.msgid, packet.sysid, packet.compid, packet.payload)
+            if (packet.msgid == HEARTBEAT_ID and self.mapper.locked and packet.sysid == self.mapper.target_system
+                    and packet.compid == self.mapper.target_component):
+                self._vehicle_heartbeat_at = time.monotonic()
             for frame in frames:
                 for listener in self._frame_listeners:
                     try:

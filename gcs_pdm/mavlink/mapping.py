@@ -26,8 +26,9 @@ from dataclasses import dataclass, field, fields as dc_fields
 from typing import Any, Callable
 
 from gcs_pdm.frames import FRAME_KIND_OF, FRAME_KINDS, PACK_NAMES
-from gcs_pdm.mavlink.clock import VehicleClock
+from gcs_pdm.mavlink.clock import VehicleClock, Verdict
 from gcs_pdm.mavlink.dialect import MAV_AUTOPILOT_INVALID, MAV_MODE_FLAG_SAFETY_ARMED, MESSAGE_IDS_BY_NAME, mavlink2, mavutil
+from gcs_pdm.mavlink.plausibility import FrameGate, PhysicalEnvelope, default_envelope
 from gcs_pdm.mavlink.wire import TIME_BOOT_MS_OFFSET, layout
 
 log = logging.getLogger(__name__)
@@ -268,11 +269,30 @@ class MappingStats:
     before_vehicle: int = 0  # messages before the vehicle was identified
     undecodable: int = 0  # CRC-valid packets whose payload could not be unpacked
     unmapped_keys: Counter = field(default_factory=Counter)  # e.g. BATTERY_STATUS id 7
+    time_rejected: int = 0  # vehicle messages dropped because their time_boot_ms was not accepted
+    gated: Counter = field(default_factory=Counter)  # (kind, field, reason) -> values made missing (plausibility)
 
     def to_dict(self) -> dict:
         return {"frames_by_kind": dict(sorted(self.frames_by_kind.items())), "other_source": self.other_source,
                 "before_vehicle": self.before_vehicle, "undecodable": self.undecodable,
-                "unmapped_keys": {str(k): v for k, v in sorted(self.unmapped_keys.items())}}
+                "unmapped_keys": {str(k): v for k, v in sorted(self.unmapped_keys.items())},
+                "time_rejected": self.time_rejected,
+                "gated": {f"{k}.{f}.{r}": n for (k, f, r), n in sorted(self.gated.items())}}
+
+
+@dataclass
+class ForeignSystem:
+    """Another system sending vehicle (autopilot) heartbeats on our link: reported, never adopted."""
+
+    system: int
+    component: int
+    heartbeats: int = 0
+    first_seen_s: float | None = None  # our vehicle's message time when first heard (None before sync)
+    last_seen_s: float | None = None
+
+    def to_dict(self) -> dict:
+        return {"system": self.system, "component": self.component, "heartbeats": self.heartbeats,
+                "first_seen_s": self.first_seen_s, "last_seen_s": self.last_seen_s}
 
 
 def _matches(value, wanted) -> bool:
@@ -290,10 +310,17 @@ class FrameMapper:
 
     ``target_system``/``target_component`` None means: lock onto the first HEARTBEAT whose
     autopilot is not MAV_AUTOPILOT_INVALID (gimbals, cameras and ground stations send INVALID).
+    The live service passes its configured system (default 1); ``None`` ("auto") is for replays
+    and only on request live. Any other system sending autopilot heartbeats is recorded in
+    ``foreign_systems`` (and logged once) and never adopted.
+
+    ``envelope``: every frame is gated against it (``gcs_pdm.mavlink.plausibility``); the default
+    is the default parameter set's, ``None`` turns gating off.
     """
 
     def __init__(self, mapping: dict | None = None, *, target_system: int | None = None,
-                 target_component: int | None = None, sync_window_s: float = 30.0):
+                 target_component: int | None = None, sync_window_s: float = 30.0,
+                 envelope: PhysicalEnvelope | None | str = "default"):
         self.mapping = default_mapping() if mapping is None else mapping
         self.rules: dict[int, list[_CompiledRule]] = {}
         for message, rules in self.mapping.items():
@@ -305,7 +332,31 @@ class FrameMapper:
         self.locked = target_system is not None and target_component is not None
         self.clock = VehicleClock(sync_window_s)
         self.stats = MappingStats()
-        self._pending: list[tuple[float, type, tuple]] = []
+        self.foreign_systems: dict[int, ForeignSystem] = {}
+        if envelope == "default":
+            envelope = default_envelope()
+        self.gate = FrameGate(envelope, self.stats.gated) if envelope is not None else None
+        # frames held until the clock has a time: (receive time, own time_boot s or None, class, values)
+        self._pending: list[tuple[float, float | None, type, tuple]] = []
+
+    def _note_foreign(self, sysid: int, compid: int, payload) -> None:
+        """A heartbeat from a system that is not our vehicle: record it if it claims to be an autopilot."""
+        lay = layout(_HEARTBEAT)
+        try:
+            autopilot = lay.unpack(payload)[lay.index["autopilot"]]
+        except Exception:  # noqa: BLE001 - a bad payload is counted elsewhere
+            return
+        if autopilot == MAV_AUTOPILOT_INVALID:
+            return  # ground stations, gimbals, cameras, routers: expected company
+        seen = self.foreign_systems.get(sysid)
+        now = self.clock.now
+        if seen is None:
+            seen = self.foreign_systems[sysid] = ForeignSystem(sysid, compid, first_seen_s=now)
+            log.warning("system %d (component %d) sends vehicle heartbeats on this link; it is NOT the tracked "
+                        "vehicle (system %s) and is ignored", sysid, compid,
+                        self.target_system if self.target_system is not None else "not yet identified")
+        seen.heartbeats += 1
+        seen.last_seen_s = now
 
     def _try_lock(self, msgid: int, sysid: int, compid: int, payload) -> bool:
         if msgid != _HEARTBEAT:
@@ -324,6 +375,8 @@ class FrameMapper:
 
     def feed(self, recv_s: float, msgid: int, sysid: int, compid: int, payload) -> list | tuple:
         """Frames produced by one CRC-checked packet (often none). ``recv_s``: receive/tlog time."""
+        if msgid == _HEARTBEAT and self.target_system is not None and sysid != self.target_system:
+            self._note_foreign(sysid, compid, payload)
         if not self.locked:
             if not self._try_lock(msgid, sysid, compid, payload):
                 self.stats.before_vehicle += 1
@@ -333,12 +386,21 @@ class FrameMapper:
             return _EMPTY
         clock = self.clock
         time_offset = TIME_BOOT_MS_OFFSET.get(msgid)
+        boot_s = None
         if time_offset is not None:
             raw = bytes(payload[time_offset:time_offset + 4]).ljust(4, b"\0")
-            t = clock.on_time_boot(int.from_bytes(raw, "little") / 1000.0, recv_s)
-            if t is None:
+            boot_s = int.from_bytes(raw, "little") / 1000.0
+            t = clock.on_time_boot(boot_s, recv_s, msgid)
+            if t is Verdict.REJECTED:
+                self.stats.time_rejected += 1
+                return _EMPTY
+            if t is Verdict.FALLBACK:
                 t = recv_s
-            released = self._release_pending(t, recv_s) if self._pending else None
+            if t is Verdict.ACQUIRING:
+                t = None
+                released = None
+            else:
+                released = self._release_pending(t, recv_s) if self._pending else None
         else:
             t = clock.untimed(recv_s)
             released = None
@@ -361,7 +423,7 @@ class FrameMapper:
                     continue
                 args = tuple(fn(vals) for fn in extract)
                 if t is None:
-                    self._pending.append((recv_s, rule.frame_cls, args))
+                    self._pending.append((recv_s, boot_s, rule.frame_cls, args))
                 else:
                     out.append(rule.frame_cls(t, *args))
             if rule.key_position is not None and not any(vals[rule.key_position] == k for k, *_ in rule.instances):
@@ -369,23 +431,46 @@ class FrameMapper:
         counts = self.stats.frames_by_kind
         for frame in out:
             counts[FRAME_KIND_OF[type(frame)]] += 1
+        if self.gate is not None:
+            out = self._gated(out)
         return released + out if released else out
 
+    def _gated(self, frames: list) -> list:
+        gate = self.gate
+        return [gate(f) for f in frames]
+
     def _release_pending(self, t_now: float, recv_now: float) -> list:
-        """Frames held before the clock existed, back-dated by their receive-time distance."""
+        """Frames held before the clock existed. A timed message gets its own time if it agrees with
+        the adopted time (else it is dropped: it was the odd one out); an untimed one the latest
+        timed time before it ("hold last"), or, before any, is back-dated by receive time from the
+        first timed one."""
         out = []
-        fallback = self.clock.fallback
-        for recv_s, cls, args in self._pending:
-            t = recv_s if fallback else max(0.0, t_now - (recv_now - recv_s))
+        clock = self.clock
+        fallback = clock.fallback
+        anchor = next(((boot_s + clock.epoch_s, recv_s) for recv_s, boot_s, _c, _a in self._pending
+                       if boot_s is not None and clock.agrees(boot_s)), (t_now, recv_now))
+        held = None
+        for recv_s, boot_s, cls, args in self._pending:
+            if fallback:
+                t = recv_s
+            elif boot_s is not None:
+                if not clock.agrees(boot_s):
+                    self.stats.time_rejected += 1
+                    continue
+                t = held = boot_s + clock.epoch_s
+            elif held is not None:
+                t = held
+            else:
+                t = max(0.0, anchor[0] - (anchor[1] - recv_s))
             out.append(cls(t, *args))
             self.stats.frames_by_kind[FRAME_KIND_OF[cls]] += 1
         self._pending.clear()
-        return out
+        return self._gated(out) if self.gate is not None else out
 
     def flush(self) -> list:
         """At the end of a replay: frames still waiting for a clock, stamped with receive time."""
-        out = [cls(recv_s, *args) for recv_s, cls, args in self._pending]
+        out = [cls(recv_s, *args) for recv_s, _boot, cls, args in self._pending]
         self._pending.clear()
         for frame in out:
             self.stats.frames_by_kind[FRAME_KIND_OF[type(frame)]] += 1
-        return out
+        return self._gated(out) if self.gate is not None else out

@@ -46,6 +46,16 @@ class ReplaySummary:
     faults: list = field(default_factory=list)
 
     @property
+    def readable(self) -> bool:
+        """False when not one valid MAVLink packet could be read."""
+        return self.messages > 0
+
+    @property
+    def not_diagnosed(self) -> list[str]:
+        """What could not be diagnosed from this log, and why (empty: every diagnosis had its data)."""
+        return undiagnosable(self.size_bytes, self.scan, self.mapping, self.vehicle)
+
+    @property
     def messages(self) -> int:
         return self.scan["records"]
 
@@ -76,7 +86,31 @@ class ReplaySummary:
             "messages_per_s": round(self.messages / self.elapsed_s) if self.elapsed_s > 0 else None,
             "faults": self.faults,
             "consumer": self.consumer,
+            "readable": self.readable,
+            "not_diagnosed": self.not_diagnosed,
         }
+
+
+def undiagnosable(size_bytes: int, scan: dict, mapping: dict, vehicle: dict) -> list[str]:
+    """Reasons, one per diagnosis that lacked its data (the streams come from docs/mavlink.md)."""
+    if size_bytes == 0:
+        return ["nothing: the file is empty"]
+    if scan["records"] == 0:
+        return [f"nothing: no valid MAVLink packet in {size_bytes} bytes (not a tlog?; "
+                f"{scan['garbage_bytes']} bytes unreadable, {scan['bad_crc']} bad CRC)"]
+    if vehicle.get("system") is None:
+        return ["nothing: no autopilot HEARTBEAT, so no vehicle was identified (try --system N --component M)"]
+    kinds = mapping["frames_by_kind"]
+    out = []
+    if not kinds.get("pack"):
+        unmapped = [k for k in mapping["unmapped_keys"] if "BATTERY_STATUS" in k]
+        why = f" (BATTERY_STATUS ids seen but not mapped: {', '.join(unmapped)})" if unmapped else ""
+        out.append(f"battery packs (state of charge, pack health): no BATTERY_STATUS frames for the packs{why}")
+    if not kinds.get("motor"):
+        out.append("motors (power loss, temperature): no ESC_TELEMETRY_1_TO_4 frames")
+    if not kinds.get("ambient"):
+        out.append("thermal models: no ambient temperature (SCALED_PRESSURE)")
+    return out
 
 
 def _udp_sender(target: str):

@@ -3,12 +3,17 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("serve", help="run the decision service beside a ground station (MAVLink + HTTP)")
     p.add_argument("--config", help="TOML or JSON settings file (see docs/service.md); env GCS_PDM_* override it")
-    p.add_argument("--mavlink", dest="mavlink_url", help="MAVLink address (default udpin:0.0.0.0:14550)")
+    p.add_argument("--mavlink", dest="mavlink_url",
+                   help="MAVLink address (default udpin:127.0.0.1:14551; docs/operations.md says how to listen elsewhere)")
+    p.add_argument("--target-system", dest="target_system", type=_target_system, metavar="N|auto",
+                   help="the vehicle's MAVLink system id (default 1, ArduPilot's and PX4's); "
+                        "auto: the first autopilot heard (others are reported, never tracked)")
     p.add_argument("--http", help="HTTP host:port (default 127.0.0.1:8000)")
     p.add_argument("--policy", choices=("auto", "advise"))
     p.add_argument("--data-dir", dest="data_dir")
@@ -31,30 +36,51 @@ def register(subparsers) -> None:
     d.set_defaults(func=_demo)
 
 
+def _target_system(text: str) -> int | str:
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither a system id (1..255) nor 'auto'") from None
+    if not 1 <= value <= 255:
+        raise argparse.ArgumentTypeError(f"system id {value} is out of range 1..255")
+    return value
+
+
 def _serve(args: argparse.Namespace) -> int:
+    """Start-up failures are one line on stderr and exit 2 (systemd restarts; no traceback)."""
     from gcs_pdm.service.config import ConfigError, load_config
-    from gcs_pdm.service.server import serve
+
+    def fail(message: str) -> int:
+        print(f"gcs-pdm serve: {message}", file=sys.stderr)
+        return 2
 
     host = port = None
     if args.http:
         host, _, port_text = args.http.rpartition(":")
-        port = int(port_text)
+        try:
+            port = int(port_text)
+        except ValueError:
+            return fail(f"--http {args.http!r}: expected HOST:PORT")
     try:
         config = load_config(args.config, mavlink_url=args.mavlink_url, policy=args.policy, data_dir=args.data_dir,
-                             http_host=host or None, http_port=port)
+                             http_host=host or None, http_port=port, target_system=args.target_system)
     except ConfigError as exc:
-        print(f"gcs-pdm serve: {exc}")
-        return 2
+        return fail(str(exc))
+    from gcs_pdm.service.server import StartupError, serve
     from gcs_pdm.service.storage import Conflict, NotFound
 
     try:
         return serve(config, objectives=args.objectives)
+    except StartupError as exc:
+        return fail(str(exc))
     except NotFound as exc:  # e.g. parameter_set names no stored set
-        print(f"gcs-pdm serve: not found: {exc.args[0]}")
-        return 2
+        return fail(f"not found: {exc.args[0]}")
     except Conflict as exc:
-        print(f"gcs-pdm serve: {exc}")
-        return 2
+        return fail(str(exc))
+    except OSError as exc:  # e.g. a data directory that cannot be created
+        return fail(f"{exc.strerror or exc}{': ' + str(exc.filename) if exc.filename else ''}")
 
 
 def _demo(args: argparse.Namespace) -> int:

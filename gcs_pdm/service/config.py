@@ -15,7 +15,7 @@ import secrets
 import tomllib
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Literal, Mapping
+from typing import Annotated, Any, Literal, Mapping
 
 from pydantic import Field, ValidationError
 from pydantic.fields import FieldInfo
@@ -57,8 +57,9 @@ class ServiceConfig(BaseSettings):
     model_config = SettingsConfigDict(extra="forbid", validate_assignment=True, env_prefix=ENV_PREFIX)
 
     # --- links -------------------------------------------------------------------------------
-    mavlink_url: str = Field("udpin:0.0.0.0:14550", description="MAVLink connection (udpin:, udpout:, tcp:, serial)")
-    source_system: int = Field(255, ge=1, le=255, description="our MAVLink system id")
+    mavlink_url: str = Field("udpin:127.0.0.1:14551", description="MAVLink connection (udpin:, udpout:, tcp:, serial)")
+    source_system: int = Field(245, ge=1, le=254, description="our MAVLink system id (not 255, the GCS's: docs/operations.md)")
+    target_system: Annotated[int, Field(ge=1, le=255)] | Literal["auto"] = Field(1, description="the vehicle's system id; auto: the first autopilot heard")
     source_component: int = Field(195, ge=1, le=255, description="our MAVLink component id (MAV_COMP_ID_PATHPLANNER)")
     signing_key_file: str | None = Field(None, description="MAVLink 2 signing key file")
     http_host: str = Field("127.0.0.1", description="HTTP bind address; localhost unless told")

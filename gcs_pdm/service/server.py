@@ -2,7 +2,9 @@
 client, live loop). Used by ``gcs-pdm serve`` and by ``gcs-pdm demo``."""
 from __future__ import annotations
 
+import errno
 import logging
+import socket
 import threading
 import time
 
@@ -13,6 +15,27 @@ from gcs_pdm.service.config import ServiceConfig
 from gcs_pdm.service.runtime import Service
 
 log = logging.getLogger(__name__)
+
+
+class StartupError(RuntimeError):
+    """The service cannot start; the message says why in one line (``gcs-pdm serve`` prints it)."""
+
+
+def check_http_port_free(host: str, port: int) -> None:
+    """Fail before anything else is opened when the HTTP port is taken (port 0: any free port)."""
+    if port == 0:
+        return
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    probe = socket.socket(family, socket.SOCK_STREAM)
+    probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds: TIME_WAIT is no conflict
+    try:
+        probe.bind((host, port))
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            raise StartupError(f"HTTP port {host}:{port} is already in use") from None
+        raise StartupError(f"cannot listen for HTTP on {host}:{port}: {exc.strerror or exc}") from None
+    finally:
+        probe.close()
 
 
 class HttpServer:
@@ -29,7 +52,8 @@ class HttpServer:
         deadline = time.monotonic() + timeout
         while not self.server.started:
             if time.monotonic() > deadline or not self.thread.is_alive():
-                raise RuntimeError("HTTP server did not start (port in use?)")
+                self.stop()
+                raise StartupError("HTTP server did not start (port in use?)")
             time.sleep(0.02)
         return self
 
@@ -47,7 +71,9 @@ class HttpServer:
 def start_mavlink(service: Service):
     """Open the link, start the live loop; returns the loop (``service.loop``)."""
     from gcs_pdm.mavlink.connection import Link, LinkConfig
+    from gcs_pdm.mavlink.mapping import FrameMapper
     from gcs_pdm.mavlink.mission_client import MissionClient
+    from gcs_pdm.mavlink.plausibility import PhysicalEnvelope
     from gcs_pdm.service.live import LiveLoop
 
     cfg = service.config
@@ -56,9 +82,12 @@ def start_mavlink(service: Service):
         folder = cfg.data_path / "tlogs"
         folder.mkdir(parents=True, exist_ok=True)
         tlog_path = str(folder / time.strftime("live_%Y%m%dT%H%M%S.tlog"))
+    target = None if cfg.target_system == "auto" else cfg.target_system
+    # Frames are gated against what the active parameter set's packs can physically report.
+    mapper = FrameMapper(target_system=target, envelope=PhysicalEnvelope.from_parameter_set(service.params))
     link = Link(LinkConfig(url=cfg.mavlink_url, source_system=cfg.source_system,
                            source_component=cfg.source_component, signing_key_file=cfg.signing_key_file,
-                           tlog_path=tlog_path)).start()
+                           target_system=target, tlog_path=tlog_path), mapper).start()
     if tlog_path:
         service.store.add_tlog(tlog_path, note="live session")
     loop = LiveLoop(service, link, MissionClient(link))
@@ -81,11 +110,29 @@ def stop_mavlink(service: Service) -> None:
 
 
 def serve(config: ServiceConfig, objectives: str | None = None, stop: threading.Event | None = None) -> int:
+    """Run until stopped. Start-up problems raise StartupError (one line) with nothing left open."""
+    from gcs_pdm.mavlink.connection import LinkError
+
     service = Service(config)
-    if objectives:
-        service.load_objectives(objectives)
-    start_mavlink(service)
-    http = HttpServer(service, config.http_host, config.http_port).start()
+    http = None
+    try:
+        if objectives:
+            try:
+                service.load_objectives(objectives)
+            except OSError as exc:
+                raise StartupError(f"objectives file {objectives}: {exc.strerror or exc}") from None
+            except ValueError as exc:
+                raise StartupError(f"objectives file {objectives}: {exc}") from None
+        check_http_port_free(config.http_host, config.http_port)
+        try:
+            start_mavlink(service)
+        except LinkError as exc:
+            raise StartupError(str(exc)) from None
+        http = HttpServer(service, config.http_host, config.http_port).start()
+    except BaseException:
+        stop_mavlink(service)
+        service.close()
+        raise
     log.info("HTTP API on %s (docs at /docs), MAVLink on %s, policy %s", http.url, config.mavlink_url, service.policy)
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
