@@ -100,9 +100,9 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     free = np.array([True, fit_capacity, True])
     # start from the SoC the first reading implies (the capacity scale leaves the open-circuit
     # curve unchanged: q_max and C_max scale with C_b)
-    r_cp = params[kernel.I_RCP0] + params[kernel.I_RCP1] * math.exp(params[kernel.I_RCP2] * 0.5)
+    r_cp = float(kernel.concentration_resistance(params, 0.5))
     v_b = voltage[0] + current[0] * r_scale * (params[kernel.I_RS] + r_cp)
-    soc0 = 1.0 - (params[kernel.I_QMAX] - params[kernel.I_CB] * v_b) / params[kernel.I_CMAX]
+    soc0 = float(kernel.soc_at_bulk_voltage(params, v_b))
     theta = np.array([r_scale, c_scale, min(max(soc0, 0.2), 1.0)])
     max_step = np.array([0.5, 0.15, 0.1])
     eps = np.array([0.02, 0.005, 0.005])

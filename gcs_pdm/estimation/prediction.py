@@ -264,3 +264,62 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
     return predict((packs.params, estimator.motors.params[0]), packs.mean, cov, tm, tm_sd, load, rng=rng,
                    n_samples=n_samples, fault=fault, **kw)
+
+
+@dataclass(frozen=True)
+class PackCutoffPrediction:
+    """Per pack (any number, the estimator's order): quantiles (5 %, 50 %, 95 %) of the time to its
+    cut-off voltage (or empty) if it keeps drawing ``current_a``; ``inf`` = not within the horizon."""
+
+    pack_names: tuple[str, ...]
+    current_a: np.ndarray             # (N,)
+    horizon_s: float
+    n_samples: int
+    time_to_cutoff_s: np.ndarray      # (N, 3)
+    peak_temp_c: np.ndarray           # (N, 3)
+
+    def to_dict(self) -> dict:
+        def q(a):
+            return [None if not math.isfinite(float(x)) else round(float(x), 3) for x in a]
+
+        return {"horizon_s": self.horizon_s, "n_samples": self.n_samples, "quantiles": list(QUANTILES),
+                "packs": {n: {"current_a": round(float(self.current_a[i]), 3),
+                              "time_to_cutoff_s": q(self.time_to_cutoff_s[i]), "peak_temp_c": q(self.peak_temp_c[i])}
+                          for i, n in enumerate(self.pack_names)}}
+
+
+def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.ndarray | None = None,
+                             horizon_s: float = 3600.0, step_s: float = 5.0, rng: np.random.Generator,
+                             n_samples: int = 100, param_rel_sigma: float = 0.08) -> PackCutoffPrediction:
+    """Monte Carlo time to cut-off of every pack at a held current (the present draw by default):
+    the current-driven counterpart of ``predict`` that needs no powertrain layout, so it serves any
+    vehicle description. All samples × packs are rows of one ``kernel.simulate_packs`` call."""
+    packs = estimator.packs
+    base = packs.params
+    n_packs = base.shape[0]
+    cur = np.nan_to_num(np.asarray(estimator.pack_current if current_a is None else current_a, dtype=np.float64))
+    cov = packs.cov.copy()
+    soc = kernel.state_of_charge(base, packs.mean)
+    extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * base[:, kernel.I_CMAX]
+    cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    pp, _ = sample_parameters((base, estimator.motors.params[0]), n_samples, rng, param_rel_sigma)
+    chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
+    x0 = packs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n_samples, n_packs, kernel.N_PACK_STATE)))
+    x0 = restate(base, x0, pp)
+    n_steps = max(1, int(math.ceil(horizon_s / step_s)))
+    dt = np.full(n_steps, horizon_s / n_steps)
+    run = kernel.simulate_packs(pp.reshape(-1, kernel.N_PACK_PARAMS), x0.reshape(-1, kernel.N_PACK_STATE), dt,
+                                np.repeat(np.tile(cur, n_samples)[:, None], n_steps, axis=1), estimator.ambient_c)
+    v = run.voltage.reshape(n_samples, n_packs, n_steps)
+    ended = (v < np.asarray(cutoff_v, dtype=np.float64)[None, :, None]) | (run.soc.reshape(v.shape) <= 0.0)
+    reached = ended.any(axis=2)
+    t_end = np.cumsum(dt)
+    ttc = np.where(reached, t_end[ended.argmax(axis=2)], np.inf)
+    # peaks up to the cut-off only: past it the pack is not flown and the model leaves its range
+    k_cut = np.where(reached, ended.argmax(axis=2), n_steps - 1)
+    flown = np.arange(n_steps)[None, None, :] <= k_cut[..., None]
+    peak = np.max(np.where(flown, run.temperature.reshape(v.shape), -np.inf), axis=2)
+    return PackCutoffPrediction(
+        pack_names=tuple(estimator.pack_names), current_a=cur, horizon_s=float(t_end[-1]), n_samples=n_samples,
+        time_to_cutoff_s=np.quantile(ttc, QUANTILES, axis=0, method="nearest").T,
+        peak_temp_c=np.quantile(peak, QUANTILES, axis=0, method="nearest").T)

@@ -229,7 +229,7 @@ def initial_pack_state(params: np.ndarray, soc: np.ndarray | float, temperature:
     params = _params2d(params, N_PACK_PARAMS, "params")
     soc = np.asarray(soc, dtype=np.float64)
     q_b = params[:, I_QMAX] - (1.0 - soc) * params[:, I_CMAX]
-    r_cp = params[:, I_RCP0] + params[:, I_RCP1] * np.exp(params[:, I_RCP2] * (1.0 - soc))
+    r_cp = concentration_resistance(params, soc)
     current = np.asarray(current, dtype=np.float64)
     x = np.empty((params.shape[0], N_PACK_STATE))
     x[:, S_QB] = q_b
@@ -250,6 +250,18 @@ def terminal_voltage(params: np.ndarray, states: np.ndarray) -> np.ndarray:
 def state_of_charge(params: np.ndarray, states: np.ndarray) -> np.ndarray:
     params = np.asarray(params, dtype=np.float64)
     return 1.0 - (params[..., I_QMAX] - np.asarray(states)[..., S_QB]) / params[..., I_CMAX]
+
+
+def concentration_resistance(params: np.ndarray, soc: np.ndarray | float) -> np.ndarray:
+    """R_cp(SoC) = R_cp0 + R_cp1 exp(R_cp2 (1 - SoC)) (eq. 6), vectorised over packs."""
+    params = np.asarray(params, dtype=np.float64)
+    return params[..., I_RCP0] + params[..., I_RCP1] * np.exp(params[..., I_RCP2] * (1.0 - np.asarray(soc)))
+
+
+def soc_at_bulk_voltage(params: np.ndarray, bulk_voltage: np.ndarray | float) -> np.ndarray:
+    """The SoC whose bulk charge q_b = C_b V_b gives ``bulk_voltage`` (unclipped)."""
+    params = np.asarray(params, dtype=np.float64)
+    return 1.0 - (params[..., I_QMAX] - params[..., I_CB] * np.asarray(bulk_voltage)) / params[..., I_CMAX]
 
 
 def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:

@@ -67,6 +67,8 @@ class PackSpec(_Strict):
     cells_parallel: int = Field(default=1, ge=1, le=16)
     capacity_mah: float = Field(gt=0)
     chemistry: Literal["lipo", "lihv", "liion"] = "lipo"
+    #: resting voltage per cell of a full pack, V, when it is not the chemistry's (4.2 for LiPo)
+    full_cell_voltage: float | None = Field(default=None, gt=3.0, le=4.5)
     #: terminal voltage per cell below which the pack has failed (under load), V
     cutoff_v_per_cell: float | None = Field(default=None, gt=2.0, lt=4.5)
     min_temp_c: float = Field(default=0.0, ge=-40, le=40)
@@ -77,7 +79,11 @@ class PackSpec(_Strict):
 
     @property
     def full_voltage(self) -> float:
-        return CHEMISTRY_CELL_VOLTAGE[self.chemistry][0] * self.cells_series
+        return self.full_cell_v * self.cells_series
+
+    @property
+    def full_cell_v(self) -> float:
+        return self.full_cell_voltage or CHEMISTRY_CELL_VOLTAGE[self.chemistry][0]
 
     @property
     def cutoff_voltage(self) -> float:

@@ -16,7 +16,7 @@ import numpy as np
 from gcs_pdm.models.pack_scaling import scale_pack_vector
 from gcs_pdm.models.params import (BUILTIN_SETS, CELLS_PER_PACK, PACK_CAPACITY_C, ParameterError, ParameterSet,
                                    motor_vector, pack_vector)
-from gcs_pdm.vehicle.description import CHEMISTRY_CELL_VOLTAGE, PackSpec, VehicleDescription, VehicleError
+from gcs_pdm.vehicle.description import PackSpec, VehicleDescription, VehicleError
 
 #: the chemistry default: the paper_si set's first pack (a 5S 7.8 Ah LiPo), scaled to each pack
 CHEMISTRY_DEFAULT_SOURCE = ("paper_si", "LLF20")
@@ -74,7 +74,7 @@ def _parameter_set(ref: str) -> ParameterSet:
 def pack_parameters(spec: PackSpec, where: str = "pack") -> np.ndarray:
     """One pack's parameter vector (kernel.PACK_PARAMS order) from its ``parameters`` reference."""
     ref = spec.parameters
-    full_cell = CHEMISTRY_CELL_VOLTAGE[spec.chemistry][0]
+    full_cell = spec.full_cell_v
     if ref.set == "chemistry-default":
         set_name, pack_name, scale = *CHEMISTRY_DEFAULT_SOURCE, True
     else:
