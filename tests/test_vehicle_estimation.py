@@ -119,3 +119,30 @@ def test_range_guard_withholds_states_the_model_cannot_hold():
     e = est.estimate()
     assert math.isnan(e.pack_temp_c[0]) and math.isnan(e.soc[0])
     assert "temperature" in e.mismatch[0] and e.counters["model_mismatch"] == 1
+
+
+def test_monte_carlo_prediction_flies_the_description():
+    from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator
+    from gcs_pdm.models import multirotor
+
+    desc = PRESETS["quad-4s"]
+    est = StateEstimator(vehicle=desc)
+    est.consume(PackFrame(0.0, "battery", 16.2, 11.0, 25.0))
+    for k in range(4):
+        est.consume(MotorFrame(0.0, f"m{k + 1}", 2.75, 6000.0, 30.0))
+    assert est.ready()
+    hover = float(multirotor.hover_power(desc.mass_kg, 4, desc.airframe.rotor_diameter_m,
+                                         desc.airframe.figure_of_merit))
+    load = FutureLoad.constant(hover, 3600.0, step_s=5.0)
+    pred = predict_from_estimator(est, load, rng=np.random.default_rng(0), n_samples=200)
+    assert pred.pack_names == ("battery",) and pred.motor_names == ("m1", "m2", "m3", "m4")
+    assert pred.p_failure == 1.0                                # an hour's hover empties a 5 Ah pack
+    lo, med, hi = pred.pack_time_to_cutoff_s[0]
+    soc = est.estimate().soc[0]
+    # the hover current is ~11 A: the remaining charge lasts about soc × 5 Ah / 11 A
+    assert lo < med < hi and 0.6 < med / (soc * 5.0 * 3600 / 11.0) < 1.4
+    # a motor losing half its power makes the others work harder: no longer a hover, sooner empty
+    faulted = predict_from_estimator(est, load, rng=np.random.default_rng(0), n_samples=200,
+                                     fault=np.array([0.5, 0.0, 0.0, 0.0]))
+    assert faulted.pack_time_to_cutoff_s[0, 1] < med
+    assert set(pred.to_dict()["motors"]) == {"m1", "m2", "m3", "m4"}

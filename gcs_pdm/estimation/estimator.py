@@ -125,6 +125,7 @@ class StateEstimator:
             from gcs_pdm.vehicle.model_inputs import model_inputs
 
             inputs = model_inputs(vehicle)
+            self.inputs = inputs
             self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
             pack_matrix, motor_matrix = inputs.pack_matrix, inputs.motor_matrix
             self._mates = {b: inputs.series_mates(b) for b in range(inputs.n_packs)}
@@ -138,6 +139,8 @@ class StateEstimator:
         else:
             if params is None:
                 raise ValueError("StateEstimator: give a parameter set or a vehicle description")
+            #: the description's model inputs (None: the paper's aircraft)
+            self.inputs = None
             self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
             pack_matrix, motor_matrix = params.pack_matrix(), params.motor_vector()
             self._mates = {b: (m,) for b, m in STRING_MATE.items()}

@@ -169,8 +169,6 @@ class Multirotor(_Strict):
     drag_area_m2: float = Field(default=0.02, gt=0)
     #: blade tip speed in hover, m/s (profile power grows as 1 + 3 (V / V_tip)²)
     tip_speed_mps: float = Field(default=120.0, gt=0)
-    #: motor+ESC efficiency, electrical -> shaft
-    eta_motor: float = Field(default=0.8, gt=0, le=1)
     max_airspeed: float = Field(gt=0)
 
 

@@ -43,6 +43,13 @@ class ModelInputs:
     def n_motors(self) -> int:
         return len(self.motor_names)
 
+    @property
+    def topology(self):
+        from gcs_pdm.models.topology import Topology
+
+        return Topology(self.bus_of_pack, self.bus_of_motor, self.bus_parallel, self.pack_cutoff_v,
+                        self.pack_max_temp_c, self.motor_max_temp_c)
+
     def packs_of_motor(self, q: int) -> tuple[int, ...]:
         return tuple(int(b) for b in np.flatnonzero(self.bus_of_pack == self.bus_of_motor[q]))
 
