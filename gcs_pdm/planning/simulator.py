@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from gcs_pdm.models import kernel, multirotor
+from gcs_pdm.models import kernel
 from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
                                        fault_vector, shaft_power)
@@ -172,7 +172,7 @@ class VehicleSimulator:
         self.legs = self._leg_table(optimise_airspeed, airspeed_candidates)
 
     def _init_vehicle(self, vehicle, motor_faults: dict[str, float], state: PowertrainState | None) -> None:
-        from gcs_pdm.vehicle.model_inputs import model_inputs
+        from gcs_pdm.vehicle.model_inputs import model_inputs, powertrain_airframe, shaft_power_model
 
         inputs = self._inputs = model_inputs(vehicle)
         unknown = set(motor_faults) - set(inputs.motor_names)
@@ -186,22 +186,14 @@ class VehicleSimulator:
             state = PowertrainState(kernel.initial_pack_state(inputs.pack_matrix, 1.0, t0),
                                     np.full(inputs.n_motors, float(t0)))
         self.initial = state
-        af = vehicle.airframe
-        if af.type == "fixed_wing":
-            self.airframe = Airframe(mass_kg=vehicle.mass_kg, **{k: getattr(af, k) for k in (
-                "wing_area_m2", "aspect_ratio", "cd0", "oswald", "eta_prop", "descent_recovery", "min_shaft_power_w",
-                "prop_diameter_m", "prop_power_coeff", "stall_airspeed", "max_airspeed")},
-                cruise_airspeed=vehicle.cruise_speed_mps, max_climb_rate=vehicle.climb_rate_mps)
-        else:
-            self.airframe = None
+        self.airframe = powertrain_airframe(vehicle)
+        self._vehicle_power = shaft_power_model(vehicle)
 
     def _shaft_power(self, airspeed: float, climb: float, rho: float) -> float:
         """The airframe's power model: the drag polar, or momentum theory for a multirotor."""
-        if self.airframe is not None:
+        if self.vehicle is None:
             return float(shaft_power(airspeed, climb, rho, self.airframe))
-        v, af = self.vehicle, self.vehicle.airframe
-        return float(multirotor.shaft_power(airspeed, climb, v.mass_kg, len(v.motors), af.rotor_diameter_m,
-                                            af.figure_of_merit, af.drag_area_m2, af.tip_speed_mps, rho))
+        return float(self._vehicle_power(airspeed, climb, rho))
 
     def _simulate(self, x: np.ndarray, motor_temp: np.ndarray, dt: np.ndarray, power: np.ndarray,
                   ambient: np.ndarray, *, verdict: bool) -> kernel.PowertrainRun:
@@ -263,7 +255,7 @@ class VehicleSimulator:
         m = len(places)
         sc = self.scenario
         af = self.airframe
-        if candidates is None and af is None:
+        if candidates is None and self.vehicle is not None and self.vehicle.airframe.type == "multirotor":
             candidates = np.arange(2.0, self.vehicle.airframe.max_airspeed + 1e-9, 2.0)
         elif candidates is None:
             candidates = np.arange(max(af.stall_airspeed + 4.0, 16.0), min(af.max_airspeed, 32.0) + 1e-9, 2.0)

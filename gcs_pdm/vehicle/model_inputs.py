@@ -117,3 +117,48 @@ def model_inputs(desc: VehicleDescription) -> ModelInputs:
         pack_max_temp_c=np.array([p.max_temp_c for p in desc.packs]),
         motor_max_temp_c=np.array([m.max_temp_c for m in desc.motors]),
     )
+
+
+#: MAV_TYPE a multirotor with this many rotors reports in its HEARTBEAT
+MAV_TYPE_OF_ROTORS = {2: 3, 3: 15, 4: 2, 6: 13, 8: 14}
+MAV_TYPE_FIXED_WING = 1
+
+
+def mav_type(desc: VehicleDescription) -> int:
+    """The HEARTBEAT type such a vehicle sends (the inverse of the provisional derivation's)."""
+    if desc.airframe.type == "fixed_wing":
+        return MAV_TYPE_FIXED_WING
+    try:
+        return MAV_TYPE_OF_ROTORS[len(desc.motors)]
+    except KeyError:
+        raise VehicleError(f"motors: no MAV_TYPE for a multirotor with {len(desc.motors)} rotors") from None
+
+
+def powertrain_airframe(desc: VehicleDescription):
+    """``powertrain.Airframe`` for the description: a fixed wing's drag polar as it is; for a
+    multirotor only what the rest reads of it (mass, speeds, the rotor as the propeller for rpm) —
+    its power comes from ``models.multirotor``."""
+    from gcs_pdm.models.powertrain import Airframe
+
+    af = desc.airframe
+    if af.type == "fixed_wing":
+        return Airframe(mass_kg=desc.mass_kg, **{k: getattr(af, k) for k in (
+            "wing_area_m2", "aspect_ratio", "cd0", "oswald", "eta_prop", "descent_recovery", "min_shaft_power_w",
+            "prop_diameter_m", "prop_power_coeff", "stall_airspeed", "max_airspeed")},
+            cruise_airspeed=desc.cruise_speed_mps, max_climb_rate=desc.climb_rate_mps)
+    return Airframe(mass_kg=desc.mass_kg, prop_diameter_m=af.rotor_diameter_m, stall_airspeed=1.0,
+                    max_airspeed=af.max_airspeed, cruise_airspeed=desc.cruise_speed_mps,
+                    max_climb_rate=desc.climb_rate_mps)
+
+
+def shaft_power_model(desc: VehicleDescription):
+    """(airspeed m/s, climb m/s, density kg/m³) -> shaft power W, by the airframe's model."""
+    from gcs_pdm.models import multirotor, powertrain
+
+    af = desc.airframe
+    if af.type == "fixed_wing":
+        frame = powertrain_airframe(desc)
+        return lambda v, climb, rho: powertrain.shaft_power(v, climb, rho, frame)
+    n = len(desc.motors)
+    return lambda v, climb, rho: multirotor.shaft_power(v, climb, desc.mass_kg, n, af.rotor_diameter_m,
+                                                        af.figure_of_merit, af.drag_area_m2, af.tip_speed_mps, rho)

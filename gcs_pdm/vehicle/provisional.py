@@ -7,7 +7,8 @@ name and a field dict, as ``msg.to_dict()`` gives them, or as the link layer dec
 - airframe from the vehicle's HEARTBEAT ``type`` (MAV_TYPE): fixed wing, or a multirotor whose
   rotor count is the type's (quad 4, hexa 6, octo 8, tri 3, coaxial 2);
 - packs from the BATTERY_STATUS ids seen; cells in series from the highest pack voltage seen,
-  the smallest count with at most 4.25 V per cell (right for a pack between 3.55 and 4.25 V/cell);
+  the smallest count with at most 4.35 V per cell at the median of its first five readings (right for a 6S pack between 3.63 and 4.35 V/cell,
+  a 3S one between 2.9 and 4.35);
   capacity from the charge drawn against the reported remaining percentage when it fell by 10 % or
   more, otherwise a guess said in the notes;
 - motors from the ESC_TELEMETRY_* indices that carried any non-zero value, with the readings
@@ -31,17 +32,24 @@ MAV_TYPE_FIXED_WING = 1
 #: HEARTBEATs that are not the vehicle: GCS (6), onboard controller (18), gimbal (26), ADSB (27), ...
 _NOT_A_VEHICLE_TYPES = {6, 18, 26, 27, 30}
 _MAV_AUTOPILOT_INVALID = 8
-#: the highest open-circuit voltage of a LiPo cell (LiHV packs are assumed charged to 4.2 here)
-MAX_CELL_VOLTAGE = 4.25
+#: the highest resting voltage of a cell: a full LiHV (4.35 V); a LiPo rests at 4.2, ArduPilot SITL's at 4.24
+MAX_CELL_VOLTAGE = 4.35
 _UINT16_MAX = 65535
 _INT16_MAX = 32767
 _ESC_MESSAGES = {"ESC_TELEMETRY_1_TO_4": 0, "ESC_TELEMETRY_5_TO_8": 4, "ESC_TELEMETRY_9_TO_12": 8,
                  "ESC_TELEMETRY_13_TO_16": 12}
 
 
+#: readings whose median is the pack's voltage at boot (robust to one noisy sample)
+FIRST_READINGS = 5
+#: cells of slack on the count: a pack at exactly 4.35 V/cell plus sensor noise is not one cell more
+CELL_COUNT_SLACK = 0.02
+
+
 @dataclass
 class _PackSeen:
     max_voltage: float = 0.0
+    first_voltages: list = field(default_factory=list)
     temperature_reported: bool = False
     first_remaining: int | None = None
     first_consumed_mah: float | None = None
@@ -84,6 +92,8 @@ class ProvisionalObserver:
                  if c not in (0, _UINT16_MAX)]
         if cells:
             seen.max_voltage = max(seen.max_voltage, sum(cells) / 1000.0)
+            if len(seen.first_voltages) < FIRST_READINGS:
+                seen.first_voltages.append(sum(cells) / 1000.0)
         temp = f.get("temperature")
         if temp is not None and temp != _INT16_MAX:
             seen.temperature_reported = True
@@ -132,7 +142,8 @@ class ProvisionalObserver:
             raise VehicleError("no BATTERY_STATUS with a voltage seen: cannot tell the packs")
         packs = []
         for i, seen in packs_seen.items():
-            cells = max(1, math.ceil(seen.max_voltage / MAX_CELL_VOLTAGE - 1e-9))
+            boot_v = sorted(seen.first_voltages)[len(seen.first_voltages) // 2]
+            cells = max(1, math.ceil(boot_v / MAX_CELL_VOLTAGE - CELL_COUNT_SLACK))
             pack = {"name": f"battery{i}", "mavlink_battery_id": i, "cells_series": cells,
                     "reports_temperature": seen.temperature_reported}
             if seen.capacity_estimate_mah:
@@ -141,7 +152,7 @@ class ProvisionalObserver:
             else:
                 pack["capacity_mah"] = 5000.0
                 how = "a guess (the pack did not report enough discharge)"
-            notes.append(f"pack battery{i}: {cells} cells from {seen.max_voltage:.2f} V, "
+            notes.append(f"pack battery{i}: {cells} cells from {boot_v:.2f} V at boot, "
                          f"capacity {pack['capacity_mah']:.0f} mAh {how}, chemistry-default parameters"
                          + ("" if seen.temperature_reported else "; temperature not reported (estimated)"))
             packs.append(pack)
