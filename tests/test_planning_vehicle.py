@@ -63,3 +63,18 @@ def test_single_battery_plane_uses_its_drag_polar_and_cutoff():
     assert ev.feasible[0] or ev.cause[0] == FAIL_RESERVE
     # the 3S pack's cut-off (10.5 V), not the paper's 17.5 V, decides undervoltage
     assert sim._topology.pack_cutoff_v[0] == pytest.approx(10.5 + 0.02)
+
+
+def test_plan_cli_takes_a_vehicle(tmp_path, capsys):
+    import json
+
+    from gcs_pdm.cli import main
+
+    path = tmp_path / "quad.json"
+    path.write_text(_scenario(1800.0, 8.0).to_json())
+    assert main(["plan", str(path), "--vehicle", "quad-4s", "--planner", "pf", "--particles", "10", "--json",
+                 "--motor-fault", "m2=0.3"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["feasible"] and list(out["final_soc"]) == ["battery"]
+    assert main(["plan", str(path), "--vehicle", "quad-4s", "--motor-fault", "fwd=0.3"]) == 2
+    assert "no motor 'fwd'" in capsys.readouterr().out

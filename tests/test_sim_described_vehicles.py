@@ -8,6 +8,7 @@ import pytest
 
 from gcs_pdm.cli import main
 from gcs_pdm.diagnosis.motor_imbalance import EscImbalanceDetector
+from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 from gcs_pdm.estimation.estimator import StateEstimator
 from gcs_pdm.frames import MotorFrame, PackFrame
 from gcs_pdm.mavlink.mapping import FrameMapper
@@ -55,6 +56,15 @@ def test_quad_flies_its_mission_and_a_faulted_motor_shows_in_its_esc_telemetry(t
     assert [f.component for f in raised] == ["m2"]
     assert raised[0].magnitude == pytest.approx(0.3, abs=0.08)
     assert raised[0].time_s > rec.fault_log[0]["time_s"]           # after the fault, not before
+    # the diagnosis pipeline on the description does the same, and says how it diagnoses motors
+    pipe = DiagnosisPipeline(vehicle=desc)
+    replay_tlog(tmp_path / "quad.tlog", mapper=FrameMapper(frame_mapping(desc)), frame_consumer=pipe)
+    motor_faults = [f for f in pipe.faults if f.type == "motor_power_loss"]
+    assert [f.component for f in motor_faults] == ["m2"]
+    assert motor_faults[0].magnitude == pytest.approx(0.3, abs=0.08)
+    report = pipe.report()
+    assert report["readiness"]["motor_diagnosis"].startswith("multirotor: the imbalance")
+    assert set(report["estimate"]["motors"]) == {"m1", "m2", "m3", "m4"}
 
 
 def test_single_battery_plane_sends_arduplanes_layout(tmp_path):

@@ -71,6 +71,21 @@ def test_stock_arduplane_with_the_single_battery_preset():
 
 
 @needs_stock_tlog
+def test_the_diagnosis_pipeline_on_the_stock_tlog_says_what_it_cannot_diagnose():
+    from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
+
+    desc = PRESETS["plane-3s"]
+    pipe = DiagnosisPipeline(vehicle=desc)
+    replay_tlog(STOCK_TLOG, mapper=FrameMapper(frame_mapping(desc)), frame_consumer=pipe)
+    report = pipe.report()
+    assert report["readiness"]["motor_diagnosis"].startswith("not diagnosable with this telemetry: one motor")
+    assert report["readiness"]["prediction"] == "ready"
+    assert not [f for f in pipe.faults if f.type == "motor_power_loss"]
+    soc = report["estimate"]["packs"]["battery"]["soc"]
+    assert soc is not None and 0.0 <= soc <= 1.0
+
+
+@needs_stock_tlog
 def test_a_description_that_does_not_fit_reports_a_mismatch_not_a_state():
     # the provisional description takes the chemistry default at 4.2 V/cell: SITL's pack holds
     # more voltage under load than that model can, so its SoC would leave [0, 1]

@@ -133,3 +133,16 @@ class EscImbalanceDetector:
     def fault_vector(self) -> np.ndarray:
         return np.array([self.faults[n].magnitude if n in self.faults and self.faults[n].active else 0.0
                          for n in self.names])
+
+
+class NoMotorDiagnosis:
+    """Stands in for a detector when the telemetry cannot show a motor's power loss: no faults."""
+
+    def __init__(self, n_motors: int):
+        self.faults: dict[str, Fault] = {}
+        self.samples = 0
+        self.low_power_skipped = 0
+        self._n = n_motors
+
+    def fault_vector(self) -> np.ndarray:
+        return np.zeros(self._n)

@@ -17,9 +17,12 @@ PLANNERS = ("pf", "exact", "pfls", "brute")
 def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: ParameterSet | None = None,
                   particles: int = 30, seed: int = 0, theta: Sequence[float] = DEFAULT_THETA,
                   dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
-                  should_stop: Callable[[], bool] | None = None) -> Plan:
-    """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set)."""
-    sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed)
+                  should_stop: Callable[[], bool] | None = None, vehicle=None,
+                  motor_faults: dict[str, float] | None = None) -> Plan:
+    """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set), or
+    on a vehicle description (``vehicle``, with ``motor_faults`` by its motor names)."""
+    sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed, vehicle=vehicle,
+                           motor_faults=motor_faults)
     if planner == "pf":
         return particle_filter(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
     if planner == "pfls":
