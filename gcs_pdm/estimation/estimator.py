@@ -36,8 +36,10 @@ MOTOR_OF_PACK = {b: int(kernel.STRING_OF_PACK[b]) for b in range(4)}
 #: outside these the estimate is not a state the model can be in: report a mismatch instead
 SOC_RANGE = (0.0, 1.0)
 TEMPERATURE_RANGE_C = (-100.0, 100.0)
-#: how many σ an estimate may sit outside SOC_RANGE before it is a mismatch (else it is clipped)
+#: how far (plus RANGE_SIGMAS σ) a SoC may sit outside SOC_RANGE before it is a mismatch rather than
+#: noise to clip: a full pack read a little high is not a broken model, a SoC of 1.13 or -4.5 is
 RANGE_SIGMAS = 3.0
+SOC_SLACK = 0.05
 
 
 @dataclass(frozen=True)
@@ -351,7 +353,8 @@ class StateEstimator:
             if not np.isfinite(soc[b]):
                 continue
             bad = []
-            if soc[b] + RANGE_SIGMAS * soc_sd[b] < lo or soc[b] - RANGE_SIGMAS * soc_sd[b] > hi:
+            if (soc[b] + RANGE_SIGMAS * soc_sd[b] < lo - SOC_SLACK
+                    or soc[b] - RANGE_SIGMAS * soc_sd[b] > hi + SOC_SLACK):
                 bad.append(f"SoC {soc[b]:.3g} ± {soc_sd[b]:.2g} outside [0, 1]")
             if not TEMPERATURE_RANGE_C[0] <= tp[b] <= TEMPERATURE_RANGE_C[1]:
                 bad.append(f"temperature {tp[b]:.3g} °C outside ±100 °C")
