@@ -20,6 +20,7 @@ COMMAND_MODULES: dict[str, str] = {
     "serve": "gcs_pdm.service.cli",
     "demo": "gcs_pdm.service.cli",
     "sim": "gcs_pdm.sim.cli",
+    "vehicle": "gcs_pdm.vehicle.cli",
 }
 
 

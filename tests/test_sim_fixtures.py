@@ -45,7 +45,9 @@ def test_the_set_is_complete_varied_and_small():
     assert total < 6e6
     # the truth file is the hidden truth, readable as a parameter set
     truth = ParameterSet.from_json((FLIGHTS / MANIFEST["truth_parameters_file"]).read_text())
-    np.testing.assert_array_equal(truth.pack_matrix(), true_parameters(MANIFEST["truth_seed"]).pack_matrix())
+    # equal to the last bits: numpy's exp/log may round one ULP differently on another CPU or build
+    np.testing.assert_allclose(truth.pack_matrix(), true_parameters(MANIFEST["truth_seed"]).pack_matrix(),
+                               rtol=1e-13, atol=0)
 
 
 def test_fault_flights_fault_between_waypoints_2_and_3_and_one_fails():

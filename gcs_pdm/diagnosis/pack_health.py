@@ -100,9 +100,9 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     free = np.array([True, fit_capacity, True])
     # start from the SoC the first reading implies (the capacity scale leaves the open-circuit
     # curve unchanged: q_max and C_max scale with C_b)
-    r_cp = params[kernel.I_RCP0] + params[kernel.I_RCP1] * math.exp(params[kernel.I_RCP2] * 0.5)
+    r_cp = float(kernel.concentration_resistance(params, 0.5))
     v_b = voltage[0] + current[0] * r_scale * (params[kernel.I_RS] + r_cp)
-    soc0 = 1.0 - (params[kernel.I_QMAX] - params[kernel.I_CB] * v_b) / params[kernel.I_CMAX]
+    soc0 = float(kernel.soc_at_bulk_voltage(params, v_b))
     theta = np.array([r_scale, c_scale, min(max(soc0, 0.2), 1.0)])
     max_step = np.array([0.5, 0.15, 0.1])
     eps = np.array([0.02, 0.005, 0.005])
@@ -147,12 +147,15 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
 
 
 class PackHealthMonitor:
-    def __init__(self, pack_params: np.ndarray, config: PackHealthConfig = PackHealthConfig()):
+    def __init__(self, pack_params: np.ndarray, config: PackHealthConfig = PackHealthConfig(),
+                 names: tuple[str, ...] = PACK_NAMES):
         self.params = np.asarray(pack_params, dtype=np.float64)
         self.config = config
-        self._buf: list[list[tuple[float, float, float, float]]] = [[] for _ in PACK_NAMES]
+        #: the packs' names, in the rows' order (a vehicle description's, or the paper's)
+        self.names = tuple(names)
+        self._buf: list[list[tuple[float, float, float, float]]] = [[] for _ in self.names]
         self._last_check = -math.inf
-        self._debounce = {(ty, n): Debouncer(config.debounce) for n in PACK_NAMES
+        self._debounce = {(ty, n): Debouncer(config.debounce) for n in self.names
                           for ty in (PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE)}
         self.faults: dict[tuple[str, str], Fault] = {}
         self.latest: dict[str, PackHealthEstimate] = {}
@@ -170,7 +173,7 @@ class PackHealthMonitor:
             return []
         self._last_check = time_s
         events = []
-        for b, name in enumerate(PACK_NAMES):
+        for b, name in enumerate(self.names):
             buf = self._buf[b]
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
                 continue

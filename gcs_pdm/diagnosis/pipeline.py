@@ -12,13 +12,14 @@ import math
 import numpy as np
 
 from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, Fault
+from gcs_pdm.diagnosis.motor_imbalance import EscImbalanceDetector, NoMotorDiagnosis, motor_diagnosis_capability
 from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, MotorPowerLossDetector
 from gcs_pdm.diagnosis.pack_health import PackHealthConfig, PackHealthMonitor
 from gcs_pdm.diagnosis.prognosis import PrognosisConfig, PrognosisMonitor
 from gcs_pdm.estimation.estimator import MOTOR_OF_PACK, EstimatorConfig, StateEstimator
 from gcs_pdm.estimation.prediction import FutureLoad
 from gcs_pdm.frames import MotorFrame, PackFrame
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, default_set
+from gcs_pdm.models.params import ParameterSet, default_set
 from gcs_pdm.models.powertrain import Limits
 
 log = logging.getLogger(__name__)
@@ -30,16 +31,28 @@ class DiagnosisPipeline:
                  motor_config: MotorPowerConfig = MotorPowerConfig(),
                  pack_config: PackHealthConfig = PackHealthConfig(),
                  prognosis_config: PrognosisConfig = PrognosisConfig(), seed: int = 0,
-                 pair_within_s: float = 0.6, voltage_fresh_s: float = 3.0):
-        self.params = params or default_set()
-        self.estimator = StateEstimator(self.params, estimator_config)
-        self.motor_power = MotorPowerLossDetector(self.params.motor_vector(), motor_config)
-        self.pack_health = PackHealthMonitor(self.params.pack_matrix(), pack_config)
+                 pair_within_s: float = 0.6, voltage_fresh_s: float = 3.0, vehicle=None):
+        """``vehicle``: a ``VehicleDescription`` to diagnose instead of the paper's aircraft (its
+        packs and motors; motor power loss from the ESCs' imbalance where its telemetry shows it)."""
+        self.vehicle = vehicle
+        if vehicle is None:
+            self.params = params or default_set()
+            self.estimator = StateEstimator(self.params, estimator_config)
+            self.motor_power = MotorPowerLossDetector(self.params.motor_vector(), motor_config)
+            self.motor_diagnosis = "motors on one shaft: their shares of the shaft power"
+        else:
+            self.params = None
+            self.estimator = StateEstimator(config=estimator_config, vehicle=vehicle)
+            diagnosable, self.motor_diagnosis = motor_diagnosis_capability(vehicle)
+            self.motor_power = (EscImbalanceDetector(self.estimator.motor_names, self.estimator.motors.params)
+                                if diagnosable else NoMotorDiagnosis(len(self.estimator.motor_names)))
+        est = self.estimator
+        self.pack_health = PackHealthMonitor(est.packs.params.copy(), pack_config, names=est.pack_names)
         self.prognosis = PrognosisMonitor(limits, prognosis_config, seed=seed)
         self.pair_within_s = pair_within_s
         self.voltage_fresh_s = voltage_fresh_s
-        self._pack_v = np.full(4, np.nan)
-        self._pack_v_time = np.full(4, -math.inf)
+        self._pack_v = np.full(len(est.pack_names), np.nan)
+        self._pack_v_time = np.full(len(est.pack_names), -math.inf)
         self._faults: list[Fault] = []
         self._index: dict[tuple[str, str], int] = {}
         self.events: list[dict] = []
@@ -57,14 +70,17 @@ class DiagnosisPipeline:
         est.consume(frame)
         t = float(getattr(frame, "time_s", math.nan))
         if isinstance(frame, PackFrame):
-            b = PACK_NAMES.index(frame.pack) if frame.pack in PACK_NAMES else -1
+            b = est.pack_names.index(frame.pack) if frame.pack in est.pack_names else -1
             if b >= 0:
                 if frame.voltage_v is not None and math.isfinite(frame.voltage_v):
                     self._pack_v[b], self._pack_v_time[b] = frame.voltage_v, t
                 if est.packs.initialised[b] and frame.voltage_v is not None:
                     self.pack_health.add(b, t, float(est.pack_current[b]), float(frame.voltage_v), est.ambient_c)
-        elif isinstance(frame, MotorFrame) and frame.motor in MOTOR_NAMES:
-            self._motor_pair(t)
+        elif isinstance(frame, MotorFrame) and frame.motor in est.motor_names:
+            if self.vehicle is None:
+                self._motor_pair(t)
+            else:
+                self._motor_set(t)
         else:
             return
         pack_events = self.pack_health.check(t)
@@ -103,10 +119,37 @@ class DiagnosisPipeline:
             if f.key in self._index:
                 self._faults[self._index[f.key]] = f
 
+    def _motor_set(self, t: float) -> None:
+        """A described vehicle: every motor's current, fresh together, against its bus voltage."""
+        est = self.estimator
+        if not isinstance(self.motor_power, EscImbalanceDetector):
+            return
+        tc = est.motor_current_time
+        if tc.max() - tc.min() > self.pair_within_s or t < tc.max():
+            return
+        inputs = est.inputs
+        v_filter, _ = est.packs.voltage()
+        fresh = t - self._pack_v_time <= self.voltage_fresh_s
+        v = np.where(fresh, self._pack_v, v_filter)
+        bus = np.zeros(len(inputs.bus_parallel))
+        np.add.at(bus, inputs.bus_of_pack, v)
+        bus = np.where(inputs.bus_parallel, bus / np.bincount(inputs.bus_of_pack, minlength=len(bus)), bus)
+        bus_of_motor = bus[inputs.bus_of_motor]
+        if not (np.all(np.isfinite(bus_of_motor)) and np.all(np.isfinite(est.motor_current))):
+            return
+        self._record(self.motor_power.update(t, est.motor_current.copy(), bus_of_motor))
+        for f in self.motor_power.faults.values():
+            if f.key in self._index:
+                self._faults[self._index[f.key]] = f
+
+    def readiness(self) -> dict[str, str]:
+        """What the pipeline can do now and why not: the estimator's readiness plus motor diagnosis."""
+        return {**self.estimator.readiness(), "motor_diagnosis": self.motor_diagnosis}
+
     def _adopt_pack_degradation(self) -> None:
         """Let the estimator (and so the predictions) run each degraded pack on its diagnosed
         capacity and resistance; back to the parameter set when the fault clears."""
-        for name in PACK_NAMES:
+        for name in self.estimator.pack_names:
             est = self.pack_health.latest.get(name)
             cap = self.pack_health.faults.get((PACK_CAPACITY_LOSS, name))
             res = self.pack_health.faults.get((PACK_RESISTANCE_RISE, name))
@@ -161,6 +204,7 @@ class DiagnosisPipeline:
             "estimate": est.to_dict(),
             "frames": self.frames,
             "motor_power": {"samples": self.motor_power.samples, "low_power_skipped": self.motor_power.low_power_skipped},
+            "readiness": self.readiness(),
             "pack_health": {n: e.__dict__ for n, e in self.pack_health.latest.items()},
             "prognosis": {"skipped_no_mission": self.prognosis.skipped_no_mission,
                           "latest": None if self.prognosis.latest_prediction is None

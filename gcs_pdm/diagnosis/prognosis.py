@@ -26,7 +26,6 @@ from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import DEGRADATION_RATE_DEVIATION, PREDICTED_LIMIT_VIOLATION, Fault
 from gcs_pdm.models import kernel
 from gcs_pdm.estimation.prediction import FutureLoad, Prediction, predict_from_estimator
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import Limits
 
 
@@ -150,9 +149,9 @@ class PrognosisMonitor:
         d_tm_pred, d_tm_obs = base.motor_temp_median[k] - base.motor_temp_median[0], tm - tm0
         worst = (0.0, None, None)
         for names, obs, prd, rel_lim, abs_lim, what in (
-                (PACK_NAMES, d_soc_obs, d_soc_pred, cfg.soc_rel, cfg.soc_abs, "soc"),
-                (PACK_NAMES, d_tp_obs, d_tp_pred, cfg.temp_rel, cfg.temp_abs_c, "pack_temp"),
-                (MOTOR_NAMES, d_tm_obs, d_tm_pred, cfg.temp_rel, cfg.temp_abs_c, "motor_temp")):
+                (estimator.pack_names, d_soc_obs, d_soc_pred, cfg.soc_rel, cfg.soc_abs, "soc"),
+                (estimator.pack_names, d_tp_obs, d_tp_pred, cfg.temp_rel, cfg.temp_abs_c, "pack_temp"),
+                (estimator.motor_names, d_tm_obs, d_tm_pred, cfg.temp_rel, cfg.temp_abs_c, "motor_temp")):
             for i, name in enumerate(names):
                 if not (math.isfinite(obs[i]) and math.isfinite(prd[i])):
                     continue

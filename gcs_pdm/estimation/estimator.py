@@ -29,9 +29,17 @@ from gcs_pdm.models.powertrain import PowertrainState
 
 log = logging.getLogger(__name__)
 
-#: pack index -> the other pack in its series string, and its motor
+#: pack index -> the other pack in its series string, and its motor (the paper's aircraft, the
+#: layout used when no vehicle description is given)
 STRING_MATE = {0: 2, 2: 0, 1: 3, 3: 1}
 MOTOR_OF_PACK = {b: int(kernel.STRING_OF_PACK[b]) for b in range(4)}
+#: outside these the estimate is not a state the model can be in: report a mismatch instead
+SOC_RANGE = (0.0, 1.0)
+TEMPERATURE_RANGE_C = (-100.0, 100.0)
+#: how far (plus RANGE_SIGMAS σ) a SoC may sit outside SOC_RANGE before it is a mismatch rather than
+#: noise to clip: a full pack read a little high is not a broken model, a SoC of 1.13 or -4.5 is
+RANGE_SIGMAS = 3.0
+SOC_SLACK = 0.05
 
 
 @dataclass(frozen=True)
@@ -72,6 +80,14 @@ class Estimate:
     ambient_c: float
     missing: tuple[str, ...] = ()
     counters: dict = field(default_factory=dict)
+    pack_names: tuple[str, ...] = PACK_NAMES
+    motor_names: tuple[str, ...] = MOTOR_NAMES
+    #: packs whose temperature is the thermal model's, not a sensor's (the sd says how well)
+    modelled_temperature: tuple[str, ...] = ()
+    #: estimates the model cannot hold (SoC outside [0, 1], temperature outside ±100 °C): withheld
+    mismatch: tuple[str, ...] = ()
+    motor_current_a: np.ndarray | None = None
+    motor_rpm: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         def r(a, nd=4):
@@ -81,40 +97,81 @@ class Estimate:
             "time_s": self.time_s,
             "packs": {n: {"soc": r([self.soc[i]])[0], "soc_sd": r([self.soc_sd[i]])[0],
                           "temperature_c": r([self.pack_temp_c[i]], 2)[0], "temperature_sd": r([self.pack_temp_sd[i]], 2)[0],
-                          "voltage_v": r([self.pack_voltage_v[i]], 3)[0]} for i, n in enumerate(PACK_NAMES)},
+                          "voltage_v": r([self.pack_voltage_v[i]], 3)[0],
+                          **({"temperature_source": "model"} if n in self.modelled_temperature else {})}
+                      for i, n in enumerate(self.pack_names)},
             "motors": {n: {"temperature_c": r([self.motor_temp_c[i]], 2)[0],
-                           "temperature_sd": r([self.motor_temp_sd[i]], 2)[0]} for i, n in enumerate(MOTOR_NAMES)},
+                           "temperature_sd": r([self.motor_temp_sd[i]], 2)[0],
+                           **({} if self.motor_current_a is None else
+                              {"current_a": r([self.motor_current_a[i]], 2)[0], "rpm": r([self.motor_rpm[i]], 0)[0]})}
+                       for i, n in enumerate(self.motor_names)},
             "ambient_c": self.ambient_c,
             "missing": list(self.missing),
             "counters": dict(self.counters),
+            **({"mismatch": list(self.mismatch)} if self.mismatch else {}),
         }
 
 
 class StateEstimator:
-    """Per-pack UKF and per-motor thermal filter, driven frame by frame."""
+    """Per-pack UKF and per-motor thermal filter, driven frame by frame.
 
-    def __init__(self, params: ParameterSet, config: EstimatorConfig = EstimatorConfig()):
+    Without ``vehicle`` the packs and motors are the paper's aircraft with ``params``; with a
+    vehicle description (``gcs_pdm.vehicle``) they are the description's, in its order, with
+    their parameters from it (``params`` is then ignored and may be None)."""
+
+    def __init__(self, params: ParameterSet | None = None, config: EstimatorConfig = EstimatorConfig(), *,
+                 vehicle=None):
         self.params = params
         self.config = config
-        self.packs = PackFilterBank(params.pack_matrix(), config.pack)
-        self.motors = MotorThermalFilter(params.motor_vector(), len(MOTOR_NAMES), config.motor)
+        if vehicle is not None:
+            from gcs_pdm.vehicle.model_inputs import model_inputs
+
+            inputs = model_inputs(vehicle)
+            self.inputs = inputs
+            self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
+            pack_matrix, motor_matrix = inputs.pack_matrix, inputs.motor_matrix
+            self._mates = {b: inputs.series_mates(b) for b in range(inputs.n_packs)}
+            self._motors_of_pack = {b: inputs.motors_of_pack(b) for b in range(inputs.n_packs)}
+            self._packs_of_motor = {q: inputs.packs_of_motor(q) for q in range(inputs.n_motors)}
+            self._pack_reports_temp = np.array([p.reports_temperature for p in vehicle.packs])
+            self._motor_reports = {m.name: m.readings for m in vehicle.motors}
+            # one other sensor against the pack's own reading cannot say which is wrong (stock
+            # ArduPilot SITL's ESC current is a tenth of its battery current): need two
+            self._min_references = 2
+        else:
+            if params is None:
+                raise ValueError("StateEstimator: give a parameter set or a vehicle description")
+            #: the description's model inputs (None: the paper's aircraft)
+            self.inputs = None
+            self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
+            pack_matrix, motor_matrix = params.pack_matrix(), params.motor_vector()
+            self._mates = {b: (m,) for b, m in STRING_MATE.items()}
+            self._motors_of_pack = {b: (q,) for b, q in MOTOR_OF_PACK.items()}
+            self._packs_of_motor = {q: tuple(b for b in range(4) if MOTOR_OF_PACK[b] == q) for q in range(2)}
+            self._pack_reports_temp = np.ones(4, dtype=bool)
+            self._motor_reports = {}
+            self._min_references = 1
+        self._base_pack_matrix = np.array(pack_matrix, copy=True)
+        n_packs, n_motors = len(self.pack_names), len(self.motor_names)
+        self.packs = PackFilterBank(pack_matrix, config.pack)
+        self.motors = MotorThermalFilter(motor_matrix, n_motors, config.motor)
         self.ambient_c = config.default_ambient_c
         self.time_s = -math.inf
-        self._pack_index = {n: i for i, n in enumerate(PACK_NAMES)}
-        self._motor_index = {n: i for i, n in enumerate(MOTOR_NAMES)}
-        self.pack_time = np.full(4, -math.inf)
-        self.pack_current = np.full(4, np.nan)
-        self.pack_current_time = np.full(4, -math.inf)
-        self.motor_time = np.full(2, -math.inf)
-        self.motor_current = np.full(2, np.nan)
-        self.motor_current_time = np.full(2, -math.inf)
-        self.motor_rpm = np.full(2, np.nan)
+        self._pack_index = {n: i for i, n in enumerate(self.pack_names)}
+        self._motor_index = {n: i for i, n in enumerate(self.motor_names)}
+        self.pack_time = np.full(n_packs, -math.inf)
+        self.pack_current = np.full(n_packs, np.nan)
+        self.pack_current_time = np.full(n_packs, -math.inf)
+        self.motor_time = np.full(n_motors, -math.inf)
+        self.motor_current = np.full(n_motors, np.nan)
+        self.motor_current_time = np.full(n_motors, -math.inf)
+        self.motor_rpm = np.full(n_motors, np.nan)
         #: charge drawn from each pack since its filter started (cleaned current × dt), C
-        self.charge_c = np.zeros(4)
+        self.charge_c = np.zeros(n_packs)
         # currents of the frames that arrived while message time stood still (a link that stamps
         # untimed messages with the last timed one): their mean is the current over the next step
-        self._i_sum = np.zeros(4)
-        self._i_n = np.zeros(4, dtype=np.int64)
+        self._i_sum = np.zeros(n_packs)
+        self._i_n = np.zeros(n_packs, dtype=np.int64)
         # per sensor channel: last message time it carried a value
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
@@ -137,14 +194,17 @@ class StateEstimator:
     def _reference_current(self, b: int, t: float) -> float:
         """What the rest of pack b's series string says its current is (NaN if nobody recent)."""
         refs = []
-        mate = STRING_MATE[b]
-        if t - self.pack_current_time[mate] <= self.config.corroborate_within_s:
-            refs.append(self.pack_current[mate])
-        q = MOTOR_OF_PACK[b]
-        if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
-            refs.append(self.motor_current[q])
+        for mate in self._mates[b]:
+            if t - self.pack_current_time[mate] <= self.config.corroborate_within_s:
+                refs.append(self.pack_current[mate])
+        # a motor's current is its pack's only when the pack feeds that motor alone
+        motors = self._motors_of_pack[b]
+        if len(motors) == 1 and len(self._packs_of_motor[motors[0]]) == 1 + len(self._mates[b]):
+            q = motors[0]
+            if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
+                refs.append(self.motor_current[q])
         refs = [r for r in refs if math.isfinite(r)]
-        return float(np.median(refs)) if refs else math.nan
+        return float(np.median(refs)) if len(refs) >= self._min_references else math.nan
 
     def _pack(self, f: PackFrame) -> None:
         b = self._pack_index.get(f.pack)
@@ -176,7 +236,7 @@ class StateEstimator:
         if not self.packs.initialised[b]:
             if not math.isfinite(v):
                 return  # nothing to start from yet
-            self.packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]))
+            self.packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]), self.ambient_c)
             self.pack_time[b] = t
             return
         dt = t - self.pack_time[b]
@@ -210,7 +270,7 @@ class StateEstimator:
             self.motor_current_time[q] = t
         else:
             # the string's pack currents are the motor's current
-            packs = [b for b in range(4) if MOTOR_OF_PACK[b] == q]
+            packs = [b for b in self._packs_of_motor[q] if len(self._motors_of_pack[b]) == 1]
             fresh = [self.pack_current[b] for b in packs if t - self.pack_current_time[b] <= self.config.corroborate_within_s]
             cur = float(np.nanmedian(fresh)) if fresh and np.isfinite(fresh).any() else self.motor_current[q]
         rpm = _num(f.rpm)
@@ -221,6 +281,12 @@ class StateEstimator:
         if math.isfinite(temp):
             self.seen[f"{f.motor}.temperature"] = t
         if not self.motors.initialised[q]:
+            readings = self._motor_reports.get(f.motor)
+            if not math.isfinite(temp) and readings is not None and not readings.temperature:
+                # no sensor: the thermal model from ambient, with its wider uncertainty
+                self.motors.initialise(np.array([q]), np.array([self.ambient_c]), self.config.motor.initial_sigma_c)
+                self.motor_time[q] = t
+                return
             if not math.isfinite(temp):
                 return
             self.motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
@@ -235,8 +301,8 @@ class StateEstimator:
         ``resistance_scale`` and C_b, q_max, C_max by ``capacity_scale`` — the diagnoser's estimate
         of its degradation — so SoC and predictions stop inheriting the mismatch. SoC is then a
         fraction of the *degraded* capacity."""
-        b = PACK_NAMES.index(pack)
-        row = self.params.pack_matrix()[b].copy()
+        b = self.pack_names.index(pack)
+        row = self._base_pack_matrix[b].copy()
         row[[kernel.I_RS, kernel.I_RCP0]] *= float(resistance_scale)
         row[[kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX]] *= float(capacity_scale)
         self.packs.set_params(b, row)
@@ -251,8 +317,10 @@ class StateEstimator:
     # ---- read-outs --------------------------------------------------------------------------------
     def missing(self, now: float | None = None) -> tuple[str, ...]:
         now = self.time_s if now is None else now
-        channels = [f"{p}.{c}" for p in PACK_NAMES for c in ("voltage", "current", "temperature")]
-        channels += [f"{m}.{c}" for m in MOTOR_NAMES for c in ("current", "rpm", "temperature")]
+        channels = [f"{p}.{c}" for b, p in enumerate(self.pack_names) for c in ("voltage", "current", "temperature")
+                    if c != "temperature" or self._pack_reports_temp[b]]
+        channels += [f"{m}.{c}" for m in self.motor_names for c in ("current", "rpm", "temperature")
+                     if m not in self._motor_reports or getattr(self._motor_reports[m], c)]
         return tuple(c for c in channels if now - self.seen.get(c, -math.inf) > self.config.stale_after_s)
 
     def estimate(self) -> Estimate:
@@ -264,15 +332,70 @@ class StateEstimator:
         none = ~self.packs.initialised
         for a in (soc, soc_sd, tp, tp_sd, v):
             a[none] = np.nan
+        mismatch = self._range_guard(soc, soc_sd, tp, tp_sd, v)
         counters = dict(self.counters)
         counters["voltage_gated"] = int(self.packs.rejected_total[:, 0].sum())
         counters["pack_temperature_gated"] = int(self.packs.rejected_total[:, 1].sum())
         counters["motor_temperature_gated"] = int(self.motors.rejected_total.sum())
         counters["relocks"] = int(self.packs.relocks.sum() + self.motors.relocks.sum())
-        return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c, self.missing(), counters)
+        modelled = tuple(n for b, n in enumerate(self.pack_names)
+                         if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
+        return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c, self.missing(), counters,
+                        pack_names=self.pack_names, motor_names=self.motor_names, modelled_temperature=modelled,
+                        mismatch=mismatch, motor_current_a=self.motor_current.copy(), motor_rpm=self.motor_rpm.copy())
+
+    def _range_guard(self, soc, soc_sd, tp, tp_sd, v) -> tuple[str, ...]:
+        """Clip a SoC that is in [0, 1] within its noise; withhold (NaN) and report a pack whose
+        SoC or temperature the model cannot hold — its parameters do not describe the real pack."""
+        out = []
+        lo, hi = SOC_RANGE
+        for b, name in enumerate(self.pack_names):
+            if not np.isfinite(soc[b]):
+                continue
+            bad = []
+            if (soc[b] + RANGE_SIGMAS * soc_sd[b] < lo - SOC_SLACK
+                    or soc[b] - RANGE_SIGMAS * soc_sd[b] > hi + SOC_SLACK):
+                bad.append(f"SoC {soc[b]:.3g} ± {soc_sd[b]:.2g} outside [0, 1]")
+            if not TEMPERATURE_RANGE_C[0] <= tp[b] <= TEMPERATURE_RANGE_C[1]:
+                bad.append(f"temperature {tp[b]:.3g} °C outside ±100 °C")
+            if bad:
+                out.append(f"pack {name}: {', '.join(bad)}: the model does not fit this pack "
+                           f"(check its cells, capacity and parameter set)")
+                for a in (soc, soc_sd, tp, tp_sd, v):
+                    a[b] = np.nan
+                self.counters["model_mismatch"] += 1
+            else:
+                soc[b] = min(max(soc[b], lo), hi)
+        return tuple(out)
 
     def ready(self) -> bool:
-        return bool(self.packs.initialised.all() and self.motors.initialised.all())
+        return bool(self.packs.initialised.all() and self._motors_ready())
+
+    def _motors_ready(self) -> bool:
+        # a motor the description says reports nothing is carried by the model alone
+        silent = np.array([m in self._motor_reports and not any(
+            (self._motor_reports[m].current, self._motor_reports[m].rpm, self._motor_reports[m].temperature))
+            for m in self.motor_names])
+        return bool((self.motors.initialised | silent).all())
+
+    def readiness(self) -> dict[str, str]:
+        """What the estimator can support now, and why not (said out loud, for /status and logs):
+        ``{"state": ..., "prediction": ..., "motor_telemetry": ...}``, "ready" or the reason."""
+        waiting = [f"pack {n} voltage" for b, n in enumerate(self.pack_names) if not self.packs.initialised[b]]
+        waiting += [f"motor {n} temperature" for q, n in enumerate(self.motor_names)
+                    if not self.motors.initialised[q]
+                    and not (n in self._motor_reports and not self._motor_reports[n].temperature)]
+        state = "ready" if not waiting else "waiting for " + ", ".join(waiting)
+        mismatch = self.estimate().mismatch if not waiting else ()
+        prediction = state if not mismatch else "model mismatch: " + "; ".join(mismatch)
+        heard = [n for n in self.motor_names if f"{n}.current" in self.seen or f"{n}.rpm" in self.seen]
+        if not heard:
+            motors = "no ESC telemetry"
+        elif len(heard) < len(self.motor_names):
+            motors = "ESC telemetry from " + ", ".join(heard) + " only"
+        else:
+            motors = "ready"
+        return {"state": state, "prediction": prediction, "motor_telemetry": motors}
 
     def powertrain_state(self) -> PowertrainState:
         """The mean state in the kernel's layout (what the planner simulates from)."""

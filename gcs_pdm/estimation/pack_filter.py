@@ -64,8 +64,8 @@ class PackFilterBank:
         self._rows = {}
 
     # ---- initialisation -------------------------------------------------------------------------
-    def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray
-                   ) -> None:
+    def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray,
+                   ambient_c: float = 20.0) -> None:
         """Start packs ``idx`` from a voltage reading: invert V = V_b - i (R_s + R_cp(SoC)) with the
         R–C pairs settled at the measured current (two fixed-point passes are enough: R_cp is flat
         away from the knee)."""
@@ -75,10 +75,10 @@ class PackFilterBank:
         temp = np.asarray(temperature, dtype=np.float64)
         soc = np.full(idx.size, 1.0)
         for _ in range(3):
-            r_cp = p[:, kernel.I_RCP0] + p[:, kernel.I_RCP1] * np.exp(p[:, kernel.I_RCP2] * (1.0 - soc))
-            v_b = voltage + cur * (p[:, kernel.I_RS] + r_cp)
-            soc = np.clip(1.0 - (p[:, kernel.I_QMAX] - p[:, kernel.I_CB] * v_b) / p[:, kernel.I_CMAX], 0.0, 1.0)
-        temp = np.where(np.isfinite(temp), temp, 20.0)
+            v_b = voltage + cur * (p[:, kernel.I_RS] + kernel.concentration_resistance(p, soc))
+            soc = np.clip(kernel.soc_at_bulk_voltage(p, v_b), 0.0, 1.0)
+        # a pack that reports no temperature starts at ambient, with the wider initial uncertainty
+        temp = np.where(np.isfinite(temp), temp, ambient_c)
         x = kernel.initial_pack_state(p, soc, temp, cur)
         self.mean[idx] = x
         c = self.config

@@ -100,6 +100,9 @@ class Prediction:
     pack_temp_median: np.ndarray | None = None    # (n, 4)
     motor_temp_median: np.ndarray | None = None   # (n, 2)
     extra: dict = field(default_factory=dict)
+    #: the packs and motors the rows are (a vehicle description's, or the paper's)
+    pack_names: tuple[str, ...] = PACK_NAMES
+    motor_names: tuple[str, ...] = MOTOR_NAMES
 
     def to_dict(self) -> dict:
         def q(a):
@@ -114,8 +117,8 @@ class Prediction:
             "failure_causes": dict(self.failure_causes),
             "packs": {n: {"time_to_cutoff_s": q(self.pack_time_to_cutoff_s[i]),
                           "energy_to_cutoff_j": q(self.pack_energy_to_cutoff_j[i]),
-                          "peak_temp_c": q(self.peak_pack_temp_c[i])} for i, n in enumerate(PACK_NAMES)},
-            "motors": {n: {"peak_temp_c": q(self.peak_motor_temp_c[i])} for i, n in enumerate(MOTOR_NAMES)},
+                          "peak_temp_c": q(self.peak_pack_temp_c[i])} for i, n in enumerate(self.pack_names)},
+            "motors": {n: {"peak_temp_c": q(self.peak_motor_temp_c[i])} for i, n in enumerate(self.motor_names)},
             **self.extra,
         }
 
@@ -145,7 +148,7 @@ def sample_parameters(params, n: int, rng: np.random.Generator, rel_sigma: float
     packs[..., kernel.I_RCP1] *= np.exp(base[:, kernel.I_RCP2] - packs[..., kernel.I_RCP2])
     packs[..., kernel.I_QMAX] = packs[..., kernel.I_CB] * (base[:, kernel.I_QMAX] / base[:, kernel.I_CB])
     packs[..., kernel.I_CMAX] = np.minimum(packs[..., kernel.I_CMAX], packs[..., kernel.I_QMAX])
-    motor = motor_base[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n, kernel.N_MOTOR_PARAMS)))
+    motor = motor_base[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n,) + motor_base.shape))
     return packs, motor
 
 
@@ -177,7 +180,8 @@ def restate(base: np.ndarray, x: np.ndarray, sampled: np.ndarray) -> np.ndarray:
 def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: np.ndarray,
             motor_temp_sd: np.ndarray, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
             param_rel_sigma: float = 0.08, fault: np.ndarray | None = None, limits: Limits = Limits(),
-            trajectories: bool = True, stop_on_failure: bool = True, trajectory_every_s: float = 10.0) -> Prediction:
+            trajectories: bool = True, stop_on_failure: bool = True, trajectory_every_s: float = 10.0,
+            vehicle=None) -> Prediction:
     """Monte Carlo prediction over state and parameter uncertainty (one kernel call).
 
     ``params``: a ParameterSet or a (pack matrix (4, 12), motor vector (5,)) pair.
@@ -185,7 +189,11 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
     ``fault``: (2,) motor fault magnitudes (fwd, aft) believed present — the diagnoser's faults.
     With ``stop_on_failure`` a sample ends at the vehicle's first failure, so a pack that had not
     reached its cut-off by then reports ``inf`` for that sample; pass ``False`` to run every sample
-    through the whole horizon and read each pack's own cut-off time."""
+    through the whole horizon and read each pack's own cut-off time.
+
+    ``vehicle``: a description's ``ModelInputs``; then ``params`` is a (pack matrix (P, 12), motor
+    matrix (M, 5)) pair, ``fault`` is (M,), the limits are the description's per pack and motor, and
+    the samples fly ``models.topology.simulate_vehicle`` instead of the paper's four-pack layout."""
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     pp, mp = sample_parameters(params, n_samples, rng, param_rel_sigma)
@@ -193,11 +201,22 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
                             np.asarray(motor_temp_c, dtype=np.float64), np.asarray(motor_temp_sd, dtype=np.float64),
                             n_samples, rng)
     x0 = restate(base_arrays(params)[0], x0, pp)
-    f = np.zeros((1, 2)) if fault is None else np.clip(np.asarray(fault, dtype=np.float64).reshape(1, 2), 0.0, 1.0)
+    n_motors = 2 if vehicle is None else vehicle.n_motors
+    f = np.zeros((1, n_motors)) if fault is None else np.clip(
+        np.asarray(fault, dtype=np.float64).reshape(1, n_motors), 0.0, 1.0)
     dt = np.asarray(load.dt, dtype=np.float64)
     amb = load.ambient_c if np.ndim(load.ambient_c) == 0 else np.asarray(load.ambient_c, dtype=np.float64)
-    run = kernel.simulate_powertrain(pp, mp, x0, tm0, dt, np.asarray(load.shaft_power_w, dtype=np.float64), amb, f,
-                                     limits=limits.as_tuple(), stop_on_failure=stop_on_failure, record=True)
+    power = np.asarray(load.shaft_power_w, dtype=np.float64)
+    if vehicle is None:
+        run = kernel.simulate_powertrain(pp, mp, x0, tm0, dt, power, amb, f, limits=limits.as_tuple(),
+                                         stop_on_failure=stop_on_failure, record=True)
+        cutoff_v = limits.pack_cutoff_v
+    else:
+        from gcs_pdm.models.topology import simulate_vehicle
+
+        run = simulate_vehicle(vehicle, pp, mp, x0, tm0, dt, power, amb, f, stop_on_failure=stop_on_failure,
+                               record=True)
+        cutoff_v = vehicle.pack_cutoff_v[None, None, :]
     t_end = np.cumsum(dt)
     failed = run.fail_step >= 0
     ttf = np.where(failed, t_end[np.maximum(run.fail_step, 0)], np.inf)
@@ -208,7 +227,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
     v = run.pack_voltage                               # (N, n, 4), NaN after a stop
     # a pack's end: below cut-off under load, or empty (near the knee a light load can empty a
     # pack before its voltage reaches the cut-off)
-    ended = (v < limits.pack_cutoff_v) | (run.pack_soc <= 0.0)
+    ended = (v < cutoff_v) | (run.pack_soc <= 0.0)
     reached = ended.any(axis=1)                        # (N, 4)
     k_cut = np.where(reached, ended.argmax(axis=1), v.shape[1] - 1)
     pack_ttc = np.where(reached, t_end[k_cut], np.inf)
@@ -232,6 +251,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         pack_energy_to_cutoff_j=np.quantile(energy, QUANTILES, axis=0, method="nearest").T,
         peak_pack_temp_c=np.quantile(peak_pack, QUANTILES, axis=0, method="nearest").T,
         peak_motor_temp_c=np.quantile(peak_motor, QUANTILES, axis=0, method="nearest").T,
+        **({} if vehicle is None else {"pack_names": vehicle.pack_names, "motor_names": vehicle.motor_names}),
     )
     if trajectories:
         # medians on a coarse grid: a median over samples is the costly part, and the rate
@@ -262,5 +282,68 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     soc = kernel.state_of_charge(packs.params, packs.mean)
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * packs.params[:, kernel.I_CMAX]
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    inputs = getattr(estimator, "inputs", None)
+    if inputs is not None:
+        return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
+                       n_samples=n_samples, fault=fault, vehicle=inputs, **kw)
     return predict((packs.params, estimator.motors.params[0]), packs.mean, cov, tm, tm_sd, load, rng=rng,
                    n_samples=n_samples, fault=fault, **kw)
+
+
+@dataclass(frozen=True)
+class PackCutoffPrediction:
+    """Per pack (any number, the estimator's order): quantiles (5 %, 50 %, 95 %) of the time to its
+    cut-off voltage (or empty) if it keeps drawing ``current_a``; ``inf`` = not within the horizon."""
+
+    pack_names: tuple[str, ...]
+    current_a: np.ndarray             # (N,)
+    horizon_s: float
+    n_samples: int
+    time_to_cutoff_s: np.ndarray      # (N, 3)
+    peak_temp_c: np.ndarray           # (N, 3)
+
+    def to_dict(self) -> dict:
+        def q(a):
+            return [None if not math.isfinite(float(x)) else round(float(x), 3) for x in a]
+
+        return {"horizon_s": self.horizon_s, "n_samples": self.n_samples, "quantiles": list(QUANTILES),
+                "packs": {n: {"current_a": round(float(self.current_a[i]), 3),
+                              "time_to_cutoff_s": q(self.time_to_cutoff_s[i]), "peak_temp_c": q(self.peak_temp_c[i])}
+                          for i, n in enumerate(self.pack_names)}}
+
+
+def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.ndarray | None = None,
+                             horizon_s: float = 3600.0, step_s: float = 5.0, rng: np.random.Generator,
+                             n_samples: int = 100, param_rel_sigma: float = 0.08) -> PackCutoffPrediction:
+    """Monte Carlo time to cut-off of every pack at a held current (the present draw by default):
+    the current-driven counterpart of ``predict`` that needs no powertrain layout, so it serves any
+    vehicle description. All samples × packs are rows of one ``kernel.simulate_packs`` call."""
+    packs = estimator.packs
+    base = packs.params
+    n_packs = base.shape[0]
+    cur = np.nan_to_num(np.asarray(estimator.pack_current if current_a is None else current_a, dtype=np.float64))
+    cov = packs.cov.copy()
+    soc = kernel.state_of_charge(base, packs.mean)
+    extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * base[:, kernel.I_CMAX]
+    cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    pp, _ = sample_parameters((base, estimator.motors.params[0]), n_samples, rng, param_rel_sigma)
+    chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
+    x0 = packs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n_samples, n_packs, kernel.N_PACK_STATE)))
+    x0 = restate(base, x0, pp)
+    n_steps = max(1, int(math.ceil(horizon_s / step_s)))
+    dt = np.full(n_steps, horizon_s / n_steps)
+    run = kernel.simulate_packs(pp.reshape(-1, kernel.N_PACK_PARAMS), x0.reshape(-1, kernel.N_PACK_STATE), dt,
+                                np.repeat(np.tile(cur, n_samples)[:, None], n_steps, axis=1), estimator.ambient_c)
+    v = run.voltage.reshape(n_samples, n_packs, n_steps)
+    ended = (v < np.asarray(cutoff_v, dtype=np.float64)[None, :, None]) | (run.soc.reshape(v.shape) <= 0.0)
+    reached = ended.any(axis=2)
+    t_end = np.cumsum(dt)
+    ttc = np.where(reached, t_end[ended.argmax(axis=2)], np.inf)
+    # peaks up to the cut-off only: past it the pack is not flown and the model leaves its range
+    k_cut = np.where(reached, ended.argmax(axis=2), n_steps - 1)
+    flown = np.arange(n_steps)[None, None, :] <= k_cut[..., None]
+    peak = np.max(np.where(flown, run.temperature.reshape(v.shape), -np.inf), axis=2)
+    return PackCutoffPrediction(
+        pack_names=tuple(estimator.pack_names), current_a=cur, horizon_s=float(t_end[-1]), n_samples=n_samples,
+        time_to_cutoff_s=np.quantile(ttc, QUANTILES, axis=0, method="nearest").T,
+        peak_temp_c=np.quantile(peak, QUANTILES, axis=0, method="nearest").T)

@@ -229,7 +229,7 @@ def initial_pack_state(params: np.ndarray, soc: np.ndarray | float, temperature:
     params = _params2d(params, N_PACK_PARAMS, "params")
     soc = np.asarray(soc, dtype=np.float64)
     q_b = params[:, I_QMAX] - (1.0 - soc) * params[:, I_CMAX]
-    r_cp = params[:, I_RCP0] + params[:, I_RCP1] * np.exp(params[:, I_RCP2] * (1.0 - soc))
+    r_cp = concentration_resistance(params, soc)
     current = np.asarray(current, dtype=np.float64)
     x = np.empty((params.shape[0], N_PACK_STATE))
     x[:, S_QB] = q_b
@@ -250,6 +250,18 @@ def terminal_voltage(params: np.ndarray, states: np.ndarray) -> np.ndarray:
 def state_of_charge(params: np.ndarray, states: np.ndarray) -> np.ndarray:
     params = np.asarray(params, dtype=np.float64)
     return 1.0 - (params[..., I_QMAX] - np.asarray(states)[..., S_QB]) / params[..., I_CMAX]
+
+
+def concentration_resistance(params: np.ndarray, soc: np.ndarray | float) -> np.ndarray:
+    """R_cp(SoC) = R_cp0 + R_cp1 exp(R_cp2 (1 - SoC)) (eq. 6), vectorised over packs."""
+    params = np.asarray(params, dtype=np.float64)
+    return params[..., I_RCP0] + params[..., I_RCP1] * np.exp(params[..., I_RCP2] * (1.0 - np.asarray(soc)))
+
+
+def soc_at_bulk_voltage(params: np.ndarray, bulk_voltage: np.ndarray | float) -> np.ndarray:
+    """The SoC whose bulk charge q_b = C_b V_b gives ``bulk_voltage`` (unclipped)."""
+    params = np.asarray(params, dtype=np.float64)
+    return 1.0 - (params[..., I_QMAX] - params[..., I_CB] * np.asarray(bulk_voltage)) / params[..., I_CMAX]
 
 
 def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
@@ -303,137 +315,6 @@ def _motor_current(m, bus_voltage, shaft_power, capability):
     return 2.0 * c / (bus_voltage + math.sqrt(disc))
 
 
-@njit(**_JIT)
-def _simulate_powertrain(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambient, limits,
-                         fault_drag, max_dt, stop_on_failure, record,
-                         rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt,
-                         final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause,
-                         elapsed):
-    n_vec = x0.shape[0]
-    n = shaft_power.shape[1]
-    x = np.empty((N_PACKS, N_PACK_STATE))
-    tm = np.empty(N_MOTORS)
-    v = np.empty(N_PACKS)
-    vbus = np.empty(N_MOTORS)
-    imot = np.empty(N_MOTORS)
-    share = np.empty(N_MOTORS)
-    for j in range(n_vec):
-        pp = pack_params[j if pack_params.shape[0] > 1 else 0]
-        m = motor_params[j if motor_params.shape[0] > 1 else 0]
-        f = fault[j if fault.shape[0] > 1 else 0]
-        di = j if dt.shape[0] > 1 else 0
-        si = j if shaft_power.shape[0] > 1 else 0
-        ai = j if ambient.shape[0] > 1 else 0
-        for b in range(N_PACKS):
-            for s in range(N_PACK_STATE):
-                x[b, s] = x0[j, b, s]
-            v[b] = _terminal_voltage(pp[b], x[b])
-            min_v[j, b] = v[b]
-            max_tp[j, b] = x[b, S_T]
-            charge[j, b] = 0.0
-        for q in range(N_MOTORS):
-            tm[q] = tm0[j, q]
-            max_tm[j, q] = tm[q]
-        energy[j] = 0.0
-        fail_k[j] = -1
-        fail_cause[j] = FAIL_NONE
-        t = 0.0
-        cap0 = 1.0 - f[0]
-        cap1 = 1.0 - f[1]
-        for k in range(n):
-            h = dt[di, k]
-            p_dem = shaft_power[si, k]
-            vbus[0] = v[0] + v[2]
-            vbus[1] = v[1] + v[3]
-            # each motor owes half the shaft power; the healthy motor makes up what the faulted one
-            # cannot deliver. A faulted rotor still turns with the shaft: its propeller-side drag
-            # (fault_drag of its share) and its own friction and core loss, which it no longer
-            # powers (m I_0 V), become load on the shaft
-            p_tot = p_dem
-            if p_dem > 0.0:
-                p_tot = p_dem * (1.0 + 0.5 * fault_drag * (f[0] + f[1])) \
-                    + (f[0] * vbus[0] + f[1] * vbus[1]) * m[M_I0]
-            cause = FAIL_NONE
-            if cap0 + cap1 <= 0.0:
-                share[0] = 0.0
-                share[1] = 0.0
-                if p_dem > 0.0:
-                    cause = FAIL_POWER
-            else:
-                # each motor delivers (1 - f) of its half; the less faulted one carries the rest
-                share[0] = 0.5 * p_tot * cap0
-                share[1] = 0.5 * p_tot * cap1
-                shortfall = p_tot - share[0] - share[1]
-                if f[0] < f[1]:
-                    share[0] += shortfall
-                elif f[1] < f[0]:
-                    share[1] += shortfall
-                else:
-                    share[0] += 0.5 * shortfall
-                    share[1] += 0.5 * shortfall
-            for q in range(N_MOTORS):
-                capability = cap0 if q == 0 else cap1
-                i_q = _motor_current(m, vbus[q], share[q], capability)
-                if i_q < 0.0:
-                    cause = FAIL_POWER
-                    i_q = vbus[q] / (2.0 * m[M_RW])  # the peak-power current
-                imot[q] = i_q
-                energy[j] += vbus[q] * i_q * h
-            for b in range(N_PACKS):
-                i_b = imot[STRING_OF_PACK[b]]
-                _pack_advance(pp[b], x[b], i_b, ambient[ai, k], h, max_dt)
-                v[b] = _terminal_voltage(pp[b], x[b])
-                charge[j, b] += i_b * h
-                if v[b] < min_v[j, b]:
-                    min_v[j, b] = v[b]
-                if x[b, S_T] > max_tp[j, b]:
-                    max_tp[j, b] = x[b, S_T]
-                if cause == FAIL_NONE:
-                    if _soc(pp[b], x[b, S_QB]) <= 0.0:
-                        cause = FAIL_DEPLETED
-                    elif v[b] < limits[L_V_CUTOFF]:
-                        cause = FAIL_UNDERVOLTAGE
-                    elif x[b, S_T] > limits[L_T_PACK_MAX]:
-                        cause = FAIL_PACK_OVERTEMP
-            for q in range(N_MOTORS):
-                tm[q] = _thermal_advance(m, tm[q], imot[q], ambient[ai, k], h)
-                if tm[q] > max_tm[j, q]:
-                    max_tm[j, q] = tm[q]
-                if cause == FAIL_NONE and tm[q] > limits[L_T_MOTOR_MAX]:
-                    cause = FAIL_MOTOR_OVERTEMP
-            t += h
-            if record:
-                for b in range(N_PACKS):
-                    rec_v[j, k, b] = v[b]
-                    rec_i[j, k, b] = imot[STRING_OF_PACK[b]]
-                    rec_t[j, k, b] = x[b, S_T]
-                    rec_soc[j, k, b] = _soc(pp[b], x[b, S_QB])
-                for q in range(N_MOTORS):
-                    rec_mi[j, k, q] = imot[q]
-                    rec_mt[j, k, q] = tm[q]
-            if cause != FAIL_NONE and fail_k[j] < 0:
-                fail_k[j] = k
-                fail_cause[j] = cause
-                if stop_on_failure:
-                    if record:
-                        for kk in range(k + 1, n):
-                            for b in range(N_PACKS):
-                                rec_v[j, kk, b] = np.nan
-                                rec_i[j, kk, b] = np.nan
-                                rec_t[j, kk, b] = np.nan
-                                rec_soc[j, kk, b] = np.nan
-                            for q in range(N_MOTORS):
-                                rec_mi[j, kk, q] = np.nan
-                                rec_mt[j, kk, q] = np.nan
-                    break
-        for b in range(N_PACKS):
-            for s in range(N_PACK_STATE):
-                final_x[j, b, s] = x[b, s]
-        for q in range(N_MOTORS):
-            final_tm[j, q] = tm[q]
-        elapsed[j] = t
-
-
 @dataclass(frozen=True)
 class PowertrainRun:
     """Result of ``simulate_powertrain``; per-step arrays only when ``record=True``."""
@@ -473,48 +354,14 @@ def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: n
     [0, 1] for (fwd, aft): a faulted motor delivers (1 - m) of its share of the shaft power.
     limits = (pack cut-off voltage V, pack max °C, motor max °C) decide ``fail_cause``.
     """
-    pp = np.ascontiguousarray(np.asarray(pack_params, dtype=np.float64))
-    if pp.ndim == 2:
-        pp = pp[None]
-    if pp.shape[1:] != (N_PACKS, N_PACK_PARAMS):
+    from gcs_pdm.models.topology import PAPER_TOPOLOGY, simulate_vehicle
+
+    pp = np.asarray(pack_params, dtype=np.float64)
+    if (pp[None] if pp.ndim == 2 else pp).shape[1:] != (N_PACKS, N_PACK_PARAMS):
         raise ValueError(f"pack_params: expected (N, {N_PACKS}, {N_PACK_PARAMS}), got {pp.shape}")
     mp = _params2d(motor_params, N_MOTOR_PARAMS, "motor_params")
-    x0 = np.asarray(x0, dtype=np.float64)
-    if x0.ndim == 2:
-        x0 = x0[None]
-    n_vec = x0.shape[0]
-    x0 = np.ascontiguousarray(x0)
-    if x0.shape[1:] != (N_PACKS, N_PACK_STATE):
-        raise ValueError(f"x0: expected (N, {N_PACKS}, {N_PACK_STATE}), got {x0.shape}")
-    tm0 = np.ascontiguousarray(np.broadcast_to(np.asarray(motor_temp0, dtype=np.float64), (n_vec, N_MOTORS)))
-    sp = np.asarray(shaft_power, dtype=np.float64)
-    n = sp.shape[-1]
-    sp = _rows(sp, n_vec, n, "shaft_power")
-    dt_ = _rows(dt, n_vec, n, "dt")
-    if np.any(dt_ < 0):
-        raise ValueError("dt: time steps must be non-negative")
-    amb = _rows(ambient, n_vec, n, "ambient")
-    f = np.zeros((1, N_MOTORS)) if fault is None else np.atleast_2d(np.asarray(fault, dtype=np.float64))
-    if f.shape[1] != N_MOTORS or f.shape[0] not in (1, n_vec) or np.any((f < 0) | (f > 1)):
-        raise ValueError(f"fault: expected magnitudes in [0, 1] shaped (N or 1, 2), got {f!r}")
-    f = np.ascontiguousarray(f)
-    lim = np.asarray(limits, dtype=np.float64)
-    shape_rec = (n_vec, n) if record else (1, 1)
-    rec = [np.empty(shape_rec + (N_PACKS,)) for _ in range(4)] + [np.empty(shape_rec + (N_MOTORS,)) for _ in range(2)]
-    final_x = np.empty((n_vec, N_PACKS, N_PACK_STATE))
-    final_tm = np.empty((n_vec, N_MOTORS))
-    min_v = np.empty((n_vec, N_PACKS))
-    max_tp = np.empty((n_vec, N_PACKS))
-    max_tm = np.empty((n_vec, N_MOTORS))
-    charge = np.empty((n_vec, N_PACKS))
-    energy = np.empty(n_vec)
-    fail_k = np.empty(n_vec, dtype=np.int64)
-    fail_cause = np.empty(n_vec, dtype=np.int64)
-    elapsed = np.empty(n_vec)
-    _simulate_powertrain(pp, mp, x0, tm0, dt_, sp, f, amb, lim, float(fault_drag), float(max_dt),
-                         bool(stop_on_failure), bool(record), *rec,
-                         final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed)
-    recorded = dict(zip(("pack_voltage", "pack_current", "pack_temp", "pack_soc", "motor_current", "motor_temp"),
-                        rec)) if record else {}
-    return PowertrainRun(final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed,
-                         **recorded)
+    # both motors are one type: the same parameter vector on each
+    mp = np.repeat(mp[:, None, :], N_MOTORS, axis=1)
+    return simulate_vehicle(PAPER_TOPOLOGY.with_limits(*limits), pp, mp, x0, motor_temp0, dt, shaft_power, ambient,
+                            fault, fault_drag=fault_drag, max_dt=max_dt, stop_on_failure=stop_on_failure,
+                            record=record)

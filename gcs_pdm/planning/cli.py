@@ -29,6 +29,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--mission", type=Path, default=None, help="also write the mission (QGC WPL 110) here")
     p.add_argument("--on-ground", action="store_true", help="mission starts with the take-off (default: airborne)")
     p.add_argument("--json", action="store_true", help="print the plan as JSON")
+    p.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
+                   help="plan for a vehicle description (docs/vehicles.md): its packs, topology, airframe power, "
+                        "limits and reserve (the scenario's start powertrain and faults are not used)")
+    p.add_argument("--motor-fault", action="append", default=[], metavar="MOTOR=MAGNITUDE",
+                   help="with --vehicle: a motor power loss by the description's motor name (repeatable)")
     p.set_defaults(func=cmd_plan)
 
     e = subparsers.add_parser("experiment", help="rebuild the paper's Table III",
@@ -65,9 +70,26 @@ def cmd_plan(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError) as exc:
         print(f"error: {args.scenario}: {exc}")
         return 2
+    vehicle, motor_faults = None, {}
+    if args.vehicle:
+        from gcs_pdm.vehicle.description import VehicleError, resolve
+
+        try:
+            vehicle = resolve(args.vehicle)
+            for spec in args.motor_fault:
+                name, _, mag = spec.partition("=")
+                motor_faults[name] = float(mag)
+        except (VehicleError, ValueError) as exc:
+            print(f"error: {exc}")
+            return 2
     t0 = time.perf_counter()
-    plan = plan_scenario(scenario, args.planner, particles=args.particles, seed=args.seed, dt_s=args.dt,
-                         optimise_airspeed=args.optimise_airspeed, should_stop=_deadline(args.deadline))
+    try:
+        plan = plan_scenario(scenario, args.planner, particles=args.particles, seed=args.seed, dt_s=args.dt,
+                             optimise_airspeed=args.optimise_airspeed, should_stop=_deadline(args.deadline),
+                             vehicle=vehicle, motor_faults=motor_faults or None)
+    except ValueError as exc:
+        print(f"error: {exc}")
+        return 2
     elapsed = time.perf_counter() - t0
     mission = plan_to_mission(scenario, plan, airborne=not args.on_ground)
     if args.mission is not None:

@@ -32,14 +32,18 @@ class Plan:
     final_motor_temp_c: tuple[float, ...]
     leg_airspeed_mps: tuple[float, ...] = ()
     stats: dict[str, Any] = field(default_factory=dict)
+    #: what the rows of final_soc/final_*_temp_c are (a vehicle description's, or the paper's)
+    pack_names: tuple[str, ...] = PACK_NAMES
+    motor_names: tuple[str, ...] = ("fwd", "aft")
 
     def to_dict(self) -> dict[str, Any]:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__}
         d["route"] = list(self.route)
         d["numbers"] = list(self.numbers)
-        d["final_soc"] = dict(zip(PACK_NAMES, self.final_soc))
-        d["final_pack_temp_c"] = dict(zip(PACK_NAMES, self.final_pack_temp_c))
-        d["final_motor_temp_c"] = {"fwd": self.final_motor_temp_c[0], "aft": self.final_motor_temp_c[1]}
+        packs, motors = d.pop("pack_names"), d.pop("motor_names")
+        d["final_soc"] = dict(zip(packs, self.final_soc))
+        d["final_pack_temp_c"] = dict(zip(packs, self.final_pack_temp_c))
+        d["final_motor_temp_c"] = dict(zip(motors, self.final_motor_temp_c))
         d["leg_airspeed_mps"] = list(self.leg_airspeed_mps)
         return d
 
@@ -59,7 +63,8 @@ def make_plan(sim: VehicleSimulator, route: Sequence[int], planner: str, theta: 
         final_soc=tuple(float(v) for v in ev.final_soc[0]),
         final_pack_temp_c=tuple(float(v) for v in ev.final_pack_temp[0]),
         final_motor_temp_c=tuple(float(v) for v in ev.final_motor_temp[0]),
-        leg_airspeed_mps=speeds, stats=dict(stats))
+        leg_airspeed_mps=speeds, stats=dict(stats),
+        **({} if sim.vehicle is None else {"pack_names": sim.vehicle.pack_names, "motor_names": sim.vehicle.motor_names}))
 
 
 def better(reward_a: float, obj_a: float, reward_b: float, obj_b: float, tol: float = 1e-9) -> bool:

@@ -72,9 +72,12 @@ def run_planner(name: str, sim: VehicleSimulator, *, particles: int = 30, seed=0
 def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: ParameterSet | None = None,
                   particles: int = 30, seed: int = 0, theta: Sequence[float] = DEFAULT_THETA,
                   dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
-                  should_stop: StopCheck | None = None) -> Plan:
-    """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set);
-    the CLI's entry (the service builds its simulator itself: ``service.adapters.plan_candidates``)."""
+                  should_stop: StopCheck | None = None, vehicle=None,
+                  motor_faults: dict[str, float] | None = None) -> Plan:
+    """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set), or
+    on a vehicle description (``vehicle``, with ``motor_faults`` by its motor names); the CLI's entry
+    (the service builds its simulator itself: ``service.adapters.plan_candidates``)."""
     entry = resolve(planner)
-    sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed)
+    sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed, vehicle=vehicle,
+                           motor_faults=motor_faults)
     return entry.run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)

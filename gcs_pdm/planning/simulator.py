@@ -25,7 +25,7 @@ cost ``C_p`` is the electrical energy drawn, in MJ.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -34,6 +34,7 @@ from gcs_pdm.models import kernel
 from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
                                        fault_vector, shaft_power)
+from gcs_pdm.models.topology import simulate_vehicle
 from gcs_pdm.planning.scenario import Scenario
 
 #: safety margins on the verdicts of coarse (> 1 s) planning steps; see _set_verdict_limits
@@ -140,24 +141,72 @@ class VehicleSimulator:
 
     def __init__(self, scenario: Scenario, params: ParameterSet | None = None, *, dt_s: float = DEFAULT_DT_S,
                  optimise_airspeed: bool = False, airspeed_candidates: Sequence[float] | None = None,
-                 airframe: Airframe = EDGE_540, state: PowertrainState | None = None) -> None:
+                 airframe: Airframe = EDGE_540, state: PowertrainState | None = None, vehicle=None,
+                 motor_faults: dict[str, float] | None = None) -> None:
+        """``vehicle``: a ``VehicleDescription`` to fly instead of the paper's aircraft: its packs,
+        motors and topology (``models.topology``), its airframe's power model, its limits and
+        landing reserve; ``motor_faults`` then names its motors ({"m2": 0.3}); ``state`` defaults
+        to full packs at the ground temperature. The scenario's waypoints and airspeeds are used
+        as they are (they must suit the vehicle)."""
         if dt_s <= 0:
             raise ValueError(f"dt_s: must be > 0, got {dt_s}")
         self.scenario = scenario
-        self.params = params if params is not None else scenario.parameter_set()
+        self.params = params if params is not None or vehicle is not None else scenario.parameter_set()
         self.dt_s = float(dt_s)
         self.airframe = airframe
+        self.vehicle = vehicle
         self.n = len(scenario.waypoints)
         self.start_node = self.n
         self.landing_node = self.n + 1
         self.rewards = np.array([w.reward for w in scenario.waypoints] + [0.0, 0.0])
-        self._pp = self.params.pack_matrix()[None]
-        self._mp = self.params.motor_vector()[None]
-        self._fault = fault_vector(list(scenario.faults))[None]
-        self._set_verdict_limits()
         self._t_ground = scenario.home.ground_temp_c
-        self.initial = state if state is not None else scenario.start.powertrain(self.params)
+        if vehicle is None:
+            self._inputs = None
+            self._pp = self.params.pack_matrix()[None]
+            self._mp = self.params.motor_vector()[None]
+            self._fault = fault_vector(list(scenario.faults))[None]
+            self.initial = state if state is not None else scenario.start.powertrain(self.params)
+        else:
+            self._init_vehicle(vehicle, motor_faults or {}, state)
+        self._set_verdict_limits()
         self.legs = self._leg_table(optimise_airspeed, airspeed_candidates)
+
+    def _init_vehicle(self, vehicle, motor_faults: dict[str, float], state: PowertrainState | None) -> None:
+        from gcs_pdm.vehicle.model_inputs import model_inputs, powertrain_airframe, shaft_power_model
+
+        inputs = self._inputs = model_inputs(vehicle)
+        unknown = set(motor_faults) - set(inputs.motor_names)
+        if unknown:
+            raise ValueError(f"motor_faults: no motor {sorted(unknown)[0]!r}; have {', '.join(inputs.motor_names)}")
+        self._pp = inputs.pack_matrix[None]
+        self._mp = inputs.motor_matrix[None]
+        self._fault = np.array([[float(motor_faults.get(n, 0.0)) for n in inputs.motor_names]])
+        if state is None:
+            t0 = self._t_ground
+            state = PowertrainState(kernel.initial_pack_state(inputs.pack_matrix, 1.0, t0),
+                                    np.full(inputs.n_motors, float(t0)))
+        self.initial = state
+        self.airframe = powertrain_airframe(vehicle)
+        self._vehicle_power = shaft_power_model(vehicle)
+
+    def _shaft_power(self, airspeed: float, climb: float, rho: float) -> float:
+        """The airframe's power model: the drag polar, or momentum theory for a multirotor."""
+        if self.vehicle is None:
+            return float(shaft_power(airspeed, climb, rho, self.airframe))
+        return float(self._vehicle_power(airspeed, climb, rho))
+
+    def _simulate(self, x: np.ndarray, motor_temp: np.ndarray, dt: np.ndarray, power: np.ndarray,
+                  ambient: np.ndarray, *, verdict: bool) -> kernel.PowertrainRun:
+        """One batched kernel call; ``verdict``: with the verdict limits, stopping at a failure."""
+        if self._inputs is None:
+            if verdict:
+                return kernel.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
+                                                  limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
+            return kernel.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
+                                              fault_drag=0.1, max_dt=self.dt_s)
+        topo = self._topology if verdict else self._inputs.topology.with_limits(-np.inf, np.inf, np.inf)
+        return simulate_vehicle(topo, self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
+                                max_dt=self.dt_s, stop_on_failure=verdict)
 
     def _set_verdict_limits(self) -> None:
         # A constant-power load takes its current from the voltage at each step's start, so coarse
@@ -165,6 +214,13 @@ class VehicleSimulator:
         # 10 s vs 1 s). A plan must never be feasible at the planning step yet fail at fine steps:
         # coarse verdicts get a margin of several times that bias.
         coarse = self.dt_s > 1.0
+        if self._inputs is not None:
+            topo = self._inputs.topology
+            self._topology = replace(topo, pack_cutoff_v=topo.pack_cutoff_v + (VERDICT_MARGIN_V if coarse else 0.0),
+                                     pack_max_temp_c=topo.pack_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0),
+                                     motor_max_temp_c=topo.motor_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0))
+            self._reserve = self.vehicle.landing_reserve + (VERDICT_MARGIN_SOC if coarse else 0.0)
+            return
         lim = self.scenario.limits.kernel_limits().as_tuple()
         self._limits = (lim[0] + (VERDICT_MARGIN_V if coarse else 0.0),
                         lim[1] - (VERDICT_MARGIN_C if coarse else 0.0),
@@ -190,7 +246,7 @@ class VehicleSimulator:
         climb = dz / t if t > 0 else 0.0
         mid_alt = sc.home.ground_alt_m + 0.5 * (a[2] + b[2])
         rho = float(air_density(mid_alt, sc.home.ground_temp_c))
-        p = float(shaft_power(airspeed, climb, rho, self.airframe))
+        p = self._shaft_power(airspeed, climb, rho)
         amb = float(ambient_temperature(mid_alt, sc.home.ground_temp_c, sc.home.ground_alt_m))
         return t, dist, p, amb, airspeed
 
@@ -199,7 +255,9 @@ class VehicleSimulator:
         m = len(places)
         sc = self.scenario
         af = self.airframe
-        if candidates is None:
+        if candidates is None and self.vehicle is not None and self.vehicle.airframe.type == "multirotor":
+            candidates = np.arange(2.0, self.vehicle.airframe.max_airspeed + 1e-9, 2.0)
+        elif candidates is None:
             candidates = np.arange(max(af.stall_airspeed + 4.0, 16.0), min(af.max_airspeed, 32.0) + 1e-9, 2.0)
         info = np.zeros((m, m, 5))
         for i in range(m):
@@ -228,10 +286,9 @@ class VehicleSimulator:
             dt[r, :k] = p[0] / k
             pw[r, :k] = p[2]
             am[r, :k] = p[3]
-        x0 = np.broadcast_to(self.initial.pack_state, (len(rows), 4, 4))
-        tm0 = np.broadcast_to(self.initial.motor_temp_c, (len(rows), 2))
-        run = kernel.simulate_powertrain(self._pp, self._mp, x0, tm0, dt, pw, am, self._fault,
-                                         fault_drag=0.1, max_dt=self.dt_s)
+        x0 = np.broadcast_to(self.initial.pack_state, (len(rows),) + np.shape(self.initial.pack_state))
+        tm0 = np.broadcast_to(self.initial.motor_temp_c, (len(rows), np.size(self.initial.motor_temp_c)))
+        run = self._simulate(x0, tm0, dt, pw, am, verdict=False)
         energy = run.energy_j.reshape(len(pairs), len(candidates))
         out = info.copy()
         for r, (i, j) in enumerate(pairs):
@@ -255,9 +312,8 @@ class VehicleSimulator:
         used = int(self.legs.steps[frm, to].max()) if len(to) else 0
         used = max(used, 1)
         dt = self.legs.dt[frm, to, :used]
-        run = kernel.simulate_powertrain(self._pp, self._mp, state.x, state.motor_temp, dt,
-                                         self.legs.power[frm, to, :used], self.legs.ambient[frm, to, :used],
-                                         self._fault, limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
+        run = self._simulate(state.x, state.motor_temp, dt, self.legs.power[frm, to, :used],
+                             self.legs.ambient[frm, to, :used], verdict=True)
         ok = ~run.failed
         new = FlightState(
             x=run.final_pack_state, motor_temp=run.final_motor_temp, node=to,
@@ -289,10 +345,14 @@ class VehicleSimulator:
         return self._stress(state) + (1.0 - soc), state.energy_j / 1e6
 
     def _stress(self, state: FlightState) -> np.ndarray:
-        lim = self.scenario.limits
+        if self._inputs is None:
+            pack_max, motor_max = self.scenario.limits.pack_max_temp_c, self.scenario.limits.motor_max_temp_c
+        else:
+            pack_max = float(self._inputs.pack_max_temp_c.min())
+            motor_max = float(self._inputs.motor_max_temp_c.min())
         t0 = self._t_ground
-        stress = np.maximum((state.peak_pack_c - t0) / max(lim.pack_max_temp_c - t0, 1e-6),
-                            (state.peak_motor_c - t0) / max(lim.motor_max_temp_c - t0, 1e-6))
+        stress = np.maximum((state.peak_pack_c - t0) / max(pack_max - t0, 1e-6),
+                            (state.peak_motor_c - t0) / max(motor_max - t0, 1e-6))
         return np.maximum(stress, 0.0)
 
     def _outcome(self, final: FlightState, cause: np.ndarray, reward_reached: np.ndarray) -> Outcome:
@@ -332,8 +392,10 @@ class VehicleSimulator:
         B = len(routes)
         if B == 0:
             z = np.zeros(0)
-            return RouteEvaluation(z.astype(bool), z.astype(np.int64), z, z, z, z, np.zeros((0, 4)), np.zeros((0, 4)),
-                                   np.zeros((0, 2)), z, fail_leg=z.astype(np.int64), reached=z.astype(np.int64))
+            n_packs, n_motors = self._pp.shape[1], np.size(self.initial.motor_temp_c)
+            return RouteEvaluation(z.astype(bool), z.astype(np.int64), z, z, z, z, np.zeros((0, n_packs)),
+                                   np.zeros((0, n_packs)), np.zeros((0, n_motors)), z, fail_leg=z.astype(np.int64),
+                                   reached=z.astype(np.int64))
         # routes as a node matrix: start, waypoints, landing, then landing again as padding (a
         # landing→landing leg has no samples)
         lens = np.fromiter((len(r) for r in routes), dtype=np.int64, count=B)
@@ -366,8 +428,7 @@ class VehicleSimulator:
         pw[bi, pos] = legs.power[frm, to].reshape(B, -1)[bi, ki]
         am[bi, pos] = legs.ambient[frm, to].reshape(B, -1)[bi, ki]
         st = self.start_state(B)
-        run = kernel.simulate_powertrain(self._pp, self._mp, st.x, st.motor_temp, dt, pw, am, self._fault,
-                                         limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
+        run = self._simulate(st.x, st.motor_temp, dt, pw, am, verdict=True)
         failed = run.fail_step >= 0
         ends = np.cumsum(steps, axis=1)                   # sample index just past each leg
         fail_leg = np.where(failed, (ends <= run.fail_step[:, None]).sum(axis=1), -1)

@@ -6,6 +6,7 @@ import json
 import logging
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,9 @@ def register(subparsers) -> None:
     p.add_argument("--no-autostart", action="store_true",
                    help="wait for ARM + MISSION_START (or AUTO) instead of taking off once a mission is loaded")
     p.add_argument("--start-delay", type=float, default=5.0, help="s on the ground before an automatic take-off")
+    p.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
+                   help="fly a vehicle description (docs/vehicles.md) instead of the paper's aircraft: its packs, "
+                        "motors, airframe and telemetry layout (--params, --truth-seed and --degrade do not apply)")
     p.add_argument("--seed", type=int, default=0, help="sensor noise and drop-out seed")
     p.add_argument("--truth-seed", type=int, default=None, help="seed of the hidden true parameters")
     p.add_argument("--params", help="true parameter set as JSON (instead of the hidden seeded truth)")
@@ -37,7 +41,8 @@ def register(subparsers) -> None:
     p.add_argument("--ground-temp", type=float, default=20.0, help="ambient temperature at the ground, °C")
     p.add_argument("--home", default="37.0870,-76.3800,0", help="home lat,lon,alt(m AMSL)")
     p.add_argument("--wind", default="0,0", help="wind east,north m/s (the direction it blows towards)")
-    p.add_argument("--airspeed", type=float, default=25.0, help="cruise airspeed m/s")
+    p.add_argument("--airspeed", type=float, default=None,
+                   help="cruise airspeed m/s (default 25, or the vehicle description's cruise speed)")
     p.add_argument("--rate", action="append", default=[], metavar="MSG=HZ",
                    help="telemetry rate, e.g. BATTERY_STATUS=5 (repeatable)")
     p.add_argument("--drop-rate", type=float, default=0.01, help="probability of losing a periodic message")
@@ -65,8 +70,19 @@ def build_config(args: argparse.Namespace):
     from gcs_pdm.sim.telemetry import DEFAULT_RATES, TelemetryConfig
     from gcs_pdm.sim.truth import DEFAULT_TRUTH_SEED
 
+    desc = None
+    if getattr(args, "vehicle", None):
+        from gcs_pdm.vehicle.description import VehicleError, resolve
+
+        try:
+            desc = resolve(args.vehicle)
+        except VehicleError as exc:
+            raise SystemExit(f"sim: {exc}") from None
+        if args.params or args.degrade or args.truth_seed is not None:
+            raise SystemExit("sim: --params, --truth-seed and --degrade do not apply to --vehicle")
     try:
-        faults = tuple(parse_fault(f) for f in args.fault)
+        motors = desc.motor_names if desc is not None else None
+        faults = tuple(parse_fault(f, motors) if motors else parse_fault(f) for f in args.fault)
         degradations = tuple(parse_degradation(d) for d in args.degrade)
     except FaultSpecError as exc:
         raise SystemExit(f"sim: {exc}") from None
@@ -83,11 +99,21 @@ def build_config(args: argparse.Namespace):
         if name not in DEFAULT_RATES:
             raise SystemExit(f"--rate: unknown message {name!r}; known: {', '.join(sorted(DEFAULT_RATES))}")
         rates[name] = float(hz)
+    if desc is not None:
+        from gcs_pdm.sim.model import vehicle_config
+
+        config = vehicle_config(desc, seed=args.seed, home_lat_deg=lat, home_lon_deg=lon, home_alt_m=alt,
+                                ground_temp_c=args.ground_temp, initial_soc=args.soc, faults=faults,
+                                wind_en_mps=_pair(args.wind, "wind", 2), mission=mission,
+                                autostart=not args.no_autostart, start_delay_s=args.start_delay)
+        if args.airspeed is not None:
+            config = replace(config, cruise_airspeed_mps=args.airspeed)
+        return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate)
     config = SimConfig(
         seed=args.seed, truth_seed=args.truth_seed if args.truth_seed is not None else DEFAULT_TRUTH_SEED,
         params=params, home_lat_deg=lat, home_lon_deg=lon, home_alt_m=alt, ground_temp_c=args.ground_temp,
         initial_soc=args.soc, faults=faults, degradations=degradations, wind_en_mps=_pair(args.wind, "wind", 2),
-        cruise_airspeed_mps=args.airspeed, mission=mission, autostart=not args.no_autostart,
+        cruise_airspeed_mps=args.airspeed if args.airspeed is not None else 25.0, mission=mission, autostart=not args.no_autostart,
         start_delay_s=args.start_delay)
     return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate)
 
@@ -100,8 +126,10 @@ def run(args: argparse.Namespace) -> int:
             print("sim --record: needs --mission", file=sys.stderr)
             return 2
         rec = fly(config, telemetry, args.record)
-        truth = {"parameters": config.truth().to_dict(), "faults": rec.fault_log, "reached": rec.reached,
-                 "initial_soc": [float(x) for x in np.broadcast_to(config.initial_soc, (4,))],
+        n_packs = 4 if config.vehicle is None else len(config.vehicle.packs)
+        truth = {"parameters": config.truth().to_dict() if config.vehicle is None else config.vehicle.to_dict(),
+                 "faults": rec.fault_log, "reached": rec.reached,
+                 "initial_soc": [float(x) for x in np.broadcast_to(config.initial_soc, (n_packs,))],
                  "failed": rec.final.failed, "failure": rec.final.failure, "duration_s": rec.final.time_s,
                  "energy_j": rec.final.energy_j}
         Path(args.record).with_suffix(".truth.json").write_text(json.dumps(truth, indent=1))
@@ -119,8 +147,8 @@ def run(args: argparse.Namespace) -> int:
             s = vehicle.state
             line = (f"t={s.time_s:7.1f}s {s.mode:<6} item {s.current_seq:>2} alt {s.alt_m:6.1f} m "
                     f"{s.airspeed_mps:4.1f} m/s  packs {' '.join(f'{v:5.2f}' for v in s.pack_voltage_v)} V "
-                    f"motors {s.motor_current_a[0]:5.1f}/{s.motor_current_a[1]:5.1f} A "
-                    f"{s.motor_temp_c[0]:5.1f}/{s.motor_temp_c[1]:5.1f} C" + (f"  FAILED: {s.failure}" if s.failed else ""))
+                    f"motors {'/'.join(f'{i:5.1f}' for i in s.motor_current_a)} A "
+                    f"{'/'.join(f'{t:5.1f}' for t in s.motor_temp_c)} C" + (f"  FAILED: {s.failure}" if s.failed else ""))
             if time.monotonic() >= next_print:
                 print(line, flush=True)
                 next_print += 5.0

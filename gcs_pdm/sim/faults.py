@@ -105,14 +105,14 @@ def parse_trigger(text: str, spec: str = "") -> FaultTrigger:
     raise FaultSpecError(f"{spec!r}: unknown trigger {kind!r}; use t:<s>, wp:<n> or leg:<a>-<b>")
 
 
-def parse_fault(text: str) -> FaultSpec:
-    """``motor:aft:0.8@leg:2-3`` → FaultSpec."""
+def parse_fault(text: str, motors: tuple[str, ...] = MOTOR_NAMES) -> FaultSpec:
+    """``motor:aft:0.8@leg:2-3`` → FaultSpec; ``motors``: the vehicle's motor names."""
     m = _FAULT_RE.match(text.strip())
     if not m:
-        raise FaultSpecError(f"{text!r}: expected motor:<fwd|aft>:<magnitude>@<t:s|wp:n|leg:a-b>")
+        raise FaultSpecError(f"{text!r}: expected motor:<{'|'.join(motors)}>:<magnitude>@<t:s|wp:n|leg:a-b>")
     motor = m["motor"]
-    if motor not in MOTOR_NAMES:
-        raise FaultSpecError(f"{text!r}: motor must be one of {', '.join(MOTOR_NAMES)}, got {motor!r}")
+    if motor not in motors:
+        raise FaultSpecError(f"{text!r}: motor must be one of {', '.join(motors)}, got {motor!r}")
     magnitude = float(m["mag"])
     if not 0.0 <= magnitude <= 1.0:
         raise FaultSpecError(f"{text!r}: magnitude must be within [0, 1], got {magnitude}")

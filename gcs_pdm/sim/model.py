@@ -31,6 +31,7 @@ from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, Limits, air_density, ambient_temperature, shaft_power,
                                        shaft_rpm)
+from gcs_pdm.models.topology import simulate_vehicle
 from gcs_pdm.sim import flight
 from gcs_pdm.sim.faults import Degradation, FaultSpec, apply_degradation
 from gcs_pdm.sim.flight import FlightLimits, Kinematics
@@ -47,6 +48,8 @@ MODE_MANUAL = "MANUAL"
 MODE_AUTO = "AUTO"
 MODE_RTL = "RTL"
 PLANE_MODES = {"MANUAL": 0, "AUTO": 10, "RTL": 11}
+# ArduCopter's numbers for the same behaviours (STABILIZE stands for MANUAL)
+COPTER_MODES = {"MANUAL": 0, "AUTO": 3, "RTL": 6}
 
 # severities (MAV_SEVERITY)
 SEVERITY_EMERGENCY = 0
@@ -81,10 +84,32 @@ class SimConfig:
     autostart: bool = True
     start_delay_s: float = 5.0
     fault_drag: float = 0.1  # kernel: drag of a faulted rotor that still spins
+    #: a ``VehicleDescription`` to fly instead of the paper's aircraft (build with ``vehicle_config``):
+    #: its packs and motors are the truth (``params``, ``truth_seed`` and ``degradations`` unused)
+    vehicle: object | None = None
 
     def truth(self) -> ParameterSet:
+        if self.vehicle is not None:
+            raise ValueError("truth: a described vehicle's truth is its description's model inputs")
         base = self.params if self.params is not None else true_parameters(self.truth_seed)
         return apply_degradation(base, self.degradations)
+
+
+def vehicle_config(desc, **kw) -> SimConfig:
+    """A ``SimConfig`` flying ``desc`` (a ``VehicleDescription``): its airframe, cruise speed and
+    climb rate; a multirotor lifts off and lands vertically (no ground roll, a steep approach)."""
+    from gcs_pdm.vehicle.model_inputs import powertrain_airframe
+
+    airframe = powertrain_airframe(desc)
+    if desc.airframe.type == "multirotor":
+        limits = FlightLimits(max_climb_mps=desc.climb_rate_mps, max_sink_mps=desc.climb_rate_mps,
+                              rotate_airspeed_mps=0.0, takeoff_climb_mps=desc.climb_rate_mps,
+                              acceptance_radius_m=5.0, glide_slope_deg=60.0, max_bank_deg=25.0)
+    else:
+        limits = FlightLimits(max_climb_mps=desc.climb_rate_mps,
+                              rotate_airspeed_mps=desc.airframe.stall_airspeed + 2.0)
+    return SimConfig(vehicle=desc, airframe=airframe, flight_limits=limits,
+                     cruise_airspeed_mps=desc.cruise_speed_mps, **kw)
 
 
 @dataclass(frozen=True)
@@ -140,6 +165,14 @@ class TruthState:
     fault: np.ndarray  # (2,) magnitudes in force
     energy_j: float  # electrical energy drawn by the motors
     distance_m: float  # flown over ground
+    #: the telemetry layout (a vehicle description's; these defaults are the paper's aircraft)
+    pack_ids: tuple[int, ...] = (0, 1, 2, 3)
+    pack_reports_temperature: tuple[bool, ...] = (True, True, True, True)
+    esc_index: tuple[int, ...] = (0, 1)
+    motor_readings: tuple[tuple[bool, bool, bool], ...] = ((True, True, True), (True, True, True))
+    motor_charge_c: np.ndarray | None = None  # per motor, drawn since boot (None: its string's first pack)
+    mav_type: int = 1
+    multirotor: bool = False
 
 
 class VehicleModel:
@@ -147,10 +180,24 @@ class VehicleModel:
 
     def __init__(self, config: SimConfig):
         self.config = config
-        self.params = config.truth()
-        self._pack_matrix = self.params.pack_matrix()
-        self._motor_vector = self.params.motor_vector()
-        self._motor_rows = np.tile(self._motor_vector, (2, 1))
+        if config.vehicle is None:
+            self.params = config.truth()
+            self._pack_matrix = self.params.pack_matrix()
+            self._motor_vector = self.params.motor_vector()
+            self._motor_rows = np.tile(self._motor_vector, (2, 1))
+            self._inputs = None
+            self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
+        else:
+            from gcs_pdm.vehicle.model_inputs import model_inputs, shaft_power_model
+
+            self.params = None
+            self._inputs = model_inputs(config.vehicle)
+            self._pack_matrix = self._inputs.pack_matrix
+            self._motor_rows = self._inputs.motor_matrix
+            self._topology = self._inputs.topology
+            self._vehicle_power = shaft_power_model(config.vehicle)
+            self.pack_names, self.motor_names = self._inputs.pack_names, self._inputs.motor_names
+        n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.time_s = 0.0
         self.kin = Kinematics()
         self.mode = MODE_MANUAL
@@ -162,7 +209,7 @@ class VehicleModel:
         self.current_seq = 0
         self.mission_complete = False
         self.target_airspeed = config.cruise_airspeed_mps
-        self.fault = np.zeros(2)
+        self.fault = np.zeros(n_motors)
         self.fault_log: list[dict] = []  # one entry per fault that triggered
         self.reached_log: list[tuple[int, float]] = []
         self._pending_faults = list(config.faults)
@@ -173,16 +220,17 @@ class VehicleModel:
         self._ready_at: float | None = None
         self._rtl_landing = False
         self._takeoff_heading: float | None = None
-        soc = np.broadcast_to(np.asarray(config.initial_soc, dtype=float), (4,)).copy()
+        soc = np.broadcast_to(np.asarray(config.initial_soc, dtype=float), (n_packs,)).copy()
         if np.any((soc <= 0) | (soc > 1)):
             raise ValueError(f"initial_soc: must be within (0, 1], got {config.initial_soc!r}")
         self.initial_soc = soc
         self.pack_state = kernel.initial_pack_state(self._pack_matrix, soc, config.ground_temp_c)
-        self.motor_temp = np.full(2, float(config.ground_temp_c))
-        self.pack_current = np.zeros(4)
-        self.motor_current = np.zeros(2)
-        self.pack_charge = np.zeros(4)
-        self.pack_energy = np.zeros(4)
+        self.motor_temp = np.full(n_motors, float(config.ground_temp_c))
+        self.pack_current = np.zeros(n_packs)
+        self.motor_current = np.zeros(n_motors)
+        self.pack_charge = np.zeros(n_packs)
+        self.motor_charge = np.zeros(n_motors)
+        self.pack_energy = np.zeros(n_packs)
         self.energy_j = 0.0
         self.distance_m = 0.0
         self.shaft_power_w = 0.0
@@ -284,7 +332,7 @@ class VehicleModel:
 
     def inject_fault(self, motor: str, magnitude: float, reason: str = "injected") -> None:
         """Switch a motor power loss on now (it compounds with any earlier fault on that motor)."""
-        i = MOTOR_NAMES.index(motor)
+        i = self.motor_names.index(motor)
         self.fault[i] = 1.0 - (1.0 - self.fault[i]) * (1.0 - float(magnitude))
         entry = {"motor": motor, "magnitude": float(magnitude), "time_s": self.time_s, "reason": reason,
                  "current_seq": self.current_seq, "last_reached_seq": self._last_reached,
@@ -406,6 +454,8 @@ class VehicleModel:
     def _flight_power(self) -> float:
         k, c = self.kin, self.config
         rho = float(air_density(c.home_alt_m + k.alt_m, c.ground_temp_c))
+        if self._inputs is not None:
+            return float(self._vehicle_power(k.airspeed_mps, k.climb_mps, rho))
         return float(shaft_power(k.airspeed_mps, k.climb_mps, rho, c.airframe))
 
     def _fly_takeoff(self, dt: float, item: MissionItem) -> tuple[float, bool]:
@@ -584,23 +634,31 @@ class VehicleModel:
         self.shaft_power_w = power if motors_on else 0.0
         if not motors_on:
             # resting: no current through packs or motors
-            zero = np.zeros((4, 1))
-            run = kernel.simulate_packs(self._pack_matrix, self.pack_state, np.full((4, 1), dt), zero, amb)
+            n_packs, n_motors = len(self.pack_names), len(self.motor_names)
+            zero = np.zeros((n_packs, 1))
+            run = kernel.simulate_packs(self._pack_matrix, self.pack_state, np.full((n_packs, 1), dt), zero, amb)
             self.pack_state = run.final_state
             # one parameter row per motor: the kernel sizes its loop by the parameter rows
-            self.motor_temp = kernel.simulate_motor_thermal(self._motor_rows, self.motor_temp, np.full((2, 1), dt),
-                                                            np.zeros((2, 1)), amb)[:, -1]
-            self.pack_current = np.zeros(4)
-            self.motor_current = np.zeros(2)
+            self.motor_temp = kernel.simulate_motor_thermal(self._motor_rows, self.motor_temp,
+                                                            np.full((n_motors, 1), dt), np.zeros((n_motors, 1)),
+                                                            amb)[:, -1]
+            self.pack_current = np.zeros(n_packs)
+            self.motor_current = np.zeros(n_motors)
             return
-        run = kernel.simulate_powertrain(
-            self._pack_matrix[None], self._motor_vector[None], self.pack_state[None], self.motor_temp[None],
-            np.array([dt]), np.array([power]), amb, self.fault[None], limits=c.limits.as_tuple(),
-            fault_drag=c.fault_drag, record=True, stop_on_failure=False)
+        if self._inputs is None:
+            run = kernel.simulate_powertrain(
+                self._pack_matrix[None], self._motor_vector[None], self.pack_state[None], self.motor_temp[None],
+                np.array([dt]), np.array([power]), amb, self.fault[None], limits=c.limits.as_tuple(),
+                fault_drag=c.fault_drag, record=True, stop_on_failure=False)
+        else:
+            run = simulate_vehicle(self._topology, self._pack_matrix[None], self._motor_rows[None],
+                                   self.pack_state[None], self.motor_temp[None], np.array([dt]), np.array([power]),
+                                   amb, self.fault[None], fault_drag=c.fault_drag, record=True, stop_on_failure=False)
         self.pack_state = run.final_pack_state[0]
         self.motor_temp = run.final_motor_temp[0]
         self.pack_current = run.pack_current[0, -1].copy()
         self.motor_current = run.motor_current[0, -1].copy()
+        self.motor_charge += self.motor_current * dt
         self.pack_charge += run.charge_c[0]
         v = run.pack_voltage[0, -1]
         self.pack_energy += v * self.pack_current * dt
@@ -627,12 +685,12 @@ class VehicleModel:
         lim = self.config.limits
         if cause in (kernel.FAIL_UNDERVOLTAGE, kernel.FAIL_DEPLETED):
             v = kernel.terminal_voltage(self._pack_matrix, self.pack_state)
-            return f" ({PACK_NAMES[int(np.argmin(v))]})"
+            return f" ({self.pack_names[int(np.argmin(v))]})"
         if cause == kernel.FAIL_PACK_OVERTEMP:
             t = self.pack_state[:, kernel.S_T]
-            return f" ({PACK_NAMES[int(np.argmax(t))]} {t.max():.0f}C>{lim.pack_max_temp_c:g})"
+            return f" ({self.pack_names[int(np.argmax(t))]} {t.max():.0f}C>{lim.pack_max_temp_c:g})"
         if cause == kernel.FAIL_MOTOR_OVERTEMP:
-            return f" ({MOTOR_NAMES[int(np.argmax(self.motor_temp))]} {self.motor_temp.max():.0f}C)"
+            return f" ({self.motor_names[int(np.argmax(self.motor_temp))]} {self.motor_temp.max():.0f}C)"
         return ""
 
     # ---- observation -------------------------------------------------------------------------
@@ -657,6 +715,12 @@ class VehicleModel:
         lat, lon = geodetic_from_enu(k.east_m, k.north_m, c.home_lat_deg, c.home_lon_deg)
         rho = float(air_density(c.home_alt_m + k.alt_m, c.ground_temp_c))
         v = kernel.terminal_voltage(self._pack_matrix, self.pack_state)
+        layout = {} if self._inputs is None else self._layout(v, rho)
+        motor_v = layout.pop("motor_voltage_v") if layout else np.array([v[0] + v[2], v[1] + v[3]])
+        rpm = float(shaft_rpm(self.shaft_power_w, rho, c.airframe)) if self.shaft_power_w > 0 else 0.0
+        if layout.get("multirotor"):
+            # each rotor turns its own share of the power
+            rpm = float(shaft_rpm(self.shaft_power_w / len(self.motor_names), rho, c.airframe)) if rpm else 0.0
         return TruthState(
             time_s=self.time_s, armed=self.armed, mode=self.mode, on_ground=k.on_ground, landed=self.landed,
             failed=self.failed, failure=self.failure, current_seq=self.current_seq, mission_count=len(self.mission),
@@ -664,11 +728,27 @@ class VehicleModel:
             lon_deg=lon, alt_amsl_m=c.home_alt_m + k.alt_m, heading_deg=math.degrees(k.heading_rad) % 360.0,
             airspeed_mps=k.airspeed_mps, groundspeed_mps=k.groundspeed_mps, climb_mps=k.climb_mps,
             vel_north_mps=k.vel_north_mps, vel_east_mps=k.vel_east_mps, shaft_power_w=self.shaft_power_w,
-            rpm=float(shaft_rpm(self.shaft_power_w, rho, c.airframe)) if self.shaft_power_w > 0 else 0.0,
+            rpm=rpm,
             ambient_c=self.ambient_c, air_density=rho, pack_voltage_v=v.copy(),
             pack_current_a=self.pack_current.copy(), pack_temp_c=self.pack_state[:, kernel.S_T].copy(),
             pack_soc=kernel.state_of_charge(self._pack_matrix, self.pack_state).copy(),
             pack_charge_c=self.pack_charge.copy(), pack_energy_j=self.pack_energy.copy(),
             motor_current_a=self.motor_current.copy(), motor_temp_c=self.motor_temp.copy(),
-            motor_voltage_v=np.array([v[0] + v[2], v[1] + v[3]]), fault=self.fault.copy(), energy_j=self.energy_j,
-            distance_m=self.distance_m)
+            motor_voltage_v=motor_v, fault=self.fault.copy(), energy_j=self.energy_j, distance_m=self.distance_m, **layout)
+
+    def _layout(self, v: np.ndarray, rho: float) -> dict:
+        """A described vehicle's telemetry layout and per-motor bus voltage for ``TruthState``."""
+        from gcs_pdm.vehicle.model_inputs import mav_type
+
+        desc, inputs = self.config.vehicle, self._inputs
+        bus_v = np.zeros(len(inputs.bus_parallel))
+        np.add.at(bus_v, inputs.bus_of_pack, v)
+        bus_v = np.where(inputs.bus_parallel, bus_v / np.bincount(inputs.bus_of_pack, minlength=len(bus_v)), bus_v)
+        return dict(motor_voltage_v=bus_v[inputs.bus_of_motor],
+                    pack_ids=tuple(p.mavlink_battery_id for p in desc.packs),
+                    pack_reports_temperature=tuple(p.reports_temperature for p in desc.packs),
+                    esc_index=tuple(m.esc_index for m in desc.motors),
+                    motor_readings=tuple((m.readings.current, m.readings.rpm, m.readings.temperature)
+                                         for m in desc.motors),
+                    motor_charge_c=self.motor_charge.copy(), mav_type=mav_type(desc),
+                    multirotor=desc.airframe.type == "multirotor")

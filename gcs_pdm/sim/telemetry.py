@@ -15,6 +15,10 @@ Wire choices the link maps (``gcs_pdm.mavlink.mapping.DEFAULT_MAPPING``):
   ``current`` cA, ``rpm`` (one shaft: both the same), ``temperature`` °C (the shared bracket sensor
   of the paper reads each motor here).
 * SCALED_PRESSURE ``temperature`` = ambient air, cdegC; every ``time_boot_ms`` is simulated time.
+* A described vehicle (``SimConfig.vehicle``) sends its own layout instead: BATTERY_STATUS at each
+  pack's ``mavlink_battery_id`` (temperature INT16_MAX when the pack has no sensor), each motor at
+  its ESC index (ESC_TELEMETRY_5_TO_8 … above 3; readings it lacks as 0), its HEARTBEAT type
+  (fixed wing, quad, hexa …) and, for a multirotor, ArduCopter's mode numbers.
 
 Pure: no sockets or clocks; the caller passes the simulated time and a seeded generator.
 """
@@ -26,11 +30,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs_pdm.mavlink.dialect import mavlink2
-from gcs_pdm.sim.model import PLANE_MODES, Event, TruthState
+from gcs_pdm.sim.model import COPTER_MODES, PLANE_MODES, Event, TruthState
 
 SYSTEM_ID = 1
 COMPONENT_ID = 1
 UINT16_MAX = 65535
+INT16_MAX = 32767
 
 #: default rates, Hz (live vehicle)
 DEFAULT_RATES: dict[str, float] = {
@@ -185,8 +190,9 @@ class Telemetry:
             status = mavlink2.MAV_STATE_ACTIVE
         else:
             status = mavlink2.MAV_STATE_STANDBY
-        return [self.mav.heartbeat_encode(mavlink2.MAV_TYPE_FIXED_WING, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
-                                          PLANE_MODES.get(s.mode, 0), status, 3)]
+        modes = COPTER_MODES if s.multirotor else PLANE_MODES
+        return [self.mav.heartbeat_encode(s.mav_type, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
+                                          modes.get(s.mode, 0), status, 3)]
 
     def sys_status(self, s: TruthState) -> list:
         sensors = (mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
@@ -205,32 +211,45 @@ class Telemetry:
     def battery_status(self, s: TruthState) -> list:
         nz = self.config.noise
         out = []
-        for i in range(4):
+        for i, battery_id in enumerate(s.pack_ids):
             v = float(s.pack_voltage_v[i]) + self._n(nz.voltage_v)
             cur = float(s.pack_current_a[i]) + (self._n(nz.current_a) if s.armed else 0.0)
             temp = float(s.pack_temp_c[i]) + self._n(nz.temperature_c)
             voltages = [_clip_int(v * 1000, 0, UINT16_MAX - 1)] + [UINT16_MAX] * 9
+            # a monitor without a temperature sensor sends INT16_MAX, as ArduPilot does
+            wire_temp = _clip_int(temp * 100, -32767, 32766) if s.pack_reports_temperature[i] else INT16_MAX
             out.append(self.mav.battery_status_encode(
-                i, mavlink2.MAV_BATTERY_FUNCTION_PROPULSION, mavlink2.MAV_BATTERY_TYPE_LIPO,
-                _clip_int(temp * 100, -32767, 32766), voltages, _clip_int(cur * 100, -32767, 32767),
+                battery_id, mavlink2.MAV_BATTERY_FUNCTION_PROPULSION, mavlink2.MAV_BATTERY_TYPE_LIPO,
+                wire_temp, voltages, _clip_int(cur * 100, -32767, 32767),
                 _clip_int(float(s.pack_charge_c[i]) / 3.6, 0, 2**31 - 1),
                 _clip_int(float(s.pack_energy_j[i]) / 100.0, 0, 2**31 - 1),
                 _clip_int(100 * float(s.pack_soc[i]), 0, 100)))
         return out
 
     def esc(self, s: TruthState) -> list:
+        """ESC_TELEMETRY_1_TO_4 (and 5_TO_8, … for higher ESC indices): each motor at its index, the
+        other indices zero, a reading the ESC does not have zero too (as ArduPilot sends them)."""
         nz = self.config.noise
-        temp, volt, cur, total, rpm = [0] * 4, [0] * 4, [0] * 4, [0] * 4, [0] * 4
+        blocks: dict[int, list[list[int]]] = {}
         shaft_rpm = s.rpm + (self._n(nz.rpm) if s.rpm > 0 else 0.0)
-        for q in range(2):
-            temp[q] = _clip_int(float(s.motor_temp_c[q]) + self._n(nz.temperature_c), 0, 255)
-            volt[q] = _clip_int((float(s.motor_voltage_v[q]) + self._n(nz.voltage_v)) * 100, 0, UINT16_MAX)
-            c = float(s.motor_current_a[q]) + (self._n(nz.current_a) if s.armed else 0.0)
-            cur[q] = _clip_int(c * 100, 0, UINT16_MAX)
-            # each motor's string carries its current: the string's packs' drawn charge
-            total[q] = _clip_int(float(s.pack_charge_c[q]) / 3.6, 0, UINT16_MAX)
-            rpm[q] = _clip_int(shaft_rpm, 0, UINT16_MAX)
-        return [self.mav.esc_telemetry_1_to_4_encode(temp, volt, cur, total, rpm, [0] * 4)]
+        for q, index in enumerate(s.esc_index):
+            temp, volt, cur, total, rpm = blocks.setdefault(index // 4, [[0] * 4 for _ in range(5)])
+            k = index % 4
+            has_current, has_rpm, has_temp = s.motor_readings[q]
+            if has_temp:
+                temp[k] = _clip_int(float(s.motor_temp_c[q]) + self._n(nz.temperature_c), 0, 255)
+            volt[k] = _clip_int((float(s.motor_voltage_v[q]) + self._n(nz.voltage_v)) * 100, 0, UINT16_MAX)
+            if has_current:
+                c = float(s.motor_current_a[q]) + (self._n(nz.current_a) if s.armed else 0.0)
+                cur[k] = _clip_int(c * 100, 0, UINT16_MAX)
+            # the paper's strings: a motor's string carries its current, so its first pack's charge
+            charge = s.pack_charge_c[q] if s.motor_charge_c is None else s.motor_charge_c[q]
+            total[k] = _clip_int(float(charge) / 3.6, 0, UINT16_MAX)
+            if has_rpm:
+                rpm[k] = _clip_int(shaft_rpm, 0, UINT16_MAX)
+        encoders = (self.mav.esc_telemetry_1_to_4_encode, self.mav.esc_telemetry_5_to_8_encode,
+                    self.mav.esc_telemetry_9_to_12_encode)
+        return [encoders[b](*blocks[b], [0] * 4) for b in sorted(blocks)]
 
     def scaled_pressure(self, s: TruthState) -> list:
         nz = self.config.noise

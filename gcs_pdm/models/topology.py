@@ -1,0 +1,277 @@
+"""The power-driven powertrain for any vehicle description: P packs on B buses driving M motors.
+
+The kernel's own compiled steps (``_pack_advance``, ``_terminal_voltage``, ``_motor_current``,
+``_thermal_advance``; nothing is re-derived here) over a topology given as data (``Topology``,
+from a description's ``gcs_pdm.vehicle.model_inputs.ModelInputs``):
+
+* a bus joins its packs in series (bus voltage = sum, every pack carries the bus current) or in
+  parallel (bus voltage = the packs' mean, each carries an equal share: identical packs);
+* the motors share the demanded shaft (or thrust) power equally; a motor with power-loss fault m
+  delivers (1 - m) of its share and the least-faulted motors make up the shortfall; a faulted
+  rotor's drag (``fault_drag`` of its share) and its unpowered no-load loss load the others, as in
+  the kernel;
+* limits per pack (cut-off voltage, temperature) and per motor (temperature).
+
+``kernel.simulate_powertrain`` (the paper's aircraft) runs on this with ``PAPER_TOPOLOGY``; ``edge540``'s
+model inputs give exactly the same numbers (tests/test_models_topology.py).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numba import njit
+
+from gcs_pdm.models import kernel
+from gcs_pdm.models.kernel import (_JIT, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAIL_NONE, FAIL_PACK_OVERTEMP,
+                                   FAIL_POWER, FAIL_UNDERVOLTAGE, M_I0, M_RW, N_MOTOR_PARAMS, N_PACK_PARAMS,
+                                   N_PACK_STATE, S_QB, S_T, PowertrainRun, _motor_current, _pack_advance, _rows,
+                                   _soc, _terminal_voltage, _thermal_advance)
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Which bus each pack and motor is on, how each bus joins its packs, and the limits."""
+
+    bus_of_pack: np.ndarray       # (P,) int
+    bus_of_motor: np.ndarray      # (M,) int
+    bus_parallel: np.ndarray      # (B,) bool
+    pack_cutoff_v: np.ndarray     # (P,)
+    pack_max_temp_c: np.ndarray   # (P,)
+    motor_max_temp_c: np.ndarray  # (M,)
+
+    @property
+    def n_packs(self) -> int:
+        return len(self.bus_of_pack)
+
+    @property
+    def n_motors(self) -> int:
+        return len(self.bus_of_motor)
+
+    def with_limits(self, cutoff_v: float, pack_max_temp_c: float, motor_max_temp_c: float) -> "Topology":
+        """The same topology with one limit for every pack and motor (the kernel's ``limits``)."""
+        return replace(self, pack_cutoff_v=np.full(self.n_packs, float(cutoff_v)),
+                       pack_max_temp_c=np.full(self.n_packs, float(pack_max_temp_c)),
+                       motor_max_temp_c=np.full(self.n_motors, float(motor_max_temp_c)))
+
+
+#: the paper's aircraft: (LLF20, ULA20, LRF40, URA40) in two series strings, fwd on the first, aft on the second
+PAPER_TOPOLOGY = Topology(bus_of_pack=kernel.STRING_OF_PACK.copy(), bus_of_motor=np.array([0, 1], dtype=np.int64),
+                          bus_parallel=np.zeros(2, dtype=bool), pack_cutoff_v=np.full(4, -np.inf),
+                          pack_max_temp_c=np.full(4, np.inf), motor_max_temp_c=np.full(2, np.inf))
+
+
+@njit(**_JIT)
+def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambient, bus_of_pack, bus_of_motor,
+              bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag, max_dt, stop_on_failure, record,
+              rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt,
+              final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed):
+    n_vec = x0.shape[0]
+    n = shaft_power.shape[1]
+    n_packs = x0.shape[1]
+    n_motors = tm0.shape[1]
+    n_bus = bus_parallel.shape[0]
+    x = np.empty((n_packs, N_PACK_STATE))
+    tm = np.empty(n_motors)
+    v = np.empty(n_packs)
+    vbus = np.empty(n_bus)
+    ibus = np.empty(n_bus)
+    packs_on_bus = np.zeros(n_bus)
+    for b in range(n_packs):
+        packs_on_bus[bus_of_pack[b]] += 1.0
+    imot = np.empty(n_motors)
+    share = np.empty(n_motors)
+    cap = np.empty(n_motors)
+    inv_m = 1.0 / n_motors
+    for j in range(n_vec):
+        pp = pack_params[j if pack_params.shape[0] > 1 else 0]
+        mp = motor_params[j if motor_params.shape[0] > 1 else 0]
+        f = fault[j if fault.shape[0] > 1 else 0]
+        di = j if dt.shape[0] > 1 else 0
+        si = j if shaft_power.shape[0] > 1 else 0
+        ai = j if ambient.shape[0] > 1 else 0
+        for b in range(n_packs):
+            for s in range(N_PACK_STATE):
+                x[b, s] = x0[j, b, s]
+            v[b] = _terminal_voltage(pp[b], x[b])
+            min_v[j, b] = v[b]
+            max_tp[j, b] = x[b, S_T]
+            charge[j, b] = 0.0
+        f_min = 1.0
+        cap_total = 0.0
+        fault_sum = 0.0
+        for q in range(n_motors):
+            tm[q] = tm0[j, q]
+            max_tm[j, q] = tm[q]
+            cap[q] = 1.0 - f[q]
+            cap_total += cap[q]
+            fault_sum += f[q]
+            if f[q] < f_min:
+                f_min = f[q]
+        n_least = 0.0
+        for q in range(n_motors):
+            if f[q] == f_min:
+                n_least += 1.0
+        energy[j] = 0.0
+        fail_k[j] = -1
+        fail_cause[j] = FAIL_NONE
+        t = 0.0
+        for k in range(n):
+            h = dt[di, k]
+            p_dem = shaft_power[si, k]
+            for u in range(n_bus):
+                vbus[u] = 0.0
+                ibus[u] = 0.0
+            for b in range(n_packs):
+                vbus[bus_of_pack[b]] += v[b]
+            for u in range(n_bus):
+                if bus_parallel[u]:
+                    vbus[u] = vbus[u] / packs_on_bus[u]
+            p_tot = p_dem
+            if p_dem > 0.0:
+                # Σ f_q V_q I0_q, written as (Σ f_q V_q (I0_q / I0_0)) I0_0 so that motors sharing
+                # one I_0 (the paper's) round exactly as the four-pack kernel always has
+                unpowered = 0.0
+                i0_ref = mp[0, M_I0]
+                for q in range(n_motors):
+                    if i0_ref > 0.0:
+                        unpowered += f[q] * vbus[bus_of_motor[q]] * (mp[q, M_I0] / i0_ref)
+                    else:
+                        unpowered += f[q] * vbus[bus_of_motor[q]] * mp[q, M_I0]
+                if i0_ref > 0.0:
+                    unpowered *= i0_ref
+                p_tot = p_dem * (1.0 + inv_m * fault_drag * fault_sum) + unpowered
+            cause = FAIL_NONE
+            if cap_total <= 0.0:
+                for q in range(n_motors):
+                    share[q] = 0.0
+                if p_dem > 0.0:
+                    cause = FAIL_POWER
+            else:
+                shortfall = p_tot
+                for q in range(n_motors):
+                    share[q] = inv_m * p_tot * cap[q]
+                    shortfall -= share[q]
+                for q in range(n_motors):
+                    if f[q] == f_min:
+                        share[q] += shortfall / n_least
+            for q in range(n_motors):
+                u = bus_of_motor[q]
+                i_q = _motor_current(mp[q], vbus[u], share[q], cap[q])
+                if i_q < 0.0:
+                    cause = FAIL_POWER
+                    i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
+                imot[q] = i_q
+                ibus[u] += i_q
+                energy[j] += vbus[u] * i_q * h
+            for b in range(n_packs):
+                u = bus_of_pack[b]
+                i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
+                _pack_advance(pp[b], x[b], i_b, ambient[ai, k], h, max_dt)
+                v[b] = _terminal_voltage(pp[b], x[b])
+                charge[j, b] += i_b * h
+                if v[b] < min_v[j, b]:
+                    min_v[j, b] = v[b]
+                if x[b, S_T] > max_tp[j, b]:
+                    max_tp[j, b] = x[b, S_T]
+                if cause == FAIL_NONE:
+                    if _soc(pp[b], x[b, S_QB]) <= 0.0:
+                        cause = FAIL_DEPLETED
+                    elif v[b] < cutoff_v[b]:
+                        cause = FAIL_UNDERVOLTAGE
+                    elif x[b, S_T] > pack_max_t[b]:
+                        cause = FAIL_PACK_OVERTEMP
+                if record:
+                    rec_v[j, k, b] = v[b]
+                    rec_i[j, k, b] = i_b
+                    rec_t[j, k, b] = x[b, S_T]
+                    rec_soc[j, k, b] = _soc(pp[b], x[b, S_QB])
+            for q in range(n_motors):
+                tm[q] = _thermal_advance(mp[q], tm[q], imot[q], ambient[ai, k], h)
+                if tm[q] > max_tm[j, q]:
+                    max_tm[j, q] = tm[q]
+                if cause == FAIL_NONE and tm[q] > motor_max_t[q]:
+                    cause = FAIL_MOTOR_OVERTEMP
+                if record:
+                    rec_mi[j, k, q] = imot[q]
+                    rec_mt[j, k, q] = tm[q]
+            t += h
+            if cause != FAIL_NONE and fail_k[j] < 0:
+                fail_k[j] = k
+                fail_cause[j] = cause
+                if stop_on_failure:
+                    if record:
+                        for kk in range(k + 1, n):
+                            for b in range(n_packs):
+                                rec_v[j, kk, b] = np.nan
+                                rec_i[j, kk, b] = np.nan
+                                rec_t[j, kk, b] = np.nan
+                                rec_soc[j, kk, b] = np.nan
+                            for q in range(n_motors):
+                                rec_mi[j, kk, q] = np.nan
+                                rec_mt[j, kk, q] = np.nan
+                    break
+        for b in range(n_packs):
+            for s in range(N_PACK_STATE):
+                final_x[j, b, s] = x[b, s]
+        for q in range(n_motors):
+            final_tm[j, q] = tm[q]
+        elapsed[j] = t
+
+
+def simulate_vehicle(inputs: "Topology | ModelInputs", pack_params: np.ndarray | None, motor_params: np.ndarray | None, x0: np.ndarray,
+                     motor_temp0: np.ndarray, dt: np.ndarray, shaft_power: np.ndarray, ambient: np.ndarray | float,
+                     fault: np.ndarray | None = None, *, fault_drag: float = 0.1,
+                     max_dt: float = kernel.DEFAULT_MAX_DT, stop_on_failure: bool = False,
+                     record: bool = False) -> PowertrainRun:
+    """Fly N samples of the vehicle ``inputs`` (``ModelInputs``) through shaft-power profiles.
+
+    pack_params (N or 1, P, 12) and motor_params (N or 1, M, 5) default to the inputs' own; x0
+    (N, P, 4); motor_temp0 (N, M); dt, shaft_power [W], ambient [°C] (n,) or (N, n); fault (N or
+    1, M) power-loss magnitudes in [0, 1]. Limits are the inputs' per pack and per motor.
+    """
+    topo = inputs if isinstance(inputs, Topology) else inputs.topology
+    n_packs, n_motors = topo.n_packs, topo.n_motors
+    pp = np.asarray(inputs.pack_matrix if pack_params is None else pack_params, dtype=np.float64)
+    pp = np.ascontiguousarray(pp[None] if pp.ndim == 2 else pp)
+    if pp.shape[1:] != (n_packs, N_PACK_PARAMS):
+        raise ValueError(f"pack_params: expected (N, {n_packs}, {N_PACK_PARAMS}), got {pp.shape}")
+    mp = np.asarray(inputs.motor_matrix if motor_params is None else motor_params, dtype=np.float64)
+    mp = np.ascontiguousarray(mp[None] if mp.ndim == 2 else mp)
+    if mp.shape[1:] != (n_motors, N_MOTOR_PARAMS):
+        raise ValueError(f"motor_params: expected (N, {n_motors}, {N_MOTOR_PARAMS}), got {mp.shape}")
+    x0 = np.asarray(x0, dtype=np.float64)
+    x0 = np.ascontiguousarray(x0[None] if x0.ndim == 2 else x0)
+    if x0.shape[1:] != (n_packs, N_PACK_STATE):
+        raise ValueError(f"x0: expected (N, {n_packs}, {N_PACK_STATE}), got {x0.shape}")
+    n_vec = x0.shape[0]
+    tm0 = np.ascontiguousarray(np.broadcast_to(np.asarray(motor_temp0, dtype=np.float64), (n_vec, n_motors)))
+    sp = np.asarray(shaft_power, dtype=np.float64)
+    n = sp.shape[-1]
+    sp = _rows(sp, n_vec, n, "shaft_power")
+    dt_ = _rows(dt, n_vec, n, "dt")
+    if np.any(dt_ < 0):
+        raise ValueError("dt: time steps must be non-negative")
+    amb = _rows(ambient, n_vec, n, "ambient")
+    f = np.zeros((1, n_motors)) if fault is None else np.atleast_2d(np.asarray(fault, dtype=np.float64))
+    if f.shape[1] != n_motors or f.shape[0] not in (1, n_vec) or np.any((f < 0) | (f > 1)):
+        raise ValueError(f"fault: expected magnitudes in [0, 1] shaped (N or 1, {n_motors}), got {f!r}")
+    f = np.ascontiguousarray(f)
+    shape_rec = (n_vec, n) if record else (1, 1)
+    rec = [np.empty(shape_rec + (n_packs,)) for _ in range(4)] + [np.empty(shape_rec + (n_motors,)) for _ in range(2)]
+    out = dict(final_x=np.empty((n_vec, n_packs, N_PACK_STATE)), final_tm=np.empty((n_vec, n_motors)),
+               min_v=np.empty((n_vec, n_packs)), max_tp=np.empty((n_vec, n_packs)),
+               max_tm=np.empty((n_vec, n_motors)), charge=np.empty((n_vec, n_packs)), energy=np.empty(n_vec),
+               fail_k=np.empty(n_vec, dtype=np.int64), fail_cause=np.empty(n_vec, dtype=np.int64),
+               elapsed=np.empty(n_vec))
+    _simulate(pp, mp, x0, tm0, dt_, sp, f, amb, np.ascontiguousarray(topo.bus_of_pack, dtype=np.int64),
+              np.ascontiguousarray(topo.bus_of_motor, dtype=np.int64),
+              np.ascontiguousarray(topo.bus_parallel, dtype=np.bool_),
+              np.ascontiguousarray(topo.pack_cutoff_v, dtype=np.float64),
+              np.ascontiguousarray(topo.pack_max_temp_c, dtype=np.float64),
+              np.ascontiguousarray(topo.motor_max_temp_c, dtype=np.float64),
+              float(fault_drag), float(max_dt), bool(stop_on_failure), bool(record), *rec, *out.values())
+    recorded = dict(zip(("pack_voltage", "pack_current", "pack_temp", "pack_soc", "motor_current", "motor_temp"),
+                        rec)) if record else {}
+    return PowertrainRun(out["final_x"], out["final_tm"], out["min_v"], out["max_tp"], out["max_tm"], out["charge"],
+                         out["energy"], out["fail_k"], out["fail_cause"], out["elapsed"], **recorded)

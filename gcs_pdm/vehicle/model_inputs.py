@@ -1,0 +1,164 @@
+"""Description -> the model's inputs: parameter vectors per pack and motor, and the topology.
+
+Packs and motors come in the description's order. The topology is given per bus (a set of packs
+joined in series or in parallel driving some motors): ``bus_of_pack``, ``bus_of_motor`` and
+``bus_parallel``. For ``edge540`` this is exactly what the code always used: the ``paper_si``
+pack matrix and ``kernel.STRING_OF_PACK`` (tests/test_vehicle_description.py holds it).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from gcs_pdm.models.pack_scaling import scale_pack_vector
+from gcs_pdm.models.params import (BUILTIN_SETS, CELLS_PER_PACK, PACK_CAPACITY_C, ParameterError, ParameterSet,
+                                   motor_vector, pack_vector)
+from gcs_pdm.vehicle.description import PackSpec, VehicleDescription, VehicleError
+
+#: the chemistry default: the paper_si set's first pack (a 5S 7.8 Ah LiPo), scaled to each pack
+CHEMISTRY_DEFAULT_SOURCE = ("paper_si", "LLF20")
+
+
+@dataclass(frozen=True)
+class ModelInputs:
+    pack_names: tuple[str, ...]
+    motor_names: tuple[str, ...]
+    pack_matrix: np.ndarray      # (N, 12) kernel.PACK_PARAMS order
+    motor_matrix: np.ndarray     # (M, 5) kernel.MOTOR_PARAMS order
+    bus_of_pack: np.ndarray      # (N,) int
+    bus_of_motor: np.ndarray     # (M,) int
+    bus_parallel: np.ndarray     # (B,) bool: packs of the bus in parallel (else in series)
+    pack_cutoff_v: np.ndarray    # (N,) terminal voltage floor, V
+    pack_max_temp_c: np.ndarray  # (N,)
+    motor_max_temp_c: np.ndarray  # (M,)
+
+    @property
+    def n_packs(self) -> int:
+        return len(self.pack_names)
+
+    @property
+    def n_motors(self) -> int:
+        return len(self.motor_names)
+
+    @property
+    def topology(self):
+        from gcs_pdm.models.topology import Topology
+
+        return Topology(self.bus_of_pack, self.bus_of_motor, self.bus_parallel, self.pack_cutoff_v,
+                        self.pack_max_temp_c, self.motor_max_temp_c)
+
+    def packs_of_motor(self, q: int) -> tuple[int, ...]:
+        return tuple(int(b) for b in np.flatnonzero(self.bus_of_pack == self.bus_of_motor[q]))
+
+    def motors_of_pack(self, b: int) -> tuple[int, ...]:
+        return tuple(int(q) for q in np.flatnonzero(self.bus_of_motor == self.bus_of_pack[b]))
+
+    def series_mates(self, b: int) -> tuple[int, ...]:
+        """Packs that carry the same current as pack ``b`` (the rest of its series string)."""
+        bus = self.bus_of_pack[b]
+        if self.bus_parallel[bus]:
+            return ()
+        return tuple(int(o) for o in np.flatnonzero(self.bus_of_pack == bus) if o != b)
+
+
+@lru_cache(maxsize=32)
+def _parameter_set(ref: str) -> ParameterSet:
+    if ref in BUILTIN_SETS:
+        return BUILTIN_SETS[ref]
+    path = Path(ref)
+    try:
+        return ParameterSet.from_json(path.read_text())
+    except OSError as exc:
+        raise VehicleError(f"parameter set {ref!r}: not a built-in set ({', '.join(BUILTIN_SETS)}) "
+                           f"and not readable: {exc.strerror or exc}") from None
+    except ParameterError as exc:
+        raise VehicleError(f"parameter set {ref!r}: {exc}") from None
+
+
+def pack_parameters(spec: PackSpec, where: str = "pack") -> np.ndarray:
+    """One pack's parameter vector (kernel.PACK_PARAMS order) from its ``parameters`` reference."""
+    ref = spec.parameters
+    full_cell = spec.full_cell_v
+    if ref.set == "chemistry-default":
+        set_name, pack_name, scale = *CHEMISTRY_DEFAULT_SOURCE, True
+    else:
+        set_name, pack_name, scale = ref.set, ref.pack, ref.scale_to_pack
+    ps = _parameter_set(set_name)
+    if pack_name not in ps.packs:
+        raise VehicleError(f"{where}.parameters.pack: no pack {pack_name!r} in set {set_name!r}; "
+                           f"have {', '.join(ps.packs)}")
+    v = pack_vector(ps.packs[pack_name])
+    if not scale:
+        return v
+    # fitted sets hold the paper's 5S 7.8 Ah packs
+    return scale_pack_vector(v, CELLS_PER_PACK, PACK_CAPACITY_C, spec.cells_series, spec.capacity_c, full_cell)
+
+
+def model_inputs(desc: VehicleDescription) -> ModelInputs:
+    packs = np.stack([pack_parameters(p, f"packs[{i}]") for i, p in enumerate(desc.packs)])
+    motors = []
+    for m in desc.motors:
+        if m.values is not None:
+            motors.append(np.array([getattr(m.values, k) for k in ("R_w", "I_0", "P_iron", "C_t", "h")]))
+        else:
+            motors.append(motor_vector(_parameter_set(m.parameter_set).motor))
+    return ModelInputs(
+        pack_names=desc.pack_names,
+        motor_names=desc.motor_names,
+        pack_matrix=packs,
+        motor_matrix=np.stack(motors),
+        bus_of_pack=np.array([desc.bus_of_pack(n) for n in desc.pack_names], dtype=np.int64),
+        bus_of_motor=np.array([desc.bus_of_motor(n) for n in desc.motor_names], dtype=np.int64),
+        bus_parallel=np.array([b.arrangement == "parallel" for b in desc.buses]),
+        pack_cutoff_v=np.array([p.cutoff_voltage for p in desc.packs]),
+        pack_max_temp_c=np.array([p.max_temp_c for p in desc.packs]),
+        motor_max_temp_c=np.array([m.max_temp_c for m in desc.motors]),
+    )
+
+
+#: MAV_TYPE a multirotor with this many rotors reports in its HEARTBEAT
+MAV_TYPE_OF_ROTORS = {2: 3, 3: 15, 4: 2, 6: 13, 8: 14}
+MAV_TYPE_FIXED_WING = 1
+
+
+def mav_type(desc: VehicleDescription) -> int:
+    """The HEARTBEAT type such a vehicle sends (the inverse of the provisional derivation's)."""
+    if desc.airframe.type == "fixed_wing":
+        return MAV_TYPE_FIXED_WING
+    try:
+        return MAV_TYPE_OF_ROTORS[len(desc.motors)]
+    except KeyError:
+        raise VehicleError(f"motors: no MAV_TYPE for a multirotor with {len(desc.motors)} rotors") from None
+
+
+def powertrain_airframe(desc: VehicleDescription):
+    """``powertrain.Airframe`` for the description: a fixed wing's drag polar as it is; for a
+    multirotor only what the rest reads of it (mass, speeds, the rotor as the propeller for rpm) —
+    its power comes from ``models.multirotor``."""
+    from gcs_pdm.models.powertrain import Airframe
+
+    af = desc.airframe
+    if af.type == "fixed_wing":
+        return Airframe(mass_kg=desc.mass_kg, **{k: getattr(af, k) for k in (
+            "wing_area_m2", "aspect_ratio", "cd0", "oswald", "eta_prop", "descent_recovery", "min_shaft_power_w",
+            "prop_diameter_m", "prop_power_coeff", "stall_airspeed", "max_airspeed")},
+            cruise_airspeed=desc.cruise_speed_mps, max_climb_rate=desc.climb_rate_mps)
+    return Airframe(mass_kg=desc.mass_kg, prop_diameter_m=af.rotor_diameter_m, stall_airspeed=1.0,
+                    max_airspeed=af.max_airspeed, cruise_airspeed=desc.cruise_speed_mps,
+                    max_climb_rate=desc.climb_rate_mps)
+
+
+def shaft_power_model(desc: VehicleDescription):
+    """(airspeed m/s, climb m/s, density kg/m³) -> shaft power W, by the airframe's model."""
+    from gcs_pdm.models import multirotor, powertrain
+
+    af = desc.airframe
+    if af.type == "fixed_wing":
+        frame = powertrain_airframe(desc)
+        return lambda v, climb, rho: powertrain.shaft_power(v, climb, rho, frame)
+    n = len(desc.motors)
+    return lambda v, climb, rho: multirotor.shaft_power(v, climb, desc.mass_kg, n, af.rotor_diameter_m,
+                                                        af.figure_of_merit, af.drag_area_m2, af.tip_speed_mps, rho)

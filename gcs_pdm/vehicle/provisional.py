@@ -1,0 +1,212 @@
+"""A provisional vehicle description from the first telemetry, when the user gives none.
+
+Pure core: ``ProvisionalObserver.observe(name, fields)`` folds decoded MAVLink messages (message
+name and a field dict, as ``msg.to_dict()`` gives them, or as the link layer decodes them live) and
+``derive()`` turns what it saw into a description plus the notes that say what was guessed:
+
+- airframe from the vehicle's HEARTBEAT ``type`` (MAV_TYPE): fixed wing, or a multirotor whose
+  rotor count is the type's (quad 4, hexa 6, octo 8, tri 3, coaxial 2);
+- packs from the BATTERY_STATUS ids seen; cells in series from the highest pack voltage seen,
+  the smallest count with at most 4.35 V per cell at the median of its first five readings (right for a 6S pack between 3.63 and 4.35 V/cell,
+  a 3S one between 2.9 and 4.35);
+  capacity from the charge drawn against the reported remaining percentage when it fell by 10 % or
+  more, otherwise a guess said in the notes;
+- motors from the ESC_TELEMETRY_* indices that carried any non-zero value, with the readings
+  that were non-zero (current, rpm, temperature);
+- the airframe's aerodynamic figures and the mass from the matching preset (said in the notes).
+
+``observe_tlog`` is the I/O shell over a tlog file.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from gcs_pdm.vehicle.description import VehicleDescription, VehicleError, from_dict
+
+#: MAV_TYPE -> rotor count, for the multirotor types
+MULTIROTOR_ROTORS = {2: 4, 3: 2, 13: 6, 14: 8, 15: 3}
+MAV_TYPE_FIXED_WING = 1
+#: HEARTBEATs that are not the vehicle: GCS (6), onboard controller (18), gimbal (26), ADSB (27), ...
+_NOT_A_VEHICLE_TYPES = {6, 18, 26, 27, 30}
+_MAV_AUTOPILOT_INVALID = 8
+#: the highest resting voltage of a cell: a full LiHV (4.35 V); a LiPo rests at 4.2, ArduPilot SITL's at 4.24
+MAX_CELL_VOLTAGE = 4.35
+_UINT16_MAX = 65535
+_INT16_MAX = 32767
+_ESC_MESSAGES = {"ESC_TELEMETRY_1_TO_4": 0, "ESC_TELEMETRY_5_TO_8": 4, "ESC_TELEMETRY_9_TO_12": 8,
+                 "ESC_TELEMETRY_13_TO_16": 12}
+
+
+#: readings whose median is the pack's voltage at boot (robust to one noisy sample)
+FIRST_READINGS = 5
+#: cells of slack on the count: a pack at exactly 4.35 V/cell plus sensor noise is not one cell more
+CELL_COUNT_SLACK = 0.02
+
+
+@dataclass
+class _PackSeen:
+    max_voltage: float = 0.0
+    first_voltages: list = field(default_factory=list)
+    temperature_reported: bool = False
+    first_remaining: int | None = None
+    first_consumed_mah: float | None = None
+    capacity_estimate_mah: float | None = None
+    frames: int = 0
+
+
+@dataclass
+class _EscSeen:
+    current: bool = False
+    rpm: bool = False
+    temperature: bool = False
+    frames: int = 0
+
+
+@dataclass
+class ProvisionalObserver:
+    """Folds messages; ``derive()`` may be called at any time (e.g. once every pack has reported)."""
+
+    mav_type: int | None = None
+    packs: dict[int, _PackSeen] = field(default_factory=dict)
+    escs: dict[int, _EscSeen] = field(default_factory=dict)
+    messages: int = 0
+
+    def observe(self, name: str, fields: Mapping[str, Any]) -> None:
+        self.messages += 1
+        if name == "HEARTBEAT":
+            if (self.mav_type is None and fields.get("type") not in _NOT_A_VEHICLE_TYPES
+                    and fields.get("autopilot") != _MAV_AUTOPILOT_INVALID):
+                self.mav_type = int(fields["type"])
+        elif name == "BATTERY_STATUS":
+            self._battery(fields)
+        elif name in _ESC_MESSAGES:
+            self._esc(_ESC_MESSAGES[name], fields)
+
+    def _battery(self, f: Mapping[str, Any]) -> None:
+        seen = self.packs.setdefault(int(f["id"]), _PackSeen())
+        seen.frames += 1
+        cells = [c for c in list(f.get("voltages") or []) + list(f.get("voltages_ext") or [])
+                 if c not in (0, _UINT16_MAX)]
+        if cells:
+            seen.max_voltage = max(seen.max_voltage, sum(cells) / 1000.0)
+            if len(seen.first_voltages) < FIRST_READINGS:
+                seen.first_voltages.append(sum(cells) / 1000.0)
+        temp = f.get("temperature")
+        if temp is not None and temp != _INT16_MAX:
+            seen.temperature_reported = True
+        remaining, consumed = f.get("battery_remaining"), f.get("current_consumed")
+        if remaining is None or consumed is None or remaining < 0 or consumed < 0:
+            return
+        if seen.first_remaining is None:
+            seen.first_remaining, seen.first_consumed_mah = int(remaining), float(consumed)
+        elif seen.first_remaining - remaining >= 10:
+            drawn = float(consumed) - seen.first_consumed_mah
+            if drawn > 0:
+                seen.capacity_estimate_mah = drawn / ((seen.first_remaining - remaining) / 100.0)
+
+    def _esc(self, base: int, f: Mapping[str, Any]) -> None:
+        for k in range(4):
+            values = {key: (f.get(key) or [0] * 4)[k] for key in ("current", "rpm", "temperature", "voltage", "count")}
+            if not any(values.values()):
+                continue
+            seen = self.escs.setdefault(base + k, _EscSeen())
+            seen.frames += 1
+            seen.current |= bool(values["current"])
+            seen.rpm |= bool(values["rpm"])
+            seen.temperature |= bool(values["temperature"])
+
+    # ---- the description ----------------------------------------------------------------------
+    def derive(self, name: str = "provisional") -> tuple[VehicleDescription, list[str]]:
+        """The provisional description and the notes on what was guessed (raise if nothing to go on)."""
+        from gcs_pdm.vehicle.presets import PRESETS
+
+        notes: list[str] = []
+        if self.mav_type is None:
+            raise VehicleError("no vehicle HEARTBEAT seen: cannot tell the airframe")
+        if self.mav_type == MAV_TYPE_FIXED_WING:
+            base = PRESETS["plane-3s"].to_dict()
+            n_rotors = 1
+        elif self.mav_type in MULTIROTOR_ROTORS:
+            base = PRESETS["quad-4s"].to_dict()
+            n_rotors = MULTIROTOR_ROTORS[self.mav_type]
+        else:
+            raise VehicleError(f"HEARTBEAT type {self.mav_type} (MAV_TYPE) is neither a fixed wing nor a "
+                               f"multirotor: write the description by hand (docs/vehicles.md)")
+        notes.append(f"airframe from HEARTBEAT type {self.mav_type}; its figures and the mass "
+                     f"({base['mass_kg']} kg) are the {base['name']} preset's: correct them")
+        packs_seen = {i: p for i, p in sorted(self.packs.items()) if p.max_voltage > 0}
+        if not packs_seen:
+            raise VehicleError("no BATTERY_STATUS with a voltage seen: cannot tell the packs")
+        packs = []
+        for i, seen in packs_seen.items():
+            boot_v = sorted(seen.first_voltages)[len(seen.first_voltages) // 2]
+            cells = max(1, math.ceil(boot_v / MAX_CELL_VOLTAGE - CELL_COUNT_SLACK))
+            pack = {"name": f"battery{i}", "mavlink_battery_id": i, "cells_series": cells,
+                    "reports_temperature": seen.temperature_reported}
+            if seen.capacity_estimate_mah:
+                pack["capacity_mah"] = round(seen.capacity_estimate_mah, -1)
+                how = "from the charge drawn against the remaining percentage reported"
+            else:
+                pack["capacity_mah"] = 5000.0
+                how = "a guess (the pack did not report enough discharge)"
+            notes.append(f"pack battery{i}: {cells} cells from {boot_v:.2f} V at boot, "
+                         f"capacity {pack['capacity_mah']:.0f} mAh {how}, chemistry-default parameters"
+                         + ("" if seen.temperature_reported else "; temperature not reported (estimated)"))
+            packs.append(pack)
+        escs = {i: e for i, e in sorted(self.escs.items())}
+        if escs:
+            motors = [{"name": f"esc{i}", "esc_index": i,
+                       "readings": {"current": e.current, "rpm": e.rpm, "temperature": e.temperature},
+                       "values": base["motors"][0]["values"]} for i, e in escs.items()]
+            notes.append(f"motors from the ESC indices that carried data: {', '.join(map(str, escs))}")
+        else:
+            motors = [{"name": f"motor{k + 1}", "esc_index": k,
+                       "readings": {"current": False, "rpm": False, "temperature": False},
+                       "values": base["motors"][0]["values"]} for k in range(n_rotors)]
+            notes.append(f"no ESC telemetry: {n_rotors} motor(s) assumed, none of them reporting")
+        bus = {"packs": [p["name"] for p in packs], "arrangement": "parallel" if len(packs) > 1 else "series",
+               "motors": [m["name"] for m in motors]}
+        if len(packs) > 1:
+            notes.append("several packs: assumed in parallel on one bus feeding every motor")
+        data = {**base, "name": name, "provisional": True, "packs": packs, "motors": motors, "buses": [bus],
+                "description": "derived from telemetry: " + "; ".join(notes)}
+        return from_dict(data), notes
+
+
+def derive_provisional(messages: Iterable[tuple[str, Mapping[str, Any]]], name: str = "provisional"
+                       ) -> tuple[VehicleDescription, list[str]]:
+    """Pure: (message name, fields) pairs -> (description, notes)."""
+    obs = ProvisionalObserver()
+    for msg_name, fields in messages:
+        obs.observe(msg_name, fields)
+    return obs.derive(name)
+
+
+_WANTED = ["HEARTBEAT", "BATTERY_STATUS", *_ESC_MESSAGES]
+
+
+def tlog_messages(path: str | Path, *, system: int | None = None) -> Iterable[tuple[str, dict]]:
+    """The messages ``ProvisionalObserver`` uses from a tlog (I/O shell; pymavlink decodes)."""
+    from pymavlink import mavutil
+
+    path = Path(path)
+    if not path.exists():
+        raise VehicleError(f"{path}: no such file")
+    conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
+    try:
+        while True:
+            msg = conn.recv_match(type=_WANTED, blocking=False)
+            if msg is None:
+                return
+            if system is not None and msg.get_srcSystem() != system:
+                continue
+            yield msg.get_type(), msg.to_dict()
+    finally:
+        conn.close()
+
+
+def observe_tlog(path: str | Path, name: str | None = None) -> tuple[VehicleDescription, list[str]]:
+    return derive_provisional(tlog_messages(path), name or f"provisional-{Path(path).stem}")

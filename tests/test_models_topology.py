@@ -1,0 +1,69 @@
+"""The topology powertrain (any description) against the paper's four-pack kernel, and on other vehicles."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gcs_pdm.models import kernel, multirotor
+from gcs_pdm.models.params import default_set
+from gcs_pdm.models.powertrain import Limits
+from gcs_pdm.models.topology import simulate_vehicle
+from gcs_pdm.vehicle.model_inputs import model_inputs
+from gcs_pdm.vehicle.presets import PRESETS
+
+FIELDS = ("final_pack_state", "final_motor_temp", "min_pack_voltage", "max_pack_temp", "max_motor_temp", "charge_c",
+          "energy_j", "fail_step", "fail_cause", "elapsed_s", "pack_voltage", "pack_current", "pack_temp", "pack_soc",
+          "motor_current", "motor_temp")
+
+
+@pytest.mark.parametrize("fault", [None, [[0.0, 0.0], [0.7, 0.0], [0.0, 0.4], [0.5, 0.5], [1.0, 1.0]]])
+def test_edge540_reproduces_the_paper_kernel(fault):
+    inputs = model_inputs(PRESETS["edge540"])
+    ps = default_set()
+    rng = np.random.default_rng(3)
+    n_vec = 5
+    x0 = np.stack([kernel.initial_pack_state(ps.pack_matrix(), s, 25.0) for s in rng.uniform(0.3, 1.0, n_vec)])
+    tm0 = np.full((n_vec, 2), 30.0)
+    n = 900
+    dt = np.full(n, 2.0)
+    power = 1500.0 + 800.0 * np.sin(np.arange(n) / 40.0)
+    power[::97] = -50.0
+    old = kernel.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], x0, tm0, dt, power, 20.0, fault,
+                                     limits=Limits().as_tuple(), stop_on_failure=True, record=True)
+    new = simulate_vehicle(inputs, None, None, x0, tm0, dt, power, 20.0, fault, stop_on_failure=True, record=True)
+    assert old.failed.any()                  # the comparison covers failures too
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(new, name), getattr(old, name), err_msg=name)
+
+
+def test_quad_hovers_on_one_pack_and_a_lost_rotor_loads_the_others():
+    desc = PRESETS["quad-4s"]
+    inputs = model_inputs(desc)
+    a = desc.airframe
+    hover = multirotor.hover_power(desc.mass_kg, 4, a.rotor_diameter_m, a.figure_of_merit)
+    x0 = kernel.initial_pack_state(inputs.pack_matrix, 1.0, 25.0)[None]
+    n = 1200
+    healthy = simulate_vehicle(inputs, None, None, x0, np.full((1, 4), 25.0), np.ones(n), np.full(n, hover), 20.0,
+                               record=True)
+    faulted = simulate_vehicle(inputs, None, None, x0, np.full((1, 4), 25.0), np.ones(n), np.full(n, hover), 20.0,
+                               np.array([[0.5, 0.0, 0.0, 0.0]]), record=True)
+    i = healthy.motor_current[0, 10]
+    assert np.allclose(i, i[0])                                     # symmetric hover
+    # the single pack carries the four motors' current
+    np.testing.assert_allclose(healthy.pack_current[0, :, 0], healthy.motor_current[0].sum(axis=1))
+    # a 20-minute hover on a 5 Ah pack at ~10 A (136 W shaft at 14-16 V plus motor losses): about
+    # two thirds of the charge
+    assert 9.0 < healthy.pack_current[0, 10, 0] < 12.0
+    assert 0.15 < healthy.pack_soc[0, -1, 0] < 0.45
+    fi = faulted.motor_current[0, 10]
+    assert fi[0] < i[0] < fi[1] and np.allclose(fi[1:], fi[1])   # the imbalance the diagnoser looks for
+    assert faulted.energy_j[0] > healthy.energy_j[0]
+
+
+def test_parallel_packs_share_the_current():
+    inputs = model_inputs(PRESETS["hex-6s"])
+    x0 = kernel.initial_pack_state(inputs.pack_matrix, 1.0, 25.0)[None]
+    run = simulate_vehicle(inputs, None, None, x0, np.full((1, 6), 25.0), np.ones(60), np.full(60, 1500.0), 20.0,
+                           record=True)
+    np.testing.assert_allclose(run.pack_current[0, :, 0], run.pack_current[0, :, 1])
+    np.testing.assert_allclose(2 * run.pack_current[0, :, 0], run.motor_current[0].sum(axis=1))
