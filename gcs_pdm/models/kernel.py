@@ -339,29 +339,3 @@ class PowertrainRun:
     @property
     def failed(self) -> np.ndarray:
         return self.fail_cause != FAIL_NONE
-
-
-def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: np.ndarray,
-                        motor_temp0: np.ndarray, dt: np.ndarray, shaft_power: np.ndarray,
-                        ambient: np.ndarray | float, fault: np.ndarray | None = None, *,
-                        limits: tuple[float, float, float] = (-np.inf, np.inf, np.inf),
-                        fault_drag: float = 0.1, max_dt: float = DEFAULT_MAX_DT,
-                        stop_on_failure: bool = False, record: bool = False) -> PowertrainRun:
-    """Fly N vehicles (routes, particles, parameter vectors) through shaft-power profiles.
-
-    pack_params (N or 1, 4, 12); motor_params (N or 1, 5); x0 (N, 4, 4) pack states; motor_temp0
-    (N, 2); dt, shaft_power [W], ambient [°C] (n,) or (N, n); fault (N or 1, 2) magnitudes m in
-    [0, 1] for (fwd, aft): a faulted motor delivers (1 - m) of its share of the shaft power.
-    limits = (pack cut-off voltage V, pack max °C, motor max °C) decide ``fail_cause``.
-    """
-    from gcs_pdm.models.topology import PAPER_TOPOLOGY, simulate_vehicle
-
-    pp = np.asarray(pack_params, dtype=np.float64)
-    if (pp[None] if pp.ndim == 2 else pp).shape[1:] != (N_PACKS, N_PACK_PARAMS):
-        raise ValueError(f"pack_params: expected (N, {N_PACKS}, {N_PACK_PARAMS}), got {pp.shape}")
-    mp = _params2d(motor_params, N_MOTOR_PARAMS, "motor_params")
-    # both motors are one type: the same parameter vector on each
-    mp = np.repeat(mp[:, None, :], N_MOTORS, axis=1)
-    return simulate_vehicle(PAPER_TOPOLOGY.with_limits(*limits), pp, mp, x0, motor_temp0, dt, shaft_power, ambient,
-                            fault, fault_drag=fault_drag, max_dt=max_dt, stop_on_failure=stop_on_failure,
-                            record=record)
