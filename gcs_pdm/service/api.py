@@ -20,7 +20,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 import gcs_pdm
 from gcs_pdm.models.params import ParameterError, ParameterSet
 from gcs_pdm.service import schemas as S
-from gcs_pdm.service.status_page import STATUS_PAGE
+from gcs_pdm.service.console_routes import include_console
 from gcs_pdm.service.storage import Conflict, NotFound
 
 log = logging.getLogger(__name__)
@@ -47,7 +47,9 @@ def _unprocessable(field: str, message: str) -> HTTPException:
 
 def create_app(service) -> FastAPI:
     app = FastAPI(title="gcs-pdm", version=gcs_pdm.__version__,
-                  description="Prognostic decision making beside a MAVLink ground station")
+                  description="Prognostic decision making beside a MAVLink ground station",
+                  docs_url=None, redoc_url=None)  # /docs is the console's, served without a CDN
+    include_console(app, service)
     bearer = HTTPBearer(auto_error=False)
 
     def require_token(cred: HTTPAuthorizationCredentials | None = Depends(bearer)) -> None:
@@ -66,10 +68,6 @@ def create_app(service) -> FastAPI:
         return JSONResponse(status_code=409, content={"detail": str(exc)})
 
     # --- health and status -----------------------------------------------------------------------
-
-    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
-    def status_page() -> str:
-        return STATUS_PAGE
 
     @app.get("/health", response_model=S.Health)
     def health():

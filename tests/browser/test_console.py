@@ -1,0 +1,133 @@
+"""The operator's console in a real Chromium, against ``gcs-pdm serve`` fed by ``gcs-pdm sim``.
+
+A motor fault under the ``advise`` policy: the fault banner appears, the proposed route is drawn
+on the map, Approve (with the token typed into the page) uploads it and the page shows it
+confirmed; when the vehicle stops sending, a stale/link-lost banner appears within seconds. The
+page, and Swagger UI at /docs, ask nothing of any host but the service.
+"""
+from __future__ import annotations
+
+import time
+import urllib.request
+
+import pytest
+from playwright.sync_api import expect, sync_playwright
+
+from console_harness import RequestLog, Service, Sim, launch
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_playwright() as p:
+        b = launch(p)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser):
+    ctx = browser.new_context(viewport={"width": 1400, "height": 1000})
+    pg = ctx.new_page()
+    errors: list[str] = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    yield pg
+    ctx.close()
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+@pytest.fixture
+def service(tmp_path):
+    svc = Service(tmp_path / "svc").start()
+    yield svc
+    svc.stop()
+
+
+@pytest.mark.timeout(180)
+def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
+    sim = Sim(service).start()
+    try:
+        requests = RequestLog(page)
+        page.goto(service.url + "/")
+        expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+        # the mission is drawn in the local frame (no tiles configured), home marked
+        expect(page.locator("#map path.current-route")).to_have_count(1, timeout=20_000)
+        expect(page.locator("#map-legend")).to_contain_text("local frame")
+        # one card per pack and per motor the service reports, with numbers once telemetry flows
+        status = service.get("/status")
+        expect(page.locator("#packs .card")).to_have_count(len(status["packs"]))
+        expect(page.locator("#motors .card")).to_have_count(len(status["motors"]))
+
+        # the diagnoser's fault becomes a banner
+        fault_banner = page.locator('[data-banner^="fault-"]')
+        expect(fault_banner).to_have_count(1, timeout=90_000)
+        expect(fault_banner).to_contain_text("motor power loss on aft")
+        # the proposal is drawn over the current mission, and compared with it
+        expect(page.locator("#map path.proposed-route")).to_have_count(1, timeout=60_000)
+        proposed = service.get("/missions/proposed")
+        assert proposed, "the service proposed nothing"
+        plan = proposed[0]
+        dropped = set(plan["previous_route"]) - set(plan["chosen"]["route"])
+        expect(page.locator("#map .wp-label.dropped")).to_have_count(len(dropped))
+        expect(page.locator("#map .wp-label.proposed")).to_have_count(len(plan["chosen"]["route"]))
+        card = page.locator(f'[data-plan="{plan["id"]}"]')
+        expect(card).to_contain_text("landing SoC")
+        expect(card).to_contain_text(f'{plan["chosen"]["reward"]:.1f}')
+        expect(card).to_contain_text("probability of failure")
+        # the motor card shows the lost health
+        expect(page.locator('[data-motor="aft"] h3')).to_contain_text("health 3")
+
+        # Approve: the page asks for the token once, then the upload is confirmed by read-back
+        page.locator(f"#approve-{plan['id']}").click()
+        expect(page.locator("#token-dialog")).to_be_visible()
+        page.locator("#token-input").fill(service.token)
+        page.locator("#token-save").click()
+        expect(page.locator(f'.outcome[data-upload-status="confirmed"]')).to_contain_text(
+            f"Plan {plan['id']}", timeout=45_000)
+        assert any(u["plan_id"] == plan["id"] and u["status"] == "confirmed" for u in service.get("/missions/uploads"))
+        expect(page.locator("#timeline")).to_contain_text(f"Upload of plan {plan['id']}: confirmed")
+        assert page.evaluate("sessionStorage.getItem('gcs-pdm-token')") == service.token
+
+        # the vehicle goes silent: a banner says so within seconds
+        expect(page.locator('[data-banner="stale"], [data-banner="link-lost"]')).to_have_count(0)
+        sim.stop()
+        t0 = time.monotonic()
+        expect(page.locator('[data-banner="stale"], [data-banner="link-lost"]')).to_have_count(1, timeout=15_000)
+        took = time.monotonic() - t0
+        assert took < 12.0, took
+        expect(page.locator("#conn")).not_to_have_attribute("data-state", "live")
+
+        assert requests.urls and not requests.foreign(service.host), requests.foreign(service.host)
+    finally:
+        sim.stop()
+
+
+@pytest.mark.timeout(120)
+def test_swagger_ui_offline_and_reconnect_after_restart(service, page, tmp_path):
+    requests = RequestLog(page)
+    page.goto(service.url + "/docs")
+    expect(page.locator(".swagger-ui .info .title")).to_contain_text("gcs-pdm", timeout=20_000)
+    expect(page.locator(".swagger-ui .opblock-summary-path").first).to_be_visible()
+    assert not requests.foreign(service.host), requests.foreign(service.host)
+
+    page.goto(service.url + "/")
+    expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+    expect(page.locator('[data-banner="no-telemetry"]')).to_contain_text("No telemetry yet")
+    first = page.evaluate("S.instance")
+    service.stop()
+    expect(page.locator('[data-banner="service"]')).to_have_count(1, timeout=10_000)
+    expect(page.locator("#conn")).to_have_attribute("data-state", "down")
+    again = Service(tmp_path / "svc2", http_port=service.http_port).start()
+    try:
+        expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=20_000)
+        expect(page.locator('[data-banner="service"]')).to_have_count(0)
+        assert page.evaluate("S.instance") not in (None, first)
+        # the new service's events reach the page (its numbering began again)
+        req = urllib.request.Request(again.url + "/policy", method="PUT", data=b'{"policy": "auto"}',
+                                     headers={"Content-Type": "application/json", "Authorization": f"Bearer {again.token}"})
+        urllib.request.urlopen(req, timeout=5).close()
+        expect(page.locator("#timeline")).to_contain_text("Policy set to auto", timeout=10_000)
+    finally:
+        again.stop()
+    assert not requests.foreign(service.host), requests.foreign(service.host)
