@@ -456,7 +456,7 @@ function renderDecision() {
     const by = (decided.history || []).slice(-1)[0];
     parts.push(`<div class="last"><b>Latest plan ${decided.id}: ${esc(decided.status)}</b> ${tstamp(decided.time_s)}
       route ${esc(route(decided.chosen && decided.chosen.route))}${by && by.note ? " — " + esc(by.note) : ""}${uploadOutcome(decided.id)}
-      ${S.decision[decided.id] && !S.proposed.length ? `<div>${esc(S.decision[decided.id].text)}</div>` : ""}</div>`);
+      ${S.decision[decided.id] && !S.proposed.length && !S.uploads.some((u) => u.plan_id === decided.id) ? `<div>${esc(S.decision[decided.id].text)}</div>` : ""}</div>`);
   }
   host.innerHTML = parts.join("") || "no plan waiting for a decision";
 }
