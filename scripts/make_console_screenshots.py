@@ -3,7 +3,7 @@
 Runs ``gcs-pdm serve`` (advise policy) fed by ``gcs-pdm sim`` with the demo's motor fault on free
 loopback ports, opens the console in the system's Chromium, and saves into docs/console/:
 the proposal waiting for the operator, the confirmed upload, the stale link after the vehicle goes
-silent, and Swagger UI served offline. About a minute:
+silent, Swagger UI served offline, and a finished fit job. About a minute:
 
     python scripts/make_console_screenshots.py [--out docs/console] [--speedup 40]
 """
@@ -13,6 +13,7 @@ import argparse
 import json
 import sys
 import tempfile
+import urllib.request
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -20,6 +21,21 @@ sys.path.insert(0, str(REPO / "tests" / "browser"))
 sys.path.insert(0, str(REPO))
 
 from console_harness import RequestLog, Service, Sim, launch  # noqa: E402
+
+
+FLIGHTS = REPO / "fixtures" / "flights"
+FIT_BODY = {"component": "motor", "save_as": "motor_from_learn_01",
+            "flights": {"train": [{"path": str(FLIGHTS / "learn_01.tlog")}],
+                        "validation": [{"path": str(FLIGHTS / "learn_02.tlog")}],
+                        "test": [{"path": str(FLIGHTS / "learn_03.tlog")}]},
+            "settings": {"search": {"starts": 2, "sa_generations": 6, "lm_max_nfev": 4}, "workers": 1}}
+
+
+def _post(service: Service, path: str, body: dict) -> dict:
+    req = urllib.request.Request(service.url + path, method="POST", data=json.dumps(body).encode(),
+                                 headers={"Content-Type": "application/json", "Authorization": f"Bearer {service.token}"})
+    with urllib.request.urlopen(req, timeout=10) as r:
+        return json.loads(r.read())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -62,6 +78,13 @@ def main(argv: list[str] | None = None) -> int:
             page.goto(service.url + "/docs")
             expect(page.locator(".swagger-ui .info .title")).to_contain_text("gcs-pdm", timeout=20_000)
             shot("4_api_docs_offline.png", full_page=False)
+            job = _post(service, "/jobs/fit", FIT_BODY)["id"]
+            page.goto(service.url + "/")
+            expect(page.locator(f'[data-job="{job}"]')).to_have_attribute("data-status", "succeeded", timeout=120_000)
+            page.wait_for_timeout(1000)
+            path = out / "5_fit_job.png"
+            page.locator("#fits-panel").screenshot(path=str(path))
+            shots.append(str(path.relative_to(REPO) if path.is_relative_to(REPO) else path))
             foreign = requests.foreign(service.host)
             if foreign:
                 raise SystemExit(f"the console asked other hosts: {foreign}")

@@ -7,13 +7,14 @@ page, and Swagger UI at /docs, ask nothing of any host but the service.
 """
 from __future__ import annotations
 
+import json
 import time
 import urllib.request
 
 import pytest
 from playwright.sync_api import expect, sync_playwright
 
-from console_harness import RequestLog, Service, Sim, launch
+from console_harness import REPO, RequestLog, Service, Sim, launch
 
 pytestmark = pytest.mark.slow
 
@@ -145,4 +146,57 @@ def test_swagger_ui_offline_and_reconnect_after_restart(service, page, tmp_path)
         expect(page.locator("#timeline")).to_contain_text("Policy set to auto", timeout=10_000)
     finally:
         again.stop()
+    assert not requests.foreign(service.host), requests.foreign(service.host)
+
+
+def _post(service, path: str, body: dict) -> dict:
+    req = urllib.request.Request(service.url + path, method="POST", data=json.dumps(body).encode(),
+                                 headers={"Content-Type": "application/json", "Authorization": f"Bearer {service.token}"})
+    with urllib.request.urlopen(req, timeout=10) as r:
+        return json.loads(r.read())
+
+
+def _fit_body(save_as: str, starts: int) -> dict:
+    flights = REPO / "fixtures" / "flights"
+    return {"component": "motor", "save_as": save_as,
+            "flights": {"train": [{"path": str(flights / "learn_01.tlog")}],
+                        "validation": [{"path": str(flights / "learn_02.tlog")}],
+                        "test": [{"path": str(flights / "learn_03.tlog")}]},
+            "settings": {"search": {"starts": starts, "sa_generations": 6, "lm_max_nfev": 4}, "workers": 1}}
+
+
+@pytest.mark.timeout(150)
+def test_fit_jobs_progress_results_cancel_and_activate(service, page):
+    requests = RequestLog(page)
+    page.goto(service.url + "/")
+    expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+    done = _post(service, "/jobs/fit", _fit_body("console_motor", 2))["id"]
+    job = page.locator(f'[data-job="{done}"]')
+    expect(job).to_have_attribute("data-status", "succeeded", timeout=90_000)
+    expect(job).to_contain_text("saved as console_motor")
+    expect(job.locator("table.compare")).to_contain_text("RMSE learned")
+    plot = job.locator("img").first
+    expect(plot).to_be_visible()
+    assert page.evaluate("(img) => img.naturalWidth", plot.element_handle()) > 100
+    # progress ticks never reach the timeline, even with jobs shown
+    page.locator('#filters input[value="jobs"]').check()
+    expect(page.locator("#timeline")).to_contain_text("succeeded")
+    ticks = [e for e in service.get("/events/poll?since=0") if e["kind"] == "job" and e["data"].get("progress", 0) > 0]
+    assert ticks, "the fit reported no progress"
+    shown = page.locator('#timeline li[data-kind="job"]').count()
+    assert shown < len(ticks) + 3 and shown <= 4, (shown, len(ticks))
+
+    # cancel a long one from the page (the token is asked once)
+    slow = _post(service, "/jobs/fit", _fit_body("console_slow", 40))["id"]
+    cancel = page.locator(f'[data-job="{slow}"] button[data-cancel]')
+    expect(cancel).to_be_visible(timeout=20_000)
+    cancel.click()
+    page.locator("#token-input").fill(service.token)
+    page.locator("#token-save").click()
+    expect(page.locator(f'[data-job="{slow}"]')).to_have_attribute("data-status", "cancelled", timeout=60_000)
+
+    # activate the fitted set
+    page.locator('#paramsets button[data-activate="console_motor"]').click()
+    expect(page.locator('#paramsets [data-set="console_motor"]')).to_contain_text("active", timeout=10_000)
+    assert next(p for p in service.get("/parameter-sets") if p["name"] == "console_motor")["active"]
     assert not requests.foreign(service.host), requests.foreign(service.host)

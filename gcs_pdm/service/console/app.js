@@ -492,17 +492,22 @@ function renderJobs() {
   }).join("");
 }
 function errorsTable(res) {
-  // per pack/motor result: {errors: {split: {metric: value}}}; shown as "split metric" rows
+  // result.fits[name].errors[learned|reference][split].overall[quantity].rmse (docs/fitting.md)
+  const unit = {voltage: " V", temperature: " °C"};
   const rows = [];
-  for (const [name, r] of Object.entries(res.results || res.components || {})) {
-    const errs = r && r.errors;
-    if (!errs) continue;
-    for (const [split, e] of Object.entries(errs)) {
-      const txt = typeof e === "object" && e ? Object.entries(e).filter(([, v]) => num(v)).map(([k, v]) => `${k} ${v.toPrecision(3)}`).join(", ") : String(e);
-      rows.push(`<tr><td>${esc(name)}</td><td>${esc(split)}</td><td>${esc(txt)}</td></tr>`);
+  for (const [name, fit] of Object.entries(res.fits || {})) {
+    const errs = (fit && fit.errors) || {};
+    for (const split of ["train", "validation", "test"]) {
+      const learned = errs.learned && errs.learned[split] && errs.learned[split].overall;
+      if (!learned) continue;
+      for (const [q, m] of Object.entries(learned)) {
+        const ref = errs.reference && errs.reference[split] && errs.reference[split].overall && errs.reference[split].overall[q];
+        const show = (x) => x && num(x.rmse) ? `${x.rmse.toPrecision(3)}${unit[q] || ""}` : unknown("not computed");
+        rows.push(`<tr><td>${esc(name)}</td><td>${esc(split)}</td><td>${esc(q)}</td><td>${show(m)}</td><td>${show(ref)}</td></tr>`);
+      }
     }
   }
-  return rows.length ? `<table class="compare"><tr><th>model</th><th>split</th><th>errors</th></tr>${rows.join("")}</table>` : "";
+  return rows.length ? `<table class="compare"><tr><th>model</th><th>split</th><th>of</th><th>RMSE learned</th><th>RMSE reference</th></tr>${rows.join("")}</table>` : "";
 }
 $("jobs").addEventListener("click", async (ev) => {
   const id = ev.target.dataset.cancel;
@@ -578,6 +583,7 @@ function onEvent(ev) {
     if (!j || !isProgressTick(ev)) refreshJobs();
     else renderJobs();
     if (isProgressTick(ev)) return;  // progress moves the bar, never the timeline
+    if (["succeeded", "failed", "cancelled"].includes(d.status)) refreshParamsets();  // a fit may have saved a set
   }
   S.events.push(ev);
   if (S.events.length > TIMELINE_MAX * 2) S.events.splice(0, S.events.length - TIMELINE_MAX);
