@@ -13,29 +13,13 @@ import argparse
 import json
 import sys
 import tempfile
-import urllib.request
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "browser"))
 sys.path.insert(0, str(REPO))
 
-from console_harness import RequestLog, Service, Sim, launch  # noqa: E402
-
-
-FLIGHTS = REPO / "fixtures" / "flights"
-FIT_BODY = {"component": "motor", "save_as": "motor_from_learn_01",
-            "flights": {"train": [{"path": str(FLIGHTS / "learn_01.tlog")}],
-                        "validation": [{"path": str(FLIGHTS / "learn_02.tlog")}],
-                        "test": [{"path": str(FLIGHTS / "learn_03.tlog")}]},
-            "settings": {"search": {"starts": 2, "sa_generations": 6, "lm_max_nfev": 4}, "workers": 1}}
-
-
-def _post(service: Service, path: str, body: dict) -> dict:
-    req = urllib.request.Request(service.url + path, method="POST", data=json.dumps(body).encode(),
-                                 headers={"Content-Type": "application/json", "Authorization": f"Bearer {service.token}"})
-    with urllib.request.urlopen(req, timeout=10) as r:
-        return json.loads(r.read())
+from console_harness import RequestLog, Service, Sim, launch, motor_fit_request  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -78,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
             page.goto(service.url + "/docs")
             expect(page.locator(".swagger-ui .info .title")).to_contain_text("gcs-pdm", timeout=20_000)
             shot("4_api_docs_offline.png", full_page=False)
-            job = _post(service, "/jobs/fit", FIT_BODY)["id"]
+            job = service.send("POST", "/jobs/fit", motor_fit_request("motor_from_learn_01"))["id"]
             page.goto(service.url + "/")
             expect(page.locator(f'[data-job="{job}"]')).to_have_attribute("data-status", "succeeded", timeout=120_000)
             page.wait_for_timeout(1000)

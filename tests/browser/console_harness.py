@@ -92,6 +92,22 @@ class Service:
         with urllib.request.urlopen(self.url + path, timeout=5.0) as r:
             return json.loads(r.read())
 
+    def send(self, method: str, path: str, body: dict):
+        req = urllib.request.Request(self.url + path, method=method, data=json.dumps(body).encode(),
+                                     headers={"Content-Type": "application/json", "Authorization": f"Bearer {self.token}"})
+        with urllib.request.urlopen(req, timeout=10.0) as r:
+            return json.loads(r.read())
+
+
+def motor_fit_request(save_as: str, starts: int = 2) -> dict:
+    """A small motor fit on three recorded simulator flights (about 15 s with 2 starts)."""
+    flights = REPO / "fixtures" / "flights"
+    return {"component": "motor", "save_as": save_as,
+            "flights": {"train": [{"path": str(flights / "learn_01.tlog")}],
+                        "validation": [{"path": str(flights / "learn_02.tlog")}],
+                        "test": [{"path": str(flights / "learn_03.tlog")}]},
+            "settings": {"search": {"starts": starts, "sa_generations": 6, "lm_max_nfev": 4}, "workers": 1}}
+
 
 @dataclass
 class Sim:

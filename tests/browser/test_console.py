@@ -7,14 +7,12 @@ page, and Swagger UI at /docs, ask nothing of any host but the service.
 """
 from __future__ import annotations
 
-import json
 import time
-import urllib.request
 
 import pytest
 from playwright.sync_api import expect, sync_playwright
 
-from console_harness import REPO, RequestLog, Service, Sim, launch
+from console_harness import RequestLog, Service, Sim, launch, motor_fit_request
 
 pytestmark = pytest.mark.slow
 
@@ -140,29 +138,11 @@ def test_swagger_ui_offline_and_reconnect_after_restart(service, page, tmp_path)
         expect(page.locator('[data-banner="service"]')).to_have_count(0)
         assert page.evaluate("S.instance") not in (None, first)
         # the new service's events reach the page (its numbering began again)
-        req = urllib.request.Request(again.url + "/policy", method="PUT", data=b'{"policy": "auto"}',
-                                     headers={"Content-Type": "application/json", "Authorization": f"Bearer {again.token}"})
-        urllib.request.urlopen(req, timeout=5).close()
+        again.send("PUT", "/policy", {"policy": "auto"})
         expect(page.locator("#timeline")).to_contain_text("Policy set to auto", timeout=10_000)
     finally:
         again.stop()
     assert not requests.foreign(service.host), requests.foreign(service.host)
-
-
-def _post(service, path: str, body: dict) -> dict:
-    req = urllib.request.Request(service.url + path, method="POST", data=json.dumps(body).encode(),
-                                 headers={"Content-Type": "application/json", "Authorization": f"Bearer {service.token}"})
-    with urllib.request.urlopen(req, timeout=10) as r:
-        return json.loads(r.read())
-
-
-def _fit_body(save_as: str, starts: int) -> dict:
-    flights = REPO / "fixtures" / "flights"
-    return {"component": "motor", "save_as": save_as,
-            "flights": {"train": [{"path": str(flights / "learn_01.tlog")}],
-                        "validation": [{"path": str(flights / "learn_02.tlog")}],
-                        "test": [{"path": str(flights / "learn_03.tlog")}]},
-            "settings": {"search": {"starts": starts, "sa_generations": 6, "lm_max_nfev": 4}, "workers": 1}}
 
 
 @pytest.mark.timeout(150)
@@ -170,7 +150,7 @@ def test_fit_jobs_progress_results_cancel_and_activate(service, page):
     requests = RequestLog(page)
     page.goto(service.url + "/")
     expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
-    done = _post(service, "/jobs/fit", _fit_body("console_motor", 2))["id"]
+    done = service.send("POST", "/jobs/fit", motor_fit_request("console_motor"))["id"]
     job = page.locator(f'[data-job="{done}"]')
     expect(job).to_have_attribute("data-status", "succeeded", timeout=90_000)
     expect(job).to_contain_text("saved as console_motor")
@@ -187,7 +167,7 @@ def test_fit_jobs_progress_results_cancel_and_activate(service, page):
     assert shown < len(ticks) + 3 and shown <= 4, (shown, len(ticks))
 
     # cancel a long one from the page (the token is asked once)
-    slow = _post(service, "/jobs/fit", _fit_body("console_slow", 40))["id"]
+    slow = service.send("POST", "/jobs/fit", motor_fit_request("console_slow", starts=40))["id"]
     cancel = page.locator(f'[data-job="{slow}"] button[data-cancel]')
     expect(cancel).to_be_visible(timeout=20_000)
     cancel.click()
