@@ -53,6 +53,7 @@ class Service:
     token: str = field(default_factory=lambda: secrets.token_urlsafe(24))
     proc: subprocess.Popen | None = None
     tryout: dict = field(default_factory=dict)
+    extra_env: dict = field(default_factory=dict)
 
     @property
     def url(self) -> str:
@@ -67,7 +68,7 @@ class Service:
 
         self.folder.mkdir(parents=True, exist_ok=True)
         self.tryout = self.tryout or export_tryout(self.folder)
-        env = _env() | {"GCS_PDM_API_TOKEN": self.token}
+        env = _env() | {"GCS_PDM_API_TOKEN": self.token} | self.extra_env
         log = open(self.folder / "serve.log", "ab")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "gcs_pdm.cli", "serve", "--mavlink", f"udpin:127.0.0.1:{self.udp_port}",
@@ -118,11 +119,16 @@ class Sim:
     proc: subprocess.Popen | None = None
 
     def start(self) -> "Sim":
+        from gcs_pdm.service.demo import demo_telemetry
+
         t = self.service.tryout
+        # the demo's thinner telemetry: what the estimator needs, light enough for a busy machine
+        rates = [a for name, hz in demo_telemetry().rates_hz.items() for a in ("--rate", f"{name}={hz:g}")]
         log = open(self.service.folder / "sim.log", "ab")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "gcs_pdm.cli", "sim", "--connect", f"udpout:127.0.0.1:{self.service.udp_port}",
-             "--speedup", str(self.speedup), "--mission", t["mission"], "--fault", t["fault"], "--start-delay", "1"],
+             "--speedup", str(self.speedup), "--mission", t["mission"], "--fault", t["fault"], "--start-delay", "1",
+             *rates],
             env=_env(), stdout=log, stderr=subprocess.STDOUT)
         return self
 

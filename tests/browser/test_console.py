@@ -12,6 +12,7 @@ import time
 import pytest
 from playwright.sync_api import expect, sync_playwright
 
+from gcs_pdm.service.console_routes import TILE_URL_ENV
 from console_harness import RequestLog, Service, Sim, launch, motor_fit_request
 
 pytestmark = pytest.mark.slow
@@ -132,7 +133,9 @@ def test_swagger_ui_offline_and_reconnect_after_restart(service, page, tmp_path)
     service.stop()
     expect(page.locator('[data-banner="service"]')).to_have_count(1, timeout=10_000)
     expect(page.locator("#conn")).to_have_attribute("data-state", "down")
-    again = Service(tmp_path / "svc2", http_port=service.http_port).start()
+    # the restarted service has a tile server configured (its own host here: the test has no other)
+    tiles = f"{service.url}/console/vendor/leaflet/images/layers.png?z={{z}}&x={{x}}&y={{y}}"
+    again = Service(tmp_path / "svc2", http_port=service.http_port, extra_env={TILE_URL_ENV: tiles}).start()
     try:
         expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=20_000)
         expect(page.locator('[data-banner="service"]')).to_have_count(0)
@@ -140,6 +143,10 @@ def test_swagger_ui_offline_and_reconnect_after_restart(service, page, tmp_path)
         # the new service's events reach the page (its numbering began again)
         again.send("PUT", "/policy", {"policy": "auto"})
         expect(page.locator("#timeline")).to_contain_text("Policy set to auto", timeout=10_000)
+        # with a tile URL the map draws over tiles instead of the local frame
+        expect(page.locator("#map-legend")).to_contain_text("map tiles", timeout=10_000)
+        expect(page.locator("#map img.leaflet-tile-loaded").first).to_be_visible(timeout=10_000)
+        assert any("layers.png?z=" in u for u in requests.urls)
     finally:
         again.stop()
     assert not requests.foreign(service.host), requests.foreign(service.host)
