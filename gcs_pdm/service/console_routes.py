@@ -84,7 +84,7 @@ def console_settings(service) -> dict:
 @router.get("/console/settings", tags=["console"])
 def settings(request: Request) -> dict:
     """Map tiles (null: draw in the local east/north frame) and the limits the planner flies to."""
-    return console_settings(request.app.state.gcs_pdm_service)
+    return console_settings(request.app.state.service)
 
 
 @router.get(STATIC_PREFIX + "{path:path}", include_in_schema=False)
@@ -97,5 +97,5 @@ def console_asset(path: str) -> Response:
 
 def include_console(app, service) -> None:
     """Put the console on ``app``; ``create_app`` calls this (the settings read the service)."""
-    app.state.gcs_pdm_service = service
+    app.state.service = service  # the name main's routers.deps reads too
     app.include_router(router)
