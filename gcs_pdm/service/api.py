@@ -7,13 +7,13 @@ one router per resource; the service and the token check reach them as FastAPI d
 """
 from __future__ import annotations
 
-import importlib.util
 import logging
 
 from fastapi import FastAPI, Request
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import JSONResponse
 
 import gcs_pdm
+from gcs_pdm.service.console_routes import include_console
 from gcs_pdm.service.routers import events, faults, files, health, jobs, missions, parameter_sets
 from gcs_pdm.service.storage import Conflict, NotFound
 
@@ -26,7 +26,8 @@ ROUTERS = (health.router, faults.router, missions.router, parameter_sets.router,
 
 def create_app(service) -> FastAPI:
     app = FastAPI(title="gcs-pdm", version=gcs_pdm.__version__,
-                  description="Prognostic decision making beside a MAVLink ground station")
+                  description="Prognostic decision making beside a MAVLink ground station",
+                  docs_url=None, redoc_url=None)  # /docs is the console's: Swagger UI served without a CDN
     app.state.service = service  # what ``routers.deps.get_service`` hands every endpoint
 
     @app.exception_handler(NotFound)
@@ -37,17 +38,8 @@ def create_app(service) -> FastAPI:
     async def _conflict(_req: Request, exc: Conflict):
         return JSONResponse(status_code=409, content={"detail": str(exc)})
 
-    # --- the web console: its router goes here (gcs_pdm/service/console_routes.py, ``router``) ---
-    if importlib.util.find_spec("gcs_pdm.service.console_routes") is not None:
-        from gcs_pdm.service.console_routes import router as console_router
-
-        app.include_router(console_router)
-    else:
-        from gcs_pdm.service.status_page import STATUS_PAGE
-
-        @app.get("/", response_class=HTMLResponse, include_in_schema=False)
-        def status_page() -> str:
-            return STATUS_PAGE
+    # the operator's console at /, its assets and the local Swagger UI at /docs (console_routes.py)
+    include_console(app, service)
 
     for router in ROUTERS:
         app.include_router(router)
