@@ -40,8 +40,24 @@ SETS = ("Chen2020", "Marquis2019")
 C_RATES = {"Chen2020": (1.0, 1.2, 1.4, 1.6, 1.8, 2.0), "Marquis2019": (1.0, 1.4, 1.8, 2.2, 2.6, 3.0)}
 #: highest C-rate of a climb burst per set
 BURST_CAP = {"Chen2020": 2.2, "Marquis2019": 4.0}
-#: per parameter set: 8 train, 2 validation, 2 test (flight index -> split, by position)
-SPLIT_PATTERN = ["train"] * 8 + ["validation"] * 2 + ["test"] * 2
+#: per parameter set: 2 validation and 2 test flights, the rest train
+N_VALIDATION = N_TEST = 2
+
+
+def assign_splits(flights: list[dict], rng: np.random.Generator) -> None:
+    """Stratified, before any fit: validation and test each get one flight that reached the cut-off
+    and one that did not (when there are such flights), so every split covers the end-of-discharge
+    knee and a plain cruise; the rest train."""
+    cut = [f for f in flights if f["reached_cutoff"]]
+    full = [f for f in flights if not f["reached_cutoff"]]
+    rng.shuffle(cut)
+    rng.shuffle(full)
+    for split, n in (("test", N_TEST), ("validation", N_VALIDATION)):
+        for k in range(n):
+            first, other = (cut, full) if k % 2 == 0 else (full, cut)
+            (first or other).pop()["split"] = split
+    for f in flights:
+        f.setdefault("split", "train")
 
 
 def flight_profile(rng: np.random.Generator, c_rate: float, duration_s: int, burst_cap: float) -> np.ndarray:
@@ -147,13 +163,14 @@ def main(argv: list[str] | None = None) -> int:
                     "temperature_c": temp, "ambient_c": np.full(m, ambient)}
             noisy = add_sensor_effects(rng, cols)
             pd.DataFrame(noisy).astype("float32").to_parquet(out / set_name / f"{name}.parquet", index=False)
-            split = SPLIT_PATTERN[k % len(SPLIT_PATTERN)]
             manifest["flights"].append({"flight": name, "set": set_name, "file": f"{set_name}/{name}.parquet",
-                                        "split": split, "ambient_c": ambient, "cruise_c_rate": c_rate,
+                                        "ambient_c": ambient, "cruise_c_rate": c_rate,
                                         "initial_soc": round(soc0, 4), "samples": int(m), "reached_cutoff": bool(cutoff),
                                         "cell_cutoff_v": v_cut, "seconds_to_simulate": round(time.perf_counter() - t0, 2)})
-            print(f"{name}: {split:10s} {ambient:5.1f} C  {c_rate:.1f}C  SoC0 {soc0:.2f}  {m} s"
+            print(f"{name}: {ambient:5.1f} C  {c_rate:.1f}C  SoC0 {soc0:.2f}  {m} s"
                   f"{'  cut-off' if cutoff else ''}", flush=True)
+        split_rng = np.random.default_rng([args.seed, SETS.index(set_name)])
+        assign_splits([f for f in manifest["flights"] if f["set"] == set_name], split_rng)
     manifest["seconds"] = round(time.perf_counter() - t_all, 1)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return 0

@@ -15,10 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, lsq_linear
 from scipy.signal import lfilter
 
 DEGREE = 5
+REST_WEIGHT = 30.0
 
 
 @dataclass
@@ -33,9 +34,10 @@ class BaselineModel:
     h: float
 
     def initial_soc(self, v_rest: float) -> float:
-        grid = np.linspace(-0.2, 1.2, 1401)
-        ocv = np.polyval(self.poly, grid)
-        return float(grid[np.argmin(np.abs(ocv - v_rest))])
+        # the highest SoC whose OCV is still below the rest voltage (the polynomial need not be monotone)
+        grid = np.linspace(0.0, 1.2, 1201)
+        below = np.flatnonzero(np.polyval(self.poly, grid) <= v_rest)
+        return float(grid[below[-1]]) if below.size else 0.0
 
     def voltage(self, flight, soc0: float | None = None) -> np.ndarray:
         t, i = flight.time_s, flight.current_a
@@ -68,33 +70,48 @@ def _thermal(flight, r_th: float, c_th: float, h: float) -> np.ndarray:
     return out
 
 
+def _ocv_basis(soc: np.ndarray) -> np.ndarray:
+    # powers of SoC, highest first (np.polyval order)
+    return np.vander(soc, DEGREE + 1)
+
+
 def fit_baseline(flights) -> BaselineModel:
-    """Least-squares fit of the baseline on cleaned battery flights (uniform ~1 Hz logs)."""
-    v_all = np.concatenate([f.voltage_v for f in flights])
-    lo_v, hi_v = np.nanmin(v_all), np.nanmax(v_all)
+    """Least-squares fit of the baseline on cleaned battery flights (uniform ~1 Hz logs).
 
-    def unpack(x):
-        poly = x[:DEGREE + 1]
-        r0, r1, tau, cap = np.exp(x[DEGREE + 1:DEGREE + 5])
-        return poly, r0, r1, tau, cap, x[DEGREE + 5:]
+    Variable projection: for given (tau, capacity, initial SoCs) the voltage is linear in the
+    polynomial's coefficients, R_0 and R_1, which a linear least squares gives exactly; scipy's
+    bounded least squares searches the rest."""
+    rated = 7.8 * 3600.0
 
-    def res_v(x):
-        poly, r0, r1, tau, cap, socs = unpack(x)
-        m = BaselineModel(poly, r0, r1, tau, cap, 0, 1, 1)
-        out = []
+    def design(x):
+        tau, cap, socs = x[0], x[1] * rated, x[2:]
+        rows, ys = [], []
         for f, s0 in zip(flights, socs):
-            pred = m.voltage(f, s0)
+            dt = np.diff(f.time_s, prepend=f.time_s[0])
+            soc = s0 - np.cumsum(f.current_a * dt) / cap
             ok = np.isfinite(f.voltage_v)
-            out.append(pred[ok] - f.voltage_v[ok])
-        return np.concatenate(out)
+            a = np.column_stack([_ocv_basis(soc), -f.current_a, -_rc(f.current_a, dt, 1.0, tau)])
+            rows.append(a[ok])
+            ys.append(f.voltage_v[ok])
+            # the flight starts at rest: its first voltage is the OCV at its initial SoC (weighted, so the
+            # SoC scale the fit settles on is the one a new flight is started with)
+            rows.append(REST_WEIGHT * np.r_[_ocv_basis(np.array([s0]))[0], 0.0, 0.0][None])
+            ys.append(REST_WEIGHT * np.array([_first(f.voltage_v)]))
+        return np.vstack(rows), np.concatenate(ys)
 
-    # start: a straight OCV from the lowest to the highest voltage seen, 20 mOhm, 30 s, rated 7.8 Ah
-    poly0 = np.zeros(DEGREE + 1)
-    poly0[-2:] = (hi_v - lo_v + 1.0, lo_v - 0.5)
-    soc0 = [(_first(f.voltage_v) - poly0[-1]) / poly0[-2] for f in flights]
-    x0 = np.concatenate([poly0, np.log([0.02, 0.01, 30.0, 7.8 * 3600]), soc0])
-    fit = least_squares(res_v, x0, method="trf", x_scale="jac", max_nfev=300)
-    poly, r0, r1, tau, cap, _ = unpack(fit.x)
+    lower = np.r_[np.full(DEGREE + 1, -np.inf), 0.0, 0.0]   # resistances are not negative
+
+    def solve(x):
+        a, y = design(x)
+        coef = lsq_linear(a, y, bounds=(lower, np.inf), method="bvls").x
+        return coef, a @ coef - y
+
+    x0 = np.concatenate([[30.0, 1.0], np.full(len(flights), 0.9)])
+    lo = np.concatenate([[1.0, 0.5], np.full(len(flights), 0.0)])
+    hi = np.concatenate([[3000.0, 1.5], np.full(len(flights), 1.2)])
+    fit = least_squares(lambda x: solve(x)[1], x0, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=200)
+    coef, _ = solve(fit.x)
+    poly, r0, r1 = coef[:DEGREE + 1], float(coef[DEGREE + 1]), float(coef[DEGREE + 2])
 
     def res_t(y):
         r_th, c_th, h = np.exp(y)
@@ -104,6 +121,7 @@ def fit_baseline(flights) -> BaselineModel:
             out.append(_thermal(f, r_th, c_th, h)[ok] - f.temperature_c[ok])
         return np.concatenate(out)
 
-    th = least_squares(res_t, np.log([0.03, 1000.0, 2.0]), method="trf", max_nfev=200)
+    th = least_squares(res_t, np.log([0.03, 1000.0, 2.0]), bounds=(np.log([1e-4, 10.0, 0.01]), np.log([1.0, 1e5, 100.0])),
+                       method="trf", max_nfev=200)
     r_th, c_th, h = np.exp(th.x)
-    return BaselineModel(poly, r0, r1, tau, cap, r_th, c_th, h)
+    return BaselineModel(poly, r0, r1, float(fit.x[0]), float(fit.x[1] * rated), r_th, c_th, h)

@@ -1,6 +1,7 @@
 """``gcs-pdm fit battery|motor|synthetic``: learn parameters from flight logs (the paper's §IV).
 
     gcs-pdm fit battery --train F… --val F… --test F… --out DIR [--pack LLF20|ULA20|LRF40|URA40|all]
+                        [--model extended|paper]
     gcs-pdm fit motor   --train F… --val F… --test F… --out DIR
     gcs-pdm fit synthetic --out DIR [--flights 12] [--seed 1]     (CSV logs with known truth)
 
@@ -31,7 +32,11 @@ def register(subparsers) -> None:
             q.add_argument("--pack", default=None, choices=PACK_NAMES + ("all",),
                            help="pack to fit: tlogs hold all four (default all); tables hold one (its fixed values "
                                 "and reference come from this pack, default LLF20)")
-        q.add_argument("--starts", type=int, default=10, help="annealing starts = LM runs (default 10)")
+        if what == "battery":
+            q.add_argument("--model", default="extended", choices=("extended", "paper"),
+                           help="battery model variant (docs/model.md): extended (default) or paper (eqs. 1-7)")
+        q.add_argument("--starts", type=int, default=None,
+                       help="annealing starts = LM runs (default 10; 4 for the extended variant)")
         q.add_argument("--sa-generations", type=int, default=None, help="annealing generations per start")
         q.add_argument("--sa-proposals", type=int, default=None, help="proposals per chain and generation")
         q.add_argument("--lm-max-nfev", type=int, default=None, help="LM residual evaluations per run")
@@ -58,7 +63,8 @@ def register(subparsers) -> None:
     st.add_argument("--name", default="learned")
     st.add_argument("--note", default="", help="free text stored in the set's provenance")
     st.add_argument("--seed", type=int, default=0)
-    st.add_argument("--starts", type=int, default=10)
+    st.add_argument("--model", default="extended", choices=("extended", "paper"), help="battery model variant")
+    st.add_argument("--starts", type=int, default=None)
     st.add_argument("--sa-generations", type=int, default=None)
     st.add_argument("--sa-proposals", type=int, default=None)
     st.add_argument("--lm-max-nfev", type=int, default=None)
@@ -104,21 +110,30 @@ def _settings(args):
     from gcs_pdm.fitting.procedure import FitSettings
     from gcs_pdm.fitting.search import SearchSettings
 
-    search = {"starts": args.starts, "seed": args.seed}
-    for k, attr in (("sa_generations", "sa_generations"), ("sa_proposals", "sa_proposals"), ("lm_max_nfev", "lm_max_nfev")):
-        if getattr(args, attr) is not None:
-            search[k] = getattr(args, attr)
-    return FitSettings(search=SearchSettings(**search), base=args.base, reference=args.reference, workers=args.workers)
+    import dataclasses
+
+    given = {"seed": args.seed}
+    for k in ("starts", "sa_generations", "sa_proposals", "lm_max_nfev"):
+        if getattr(args, k) is not None:
+            given[k] = getattr(args, k)
+    defaults = FitSettings()
+    # the flags tune the search of the variant being fitted (each variant keeps its own defaults)
+    return FitSettings(search=SearchSettings(**given), base=args.base, reference=args.reference, workers=args.workers,
+                       model=getattr(args, "model", "paper") if getattr(args, "fit_what", None) != "motor" else "paper",
+                       extended_search=dataclasses.replace(defaults.extended_search, **given))
 
 
 def _summary(res) -> dict:
     e = res.errors
-    out = {"component": res.component, "pack": res.pack, "seconds": round(res.seconds, 2)}
+    out = {"component": res.component, "pack": res.pack, "model": res.model, "seconds": round(res.seconds, 2)}
+    if res.model is not None and not res.thermal.get("fitted", True):
+        out["thermal_not_fitted"] = res.thermal.get("reason", "")
     for which in ("learned", "reference"):
         t = e[which]["test"]["overall"]
         if "voltage" in t:
             out[f"{which}_test_voltage_rmse_v"] = round(t["voltage"]["rmse"], 4)
-        out[f"{which}_test_temperature_rmse_f"] = round(t["temperature"]["rmse_f"], 3)
+        if t.get("temperature", {}).get("rmse_f") is not None:
+            out[f"{which}_test_temperature_rmse_f"] = round(t["temperature"]["rmse_f"], 3)
     return out
 
 
@@ -200,7 +215,7 @@ def run_learn_synthetic(args: argparse.Namespace) -> int:
 
     truth = true_parameters(args.truth_seed if args.truth_seed is not None else DEFAULT_TRUTH_SEED)
     merged, results = learn_from_synthetic(truth, flights=args.flights, seed=args.seed,
-                                           settings=FitSettings(search=SearchSettings(seed=args.fit_seed)),
+                                           settings=FitSettings(search=SearchSettings(seed=args.fit_seed), model="paper"),
                                            progress=_ProgressLine("learn: ", args.quiet))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(merged.to_json(indent=2))

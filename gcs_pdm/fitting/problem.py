@@ -83,6 +83,7 @@ EXTENDED_RC_BOUNDS: tuple[Bound, ...] = (
     Bound("k_soc", 1e-3, 10.0, "1", "resistance rise near empty: f = 1 + k_soc exp(-SoC/0.1)"),
     Bound("b_ct", 1e-3, 1.0, "V", "charge-transfer slope: 5 cells x RT/(alpha F) ~ 0.25 V; small = no kinetics"),
     Bound("i_ct", 0.1, 500.0, "A", "current where the charge-transfer drop turns logarithmic (exchange current)"),
+    Bound("k_d", 1e-2, 3000.0, "s", "surface depletion I k_d / C_max: up to 0.3 SoC at 3C (slow solid diffusion)"),
     Bound("C_max", 0.6 * PACK_CAPACITY_C, 1.4 * PACK_CAPACITY_C, "C", "usable capacity 60-140 % of the rated 7.8 Ah"),
 )
 EXTENDED_OCV_BOUNDS: tuple[Bound, ...] = (
@@ -92,6 +93,7 @@ EXTENDED_ELECTRICAL_BOUNDS: tuple[Bound, ...] = EXTENDED_RC_BOUNDS + EXTENDED_OC
 EXTENDED_THERMAL_BOUNDS: tuple[Bound, ...] = (
     Bound("C_t", 50.0, 2e4, "J/K", "pack (0.05-20 kJ/K) as the one sensor sees it, with its mounting"),
     Bound("h", 0.02, 50.0, "W/K", "still air to strong forced convection, pack in a fuselage or outside"),
+    Bound("dU_dT", -5e-3, 5e-3, "V/K", "entropic coefficient of the pack: +-1 mV/K per cell (searched linearly)"),
 )
 
 MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
@@ -103,23 +105,30 @@ MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
 
 
 class ParameterSpace:
-    """Unit-cube coordinates ↔ log-scaled physical values of the free parameters."""
+    """Unit-cube coordinates ↔ physical values of the free parameters: log-scaled, except a parameter
+    whose range includes zero or negative values (e.g. the entropic coefficient), which is linear."""
 
     def __init__(self, bounds: Sequence[Bound]):
         self.bounds = tuple(bounds)
         self.names = tuple(b.name for b in self.bounds)
-        self.log_lo = np.log([b.lo for b in self.bounds])
-        self.log_hi = np.log([b.hi for b in self.bounds])
+        lo = np.array([b.lo for b in self.bounds], dtype=np.float64)
+        hi = np.array([b.hi for b in self.bounds], dtype=np.float64)
+        self.linear = lo <= 0.0
+        self.log_lo = np.where(self.linear, lo, np.log(np.where(self.linear, 1.0, lo)))
+        self.log_hi = np.where(self.linear, hi, np.log(np.where(self.linear, 1.0, hi)))
 
     @property
     def dim(self) -> int:
         return len(self.bounds)
 
     def to_values(self, U: np.ndarray) -> np.ndarray:
-        return np.exp(self.log_lo + np.asarray(U) * (self.log_hi - self.log_lo))
+        x = self.log_lo + np.asarray(U) * (self.log_hi - self.log_lo)
+        return np.where(self.linear, x, np.exp(x)) if self.linear.any() else np.exp(x)
 
     def to_unit(self, values: np.ndarray) -> np.ndarray:
-        return (np.log(np.asarray(values, dtype=np.float64)) - self.log_lo) / (self.log_hi - self.log_lo)
+        v = np.asarray(values, dtype=np.float64)
+        x = np.where(self.linear, v, np.log(np.where(self.linear, 1.0, v))) if self.linear.any() else np.log(v)
+        return (x - self.log_lo) / (self.log_hi - self.log_lo)
 
 
 @dataclass(frozen=True)

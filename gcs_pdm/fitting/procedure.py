@@ -59,10 +59,24 @@ class FitSettings:
     model: str = "extended"
     #: open-circuit-voltage default (start of the search) when the base set has no extended values
     chemistry: str = "lipo"
+    #: search of the extended variant: its 23 electrical unknowns make each LM run costlier, and LM
+    #: (not the annealing, which only sees the 10 resistance/time-constant/capacity values) does most
+    #: of the work, so fewer starts with a longer LM; its 3-value thermal stage needs few generations
+    extended_search: SearchSettings = SearchSettings(starts=4, sa_generations=60, lm_max_nfev=40)
+    extended_thermal_generations: int = 20
+
+    def search_for(self, stage: str) -> SearchSettings:
+        """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
+        if self.model != "extended":
+            return self.search
+        if stage == "thermal":
+            return dataclasses.replace(self.extended_search, sa_generations=self.extended_thermal_generations)
+        return self.extended_search
 
     def to_dict(self) -> dict:
         return {"search": self.search.to_dict(), "base": self.base, "reference": self.reference,
-                "model": self.model, "chemistry": self.chemistry,
+                "model": self.model, "chemistry": self.chemistry, "extended_search": self.extended_search.to_dict(),
+                "extended_thermal_generations": self.extended_thermal_generations,
                 "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range, "workers": self.workers,
                 "cleaning": {k: v for k, v in self.cleaning.__dict__.items()}}
 
@@ -116,6 +130,9 @@ class FlightPrediction:
     reference_voltage: np.ndarray | None
     reference_temperature: np.ndarray
     initial_soc: float | None
+    #: model variants of the learned and the reference predictions (the plots name them)
+    model: str = "paper"
+    reference_model: str = "paper"
 
 
 @dataclass
@@ -396,7 +413,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         def make_el_sa(flights, workers):
             return problem_cls(flights, base_vec, pb.EXTENDED_RC_BOUNDS, "voltage", init_samples=s.init_samples,
                                mapper=pool.map, workers=workers)
-        u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"], s.search, pool,
+        u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"],
+                                          s.search_for("electrical"), pool,
                                           s.workers, stepper, (0.02, 0.55), 1, make_sa=make_el_sa if extended else None)
         el_vec = prob_el.pack_vectors(prob_el.space.to_values(u_el))[0]
         stages = [st_el]
@@ -405,8 +423,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
             def make_th(flights, workers, training):
                 return problem_cls(flights, el_vec, th_bounds, "temperature", init_samples=s.init_samples,
                                    mapper=pool.map, workers=workers)
-            u_th, st_th, prob_th = _run_stage("thermal", make_th, splits["train"], splits["validation"], s.search,
-                                              pool, s.workers, stepper, (0.55, 0.95), 2)
+            u_th, st_th, prob_th = _run_stage("thermal", make_th, splits["train"], splits["validation"],
+                                              s.search_for("thermal"), pool, s.workers, stepper, (0.55, 0.95), 2)
             final = prob_th.pack_vectors(prob_th.space.to_values(u_th))[0]
             stages.append(st_th)
         else:
@@ -424,7 +442,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         pairs_r[split] = [(f.name, {"voltage": (rv, f.voltage_v), "temperature": (rt, f.temperature_c)})
                           for f, (rv, rt, _) in zip(flights, refs)]
         for f, (lv, lt, soc), (rv, rt, _) in zip(flights, learned, refs):
-            predictions.append(FlightPrediction(f.name, split, f.time_s, f.voltage_v, lv, f.temperature_c, lt, rv, rt, soc))
+            predictions.append(FlightPrediction(f.name, split, f.time_s, f.voltage_v, lv, f.temperature_c, lt, rv, rt, soc,
+                                                model=s.model))
     result = FitResult(
         component=BATTERY, pack=pack,
         parameters={k: float(v) for k, v in zip(kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS, final)},

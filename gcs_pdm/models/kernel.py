@@ -205,7 +205,7 @@ def simulate_packs(params: np.ndarray, x0: np.ndarray, dt: np.ndarray, current: 
     """Simulate N packs (one parameter vector each) over a current/ambient profile.
 
     ``variant`` "paper": params (N, 12) in PACK_PARAMS order, x0 (N, 4) in PACK_STATE order;
-    "extended": params (N, N_EXT_PARAMS) in EXT_PACK_PARAMS order, x0 (N, 4) in EXT_PACK_STATE order, and
+    "extended": params (N, N_EXT_PARAMS) in EXT_PACK_PARAMS order, x0 (N, 5) in EXT_PACK_STATE order, and
     optionally ``measured_temperature`` ((n,) or (N, n), NaN where missing) to drive the resistances'
     temperature dependence instead of the model's own temperature (the electrical fit uses it).
     dt, current, ambient (n,) shared or (N, n) per vector — see the module docstring for the time
@@ -296,6 +296,11 @@ def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
 # and logarithmic at high current, heat is I (OCV - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges heat with the
 # air as in eq. 7. With f and the OCV slope frozen over a step, the R–C pairs and the temperature have
 # exact exponential steps, as in the paper variant.
+#
+# Solid diffusion: the OCV is read at the particles' *surface* SoC, SoC - s_d, where the depletion
+# s_d relaxes towards I k_d / C_max with the slow time constant tau_2 (a one-state diffusion
+# approximation). On the plateau it acts as one more R–C drop; near empty, where the OCV falls
+# steeply, it makes the knee arrive earlier at high current, as it does in real cells.
 
 MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
 #: SoC of the open-circuit-voltage knots (denser at the bottom, where the curve bends)
@@ -305,12 +310,14 @@ N_OCV_KNOTS = len(EXT_OCV_SOC)
 EXT_SOC_SCALE = 0.1
 EXT_T_REF_K = 298.15
 EXT_PACK_PARAMS: tuple[str, ...] = (
-    "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "k_soc", "b_ct", "i_ct", "C_max", "C_t", "h", "dU_dT", "ocv_0",
+    "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "k_soc", "b_ct", "i_ct", "k_d", "C_max", "C_t", "h", "dU_dT",
+    "ocv_0",
 ) + tuple(f"docv_{k}" for k in range(1, N_OCV_KNOTS))
-EXT_PACK_STATE: tuple[str, ...] = ("soc", "v_1", "v_2", "T")
+EXT_PACK_STATE: tuple[str, ...] = ("soc", "v_1", "v_2", "T", "s_d")
+N_EXT_STATE = len(EXT_PACK_STATE)
 N_EXT_PARAMS = len(EXT_PACK_PARAMS)
-(E_R0, E_R1, E_TAU1, E_R2, E_TAU2, E_ER, E_KSOC, E_BCT, E_ICT, E_CMAX, E_CT, E_H, E_DUDT, E_OCV0) = range(14)
-(X_SOC, X_V1, X_V2, X_T) = range(4)
+(E_R0, E_R1, E_TAU1, E_R2, E_TAU2, E_ER, E_KSOC, E_BCT, E_ICT, E_KD, E_CMAX, E_CT, E_H, E_DUDT, E_OCV0) = range(15)
+(X_SOC, X_V1, X_V2, X_T, X_SD) = range(N_EXT_STATE)
 
 
 @njit(inline="always", **_JIT)
@@ -380,7 +387,8 @@ def _ext_advance(p, y, d, x, current, ambient, t_drive, dt, max_dt):
     if dt <= 0.0:
         t_res = x[X_T] if math.isnan(t_drive) else t_drive
         f = _resistance_factor(p, t_res, x[X_SOC])
-        return _ocv_eval(y, d, x[X_SOC]) - current * p[E_R0] * f - _kinetic(p, current, f) - x[X_V1] - x[X_V2]
+        return (_ocv_eval(y, d, x[X_SOC] - x[X_SD]) - current * p[E_R0] * f - _kinetic(p, current, f)
+                - x[X_V1] - x[X_V2])
     n_sub = 1
     if dt > max_dt:
         n_sub = int(math.ceil(dt / max_dt))
@@ -389,6 +397,7 @@ def _ext_advance(p, y, d, x, current, ambient, t_drive, dt, max_dt):
     decay_2 = math.exp(-h / p[E_TAU2])
     decay_t = math.exp(-h * p[E_H] / p[E_CT])
     d_soc = current * h / p[E_CMAX]
+    s_inf = current * p[E_KD] / p[E_CMAX]
     v = 0.0
     for _ in range(n_sub):
         t_res = x[X_T] if math.isnan(t_drive) else t_drive
@@ -400,21 +409,26 @@ def _ext_advance(p, y, d, x, current, ambient, t_drive, dt, max_dt):
         v2 = i2 + (x[X_V2] - i2) * decay_2
         # heat over the step: I (OCV - V) at the step's mean overpotential, minus the entropic term
         eta = current * p[E_R0] * f + _kinetic(p, current, f)
-        over = eta + 0.5 * (x[X_V1] + v1 + x[X_V2] + v2)
+        s_d = s_inf + (x[X_SD] - s_inf) * decay_2
+        soc_new = x[X_SOC] - d_soc
+        ocv_surface = _ocv_eval(y, d, soc_new - s_d)
+        # diffusion overpotential at the step's end (OCV at the bulk minus at the surface)
+        over = eta + 0.5 * (x[X_V1] + v1 + x[X_V2] + v2) + _ocv_eval(y, d, soc_new) - ocv_surface
         heat = current * over - current * (x[X_T] + 273.15) * p[E_DUDT]
         t_inf = ambient + heat / p[E_H]
         x[X_T] = t_inf + (x[X_T] - t_inf) * decay_t
         x[X_V1] = v1
         x[X_V2] = v2
-        x[X_SOC] -= d_soc
-        v = _ocv_eval(y, d, x[X_SOC]) - eta - v1 - v2
+        x[X_SD] = s_d
+        x[X_SOC] = soc_new
+        v = ocv_surface - eta - v1 - v2
     return v
 
 
 @njit(inline="always", **_JIT)
 def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final):
     n = current.shape[1]
-    x = np.empty(4)
+    x = np.empty(N_EXT_STATE)
     p = params[j]
     y = np.empty(N_OCV_KNOTS)
     d = np.empty(N_OCV_KNOTS)
@@ -423,13 +437,13 @@ def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, volta
     ai = j if ambient.shape[0] > 1 else 0
     di = j if dt.shape[0] > 1 else 0
     ti = j if t_meas.shape[0] > 1 else 0
-    for s in range(4):
+    for s in range(N_EXT_STATE):
         x[s] = x0[j, s]
     for k in range(n):
         voltage[j, k] = _ext_advance(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], dt[di, k], max_dt)
         temperature[j, k] = x[X_T]
         soc[j, k] = x[X_SOC]
-    for s in range(4):
+    for s in range(N_EXT_STATE):
         final[j, s] = x[s]
 
 
@@ -451,7 +465,7 @@ def _simulate_packs_extended(params, x0, dt, current, ambient, max_dt, record_st
         raise ValueError("record_states: not available for the extended variant")
     params = _params2d(params, N_EXT_PARAMS, "params")
     n_vec = params.shape[0]
-    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, 4)))
+    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, N_EXT_STATE)))
     cur = np.asarray(current, dtype=np.float64)
     n = cur.shape[-1]
     cur = _rows(cur, n_vec, n, "current")
@@ -463,7 +477,7 @@ def _simulate_packs_extended(params, x0, dt, current, ambient, max_dt, record_st
     voltage = np.empty((n_vec, n))
     temperature = np.empty((n_vec, n))
     soc = np.empty((n_vec, n))
-    final = np.empty((n_vec, 4))
+    final = np.empty((n_vec, N_EXT_STATE))
     run = _simulate_ext_parallel if parallel else _simulate_ext
     run(params, x0, dt_, cur, amb, t_meas, float(max_dt), voltage, temperature, soc, final)
     return PackTrajectory(voltage, temperature, soc, final, None)
@@ -501,14 +515,16 @@ def resistance_factor(params: np.ndarray, temperature_c: np.ndarray | float, soc
 
 def initial_extended_state(params: np.ndarray, soc: np.ndarray | float, temperature: np.ndarray | float,
                            current: np.ndarray | float = 0.0) -> np.ndarray:
-    """Extended pack states (N, 4) at a SoC and temperature with both R–C pairs settled at ``current``."""
+    """Extended pack states (N, 5) at a SoC and temperature with both R–C pairs and the diffusion
+    depletion settled at ``current``."""
     params = _params2d(params, N_EXT_PARAMS, "params")
     n_vec = params.shape[0]
     soc = np.broadcast_to(np.asarray(soc, dtype=np.float64), (n_vec,))
     f = resistance_factor(params, temperature, soc)
     current = np.asarray(current, dtype=np.float64)
-    x = np.empty((n_vec, 4))
+    x = np.empty((n_vec, N_EXT_STATE))
     x[:, X_SOC] = soc
+    x[:, X_SD] = current * params[:, E_KD] / params[:, E_CMAX]
     x[:, X_V1] = current * params[:, E_R1] * f
     x[:, X_V2] = current * params[:, E_R2] * f
     x[:, X_T] = temperature
@@ -518,7 +534,7 @@ def initial_extended_state(params: np.ndarray, soc: np.ndarray | float, temperat
 def extended_rest_soc(params: np.ndarray, voltage: float, current: float, temperature: float,
                       iterations: int = 40) -> np.ndarray:
     """SoC (N,) at which each extended vector, settled at ``current`` and ``temperature``, shows
-    terminal ``voltage``: V = OCV(SoC) - I (R_0 + R_1 + R_2) f - b_ct asinh(I f / i_ct), f = f(T, SoC);
+    terminal ``voltage``: V = OCV(SoC - I k_d / C_max) - I (R_0 + R_1 + R_2) f - b_ct asinh(I f / i_ct);
     bisection on [-0.3, 1.3]."""
     params = _params2d(params, N_EXT_PARAMS, "params")
     r = params[:, E_R0] + params[:, E_R1] + params[:, E_R2]
@@ -527,7 +543,7 @@ def extended_rest_soc(params: np.ndarray, voltage: float, current: float, temper
     for _ in range(iterations):
         mid = 0.5 * (lo + hi)
         f = resistance_factor(params, temperature, mid)
-        v = (open_circuit_voltage(params, mid) - current * r * f
+        v = (open_circuit_voltage(params, mid - current * params[:, E_KD] / params[:, E_CMAX]) - current * r * f
              - params[:, E_BCT] * np.arcsinh(current * f / params[:, E_ICT]))
         above = v > voltage
         hi = np.where(above, mid, hi)

@@ -76,7 +76,7 @@ OCV_PER_CELL: Mapping[str, tuple[float, ...]] = {
 CHEMISTRIES: tuple[str, ...] = tuple(OCV_PER_CELL)
 #: extended-variant values other than the OCV for a 5S 7.8 Ah pack (docs/model.md)
 _EXTENDED_DEFAULTS = dict(R_0=0.02, R_1=0.01, tau_1=20.0, R_2=0.01, tau_2=300.0, E_r=2500.0, k_soc=0.3,
-                          b_ct=0.1, i_ct=20.0,
+                          b_ct=0.1, i_ct=20.0, k_d=1.0,
                           C_max=PACK_CAPACITY_C, C_t=1000.0, h=2.0, dU_dT=0.0)
 #: extended-variant fields that may be zero (the rest must be > 0); dU_dT may have either sign
 _EXTENDED_MAY_BE_ZERO = {"E_r", "k_soc"}
@@ -256,7 +256,7 @@ def _build_extended(values: Mapping[str, Any], where: str) -> dict[str, float]:
 #: units of the extended variant's values (docs/model.md)
 EXTENDED_UNITS: Mapping[str, str] = {
     "R_0": "ohm", "R_1": "ohm", "tau_1": "s", "R_2": "ohm", "tau_2": "s", "E_r": "K", "k_soc": "1",
-    "b_ct": "V", "i_ct": "A",
+    "b_ct": "V", "i_ct": "A", "k_d": "s",
     "C_max": "C", "C_t": "J/K", "h": "W/K", "dU_dT": "V/K", "ocv_0": "V",
 }
 
