@@ -154,7 +154,7 @@ def main() -> None:
         "test_learned": figs(learned), "test_reference_" + res.reference: figs(ref), "test_true_params": figs(true_err),
         "learned_over_true": {k: round(res.parameters[k] / true_vec[k], 3) for k in res.learned},
     }
-    ext, ext_wall, ext_cpu = _timed_fit(fl[:8], fl[8:10], fl[10:], FitSettings(), pack=args.pack)
+    ext, ext_wall, ext_cpu = _timed_fit(fl[:8], fl[8:10], fl[10:], FitSettings(model="extended"), pack=args.pack)
     out["default_variant_on_paper_data"] = {
         "model": ext.model, "wall_s": ext_wall, "cpu_s": ext_cpu, "floor_s": FLOOR_S, "under_floor": ext_wall <= FLOOR_S,
         "load_average_1min": round(os.getloadavg()[0], 2), "test": figs(ext.errors["learned"]["test"]["overall"])}

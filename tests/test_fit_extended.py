@@ -14,7 +14,7 @@ from gcs_pdm.models.params import ParameterSet, builtin
 
 ROOT = Path(__file__).resolve().parents[1] / "fixtures" / "pybamm"
 TINY = SearchSettings(starts=2, sa_generations=6, lm_max_nfev=6, seed=2)
-SMALL_EXT = FitSettings(extended_search=TINY, extended_thermal_generations=4)
+SMALL_EXT = FitSettings(model="extended", extended_search=TINY, extended_thermal_generations=4)
 FLIGHTS = ("chen2020_02", "chen2020_12", "chen2020_04")  # train, validation, test
 
 
@@ -28,8 +28,10 @@ def fit():
     return fit_battery([tr], [va], [te], SMALL_EXT, pack="URA40")
 
 
-def test_default_is_the_extended_variant_and_the_result_names_it(fit):
-    assert FitSettings().model == "extended"
+def test_default_of_new_fits_is_the_extended_variant_and_the_result_names_it(fit):
+    from gcs_pdm.fitting import cli, procedure
+
+    assert procedure.DEFAULT_MODEL == cli.DEFAULT_MODEL == "extended"
     d = json.loads(json.dumps(fit.to_dict(), allow_nan=False))
     assert d["model"] == "extended" and d["thermal"]["fitted"] is True
     assert set(d["parameters"]) == set(kernel.EXT_PACK_PARAMS)

@@ -26,7 +26,7 @@ from gcs_pdm.fitting.procedure import FitSettings, fit_battery
 
 ROOT = Path(__file__).resolve().parents[1] / "fixtures" / "pybamm"
 SETS = ("Chen2020", "Marquis2019")
-SETTINGS = FitSettings()  # the defaults of `gcs-pdm fit battery`: the extended variant
+SETTINGS = FitSettings(model="extended")  # what `gcs-pdm fit battery` runs with no flags
 
 
 def load(set_name):
