@@ -70,6 +70,11 @@ class ServiceConfig(BaseSettings):
     db_path: str | None = Field(None, description="SQLite file (default: <data_dir>/gcs_pdm.sqlite3)")
     record_tlog: bool = Field(True, description="record every live session to <data_dir>/tlogs/")
 
+    # --- uploads (POST /files) -------------------------------------------------------------------
+    max_upload_bytes: int = Field(256 * 1024 * 1024, ge=1, description="largest accepted upload (bytes); larger is 413")
+    max_upload_rows: int = Field(5_000_000, ge=1, description="most rows of an uploaded CSV/Parquet table; more is 413")
+    tlog_min_mavlink_fraction: float = Field(0.9, gt=0, le=1, description="share of an uploaded tlog's bytes that must be CRC-valid MAVLink records")
+
     # --- auth --------------------------------------------------------------------------------
     api_token: str | None = Field(None, description="bearer token for mutating endpoints; generated and logged if unset")
 

@@ -12,6 +12,28 @@ PackName = Literal["LLF20", "ULA20", "LRF40", "URA40"]
 assert set(MotorName.__args__) == set(MOTOR_NAMES) and set(PackName.__args__) == set(PACK_NAMES)
 
 
+class ErrorOut(BaseModel):
+    """Every error answer: ``detail`` says what went wrong. A 422 carries a list of
+    ``{loc, msg, type}`` naming the field (FastAPI's validation shape); other codes carry text."""
+
+    detail: str | list[dict[str, Any]]
+
+
+#: what each error status means on this API (the OpenAPI descriptions)
+ERROR_MEANINGS = {
+    401: "missing or wrong bearer token",
+    404: "no such resource",
+    409: "the resource is not in a state that allows this",
+    413: "the upload is larger than the configured limit (bytes or rows)",
+    422: "a parameter or body field is invalid (named in detail[].loc)",
+}
+
+
+def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """``responses=`` of a route: each error status it can answer, with the common error model."""
+    return {code: {"model": ErrorOut, "description": ERROR_MEANINGS[code]} for code in codes}
+
+
 class Health(BaseModel):
     status: Literal["ok"]
     version: str

@@ -4,7 +4,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from gcs_pdm.service import schemas as S
-from gcs_pdm.service.routers.deps import AUTH, ServiceDep
+from gcs_pdm.service.routers.deps import AUTH, RowId, ServiceDep
 
 router = APIRouter(prefix="/faults")
 
@@ -21,6 +21,6 @@ def declare_fault(body: S.FaultIn, service: ServiceDep):
 
 
 @router.post("/{fault_id}/clear", response_model=S.FaultOut, dependencies=AUTH)
-def clear_fault(fault_id: int, service: ServiceDep):
+def clear_fault(fault_id: RowId, service: ServiceDep):
     service.clear_fault(fault_id)
     return next(f for f in service.store.faults() if f["id"] == fault_id)

@@ -6,7 +6,7 @@ from fastapi.responses import FileResponse
 
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.fit_jobs import check_save_as, check_settings
-from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite, unprocessable
+from gcs_pdm.service.routers.deps import AUTH, PathName, ServiceDep, finite, unprocessable
 from gcs_pdm.service.storage import NotFound
 
 router = APIRouter(prefix="/jobs")
@@ -39,17 +39,17 @@ def jobs(service: ServiceDep, limit: int = Query(100, ge=1, le=1000)):
 
 
 @router.get("/{job_id}", response_model=S.JobOut)
-def job(job_id: str, service: ServiceDep):
+def job(job_id: PathName, service: ServiceDep):
     return finite(service.store.job(job_id))
 
 
 @router.post("/{job_id}/cancel", response_model=S.JobOut, dependencies=AUTH)
-def cancel(job_id: str, service: ServiceDep):
+def cancel(job_id: PathName, service: ServiceDep):
     return finite(service.runner.cancel(job_id))
 
 
 @router.get("/{job_id}/result")
-def job_result(job_id: str, service: ServiceDep) -> dict:
+def job_result(job_id: PathName, service: ServiceDep) -> dict:
     job = service.store.job(job_id)
     if job["status"] != "succeeded":
         raise HTTPException(409, detail=f"job {job_id} is {job['status']}, no result")
@@ -57,7 +57,7 @@ def job_result(job_id: str, service: ServiceDep) -> dict:
 
 
 @router.get("/{job_id}/plots/{name}", response_class=FileResponse)
-def job_plot(job_id: str, name: str, service: ServiceDep):
+def job_plot(job_id: PathName, name: PathName, service: ServiceDep):
     job = service.store.job(job_id)
     plots = (job["result"] or {}).get("plots", {})
     if name not in plots:

@@ -4,7 +4,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Query
 
 from gcs_pdm.service import schemas as S
-from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite
+from gcs_pdm.service.routers.deps import AUTH, RowId, ServiceDep, finite
 
 router = APIRouter(prefix="/missions")
 
@@ -20,18 +20,18 @@ def proposed(service: ServiceDep):
 
 
 @router.get("/plans/{plan_id}", response_model=S.PlanOut)
-def plan(plan_id: int, service: ServiceDep):
+def plan(plan_id: RowId, service: ServiceDep):
     return finite(service.store.plan(plan_id))
 
 
 @router.post("/plans/{plan_id}/approve", response_model=S.PlanOut, dependencies=AUTH)
-def approve(plan_id: int, service: ServiceDep, body: S.Decision | None = None):
+def approve(plan_id: RowId, service: ServiceDep, body: S.Decision | None = None):
     service.approve(plan_id, (body or S.Decision()).note)
     return finite(service.store.plan(plan_id))
 
 
 @router.post("/plans/{plan_id}/reject", response_model=S.PlanOut, dependencies=AUTH)
-def reject(plan_id: int, service: ServiceDep, body: S.Decision | None = None):
+def reject(plan_id: RowId, service: ServiceDep, body: S.Decision | None = None):
     service.reject(plan_id, (body or S.Decision()).note)
     return finite(service.store.plan(plan_id))
 
@@ -47,7 +47,7 @@ def uploads(service: ServiceDep, limit: int = Query(100, ge=1, le=1000)):
 
 
 @router.post("/uploads/{upload_id}/revert", response_model=S.PlanOut, status_code=202, dependencies=AUTH)
-def revert(upload_id: int, service: ServiceDep, body: S.Decision | None = None):
+def revert(upload_id: RowId, service: ServiceDep, body: S.Decision | None = None):
     """Upload again the mission that this upload replaced (the operator's choice; not re-planned)."""
     pid = service.revert_upload(upload_id, (body or S.Decision()).note)
     return finite(service.store.plan(pid))

@@ -5,7 +5,7 @@ from fastapi import APIRouter
 
 from gcs_pdm.models.params import ParameterError, ParameterSet
 from gcs_pdm.service import schemas as S
-from gcs_pdm.service.routers.deps import AUTH, ServiceDep, unprocessable
+from gcs_pdm.service.routers.deps import AUTH, PathName, ServiceDep, unprocessable
 
 router = APIRouter(prefix="/parameter-sets")
 
@@ -16,7 +16,7 @@ def parameter_sets(service: ServiceDep):
 
 
 @router.get("/{name}")
-def parameter_set(name: str, service: ServiceDep) -> dict:
+def parameter_set(name: PathName, service: ServiceDep) -> dict:
     """The full set as JSON (the export format; ``POST /parameter-sets`` imports it)."""
     return service.store.parameter_set(name).to_dict()
 
@@ -39,7 +39,7 @@ def import_parameter_set(body: S.ParameterSetImport, service: ServiceDep):
 
 
 @router.post("/{name}/activate", response_model=S.ParameterSetSummary, dependencies=AUTH)
-def activate(name: str, service: ServiceDep):
+def activate(name: PathName, service: ServiceDep):
     service.activate_parameter_set(name)
     return next(p for p in service.store.parameter_sets() if p["name"] == name)
 
