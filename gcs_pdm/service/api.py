@@ -11,7 +11,9 @@ import importlib.util
 import logging
 
 from fastapi import FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.responses import HTMLResponse, JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import gcs_pdm
 from gcs_pdm.service.routers import events, faults, files, health, jobs, missions, parameter_sets
@@ -36,6 +38,15 @@ def create_app(service) -> FastAPI:
     @app.exception_handler(Conflict)
     async def _conflict(_req: Request, exc: Conflict):
         return JSONResponse(status_code=409, content={"detail": str(exc)})
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(req: Request, exc: StarletteHTTPException):
+        # FastAPI answers a body it cannot parse (bad UTF-8, broken JSON or multipart) with a 400;
+        # it is an invalid body like any other, so it gets the documented 422 and its shape.
+        if exc.status_code == 400:
+            return JSONResponse(status_code=422, content={"detail": [
+                {"loc": ["body"], "msg": str(exc.detail), "type": "value_error"}]})
+        return await http_exception_handler(req, exc)
 
     # --- the web console: its router goes here (gcs_pdm/service/console_routes.py, ``router``) ---
     if importlib.util.find_spec("gcs_pdm.service.console_routes") is not None:

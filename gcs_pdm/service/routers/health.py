@@ -28,7 +28,7 @@ def get_policy(service: ServiceDep):
     return S.PolicyIn(policy=service.policy)
 
 
-@router.put("/policy", response_model=S.PolicyIn, dependencies=AUTH)
+@router.put("/policy", response_model=S.PolicyIn, dependencies=AUTH, responses=S.errors(401, 422))
 def set_policy(body: S.PolicyIn, service: ServiceDep):
     service.set_policy(body.policy)
     return S.PolicyIn(policy=service.policy)

@@ -12,7 +12,7 @@ from gcs_pdm.service.storage import NotFound
 router = APIRouter(prefix="/jobs")
 
 
-@router.post("/fit", response_model=S.JobCreated, status_code=202, dependencies=AUTH)
+@router.post("/fit", response_model=S.JobCreated, status_code=202, dependencies=AUTH, responses=S.errors(401, 422))
 def fit(body: S.FitJobIn, service: ServiceDep):
     try:
         service.store.parameter_set(body.base_set)
@@ -33,22 +33,22 @@ def fit(body: S.FitJobIn, service: ServiceDep):
     return S.JobCreated(id=job_id, status="queued")
 
 
-@router.get("", response_model=list[S.JobOut])
+@router.get("", response_model=list[S.JobOut], responses=S.errors(422))
 def jobs(service: ServiceDep, limit: int = Query(100, ge=1, le=1000)):
     return finite(service.store.jobs(limit))
 
 
-@router.get("/{job_id}", response_model=S.JobOut)
+@router.get("/{job_id}", response_model=S.JobOut, responses=S.errors(404, 422))
 def job(job_id: PathName, service: ServiceDep):
     return finite(service.store.job(job_id))
 
 
-@router.post("/{job_id}/cancel", response_model=S.JobOut, dependencies=AUTH)
+@router.post("/{job_id}/cancel", response_model=S.JobOut, dependencies=AUTH, responses=S.errors(401, 404, 409, 422))
 def cancel(job_id: PathName, service: ServiceDep):
     return finite(service.runner.cancel(job_id))
 
 
-@router.get("/{job_id}/result")
+@router.get("/{job_id}/result", responses=S.errors(404, 409, 422))
 def job_result(job_id: PathName, service: ServiceDep) -> dict:
     job = service.store.job(job_id)
     if job["status"] != "succeeded":
@@ -56,7 +56,8 @@ def job_result(job_id: PathName, service: ServiceDep) -> dict:
     return finite(job["result"])
 
 
-@router.get("/{job_id}/plots/{name}", response_class=FileResponse)
+@router.get("/{job_id}/plots/{name}", response_class=FileResponse,
+            responses={200: {"content": {"image/png": {}}}, **S.errors(404, 422)})
 def job_plot(job_id: PathName, name: PathName, service: ServiceDep):
     job = service.store.job(job_id)
     plots = (job["result"] or {}).get("plots", {})
