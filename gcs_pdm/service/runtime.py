@@ -49,15 +49,22 @@ class Service:
         #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the kernel's defaults
         self.limits = None
         self.loop = None
+        self.foreign_watch = None  # status_report.ForeignSystemWatcher, once a link is attached
         self.state.update(policy=self.policy, parameter_set=self.params.name)
 
     # --- lifecycle ---------------------------------------------------------------------------------
 
     def attach_loop(self, loop) -> None:
+        from gcs_pdm.service.status_report import ForeignSystemWatcher
+
         self.loop = loop
         self.state.update(link={"url": self.config.mavlink_url})
+        if getattr(loop, "link", None) is not None:
+            self.foreign_watch = ForeignSystemWatcher(self, loop.link).start()
 
     def close(self) -> None:
+        if self.foreign_watch is not None:
+            self.foreign_watch.stop()
         if self.loop is not None:
             self.loop.stop()
         self.runner.shutdown()

@@ -42,6 +42,8 @@ class Health(BaseModel):
     policy: Literal["auto", "advise"]
     active_parameter_set: str | None
     interrupted_jobs_at_start: int
+    foreign_systems: list[int] = Field(default_factory=list, description="other systems sending vehicle heartbeats "
+                                       "on our link (ignored, never tracked; details in /status link_trust)")
 
 
 class PackStatus(BaseModel):
@@ -81,6 +83,9 @@ class VehicleStatus(BaseModel):
     policy: str | None
     parameter_set: str | None
     failed: str | None = None
+    link_trust: dict[str, Any] = Field(default_factory=dict, description=(
+        "what the link refused to believe (Link.trust_report): foreign_systems [{system, component, heartbeats, "
+        "first_seen_s, last_seen_s}], time_rejected, gated values by field, bad_data; available: false without a link"))
     model_config = ConfigDict(extra="allow")
 
 
