@@ -184,3 +184,30 @@ def test_a_parquet_of_60m_rows_is_refused_from_its_footer_without_loading(tmp_pa
         assert svc.config.max_upload_rows == 5_000_000 and svc.config.max_upload_bytes == 256 * 1024 * 1024
     finally:
         svc.close()
+
+
+@pytest.mark.parametrize("ref,field", [
+    ({"tlog_id": 2**63}, "tlog_id"), ({"tlog_id": -(2**63) - 1}, "tlog_id"), ({"file_id": "f" * 100}, "file_id"),
+    ({"path": "a\x00b"}, "path"), ({"path": "a" * 5000}, "path"),
+])
+def test_fit_flight_refs_out_of_range_are_422(client, ref, field):
+    body = {"flights": {"train": [ref], "validation": [{"tlog_id": 1}]}}
+    r = client.post("/jobs/fit", json=body, headers=AUTH)
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"] == ["body", "flights", "train", 0, field]
+
+
+def test_a_path_name_too_long_for_the_file_system_is_422(client):
+    body = {"flights": {"train": [{"path": "fixtures/" + "a" * 400 + ".tlog"}], "validation": [{"tlog_id": 1}]}}
+    r = client.post("/jobs/fit", json=body, headers=AUTH)
+    assert r.status_code == 422 and "cannot be read" in r.json()["detail"][0]["msg"], r.text
+
+
+@pytest.mark.parametrize("path,body", [
+    ("/faults", {"motor": "aft", "magnitude": 0.5, "note": "n" * 2001}),
+    ("/missions/plans/1/approve", {"note": "n" * 2001}),
+    ("/jobs/fit", {"save_as": "s" * 81, "flights": {"train": [{"tlog_id": 1}], "validation": [{"tlog_id": 1}]}}),
+])
+def test_unbounded_text_fields_are_bounded(client, path, body):
+    r = client.post(path, json=body, headers=AUTH)
+    assert r.status_code == 422 and r.json()["detail"][0]["type"] == "string_too_long", r.text

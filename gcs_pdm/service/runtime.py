@@ -239,6 +239,9 @@ class Service:
             return f"not found: {exc.args[0]}"
         except PermissionError as exc:
             return str(exc)
-        if not path.is_file():
-            return f"file {path} does not exist or is not a file"
+        try:
+            if not path.is_file():
+                return f"file {path} does not exist or is not a file"
+        except (OSError, ValueError) as exc:  # e.g. a name longer than the file system allows
+            return f"file {path.name[:80]}...: cannot be read ({exc.strerror if isinstance(exc, OSError) else exc})"
         return None

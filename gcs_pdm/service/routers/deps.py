@@ -11,10 +11,8 @@ from fastapi import Path as PathParam
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from gcs_pdm.service.runtime import Service
+from gcs_pdm.service.schemas import SQLITE_INT_MAX
 
-
-#: SQLite's INTEGER is a signed 64-bit number: a larger id names no row (and overflows the driver: a 500)
-SQLITE_INT_MAX = 2**63 - 1
 
 #: a database row id in a path (plans, faults, uploads); out of range is a 422 naming the parameter
 RowId = Annotated[int, PathParam(ge=1, le=SQLITE_INT_MAX, description="row id, 1 .. 2^63-1")]
