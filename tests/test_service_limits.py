@@ -211,3 +211,35 @@ def test_a_path_name_too_long_for_the_file_system_is_422(client):
 def test_unbounded_text_fields_are_bounded(client, path, body):
     r = client.post(path, json=body, headers=AUTH)
     assert r.status_code == 422 and r.json()["detail"][0]["type"] == "string_too_long", r.text
+
+
+def test_an_oversized_body_is_refused_before_it_is_received(client, service):
+    from gcs_pdm.service.uploads import MULTIPART_OVERHEAD_BYTES
+
+    limit = service.config.max_upload_bytes + MULTIPART_OVERHEAD_BYTES
+    # declared too large: refused from the header, nothing read
+    r = client.post("/files", content=b"x" * 10, headers={**AUTH, "Content-Length": str(limit + 1),
+                                                         "Content-Type": "multipart/form-data; boundary=b"})
+    assert r.status_code == 413 and "upload limit" in r.json()["detail"]
+    # sent in pieces without a length: refused once the limit is passed, the rest never pulled
+    import asyncio
+
+    pulled, sent = [], []
+    first = b'--b\r\nContent-Disposition: form-data; name="file"; filename="a.tlog"\r\n\r\n'
+
+    async def receive():
+        k = len(pulled)
+        pulled.append(k)
+        return {"type": "http.request", "body": first if k == 0 else b"\0" * 16_384, "more_body": k < 99}
+
+    async def send(message):
+        sent.append(message)
+
+    scope = {"type": "http", "method": "POST", "path": "/files", "raw_path": b"/files", "query_string": b"",
+             "root_path": "", "scheme": "http", "server": ("test", 80), "client": ("test", 1), "http_version": "1.1",
+             "headers": [(b"authorization", AUTH["Authorization"].encode()),
+                         (b"content-type", b"multipart/form-data; boundary=b")]}
+    asyncio.run(create_app(service)(scope, receive, send))
+    assert sent[0]["status"] == 413
+    assert len(pulled) < 100 and (len(pulled) - 1) * 16_384 <= limit + 16_384, len(pulled)
+    assert incoming_left(service) == []

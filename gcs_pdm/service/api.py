@@ -18,6 +18,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 import gcs_pdm
 from gcs_pdm.service.routers import events, faults, files, health, jobs, missions, parameter_sets
 from gcs_pdm.service.storage import Conflict, NotFound
+from gcs_pdm.service.uploads import UploadBodyLimit
 
 log = logging.getLogger(__name__)
 
@@ -30,6 +31,7 @@ def create_app(service) -> FastAPI:
     app = FastAPI(title="gcs-pdm", version=gcs_pdm.__version__,
                   description="Prognostic decision making beside a MAVLink ground station")
     app.state.service = service  # what ``routers.deps.get_service`` hands every endpoint
+    app.add_middleware(UploadBodyLimit, path="/files", max_bytes=lambda: service.config.max_upload_bytes)
 
     @app.exception_handler(NotFound)
     async def _not_found(_req: Request, exc: NotFound):

@@ -20,6 +20,8 @@ UPLOAD_KINDS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".tlog":
 MAX_FILENAME_CHARS = 200
 #: the body is copied to disk in pieces of this size (the most one upload holds in memory)
 CHUNK_BYTES = 1 << 20
+#: room for the multipart framing (boundaries, part headers) around an upload's bytes
+MULTIPART_OVERHEAD_BYTES = 64 * 1024
 #: one tlog scanning window; a record (8-byte stamp + MAVLink 2 packet + signature) is at most 288 bytes
 SCAN_WINDOW_BYTES = 8 << 20
 _MAX_RECORD_BYTES = 8 + 12 + 255 + 13
@@ -51,6 +53,45 @@ class ReceivedFile:
 
     def discard(self) -> None:
         self.path.unlink(missing_ok=True)
+
+
+class UploadBodyLimit:
+    """ASGI middleware: a ``POST`` to ``path`` whose body passes the upload limit (plus multipart
+    framing) is refused with 413 as soon as that is known: at once from ``Content-Length``, or while
+    the body arrives, before the multipart parser spools the rest. Without it the limit would only be
+    checked after the whole body had been received."""
+
+    def __init__(self, app, path: str, max_bytes):
+        self.app = app
+        self.path = path
+        self.max_bytes = max_bytes  # a callable: the service's configured limit
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or scope["method"] != "POST" or scope["path"] != self.path:
+            await self.app(scope, receive, send)
+            return
+        from starlette.exceptions import HTTPException
+        from starlette.responses import JSONResponse
+
+        limit = self.max_bytes() + MULTIPART_OVERHEAD_BYTES
+        detail = f"file: larger than the upload limit of {self.max_bytes()} bytes"
+        length = dict(scope["headers"]).get(b"content-length", b"")
+        if length.isdigit() and int(length) > limit:
+            await JSONResponse({"detail": detail}, status_code=413)(scope, receive, send)
+            return
+        received = 0
+
+        async def counting_receive():
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > limit:
+                    # FastAPI passes an HTTPException raised while reading the body on as it is
+                    raise HTTPException(413, detail=detail)
+            return message
+
+        await self.app(scope, counting_receive, send)
 
 
 def upload_kind(filename: str) -> tuple[str, str]:
