@@ -97,7 +97,7 @@ def frames():
 
 
 def make_loop(tmp_path, policy, mission, fail_uploads=0):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy=policy, planner_deadline_s=20.0))
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy=policy, planner_deadline_s=20.0))
     svc.load_objectives_scenario(preflight_scenario(10))
     link = FakeLink()
     vehicle = FakeVehicleMissions(mission.items, fail_uploads)
@@ -299,7 +299,7 @@ class AlteredReadback(FakeVehicleMissions):
 
 
 def _direct_loop(tmp_path, vehicle_cls, mission):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy="auto"))
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy="auto"))
     svc.load_objectives_scenario(preflight_scenario(10))
     link = FakeLink()
     vehicle = vehicle_cls(mission.items)
