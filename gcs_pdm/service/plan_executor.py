@@ -147,7 +147,7 @@ class PlanExecutor:
                 continue
         else:
             return
-        self.service.events.publish("link", connected=True, vehicle=[self.link.target_system, self.link.target_component])
+        self.service.events.publish("link", status="connected", connected=True, vehicle=[self.link.target_system, self.link.target_component])
         self.refresh_mission()
 
     def request_refresh(self) -> None:
@@ -347,6 +347,9 @@ class PlanExecutor:
 
     def _transfer(self, items: list[M.MissionItem], current_seq: int) -> _Transfer:
         """Upload, make ``current_seq`` current, read back: which outcome, and what is on board."""
+        if self.telemetry.link_lost:
+            # Never spend minutes retrying a transfer to a vehicle that is not heard.
+            return _Transfer(UploadOutcome.FAILED, None, "upload", f"link lost ({self.telemetry.link_lost_reason})")
         try:
             stats = self.mc.upload(items)
         except (MissionError, OSError) as exc:

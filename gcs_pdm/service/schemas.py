@@ -13,7 +13,8 @@ assert set(MotorName.__args__) == set(MOTOR_NAMES) and set(PackName.__args__) ==
 
 
 class Health(BaseModel):
-    status: Literal["ok"]
+    status: Literal["ok", "degraded"]
+    reasons: list[str] = Field(default_factory=list, description="why the status is degraded")
     version: str
     schema_version: int
     link_connected: bool

@@ -22,7 +22,8 @@ async function tick(){
   try{
     const s=await (await fetch('/status')).json();
     document.getElementById('head').innerHTML=
-      `link <b class="${s.link.connected?'ok':'bad'}">${s.link.connected?'up':'down'}</b> · t=${f(s.time_s,1)} s · `+
+      `link <b class="${s.link.connected?'ok':'bad'}">${s.link.state||(s.link.connected?'up':'down')}</b>`+
+      (s.link.reason?` <b class="bad">(${s.link.reason})</b>`:'')+` · t=${f(s.time_s,1)} s · `+
       `mode ${f(s.mode)} · policy ${f(s.policy)} · params ${f(s.parameter_set)} · `+
       `pos ${f(s.position.lat_deg,6)}, ${f(s.position.lon_deg,6)}, ${f(s.position.relative_alt_m,0)} m`+
       (s.failed?` · <b class="bad">FAILED: ${s.failed}</b>`:'');
