@@ -538,23 +538,75 @@ def test_choose_ranks_feasible_routes_by_objective_not_reward():
     assert best.name == "planner"
 
 
-def test_same_mission_compares_what_the_vehicle_stores():
-    from gcs_pdm.service.decision import same_mission
+class ArduPlaneLike(FakeVehicleMissions):
+    """Stores what it is sent as stock ArduPlane does (item 0 is home, frame 6 -> 3, NaN -> 0,
+    NAV_LAND param4 -> 1, centimetre altitudes): the sim's ``store_like_arduplane``."""
 
-    items = list(original_mission().items)
-    sent = [M.as_sent(i) for i in items]
-    assert same_mission(items, sent)
-    # the vehicle's own home at seq 0 and the current flag are not mission content
-    back = [dataclasses.replace(sent[0], x=sent[0].x + 500)] + [dataclasses.replace(i, current=1) for i in sent[1:]]
-    assert same_mission(items, back)
-    # a moved waypoint, a changed command, a missing or an extra item are
-    k = next(i.seq for i in sent if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
-    assert not same_mission(items, sent[:k] + [dataclasses.replace(sent[k], z=sent[k].z + 1.0)] + sent[k + 1:])
-    assert not same_mission(items, sent[:k] + [dataclasses.replace(sent[k], y=sent[k].y + 100)] + sent[k + 1:])
-    assert not same_mission(items, sent[:-1])
-    assert not same_mission(items, sent + [sent[-1]])
-    land = len(sent) - 1
-    assert not same_mission(items, sent[:land] + [dataclasses.replace(sent[land], command=M.MAV_CMD_NAV_WAYPOINT)])
+    moved_seq: int | None = None
+
+    def upload(self, items):
+        from gcs_pdm.sim.mission_server import arduplane_stored
+        from gcs_pdm.sim.model import SimConfig
+
+        super().upload(items)
+        self.items = [arduplane_stored(i, SimConfig()) for i in self.items]
+        if self.moved_seq is not None:  # a real difference: one waypoint 200 m further north
+            self.items[self.moved_seq] = dataclasses.replace(self.items[self.moved_seq],
+                                                             x=self.items[self.moved_seq].x + 18000)
+
+
+def vehicle_message(name: str, system: int = 1, component: int = 1, **fields):
+    """A message as received from ``system``/``component`` (packed and parsed, so its header is real)."""
+    sender = mavlink2.MAVLink(None, srcSystem=system, srcComponent=component)
+    buf = getattr(sender, f"{name.lower()}_encode")(**fields).pack(sender)
+    return mavlink2.MAVLink(None).decode(bytearray(buf))
+
+
+def arduplane_heartbeat():
+    return vehicle_message("HEARTBEAT", type=mavlink2.MAV_TYPE_FIXED_WING, autopilot=mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                           base_mode=0, custom_mode=0, system_status=mavlink2.MAV_STATE_STANDBY)
+
+
+def _upload_with_prediction(svc, loop, new):
+    """An upload whose plan predicts the discharge (what arms the deviation check)."""
+    cand = Candidate("planner", tuple(range(10, 0, -1)), True, 100.0, 100.0, 100.0, None,
+                     {"final_soc": [0.5] * 4, "flight_time_s": 600.0})
+    pid = svc.store.add_plan({"items": [], "chosen": cand.to_dict()}, "test", "approved", 0.0)
+    snap = dataclasses.replace(_snap(loop), soc=(0.9,) * 4)
+    return pid, loop.executor.upload(pid, list(new.items), cand, snap, new.current_seq)
+
+
+def test_an_arduplane_normalised_readback_is_confirmed_and_arms_the_expectation(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, ArduPlaneLike, mission)
+    try:
+        loop.executor.watch(arduplane_heartbeat(), 1.0)
+        pid, out = _upload_with_prediction(svc, loop, new)
+        assert not M.same_items([M.as_sent(i) for i in new.items], vehicle.items)  # stored normalised
+        assert out.record_status == "confirmed", svc.store.uploads()[0]
+        assert svc.store.plan(pid)["status"] == "uploaded"
+        up = svc.store.uploads()[0]
+        assert up["status"] == "confirmed" and "equivalent under ArduPilot (Plane)" in up["readback"]
+        assert loop.executor.expectation is not None and loop.executor.expectation["soc1"] == [0.5] * 4
+        assert M.same_items(loop.mission_items, vehicle.items)  # what the vehicle holds, as it holds it
+    finally:
+        svc.close()
+
+
+def test_a_real_difference_under_arduplane_rules_is_a_mismatch(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, ArduPlaneLike, mission)
+    vehicle.moved_seq = next(i.seq for i in new.items if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
+    try:
+        loop.executor.watch(arduplane_heartbeat(), 1.0)
+        pid, out = _upload_with_prediction(svc, loop, new)
+        assert out.record_status == "mismatch"
+        assert svc.store.plan(pid)["status"] == "upload_mismatch"
+        up = svc.store.uploads()[0]
+        assert f"item {vehicle.moved_seq} x" in up["readback"] and "moved" in up["readback"]
+        assert loop.executor.expectation is None
+    finally:
+        svc.close()
 
 
 def test_operator_faults_are_kept_per_fault_and_the_worst_per_motor_counts(tmp_path):

@@ -50,6 +50,7 @@ class LiveLoop:
         # wiring (late-bound through self, so a replaced method is the one called)
         self.telemetry.on_reached = self.executor.reached
         self.telemetry.on_tick = self._tick
+        self.telemetry.on_message = self.executor.watch
         self.telemetry.motor_faults = lambda: self.faults.motor_faults()
         self.executor.request_replan = lambda reason: self.request_replan(reason)
 
@@ -93,6 +94,7 @@ class LiveLoop:
         if new_or_grown:
             self.request_replan("fault: " + ", ".join(f"{f.type} {f.component}" for f in new_or_grown))
         self.executor.check_deviation(t)
+        self.executor.check_mission_read(t)
         if self._deferred is not None and self.estimator.ready() and not self.telemetry.link_lost:
             self.request_replan(self._deferred)
 
@@ -162,7 +164,7 @@ class LiveLoop:
         self.executor.request_refresh()
 
     def refresh_mission(self) -> list[M.MissionItem]:
-        return self.executor.refresh_mission()
+        return self.executor.refresh_mission("operator")
 
     def upload(self, plan_id, items, chosen, snap, current_seq: int = 1) -> bool:
         """Upload a plan's mission now (on the caller's thread); whether it is confirmed on board."""

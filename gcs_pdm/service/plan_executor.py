@@ -25,11 +25,13 @@ import numpy as np
 
 from gcs_pdm import missions as M
 from gcs_pdm.diagnosis.faults import Fault
+from gcs_pdm.mavlink.autopilots import AutopilotRules, missions_equivalent, rules_for
 from gcs_pdm.mavlink.mission_client import MissionError
+from gcs_pdm.mavlink.mission_watch import MissionWatcher
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service import adapters
 from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, match_items, remaining_route,
-                                      route_of_items, same_mission)
+                                      route_of_items)
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +84,7 @@ class _Transfer:
     source: str                           # how we know: "upload" or "download"
     error: str | None = None
     stats: Any = None
+    readback: str | None = None           # the read-back's comparison with what was sent, in words
 
 
 class PlanExecutor:
@@ -110,6 +113,11 @@ class PlanExecutor:
         # the chosen plan's prediction (deviation check) and each plan's load (diagnoser's prognosis)
         self.expectation: dict | None = None
         self.loads: dict[int, tuple] = {}  # plan id -> (FutureLoad of its route, message time)
+        # when to read the vehicle's mission again, and its autopilot (whose storage rules decide
+        # whether a read-back is the mission sent); fed by the telemetry thread, read by the worker
+        self.watcher = MissionWatcher(getattr(getattr(link, "mav", None), "srcSystem", 255),
+                                      getattr(getattr(link, "mav", None), "srcComponent", 190))
+        self._watch_lock = threading.Lock()
 
     # --- lifecycle -------------------------------------------------------------------------------
 
@@ -135,6 +143,11 @@ class PlanExecutor:
     def _now(self) -> float | None:
         return self.telemetry.time_s
 
+    def rules(self) -> AutopilotRules:
+        """How the vehicle's autopilot stores mission items (from its HEARTBEAT; generic before)."""
+        with self._watch_lock:
+            return rules_for(self.watcher.autopilot, self.watcher.vehicle_type)
+
     # --- the vehicle's mission -------------------------------------------------------------------
 
     def initial_download(self) -> None:
@@ -154,12 +167,47 @@ class PlanExecutor:
         """Read the vehicle's mission again (e.g. after the ground station changed it), on the worker."""
         self._worker.submit(self._guard, self.refresh_mission)
 
-    def refresh_mission(self) -> list[M.MissionItem]:
-        items = self.mc.download()
-        self.set_mission(items, source="download")
+    def refresh_mission(self, reason: str | None = None) -> list[M.MissionItem]:
+        """Read the vehicle's mission now (on the caller's thread) and make it the plan baseline."""
+        with self._watch_lock:
+            if not self.watcher.reading:
+                self.watcher.read_started(self._now() or 0.0)
+        try:
+            items = self.mc.download()
+        except BaseException:
+            with self._watch_lock:
+                self.watcher.read_failed(self._now() or 0.0)
+            raise
+        with self._watch_lock:
+            self.watcher.read_done(len(items), self._now() or 0.0)
+        if self.mission_items is not None and not missions_equivalent(self.mission_items, items, self.rules()):
+            # Changed on board (e.g. by the ground station): the chosen plan's prediction no
+            # longer describes the mission being flown.
+            self.expectation = None
+        self.set_mission(items, source="download", reason=reason)
         return items
 
-    def set_mission(self, items: list[M.MissionItem], source: str) -> None:
+    # --- following the vehicle's mission -----------------------------------------------------------
+
+    def watch(self, msg, time_s: float) -> None:
+        """One of the vehicle's messages, at its message time, for the mission watcher (telemetry thread)."""
+        with self._watch_lock:
+            self.watcher.on_message(msg, time_s)
+
+    def check_mission_read(self, time_s: float) -> None:
+        """Start a read of the vehicle's mission on the worker when the watcher says one is due
+        (telemetry thread): home set, the mission changed on board, or an earlier read to retry."""
+        if self.telemetry.link_lost:
+            return
+        with self._watch_lock:
+            due = self.watcher.due(time_s)
+            if due is None:
+                return
+            self.watcher.read_started(time_s)
+        log.info("reading the vehicle's mission: %s", due.reason)
+        self._worker.submit(self._guard, self.refresh_mission, due.reason)
+
+    def set_mission(self, items: list[M.MissionItem], source: str, reason: str | None = None) -> None:
         self.mission_items = list(items)
         self.mission_time_s = self._now()
         if items:
@@ -177,7 +225,8 @@ class PlanExecutor:
             log.info("no mission objectives configured: each of the %d waypoints is worth 1", len(self.catalogue))
         self.service.state.update(mission={"count": len(items)})
         route = route_of_items(items, self.catalogue or [])
-        self.service.events.publish("mission", time_s=self._now(), source=source, count=len(items), route=route)
+        self.service.events.publish("mission", time_s=self._now(), source=source, count=len(items), route=route,
+                                    **({"reason": reason} if reason else {}))
 
     def reached(self, seq: int, t: float) -> None:
         """The vehicle reached mission item ``seq`` (telemetry thread): collect its waypoint's reward."""
@@ -356,6 +405,8 @@ class PlanExecutor:
             # Usually the vehicle keeps its mission; but if only the final MISSION_ACK was lost it
             # may hold the new one: read back what is really on board when the link allows.
             return _Transfer(UploadOutcome.FAILED, self._readback(), "download", str(exc))
+        with self._watch_lock:  # our own change: the vehicle's new mission id needs no read
+            self.watcher.uploaded(len(items))
         try:
             # An airborne vehicle heads for the first item of the new route, never the take-off
             # (gcs_pdm.planning.mission documents the layout).
@@ -370,8 +421,10 @@ class PlanExecutor:
             on_board = self._readback()
             return _Transfer(UploadOutcome.UPLOADED_UNCONFIRMED, on_board if on_board is not None else items,
                              "download" if on_board is not None else "upload", str(exc), stats)
-        outcome = UploadOutcome.CONFIRMED if same_mission(items, back) else UploadOutcome.UPLOAD_MISMATCH
-        return _Transfer(outcome, back, "upload", stats=stats)
+        # By meaning, not bytes: the autopilot stores items normalised (frames, NaN, item 0 as home).
+        comparison = missions_equivalent(items, back, self.rules())
+        outcome = UploadOutcome.CONFIRMED if comparison.equivalent else UploadOutcome.UPLOAD_MISMATCH
+        return _Transfer(outcome, back, "download", stats=stats, readback=comparison.summary())
 
     def upload(self, plan_id: int, items: list[M.MissionItem], chosen: Candidate, snap: Snapshot | None,
                current_seq: int = 1) -> UploadOutcome:
@@ -386,9 +439,11 @@ class PlanExecutor:
                 "stats": dataclasses.asdict(tr.stats) if dataclasses.is_dataclass(tr.stats) else None}
         if tr.error is not None:
             body["error"] = tr.error
+        if tr.readback is not None:
+            body["readback"] = tr.readback
         uid = svc.store.add_upload(plan_id, out.record_status, body)
-        note = tr.error or ("mission readback differs from the plan" if out is UploadOutcome.UPLOAD_MISMATCH
-                            else out.record_status)
+        note = tr.error or (f"mission readback differs from the plan: {tr.readback}"
+                            if out is UploadOutcome.UPLOAD_MISMATCH else out.record_status)
         svc.store.set_plan_status(plan_id, out.plan_status, note)
         if tr.on_board is not None:
             self.set_mission(tr.on_board, source=tr.source)

@@ -31,6 +31,9 @@ from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
 log = logging.getLogger(__name__)
 
 STATUS_PERIOD_S = 1.0
+#: the messages that tell when the vehicle's mission must be read again (mavlink.mission_watch)
+MISSION_WATCH_TYPES = frozenset({"HEARTBEAT", "HOME_POSITION", "MISSION_CURRENT", "MISSION_ACK", "MISSION_CHANGED",
+                                 "MISSION_COUNT"})
 #: wall seconds between two checks of the vehicle's silence
 LINK_CHECK_PERIOD_S = 0.2
 PREDICT_PERIOD_S = 10.0
@@ -68,12 +71,17 @@ class TelemetryIntake:
         self.on_reached: Callable[[int, float], None] = lambda seq, t: None
         self.on_tick: Callable[[float], None] = lambda t: None
         self.on_link_restored: Callable[[], None] = lambda: None
+        self.on_message: Callable[[object, float], None] = lambda msg, t: None
+        self._messages = None  # the link's subscription to MISSION_WATCH_TYPES
         self.motor_faults: Callable[[], list[MotorFault]] = lambda: []
 
     # --- lifecycle -------------------------------------------------------------------------------
 
     def start(self) -> None:
         self.link.add_frame_listener(self.on_frame)
+        subscribe = getattr(self.link, "subscribe", None)
+        if subscribe is not None:
+            self._messages = subscribe(MISSION_WATCH_TYPES, maxsize=1000)
         self._thread = threading.Thread(target=self._run, name="telemetry", daemon=True)
         self._thread.start()
 
@@ -81,6 +89,8 @@ class TelemetryIntake:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+        if self._messages is not None:
+            self._messages.close()
         self._predictor.shutdown(wait=True, cancel_futures=True)
 
     # --- threads ---------------------------------------------------------------------------------
@@ -99,6 +109,7 @@ class TelemetryIntake:
                     self.check_link()
                 except Exception:  # noqa: BLE001 - the check must not stop the loop
                     log.exception("link check failed")
+            self._pass_messages()
             try:
                 frame = self._frames.get(timeout=LINK_CHECK_PERIOD_S)
             except queue.Empty:
@@ -175,6 +186,22 @@ class TelemetryIntake:
                         "received": self.link.received, "frames": self.frames_seen,
                         "frames_dropped": self.frames_dropped,
                         "vehicle": [self.link.target_system, self.link.target_component]})
+
+    def _pass_messages(self) -> None:
+        """The tracked vehicle's mission-related messages to ``on_message``, at the latest message
+        time (these messages carry no timestamp of their own). Other systems' are not our vehicle's."""
+        if self._messages is None:
+            return
+        while True:
+            msg = self._messages.get(timeout=0)
+            if msg is None:
+                return
+            if (msg.get_srcSystem(), msg.get_srcComponent()) != (self.link.target_system, self.link.target_component):
+                continue
+            try:
+                self.on_message(msg, self.time_s if self.time_s is not None else 0.0)
+            except Exception:  # noqa: BLE001 - one odd message must not stop the loop
+                log.exception("message %s could not be watched", msg.get_type())
 
     # --- the link's state ------------------------------------------------------------------------
 
