@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from gcs_pdm import missions as M
 from gcs_pdm.estimation.synthetic import fly_synthetic
-from gcs_pdm.frames import MissionProgressFrame, PositionFrame
+from gcs_pdm.frames import AmbientFrame, MissionProgressFrame, PositionFrame
 from gcs_pdm.planning.mission import plan_to_mission
 from gcs_pdm.planning.plan import make_plan
 from gcs_pdm.geo import geodetic_from_enu
@@ -623,5 +623,114 @@ def test_operator_faults_are_kept_per_fault_and_the_worst_per_motor_counts(tmp_p
         svc.clear_fault(strong)
         assert not [f for f in loop.faults.motor_faults([]) if f.motor == "aft"]
         assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(1.0)
+    finally:
+        svc.close()
+
+
+# --- following the vehicle's mission -------------------------------------------------------------
+
+class SubscribingLink(FakeLink):
+    """A link with the real one's subscription: the test plays the vehicle's mission messages."""
+
+    def __init__(self):
+        super().__init__()
+        self.mav = mavlink2.MAVLink(None, srcSystem=245, srcComponent=195)  # the service's own ids
+        self.subscription = None
+
+    def subscribe(self, types, maxsize=1000):
+        import queue
+
+        link = self
+
+        class Subscription:
+            def __init__(self):
+                self.types, self.queue = types, queue.Queue(maxsize)
+
+            def get(self, timeout=None):
+                try:
+                    return self.queue.get(timeout=timeout)
+                except queue.Empty:
+                    return None
+
+            def close(self):
+                link.subscription = None
+
+        self.subscription = Subscription()
+        return self.subscription
+
+    def receive(self, msg):
+        if self.subscription is not None and msg.get_type() in self.subscription.types:
+            self.subscription.queue.put(msg)
+
+
+class HomelessVehicle(FakeVehicleMissions):
+    """ArduPilot before home is set: a mission read returns 0 items whatever it holds."""
+
+    home_set = False
+    downloads = 0
+
+    def download(self):
+        self.downloads += 1
+        return list(self.items) if self.home_set else []
+
+
+def test_the_current_mission_follows_home_and_a_ground_station_upload_within_5_s(tmp_path):
+    mission = original_mission()
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy="advise"))
+    svc.load_objectives_scenario(preflight_scenario(10))
+    link = SubscribingLink()
+    vehicle = HomelessVehicle(mission.items)
+    loop = LiveLoop(svc, link, vehicle)
+    svc.attach_loop(loop)
+    loop.start()
+    wp = next(i.seq for i in vehicle.items if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
+    changed = list(vehicle.items)
+    changed[wp] = dataclasses.replace(changed[wp], z=changed[wp].z + 40.0)  # same count: only the content says
+    seen = {}  # what the service showed -> message time it learned it
+
+    def shown():
+        cur = svc.current_mission()
+        if cur["items"] is None:
+            return None
+        items = [M.item_from_json(d) for d in cur["items"]]
+        for name, want in (("empty", []), ("home", vehicle_original), ("changed", changed)):
+            if M.same_items(items, want):
+                seen.setdefault(name, cur["time_s"])
+                return name
+        return "other"
+
+    vehicle_original = list(vehicle.items)
+    try:
+        t = 0.0
+        while t < 45.0:
+            link.receive(arduplane_heartbeat()) if t % 1.0 == 0 else None
+            if t % 1.0 == 0:
+                total = len(vehicle.items) if vehicle.home_set else 0
+                link.receive(vehicle_message("MISSION_CURRENT", seq=0, total=total))
+            if t == 10.0:  # the vehicle gets its GPS fix and sets home
+                vehicle.home_set = True
+                link.receive(vehicle_message("HOME_POSITION", latitude=mission.items[0].x, longitude=mission.items[0].y,
+                                             altitude=0, x=0, y=0, z=0, q=[1, 0, 0, 0], approach_x=0, approach_y=0,
+                                             approach_z=0))
+            if t == 25.0:  # an operator uploads a changed mission from the ground station (system 255)
+                vehicle.items = list(changed)
+                link.receive(vehicle_message("MISSION_ACK", target_system=255, target_component=190, type=0))
+            loop.telemetry.on_frame(AmbientFrame(t, 20.0))
+            time.sleep(0.1)
+            shown()
+            t += 0.25
+        deadline = time.monotonic() + 5
+        while shown() != "changed" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "empty" in seen  # read before home: 0 items, shown as such
+        assert "home" in seen and 10.0 <= seen["home"] <= 15.0, seen
+        assert "changed" in seen and 25.0 <= seen["changed"] <= 30.0, seen
+        # the plan baseline is what the vehicle holds now, under its autopilot's rules
+        assert M.same_items(loop.executor.mission_items, changed)
+        assert loop.executor.rules().name == "ArduPilot (Plane)"
+        reasons = [e.data.get("reason") for e in svc.events.since(0) if e.kind == "mission" and "count" in e.data]
+        assert "home set" in reasons and "upload by system 255 accepted" in reasons, reasons
+        # no busy polling: a handful of reads, not one per message
+        assert vehicle.downloads < 15, vehicle.downloads
     finally:
         svc.close()
