@@ -298,10 +298,10 @@ class AlteredReadback(FakeVehicleMissions):
         self.items[wp.seq] = M.as_sent(dataclasses.replace(wp, z=wp.z + 30.0))
 
 
-def _direct_loop(tmp_path, vehicle_cls, mission):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy="auto"))
+def _direct_loop(tmp_path, vehicle_cls, mission, link=None, policy="auto"):
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy=policy))
     svc.load_objectives_scenario(preflight_scenario(10))
-    link = FakeLink()
+    link = link or FakeLink()
     vehicle = vehicle_cls(mission.items)
     loop = LiveLoop(svc, link, vehicle)
     svc.attach_loop(loop)
@@ -676,12 +676,7 @@ class HomelessVehicle(FakeVehicleMissions):
 
 def test_the_current_mission_follows_home_and_a_ground_station_upload_within_5_s(tmp_path):
     mission = original_mission()
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy="advise"))
-    svc.load_objectives_scenario(preflight_scenario(10))
-    link = SubscribingLink()
-    vehicle = HomelessVehicle(mission.items)
-    loop = LiveLoop(svc, link, vehicle)
-    svc.attach_loop(loop)
+    svc, loop, link, vehicle = _direct_loop(tmp_path, HomelessVehicle, mission, SubscribingLink(), policy="advise")
     loop.start()
     wp = next(i.seq for i in vehicle.items if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
     changed = list(vehicle.items)
