@@ -729,3 +729,63 @@ def test_the_current_mission_follows_home_and_a_ground_station_upload_within_5_s
         assert vehicle.downloads < 15, vehicle.downloads
     finally:
         svc.close()
+
+
+# --- an upload interrupted by a crash ---------------------------------------------------------------
+
+def test_an_upload_interrupted_by_a_crash_is_recovered_at_start(tmp_path):
+    """The service died between writing an upload's intent and its outcome, after the vehicle took
+    the mission: at the next start the upload is ``interrupted``, the vehicle's mission is read and
+    recorded with it, and no plan is left ``approved`` without an upload."""
+    from gcs_pdm.service.storage import Store
+
+    mission, new = original_mission(), _new_mission()
+    cfg = load_config(env={}, data_dir=str(tmp_path), api_token="x", policy="auto")
+    store = Store(cfg.database)
+    items_json = [M.item_to_json(i) for i in new.items]
+    crashed = store.add_plan({"items": items_json, "chosen": {}, "current_seq": new.current_seq}, "fault", "approved", 5.0)
+    uid = store.begin_upload(crashed, {"items": items_json, "previous_items": [], "route": [10, 9],
+                                       "started_time_s": 5.0, "current_seq": new.current_seq})
+    never_started = store.add_plan({"items": items_json, "chosen": {}}, "operator", "approved", 6.0)
+    store.close()  # (the kill -9: nothing more was written)
+
+    svc = Service(cfg)
+    svc.load_objectives_scenario(preflight_scenario(10))
+    vehicle = FakeVehicleMissions(new.items)  # the vehicle had taken the new mission
+    loop = LiveLoop(svc, FakeLink(), vehicle)
+    svc.attach_loop(loop)
+    loop.start()
+    try:
+        deadline = time.monotonic() + 10
+        while "vehicle_items" not in svc.store.uploads()[0] and time.monotonic() < deadline:
+            time.sleep(0.05)
+        up = svc.store.uploads()[0]
+        assert up["id"] == uid and up["status"] == "interrupted" and "stopped during the transfer" in up["error"]
+        assert M.same_items([M.item_from_json(d) for d in up["vehicle_items"]], vehicle.items)
+        assert up["vehicle_holds_plan"] is True
+        assert svc.store.plan(crashed)["status"] == "upload_interrupted"
+        assert "holds this plan's mission" in svc.store.plan(crashed)["history"][-1]["note"]
+        assert svc.store.plan(never_started)["status"] == "upload_interrupted"
+        assert svc.store.plans(status="approved") == [] and svc.store.unfinished_uploads() == []
+        assert vehicle.uploads == []  # recovery reads; it never uploads on its own
+    finally:
+        svc.close()
+
+
+def test_an_upload_writes_its_intent_before_the_transfer(tmp_path):
+    mission, new = original_mission(), _new_mission()
+
+    class Recording(FakeVehicleMissions):
+        seen = None
+
+        def upload(self, items):
+            Recording.seen = [(u["status"], len(u["items"])) for u in svc.store.uploads()]
+            return super().upload(items)
+
+    svc, loop, link, vehicle = _direct_loop(tmp_path, Recording, mission)
+    try:
+        pid, ok = _upload_direct(svc, loop, new)
+        assert Recording.seen == [("intent", len(new.items))]  # on disk while the transfer ran
+        assert ok and [u["status"] for u in svc.store.uploads()] == ["confirmed"]
+    finally:
+        svc.close()
