@@ -108,6 +108,7 @@ class ServiceConfig(BaseSettings):
     replan_cooldown_s: float = Field(30.0, ge=0, description="message-time seconds between two replans for deviations")
     deviation_soc: float = Field(0.08, gt=0, description="SoC deviation (observed vs predicted at plan time) that triggers a replan")
     confirm_download: bool = Field(True, description="confirm each upload by downloading the mission back")
+    link_lost_after_s: float = Field(5.0, gt=0, description="seconds without a heartbeat from the vehicle before the link is declared lost (replans and uploads refused until it returns)")
     fit_workers: int = Field(1, ge=1, le=8, description="worker threads for fitting jobs")
 
     @field_validator("api_token")

@@ -128,6 +128,7 @@ class Service:
         self._proposed(plan_id)
         if self.loop is None:
             raise Conflict("no vehicle link: a plan cannot be uploaded")
+        self.loop.require_link(f"approval of plan {plan_id}")
         # conditional: a newer plan may have superseded this one since it was read
         if not self.store.transition_plan(plan_id, "proposed", "approved", note or "operator"):
             raise Conflict(f"plan {plan_id} is {self.store.plan(plan_id)['status']}, not proposed")
@@ -143,6 +144,7 @@ class Service:
     def request_replan(self, reason: str) -> None:
         if self.loop is None:
             raise Conflict("no vehicle link: nothing to replan")
+        self.loop.require_link("replan")
         self.loop.request_replan(reason)
 
     def revert_upload(self, upload_id: int, note: str = "") -> int:
@@ -154,11 +156,13 @@ class Service:
             raise Conflict(f"upload {upload_id} recorded no previous mission")
         if self.loop is None:
             raise Conflict("no vehicle link: a mission cannot be uploaded")
+        self.loop.require_link(f"revert of upload {upload_id}")
         return self.loop.revert(up, note)
 
     def refresh_mission(self) -> None:
         if self.loop is None:
             raise Conflict("no vehicle link: no mission to read")
+        self.loop.require_link("mission read")
         self.loop.request_refresh()
 
     def set_policy(self, policy: str) -> None:

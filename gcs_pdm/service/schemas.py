@@ -40,7 +40,8 @@ def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
 
 
 class Health(BaseModel):
-    status: Literal["ok"]
+    status: Literal["ok", "degraded"]
+    reasons: list[str] = Field(default_factory=list, description="why the status is degraded")
     version: str
     schema_version: int
     link_connected: bool

@@ -13,8 +13,11 @@ router = APIRouter()
 
 @router.get("/health", response_model=S.Health)
 def health(service: ServiceDep):
-    return S.Health(status="ok", version=gcs_pdm.__version__, schema_version=service.store.schema_version,
-                    link_connected=bool(service.state.get("link")["connected"]), policy=service.policy,
+    link = service.state.get("link")
+    reasons = [f"link lost: {link.get('reason')}"] if link.get("state") == "lost" else []
+    return S.Health(status="degraded" if reasons else "ok", reasons=reasons, version=gcs_pdm.__version__,
+                    schema_version=service.store.schema_version,
+                    link_connected=bool(link["connected"]), policy=service.policy,
                     active_parameter_set=service.store.active_parameter_set_name(),
                     interrupted_jobs_at_start=service.store.interrupted_at_open,
                     foreign_systems=foreign_system_ids(service))
