@@ -204,7 +204,7 @@ class StateEstimator:
             if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
                 refs.append(self.motor_current[q])
         refs = [r for r in refs if math.isfinite(r)]
-        return float(np.median(refs)) if len(refs) >= self._min_references else math.nan
+        return _median(refs) if len(refs) >= self._min_references else math.nan
 
     def _pack(self, f: PackFrame) -> None:
         b = self._pack_index.get(f.pack)
@@ -250,7 +250,7 @@ class StateEstimator:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
-        self.packs.step(np.array([b]), np.array([dt]), np.array([i_used]), self.ambient_c, np.array([v]), np.array([temp]))
+        self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
         self.charge_c[b] += i_used * dt
         self.pack_time[b] = t
 
@@ -292,8 +292,7 @@ class StateEstimator:
             self.motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
             self.motor_time[q] = t
             return
-        self.motors.step(np.array([q]), np.array([t - self.motor_time[q]]),
-                         np.array([cur if math.isfinite(cur) else 0.0]), self.ambient_c, np.array([temp]))
+        self.motors.step_one(q, t - self.motor_time[q], cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
         self.motor_time[q] = t
 
     def adopt_pack_scales(self, pack: str, resistance_scale: float, capacity_scale: float) -> None:
@@ -402,6 +401,13 @@ class StateEstimator:
         tm = self.motors.mean[:, 0]
         return PowertrainState(pack_state=self.packs.mean.copy(),
                                motor_temp_c=np.where(np.isfinite(tm), tm, self.ambient_c))
+
+
+def _median(values: list[float]) -> float:
+    """np.median of a few finite floats, without the array round trip (a per-frame call)."""
+    v = sorted(values)
+    n = len(v)
+    return v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
 
 
 def _num(x) -> float:

@@ -36,7 +36,10 @@ class MotorThermalFilter:
         self.rejected_in_row = np.zeros(n_motors, dtype=np.int64)
         self.rejected_total = np.zeros(n_motors, dtype=np.int64)
         self.relocks = np.zeros(n_motors, dtype=np.int64)
-        self._h = np.ones((n_motors, 1))
+        # the compiled step's view of the counters: one channel per motor
+        self._rejected_total_2d = self.rejected_total.reshape(-1, 1)
+        self._rejected_in_row_2d = self.rejected_in_row.reshape(-1, 1)
+        self._one_idx = [np.array([q], dtype=np.int64) for q in range(n_motors)]
 
     def initialise(self, idx: np.ndarray, temperature: np.ndarray, sigma: float | None = None) -> None:
         idx = np.atleast_1d(idx)
@@ -54,7 +57,15 @@ class MotorThermalFilter:
         ukf.motor_step_rows(self.params, self.mean, self.cov, idx, _row(dt, idx.shape), _row(current, idx.shape),
                             float(ambient), _row(temperature, idx.shape), c.process_sigma_c ** 2,
                             c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
-                            self.rejected_total.reshape(-1, 1), self.rejected_in_row.reshape(-1, 1), self.relocks)
+                            self._rejected_total_2d, self._rejected_in_row_2d, self.relocks)
+
+    def step_one(self, q: int, dt: float, current: float, ambient: float, temperature: float) -> None:
+        """``step`` for one motor and plain floats (a telemetry frame), without the array set-up."""
+        c = self.config
+        ukf.motor_step_rows(self.params, self.mean, self.cov, self._one_idx[q], np.array([dt]), np.array([current]),
+                            float(ambient), np.array([temperature]), c.process_sigma_c ** 2,
+                            c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
+                            self._rejected_total_2d, self._rejected_in_row_2d, self.relocks)
 
     def temperature(self) -> tuple[np.ndarray, np.ndarray]:
         return self.mean[:, 0].copy(), np.sqrt(np.maximum(self.cov[:, 0, 0], 0.0))
