@@ -1,8 +1,8 @@
 """Pack degradation: a voltage residual that persists beyond noise, read as capacity loss or
 resistance rise, with an estimate of each.
 
-Every ``check_every_s`` of message time the pack's whole record so far (cleaned current,
-measured voltage, ambient) is fitted through the kernel with three unknowns: a scale on the series
+Every ``check_every_s`` of message time the pack's record (cleaned current, measured voltage,
+ambient; the newest ``max_samples``, since the last gap longer than ``max_gap_s``) is fitted through the kernel with three unknowns: a scale on the series
 resistance (R_s and R_cp0 together), a scale on the capacity (C_b, q_max, C_max together: a pack
 that lost capacity loses bulk capacitance, so its voltage falls faster per coulomb) and the
 initial SoC (the record may start anywhere). A few Gauss–Newton steps with a finite-difference
@@ -18,6 +18,7 @@ the simulated vehicle); after the fitter has learned the real pack they can be t
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +43,12 @@ class PackHealthConfig:
     capacity_loss_clear: float = 0.15
     resistance_rise_raise: float = 0.6
     resistance_rise_clear: float = 0.4
+    #: the record a check fits is at most this many samples (the newest; the fit's initial SoC is
+    #: free, so it may start anywhere): each check's work is bounded by samples, not time span
+    max_samples: int = 3000
+    #: a gap longer than this starts a new record: the fit would have to simulate the gap at a
+    #: current nobody measured (a 49.7-day gap was re-simulated at every check)
+    max_gap_s: float = 60.0
     debounce: DebounceConfig = DebounceConfig(raise_after_s=120.0, clear_after_s=120.0)
 
 
@@ -153,7 +160,8 @@ class PackHealthMonitor:
         self.config = config
         #: the packs' names, in the rows' order (a vehicle description's, or the paper's)
         self.names = tuple(names)
-        self._buf: list[list[tuple[float, float, float, float]]] = [[] for _ in self.names]
+        self._buf: list[deque[tuple[float, float, float, float]]] = [deque(maxlen=config.max_samples)
+                                                                    for _ in self.names]
         self._last_check = -math.inf
         self._debounce = {(ty, n): Debouncer(config.debounce) for n in self.names
                           for ty in (PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE)}
@@ -166,6 +174,8 @@ class PackHealthMonitor:
             return
         if self._buf[b] and time_s < self._buf[b][-1][0]:
             return  # out of order: the estimator drops (and counts) it too
+        if self._buf[b] and time_s - self._buf[b][-1][0] > self.config.max_gap_s:
+            self._buf[b].clear()
         self._buf[b].append((time_s, current_a, voltage_v, ambient_c))
 
     def check(self, time_s: float) -> list[tuple[str, Fault]]:

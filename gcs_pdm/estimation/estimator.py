@@ -55,6 +55,9 @@ class EstimatorConfig:
     #: longest gap the filters integrate through in one step; longer gaps are still integrated,
     #: but logged, because the held current is then a guess
     long_gap_s: float = 30.0
+    #: a gap longer than this restarts the component's filter from its next reading: the held current
+    #: (or heat) says nothing about hours of silence — the vehicle was parked, charged or swapped
+    restart_after_s: float = 600.0
     #: relative uncertainty of the parameter set's capacity against the real pack (1σ). No
     #: telemetry can remove it within a flight — the voltage-to-charge map carries the same
     #: mismatch — so it is added to the filter's SoC spread: σ² = σ_filter² + (σ_cap (1 - SoC))².
@@ -233,6 +236,10 @@ class StateEstimator:
             self.seen[f"{f.pack}.voltage"] = t
         if math.isfinite(temp):
             self.seen[f"{f.pack}.temperature"] = t
+        if self.packs.initialised[b] and t - self.pack_time[b] > self.config.restart_after_s:
+            self._restart("pack", f.pack, t - self.pack_time[b])
+            self.packs.initialised[b] = False
+            self._i_sum[b], self._i_n[b] = 0.0, 0
         if not self.packs.initialised[b]:
             if not math.isfinite(v):
                 return  # nothing to start from yet
@@ -280,6 +287,9 @@ class StateEstimator:
         temp = _num(f.temperature_c)
         if math.isfinite(temp):
             self.seen[f"{f.motor}.temperature"] = t
+        if self.motors.initialised[q] and t - self.motor_time[q] > self.config.restart_after_s:
+            self._restart("motor", f.motor, t - self.motor_time[q])
+            self.motors.initialised[q] = False
         if not self.motors.initialised[q]:
             readings = self._motor_reports.get(f.motor)
             if not math.isfinite(temp) and readings is not None and not readings.temperature:
@@ -306,6 +316,10 @@ class StateEstimator:
         row[[kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX]] *= float(capacity_scale)
         self.packs.set_params(b, row)
         self.counters["parameter_updates"] += 1
+
+    def _restart(self, kind: str, name: str, gap_s: float) -> None:
+        self.counters["restarts"] += 1
+        log.warning("%s %s: %.0f s without telemetry; its filter restarts from the next reading", kind, name, gap_s)
 
     def _skip(self, kind: str, message: str) -> None:
         """Count a skipped frame; warn on the first of each kind (the counters tell the rest)."""
