@@ -116,7 +116,8 @@ class DiagnosisPipeline:
             v_string[q] = total
         if not np.all(np.isfinite(v_string)):
             return
-        rpm = float(np.nanmean(est.motor_rpm)) if np.isfinite(est.motor_rpm).any() else math.nan
+        heard = [r for r in est.motor_rpm.tolist() if math.isfinite(r)]  # np.nanmean, without its warning machinery
+        rpm = sum(heard) / len(heard) if heard else math.nan
         self._record(self.motor_power.update(t, float(est.motor_current[0]), float(est.motor_current[1]),
                                              float(v_string[0]), float(v_string[1]), rpm))
         # keep stored faults' latest state in step with the detector's (magnitude refines while active)
