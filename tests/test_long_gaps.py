@@ -68,3 +68,4 @@ def test_estimator_restarts_a_pack_and_a_motor_after_a_long_gap():
     assert e.counters["restarts"] == 2
     assert 0.0 <= e.soc[0] <= 1.0 and e.soc[0] > before
     assert e.pack_temp_c[0] == 18.0 and e.motor_temp_c[0] == 18.0
+

@@ -25,6 +25,7 @@ import numpy as np
 
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, Fault
+from gcs_pdm.estimation.parallel import thread_map
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import PACK_NAMES
 
@@ -183,18 +184,25 @@ class PackHealthMonitor:
             return []
         self._last_check = time_s
         events = []
-        for b, name in enumerate(self.names):
+
+        def fit(b: int):
             buf = self._buf[b]
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
-                continue
+                return None
             arr = np.asarray(buf)
             p = self.params[b]
             drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
-            fit = fit_pack_residual(p, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc,
-                                    fit_capacity=drawn >= self.config.min_drawn_for_capacity)
-            if fit is None:
+            return drawn, fit_pack_residual(p, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc,
+                                            fit_capacity=drawn >= self.config.min_drawn_for_capacity)
+
+        # the packs' fits are independent: on the threads available (the kernel releases the GIL)
+        fits = thread_map(fit, range(len(self.names)))
+        for b, name in enumerate(self.names):
+            if fits[b] is None or fits[b][1] is None:
                 continue
-            theta, se, rms, n = fit
+            drawn, fit_b = fits[b]
+            p = self.params[b]
+            theta, se, rms, n = fit_b
             r_nom = p[kernel.I_RS] + p[kernel.I_RCP0]
             est = PackHealthEstimate(name, n, float(theta[2]), float((theta[0] - 1.0) * r_nom), float(theta[0] - 1.0),
                                      float(theta[1]), float(1.0 - theta[1]), float(se[0]), float(se[1]), rms)

@@ -13,14 +13,13 @@ route into exactly such a profile, so a route can be predicted by passing its pr
 from __future__ import annotations
 
 import math
-import os
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
+from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import Limits
@@ -274,27 +273,14 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
 
 #: samples per thread below which one thread flies them all (a thread costs more than it saves)
 MIN_SAMPLES_PER_THREAD = 32
-_pool: ThreadPoolExecutor | None = None
-
-
-def _threads() -> int:
-    try:
-        return max(1, min(2, len(os.sched_getaffinity(0))))
-    except AttributeError:  # not Linux
-        return max(1, min(2, os.cpu_count() or 1))
 
 
 def _map_chunks(fly, n_samples: int) -> list[dict]:
-    """``fly`` over the samples in contiguous chunks, on up to two threads: the kernel releases
-    the GIL and every sample is independent, so the results are the one-call results."""
-    global _pool
-    n_threads = min(_threads(), n_samples // MIN_SAMPLES_PER_THREAD)
-    if n_threads <= 1:
-        return [fly(slice(0, n_samples))]
-    if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=2, thread_name_prefix="gcs-pdm-mc")
+    """``fly`` over the samples in contiguous chunks, one per thread available: every sample is
+    independent, so the results are the one-call results."""
+    n_threads = max(1, min(available_threads(), n_samples // MIN_SAMPLES_PER_THREAD))
     edges = np.linspace(0, n_samples, n_threads + 1).astype(int)
-    return list(_pool.map(fly, [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]))
+    return thread_map(fly, [slice(a, b) for a, b in zip(edges[:-1], edges[1:])])
 
 
 @njit(cache=True, nogil=True)
