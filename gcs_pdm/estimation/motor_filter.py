@@ -11,7 +11,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from gcs_pdm.estimation import ukf
-from gcs_pdm.estimation.pack_filter import _row
 from gcs_pdm.models import kernel
 
 
@@ -54,8 +53,9 @@ class MotorThermalFilter:
         (NaN = not measured). Compiled (``ukf.motor_step_rows``), in place."""
         idx = np.atleast_1d(np.asarray(idx, dtype=np.int64))
         c = self.config
-        ukf.motor_step_rows(self.params, self.mean, self.cov, idx, _row(dt, idx.shape), _row(current, idx.shape),
-                            float(ambient), _row(temperature, idx.shape), c.process_sigma_c ** 2,
+        rows = idx.shape
+        ukf.motor_step_rows(self.params, self.mean, self.cov, idx, ukf.as_rows(dt, rows), ukf.as_rows(current, rows),
+                            float(ambient), ukf.as_rows(temperature, rows), c.process_sigma_c ** 2,
                             c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
                             self._rejected_total_2d, self._rejected_in_row_2d, self.relocks)
 

@@ -98,8 +98,8 @@ class PackFilterBank:
         idx = np.atleast_1d(np.asarray(idx, dtype=np.int64))
         shape = idx.shape
         c = self.config
-        ukf.pack_step_rows(self.params, self.mean, self.cov, idx, _row(dt, shape), _row(current, shape),
-                           _row(ambient, shape), _row(voltage, shape), _row(temperature, shape), self._q,
+        ukf.pack_step_rows(self.params, self.mean, self.cov, idx, ukf.as_rows(dt, shape), ukf.as_rows(current, shape),
+                           ukf.as_rows(ambient, shape), ukf.as_rows(voltage, shape), ukf.as_rows(temperature, shape), self._q,
                            self._h_v, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
                            c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
                            self.rejected_in_row, self.relocks)
@@ -143,8 +143,3 @@ class PackFilterBank:
         v = kernel.terminal_voltage(self.params, self.mean)
         var = np.einsum("ki,kij,kj->k", self._h_v, self.cov, self._h_v)
         return v, np.sqrt(np.maximum(var, 0.0))
-
-
-def _row(a, shape) -> np.ndarray:
-    """An argument as a contiguous float64 array of ``shape`` (scalars broadcast)."""
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), shape))
