@@ -33,6 +33,25 @@ def test_kernel_sub_steps_of_a_long_gap_are_capped():
     np.testing.assert_allclose(capped, _run(np.full(n, GAP_S / n), 0.0, GAP_S / n), rtol=1e-12, atol=0.0)
 
 
+def test_extended_variant_sub_steps_of_a_long_gap_are_capped_too():
+    # a 10 h gap at 0.1 A: capped, it is MAX_SUBSTEPS sub-steps of 100 s, exactly what that many
+    # explicit samples give; uncapped (3600 sub-steps of 10 s) the first R-C voltage differs by ~1e-7
+    from gcs_pdm.models.params import extended_default
+
+    p = np.array([[extended_default()[k] for k in kernel.EXT_PACK_PARAMS]])
+    x0 = kernel.initial_extended_state(p, 0.9, 20.0, 0.1)
+
+    def run(dt, max_dt):
+        return kernel.simulate_packs(p, x0, dt, np.full(dt.size, 0.1), 20.0, max_dt=max_dt,
+                                     variant="extended").final_state[0]
+
+    n = kernel.MAX_SUBSTEPS
+    gap = 10 * n * kernel.DEFAULT_MAX_DT
+    np.testing.assert_allclose(run(np.array([gap]), kernel.DEFAULT_MAX_DT), run(np.full(n, gap / n), gap / n),
+                               rtol=1e-10, atol=0.0)
+    assert np.all(np.isfinite(run(np.array([GAP_S]), kernel.DEFAULT_MAX_DT)))
+
+
 def test_kernel_gaps_under_the_cap_integrate_as_before():
     dt = 0.5 * kernel.MAX_SUBSTEPS * kernel.DEFAULT_MAX_DT + 3.0  # ceil(dt / max_dt) sub-steps, uncapped
     n = math.ceil(dt / kernel.DEFAULT_MAX_DT)

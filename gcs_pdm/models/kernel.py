@@ -408,7 +408,8 @@ def _ext_advance(p, y, d, x, current, ambient, t_drive, dt, max_dt):
                 - x[X_V1] - x[X_V2])
     n_sub = 1
     if dt > max_dt:
-        n_sub = int(math.ceil(dt / max_dt))
+        # bounded like the paper variant's step: work follows samples, not the span of a log gap
+        n_sub = min(int(math.ceil(dt / max_dt)), MAX_SUBSTEPS)
     h = dt / n_sub
     decay_1 = math.exp(-h / p[E_TAU1])
     decay_2 = math.exp(-h / p[E_TAU2])
