@@ -203,6 +203,21 @@ class PackTrajectory:
     states: np.ndarray | None = None  # (N, n, 4) if requested
 
 
+def _pack_inputs(params, n_params: int, x0, n_state: int, dt, current, ambient):
+    """Both variants' inputs as contiguous (N, ·) rows: params, x0, dt, current, ambient."""
+    params = _params2d(params, n_params, "params")
+    n_vec = params.shape[0]
+    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, n_state)))
+    cur = np.asarray(current, dtype=np.float64)
+    n = cur.shape[-1]
+    cur = _rows(cur, n_vec, n, "current")
+    dt_ = _rows(dt, n_vec, n, "dt")
+    amb = _rows(ambient, n_vec, n, "ambient")
+    if np.any(dt_ < 0):
+        raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
+    return params, x0, dt_, cur, amb
+
+
 def simulate_packs(params: np.ndarray, x0: np.ndarray, dt: np.ndarray, current: np.ndarray,
                    ambient: np.ndarray | float, *, max_dt: float = DEFAULT_MAX_DT,
                    record_states: bool = False, variant: str = "paper",
@@ -221,16 +236,8 @@ def simulate_packs(params: np.ndarray, x0: np.ndarray, dt: np.ndarray, current: 
                                         measured_temperature, parallel)
     if variant != "paper":
         raise ValueError(f"variant: expected one of {MODEL_VARIANTS}, got {variant!r}")
-    params = _params2d(params, N_PACK_PARAMS, "params")
-    n_vec = params.shape[0]
-    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, N_PACK_STATE)))
-    cur = np.asarray(current, dtype=np.float64)
-    n = cur.shape[-1]
-    cur = _rows(cur, n_vec, n, "current")
-    dt_ = _rows(dt, n_vec, n, "dt")
-    amb = _rows(ambient, n_vec, n, "ambient")
-    if np.any(dt_ < 0):
-        raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
+    params, x0, dt_, cur, amb = _pack_inputs(params, N_PACK_PARAMS, x0, N_PACK_STATE, dt, current, ambient)
+    n_vec, n = params.shape[0], cur.shape[1]
     voltage = np.empty((n_vec, n))
     temperature = np.empty((n_vec, n))
     soc = np.empty((n_vec, n))
@@ -481,17 +488,9 @@ def _simulate_packs_extended(params, x0, dt, current, ambient, max_dt, record_st
                              parallel) -> PackTrajectory:
     if record_states:
         raise ValueError("record_states: not available for the extended variant")
-    params = _params2d(params, N_EXT_PARAMS, "params")
-    n_vec = params.shape[0]
-    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, N_EXT_STATE)))
-    cur = np.asarray(current, dtype=np.float64)
-    n = cur.shape[-1]
-    cur = _rows(cur, n_vec, n, "current")
-    dt_ = _rows(dt, n_vec, n, "dt")
-    amb = _rows(ambient, n_vec, n, "ambient")
+    params, x0, dt_, cur, amb = _pack_inputs(params, N_EXT_PARAMS, x0, N_EXT_STATE, dt, current, ambient)
+    n_vec, n = params.shape[0], cur.shape[1]
     t_meas = _rows(np.nan if measured_temperature is None else measured_temperature, n_vec, n, "measured_temperature")
-    if np.any(dt_ < 0):
-        raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
     voltage = np.empty((n_vec, n))
     temperature = np.empty((n_vec, n))
     soc = np.empty((n_vec, n))
