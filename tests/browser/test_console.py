@@ -88,6 +88,9 @@ def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
         expect(card).to_contain_text("landing SoC")
         expect(card).to_contain_text(f'{plan["chosen"]["reward"]:.1f}')
         expect(card).to_contain_text("probability of failure")
+        # the Monte Carlo probability of the proposal (issue 16), as stored with the plan
+        pf = plan["chosen"]["failure_probability"]
+        expect(card.locator("[data-pfail]").filter(has_text=f"{100 * pf:.0f} %")).not_to_have_count(0)
         # the motor card shows the lost health
         expect(page.locator('[data-motor="aft"] h3')).to_contain_text("health 3")
 
