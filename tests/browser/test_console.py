@@ -116,6 +116,12 @@ def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
         assert took < 12.0, took
         expect(page.locator("#conn")).not_to_have_attribute("data-state", "live")
 
+        # a reload keeps the track: the vehicle no longer moves, so the page alone would have one
+        # point, not a line; the line is the service's track (GET /status/track)
+        assert len(service.get("/status/track")["points"]) > 1
+        page.reload()
+        expect(page.locator("#map path.track")).to_have_count(1, timeout=10_000)
+
         assert requests.urls and not requests.foreign(service.host), requests.foreign(service.host)
     finally:
         sim.stop()

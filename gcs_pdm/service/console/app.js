@@ -615,6 +615,7 @@ async function connectEvents() {
   try {
     const s = await getJSON("/console/settings");
     if (S.instance && s.instance !== S.instance) { S.lastSeq = 0; S.events = []; timelineDirty = true; }
+    if (!S.instance) loadTrack();  // first connect: the track so far, kept by the service
     S.instance = s.instance; S.settings = s;
   } catch (e) {
     S.sse = "reconnecting"; reconnectTimer = setTimeout(connectEvents, 2000); return;
@@ -626,6 +627,15 @@ async function connectEvents() {
   for (const k of KINDS) es.addEventListener(k, (m) => { try { onEvent(JSON.parse(m.data)); } catch (err) { console.warn("bad event", err); } });
 }
 
+// The service keeps the vehicle's recent track (GET /status/track), so a reload still shows where
+// it has been; from then on the page extends it from /status.
+async function loadTrack() {
+  try {
+    const t = await getJSON("/status/track");
+    const kept = (t.points || []).filter((p) => num(p[1]) && num(p[2])).map((p) => [p[1], p[2]]);
+    if (kept.length) S.track = kept.concat(S.track);
+  } catch (_e) { /* an older service without a track: the page collects its own */ }
+}
 async function pollStatus() {
   try {
     const st = await getJSON("/status");
