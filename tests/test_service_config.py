@@ -21,6 +21,20 @@ def test_defaults_are_documented_values():
     assert all(not f.is_required() for f in ServiceConfig.model_fields.values())
 
 
+def test_map_tile_url_defaults_to_the_local_frame_and_is_a_template(tmp_path):
+    assert load_config(env={}).map_tile_url is None  # no tiles: the console draws east/north of home
+    url = "http://tiles.local/{z}/{x}/{y}.png"
+    assert load_config(env={"GCS_PDM_MAP_TILE_URL": url}).map_tile_url == url
+    toml = tmp_path / "svc.toml"
+    toml.write_text(f'[service]\nmap_tile_url = "{url}"\nmap_tile_attribution = "(c) local tiles"\n')
+    c = load_config(toml, env={})
+    assert (c.map_tile_url, c.map_tile_attribution) == (url, "(c) local tiles")
+    assert load_config(env={"GCS_PDM_MAP_TILE_URL": ""}).map_tile_url is None
+    for bad in ("tiles.local/{z}/{x}/{y}.png", "http://tiles.local/tile.png", "file:///etc/{z}/{x}/{y}"):
+        with pytest.raises(ConfigError, match="map_tile_url"):
+            load_config(env={"GCS_PDM_MAP_TILE_URL": bad})
+
+
 def test_file_then_env_then_overrides(tmp_path):
     toml = tmp_path / "svc.toml"
     toml.write_text('[service]\npolicy = "advise"\nhttp_port = 9001\nparticles = 12\n')

@@ -74,13 +74,58 @@ def test_the_page_names_no_other_host():
         assert not re.search(r"https?://", text), name
 
 
-def test_settings_give_limits_and_tiles(client, monkeypatch):
+def test_settings_give_limits_and_tiles(client, tmp_path):
     s = client.get("/console/settings").json()
     assert s["tile_url"] is None
     assert s["limits"]["pack_cutoff_v"] > 0 and s["limits"]["motor_max_temp_c"] > 0
     assert s["instance"]
-    monkeypatch.setenv(TILE_URL_ENV, "http://tiles.local/{z}/{x}/{y}.png")
-    assert client.get("/console/settings").json()["tile_url"] == "http://tiles.local/{z}/{x}/{y}.png"
+    # the map_tile_url config key (its environment variable here) turns the tiles on
+    url = "http://tiles.local/{z}/{x}/{y}.png"
+    svc = Service(load_config(env={TILE_URL_ENV: url, "GCS_PDM_MAP_TILE_ATTRIBUTION": "local tiles"},
+                              data_dir=str(tmp_path / "tiles"), api_token="console-test-token-0123456789"))
+    try:
+        s = TestClient(create_app(svc)).get("/console/settings").json()
+        assert (s["tile_url"], s["tile_attribution"]) == (url, "local tiles")
+    finally:
+        svc.close()
+
+
+def test_the_service_keeps_the_track_for_a_reloaded_page(client):
+    """GET /status/track: positions at 1 Hz of message time (faster ones decimated), invalid ones
+    skipped and counted, only the window's worth kept."""
+    from gcs_pdm.frames import PositionFrame
+
+    state = client.app.state.service.state
+    assert client.get("/status/track").json()["points"] == []
+    for k in range(50):  # 10 Hz for 5 s
+        t = 100.0 + 0.1 * k
+        state.apply_frame(PositionFrame(t, 52.0 + 1e-5 * k, 4.0, 30.0 + k, 10.0, 0.0, 0.0, 0.0))
+    state.apply_frame(PositionFrame(106.0, None, None, None, None, None, None, None))
+    state.apply_frame(PositionFrame(107.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))  # no GPS fix
+    body = client.get("/status/track").json()
+    pts = body["points"]
+    assert [p[0] for p in pts] == pytest.approx([100.0, 101.0, 102.0, 103.0, 104.0])
+    assert body["fields"] == ["time_s", "lat_deg", "lon_deg", "alt_m", "relative_alt_m"]
+    assert pts[1][1:] == pytest.approx([52.0 + 1e-4, 4.0, 40.0, 10.0])
+    assert body["skipped_invalid"] == 2
+    assert [p[0] for p in client.get("/status/track", params={"since_s": 102.0}).json()["points"]] == [103.0, 104.0]
+    assert client.get("/status/track", params={"since_s": "nan"}).status_code == 422
+
+
+def test_the_track_is_bounded_by_its_window_and_restarts_with_the_clock():
+    from gcs_pdm.service.track import Track
+
+    tr = Track(window_s=60.0, interval_s=1.0)
+    for t in range(1000):
+        tr.add(float(t), 52.0, 4.0, 30.0)
+    times = [p[0] for p in tr.points()]
+    assert times[0] == 939.0 and times[-1] == 999.0 and len(times) == 61
+    assert tr.add(997.5, 52.0, 4.0) is False and len(tr.points()) == 61  # late by a little: decimated
+    assert tr.add(10.0, 52.0, 4.0) is True  # the clock went back: a new session, a new track
+    assert [p[0] for p in tr.points()] == [10.0] and tr.restarts == 1
+    assert not tr.add(11.0, 91.0, 4.0) and not tr.add(12.0, float("nan"), 4.0) and tr.skipped_invalid == 2
+    with pytest.raises(ValueError):
+        Track(window_s=0.0)
 
 
 BUILD_PY = """

@@ -789,3 +789,97 @@ def test_an_upload_writes_its_intent_before_the_transfer(tmp_path):
         assert ok and [u["status"] for u in svc.store.uploads()] == ["confirmed"]
     finally:
         svc.close()
+
+
+# --- a proposal's Monte Carlo risk ----------------------------------------------------------------
+
+def _home_proposal(sim, with_loads=True):
+    """Fake planner candidates: the planner proposes flying home, the current mission fails."""
+    from gcs_pdm.missions import item_to_json
+    from gcs_pdm.service import adapters
+
+    def plan_candidates(*args, **kwargs):
+        mp = plan_to_mission(sim.scenario, make_plan(sim, [], "home"), airborne=True)
+        mission = {"items": [item_to_json(i) for i in mp.items], "current_seq": mp.current_seq}
+        cands = [Candidate("planner", (), True, 0.0, 0.0, 0.0, None, {"mission": mission}),
+                 Candidate("keep", tuple(range(1, 11)), False, 0.0, 50.0, -1.0, "pack below cut-off", {}),
+                 Candidate("home", (), True, 0.0, 0.0, 0.0, None, {"mission": mission})]
+        loads = {"planner": adapters.route_load(sim, []), "home": adapters.route_load(sim, [])} if with_loads else {}
+        return cands, {"loads": loads, "plan_time_s": 0.0, "planner": "fake", "scenario": None}
+    return plan_candidates
+
+
+def test_a_proposal_carries_the_monte_carlo_risk_of_its_route_and_of_the_current_mission(tmp_path, frames,
+                                                                                         monkeypatch):
+    """Issue 16: the chosen route and the current mission each get a probability of failure and a
+    landing SoC with its spread from the estimation package's prediction (state and parameter
+    samples), stored in the plan and served by the API. The current mission here is the whole
+    Table III route with a 70 % aft fault (the planner's verdict: it fails); the proposal flies home."""
+    from fastapi.testclient import TestClient
+
+    from gcs_pdm.models.powertrain import MotorFault
+    from gcs_pdm.service import adapters
+    from gcs_pdm.service.api import create_app
+
+    sim = VehicleSimulator(preflight_scenario(10), true_parameters())
+    full = original_order(sim.scenario)
+
+    def plan_candidates(*args, **kwargs):
+        cands, info = _home_proposal(sim)(*args, **kwargs)
+        info["loads"]["keep"] = adapters.route_load(sim, full)
+        return cands, info
+
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, original_mission(), policy="advise")
+    try:
+        for fr in (f for f in frames if f.time_s < 150.0):  # healthy telemetry: the estimate is ready
+            loop.process(fr)
+        snap = dataclasses.replace(loop.snapshot(), faults=(MotorFault("aft", 0.7),))
+        assert snap.estimator is not None and snap.estimator is not loop.estimator
+        monkeypatch.setattr(adapters, "plan_candidates", plan_candidates)
+        loop.executor.plan("fault: motor_power_loss aft", snap)
+        (plan,) = svc.store.plans(status="proposed")
+        keep = next(c for c in plan["candidates"] if c["name"] == "keep")
+        chosen = plan["chosen"]
+        for c in (chosen, keep):
+            assert 0.0 <= c["failure_probability"] <= 1.0 and c["n_samples"] == adapters.ROUTE_RISK_SAMPLES
+        assert keep["failure_probability"] > chosen["failure_probability"]
+        assert keep["failure_probability"] >= 0.5 and sum(keep["failure_causes"].values()) > 0
+        lo, mid, hi = (chosen["landing_soc"][k] for k in ("p05", "p50", "p95"))
+        assert 0.0 < lo <= mid <= hi < 1.0 and hi > lo  # a spread, not a point
+        assert chosen["landing_samples"] == round(100 * (1 - chosen["failure_probability"]))
+        assert set(chosen["landing_soc_packs"]) == {"LLF20", "ULA20", "LRF40", "URA40"}
+        # the home candidate was neither chosen nor the current mission: not assessed
+        assert "failure_probability" not in next(c for c in plan["candidates"] if c["name"] == "home")
+        # served as stored
+        served = TestClient(create_app(svc)).get("/missions/proposed").json()[0]
+        assert served["chosen"]["failure_probability"] == chosen["failure_probability"]
+        assert served["chosen"]["landing_soc"] == chosen["landing_soc"]
+        # reproducible: the same snapshot gives the same numbers (fixed sample count, seeded)
+        again = adapters.route_risk(snap.estimator, adapters.route_load(sim, full), snap.faults,
+                                    seed=svc.config.planner_seed + int(snap.time_s))
+        assert again["failure_probability"] == keep["failure_probability"]
+    finally:
+        svc.close()
+
+
+def test_without_an_estimate_a_proposal_says_its_risk_is_unknown(tmp_path, monkeypatch):
+    from gcs_pdm.service import adapters
+
+    svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, original_mission(), policy="advise")
+    try:
+        sim = VehicleSimulator(preflight_scenario(10), true_parameters())
+        monkeypatch.setattr(adapters, "plan_candidates", _home_proposal(sim))
+        loop.executor.plan("fault", _snap(loop))  # no estimator in the snapshot
+        (plan,) = svc.store.plans(status="proposed")
+        assert "failure_probability" not in plan["chosen"]
+        assert plan["chosen"]["risk_unknown"] == "no state estimate when the plan was made"
+        # an estimate but no load for the route: unknown, with that reason
+        svc.store.set_plan_status(plan["id"], "rejected", "test")
+        monkeypatch.setattr(adapters, "plan_candidates", _home_proposal(sim, with_loads=False))
+        for fr in fly_synthetic(true_parameters(), np.random.default_rng(2), duration_s=60.0).frames:
+            loop.process(fr)
+        loop.executor.plan("fault", loop.snapshot())
+        (plan,) = svc.store.plans(status="proposed")
+        assert plan["chosen"]["risk_unknown"] == "no load profile for this route"
+    finally:
+        svc.close()

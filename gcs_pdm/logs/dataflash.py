@@ -245,6 +245,15 @@ def series_from_dataflash(path: str | Path):
     if df.has("MSG"):
         msg = df.messages("MSG")
         out.texts = [(float(t), str(s)) for t, s in zip(_time_s(msg, t0), msg["Message"])]
+    if df.has("PARM"):  # a parameter set in flight is logged again: the last value wins
+        parm = df.messages("PARM")
+        out.parameters = {str(n): float(v) for n, v in zip(parm["Name"], parm["Value"])}
+    if df.has("VER"):
+        ver = df.messages("VER")
+        out.firmware = str(ver["FWS"][-1]) if "FWS" in ver else None
+        out.build = int(ver["BU"][-1]) if "BU" in ver else None
+    if out.firmware is None:  # older logs: the banner is the first message
+        out.firmware = next((text for _, text in out.texts[:5] if text.startswith(("Ardu", "Rover", "Blimp"))), None)
     if df.has("MODE"):
         mode = df.messages("MODE")
         names = _mode_names(out.texts)

@@ -52,6 +52,9 @@ class LogSeries:
     mission: list[tuple[float, int, int]] = field(default_factory=list)  # the stored mission as logged
     texts: list[tuple[float, str]] = field(default_factory=list)
     missing: dict[str, str] = field(default_factory=dict)  # what a model may need that the log lacks, and why
+    parameters: dict[str, float] = field(default_factory=dict)  # the autopilot's parameters as logged (last value)
+    firmware: str | None = None  # the firmware's name and version as the log gives it
+    build: int | None = None  # ArduPilot's VER.BU (APM_BUILD_*: 1 Rover, 2 Copter, 3 Plane, ...)
 
     def pack_name(self, instance: int) -> str:
         """The project's pack name for a battery instance (instance i is BATTERY_STATUS id i, as in tlogs)."""

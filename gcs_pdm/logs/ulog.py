@@ -76,4 +76,9 @@ def series_from_ulog(path: str | Path):
     if out.ambient is None:
         out.missing["ambient_c"] = "no vehicle_air_data topic"
     out.texts = [((m.timestamp - t0) / 1e6, m.message) for m in ulog.logged_messages]
+    # initial values, then each change in flight in time order: the last value wins
+    out.parameters = {str(k): float(v) for k, v in ulog.initial_parameters.items()}
+    out.parameters.update({str(k): float(v) for _t, k, v in ulog.changed_parameters})
+    info = ulog.msg_info_dict
+    out.firmware = " ".join(str(info[k]) for k in ("sys_name", "ver_sw") if k in info) or None
     return out

@@ -84,6 +84,12 @@ class ServiceConfig(BaseSettings):
     http_host: str = Field("127.0.0.1", description="HTTP bind address; localhost unless told")
     http_port: int = Field(8000, ge=0, le=65535)
 
+    # --- operator console ----------------------------------------------------------------------
+    map_tile_url: str | None = Field(None, description="map tile URL template ({z}/{x}/{y}) the console draws over; "
+                                     "None: the local east/north frame (the field has no internet)")
+    map_tile_attribution: str = Field("", description="attribution text the tile server's licence asks for")
+    track_window_s: float = Field(7200.0, gt=0, description="message-time seconds of the vehicle's track kept for the console (GET /status/track)")
+
     # --- storage -----------------------------------------------------------------------------
     data_dir: str = Field("./gcs-pdm-data", description="directory for the database, tlogs, uploads and plots")
     db_path: str | None = Field(None, description="SQLite file (default: <data_dir>/gcs_pdm.sqlite3)")
@@ -110,6 +116,17 @@ class ServiceConfig(BaseSettings):
     confirm_download: bool = Field(True, description="confirm each upload by downloading the mission back")
     link_lost_after_s: float = Field(5.0, gt=0, description="seconds without a heartbeat from the vehicle before the link is declared lost (replans and uploads refused until it returns)")
     fit_workers: int = Field(1, ge=1, le=8, description="worker threads for fitting jobs")
+
+    @field_validator("map_tile_url")
+    @classmethod
+    def _tile_template(cls, url: str | None) -> str | None:
+        if url is None or not url.strip():
+            return None
+        if not url.startswith(("http://", "https://", "/")):
+            raise ValueError("must be an http(s) URL or a path on this service, e.g. http://tiles.local/{z}/{x}/{y}.png")
+        if not all(k in url for k in ("{z}", "{x}", "{y}")):
+            raise ValueError("must hold {z}, {x} and {y} (a tile URL template)")
+        return url
 
     @field_validator("api_token")
     @classmethod

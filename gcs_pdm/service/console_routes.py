@@ -12,14 +12,15 @@ import os
 import secrets
 from importlib import resources
 
-from fastapi import APIRouter, HTTPException, Request
+from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, Response
 
+from gcs_pdm.service import schemas as S
+
 router = APIRouter()
 
-#: environment variable naming a map tile URL template ({z}/{x}/{y}); until the service config
-#: has a ``map_tile_url`` key, this is how a deployment with a tile server turns the tiles on.
+#: the environment variable of the ``map_tile_url`` config key (a tile URL template, {z}/{x}/{y})
 TILE_URL_ENV = "GCS_PDM_MAP_TILE_URL"
 STATIC_PREFIX = "/console/"
 #: names this process, so a page can tell a restarted service (event numbers begin again) from a blip
@@ -70,11 +71,10 @@ def console_settings(service) -> dict:
     from gcs_pdm.planning.scenario import PlanLimits
 
     limits = service.limits or PlanLimits()
-    tile_url = getattr(service.config, "map_tile_url", None) or os.environ.get(TILE_URL_ENV) or None
     return {
         "instance": f"{_PROCESS}-{id(service.events):x}",
-        "tile_url": tile_url,
-        "tile_attribution": getattr(service.config, "map_tile_attribution", None) or "",
+        "tile_url": service.config.map_tile_url,
+        "tile_attribution": service.config.map_tile_attribution,
         "limits": {"pack_cutoff_v": limits.pack_cutoff_v, "pack_max_temp_c": limits.pack_max_temp_c,
                    "motor_max_temp_c": limits.motor_max_temp_c,
                    "landing_reserve_soc": limits.landing_reserve_soc},
@@ -85,6 +85,15 @@ def console_settings(service) -> dict:
 def settings(request: Request) -> dict:
     """Map tiles (null: draw in the local east/north frame) and the limits the planner flies to."""
     return console_settings(request.app.state.service)
+
+
+@router.get("/status/track", tags=["console"], responses=S.errors(422))
+def track(request: Request, since_s: float | None = Query(None, allow_inf_nan=False,
+                                                          description="only points after this message time")) -> dict:
+    """The vehicle's recent track kept by the service (1 Hz, ``track_window_s`` of message time,
+    oldest first), so a reloaded page still draws where the vehicle has been. Each point is
+    ``[time_s, lat_deg, lon_deg, alt_m, relative_alt_m]`` (``fields`` names them)."""
+    return request.app.state.service.state.track_dict(since_s)
 
 
 @router.get(STATIC_PREFIX + "{path:path}", include_in_schema=False)

@@ -16,6 +16,7 @@ the service and the API use; calls from other threads are handed to the telemetr
 """
 from __future__ import annotations
 
+import copy
 import logging
 
 import numpy as np
@@ -109,7 +110,8 @@ class LiveLoop:
         return Snapshot(time_s=t, state=state, position=self.telemetry.position,
                         ambient_c=float(amb) if amb is not None else 20.0,
                         faults=tuple(self.faults.motor_faults(diagnosed)), fault_records=tuple(diagnosed),
-                        current_seq=self.service.state.get("mission")["current_seq"], soc=soc)
+                        current_seq=self.service.state.get("mission")["current_seq"], soc=soc,
+                        estimator=copy.deepcopy(self.estimator) if self.estimator.ready() else None)
 
     # --- operator and triggers (any thread) ------------------------------------------------------
 

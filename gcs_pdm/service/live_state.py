@@ -14,6 +14,7 @@ from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, Mo
                             PositionFrame, StatusFrame)
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.service.storage import Conflict
+from gcs_pdm.service.track import Track
 
 #: the link's states in /status: no vehicle heard yet, telemetry flowing, vehicle silent too long
 LINK_WAITING, LINK_UP, LINK_LOST = "waiting", "up", "lost"
@@ -31,8 +32,10 @@ def _clean(v: Any) -> Any:
 
 
 class LiveState:
-    def __init__(self) -> None:
+    def __init__(self, track_window_s: float = 7200.0) -> None:
         self._lock = threading.Lock()
+        #: the vehicle's recent positions (1 Hz, ``track_window_s`` of message time) for the console
+        self.track = Track(window_s=track_window_s)
         self._s: dict[str, Any] = {
             "time_s": None,
             "link": {"url": None, "connected": False, "state": LINK_WAITING, "reason": None, "vehicle": None,
@@ -89,6 +92,7 @@ class LiveState:
                     s["ambient_c"] = f.temperature_c
             elif isinstance(f, PositionFrame):
                 s["position"].update({k: getattr(f, k) for k in ("lat_deg", "lon_deg", "alt_m", "relative_alt_m")})
+                self.track.add(f.time_s, f.lat_deg, f.lon_deg, f.alt_m, f.relative_alt_m)
             elif isinstance(f, AirdataFrame):
                 s["airdata"].update({k: getattr(f, k) for k in ("airspeed", "groundspeed", "climb_rate", "throttle_pct")})
             elif isinstance(f, StatusFrame):
@@ -102,6 +106,10 @@ class LiveState:
     def get(self, key: str) -> Any:
         with self._lock:
             return copy.deepcopy(self._s.get(key))
+
+    def track_dict(self, since_s: float | None = None) -> dict[str, Any]:
+        with self._lock:
+            return self.track.to_dict(since_s)
 
     def snapshot(self) -> dict[str, Any]:
         with self._lock:

@@ -52,6 +52,9 @@ class Snapshot:
     fault_records: tuple[Fault, ...]      # the diagnoser's active faults, as stored with the plan
     current_seq: int | None
     soc: tuple[float, ...]
+    #: a frozen copy of the estimator (None before it is ready): the plans' Monte Carlo risk runs
+    #: from it on the worker while the live filters move on
+    estimator: Any = None
 
 
 class UploadOutcome(enum.Enum):
@@ -243,11 +246,12 @@ class PlanExecutor:
             comparison = missions_equivalent(sent, on_board, rules)
             body.update(vehicle_items=[M.item_to_json(i) for i in on_board], vehicle_read_time_s=self._now(),
                         readback=comparison.summary(), vehicle_holds_plan=comparison.equivalent)
-            self.service.store.finish_upload(uid, "interrupted", body)
+            # the plan's note first: whoever sees the upload's read-back finds its plan's note too
             if plan_id is not None:
                 held = "holds" if comparison.equivalent else "does not hold"
                 self.service.store.set_plan_status(plan_id, "upload_interrupted",
                                                    f"read at restart: the vehicle {held} this plan's mission")
+            self.service.store.finish_upload(uid, "interrupted", body)
             self.service.events.publish("upload", id=uid, plan_id=plan_id, status="interrupted",
                                         vehicle_holds_plan=comparison.equivalent, time_s=self._now())
         self._interrupted = []
@@ -382,6 +386,7 @@ class PlanExecutor:
             time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
             limits=svc.limits)
         chosen, why = choose(cands)
+        cands, chosen = self._assess_risk(snap, cands, chosen, info["loads"])
         load = (info["loads"].get(chosen.name), snap.time_s)
         body = {"reason": reason, "policy": svc.policy, "parameter_set": svc.params.name,
                 "faults": faults, "fault_records": [f.to_dict() for f in snap.fault_records],
@@ -416,6 +421,36 @@ class PlanExecutor:
         else:
             self.statustext(f"PDM: plan {pid} proposed, reward {chosen.reward:g}; approve on gcs-pdm",
                             MAV_SEVERITY_WARNING)
+
+    def _assess_risk(self, snap: Snapshot, cands: list[Candidate], chosen: Candidate, loads: dict
+                     ) -> tuple[list[Candidate], Candidate]:
+        """The chosen route's and the current mission's Monte Carlo probability of failure and
+        landing SoC (``adapters.route_risk``), added to those candidates; on the worker. The
+        planner's verdict stays the decision: this is what the operator weighs it with. Without an
+        estimate or a route load a candidate gets ``risk_unknown`` with the reason instead."""
+        limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
+        out, new_chosen = [], chosen
+        for c in cands:
+            if c.name not in (chosen.name, "keep"):
+                out.append(c)
+                continue
+            if snap.estimator is None:
+                risk = {"risk_unknown": "no state estimate when the plan was made"}
+            elif loads.get(c.name) is None:
+                risk = {"risk_unknown": "no load profile for this route"}
+            else:
+                try:
+                    # one seed for every route of this plan: the same samples, so the difference is the route's
+                    risk = adapters.route_risk(snap.estimator, loads[c.name], snap.faults, limits,
+                                               seed=self.service.config.planner_seed + int(snap.time_s))
+                except Exception as exc:  # noqa: BLE001 - the plan stands on the planner's verdict
+                    log.exception("risk of route %s failed", c.name)
+                    risk = {"risk_unknown": f"{type(exc).__name__}: {exc}"}
+            assessed = dataclasses.replace(c, extra={**c.extra, **risk})
+            out.append(assessed)
+            if c is chosen:
+                new_chosen = assessed
+        return out, new_chosen
 
     def _supersede_proposals(self, pid: int) -> None:
         """A newer plan (kept, proposed or approved) makes every older proposal stale."""

@@ -35,7 +35,7 @@ class Service:
         if not config.api_token:
             log.warning("no api_token configured; this run's token is %s", self.token)
         self.events = EventBus()
-        self.state = LiveState()
+        self.state = LiveState(track_window_s=config.track_window_s)
         self.runner = JobRunner(self.store, self.events, workers=config.fit_workers)
         from gcs_pdm.service.fit_jobs import make_fit_job
 

@@ -21,11 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     check = vsub.add_parser("check", help="validate a description file; errors name the field")
     check.add_argument("file")
     check.set_defaults(func=_check)
-    init = vsub.add_parser("init", help="write a description: a preset's copy, or derived from a tlog")
+    init = vsub.add_parser("init", help="write a description: a preset's copy, or derived from a tlog or an autopilot log")
     src = init.add_mutually_exclusive_group()
     src.add_argument("--preset", default=None, help=f"start from a preset ({', '.join(PRESETS)})")
     src.add_argument("--from", dest="log", default=None, metavar="LOG",
-                     help="derive a provisional description from a tlog (HEARTBEAT, BATTERY_STATUS, ESC telemetry)")
+                     help="derive a provisional description from a tlog (HEARTBEAT, BATTERY_STATUS, ESC telemetry, "
+                          "PARAM_VALUE), an ArduPilot DataFlash .bin or a PX4 ULog .ulg")
     init.add_argument("--out", required=True, help="file to write (.toml or .json)")
     init.add_argument("--force", action="store_true", help="overwrite an existing file")
     init.set_defaults(func=_init)
@@ -66,9 +67,9 @@ def _init(args) -> int:
         return 1
     try:
         if args.log:
-            from gcs_pdm.vehicle.provisional import observe_tlog
+            from gcs_pdm.vehicle.from_log import observe_file
 
-            desc, notes = observe_tlog(args.log)
+            desc, notes = observe_file(args.log)
             for n in notes:
                 print(f"note: {n}", file=sys.stderr)
         else:

@@ -9,13 +9,17 @@ name and a field dict, as ``msg.to_dict()`` gives them, or as the link layer dec
 - packs from the BATTERY_STATUS ids seen; cells in series from the highest pack voltage seen,
   the smallest count with at most 4.35 V per cell at the median of its first five readings (right for a 6S pack between 3.63 and 4.35 V/cell,
   a 3S one between 2.9 and 4.35);
-  capacity from the charge drawn against the reported remaining percentage when it fell by 10 % or
-  more, otherwise a guess said in the notes;
+  capacity from the autopilot's capacity parameter when a PARAM_VALUE gave it (ArduPilot
+  ``BATT_CAPACITY``/``BATTn_CAPACITY``, PX4 ``BATn_CAPACITY``), else from the charge drawn against
+  the reported remaining percentage when it fell by 10 % or more, otherwise a guess said in the notes;
 - motors from the ESC_TELEMETRY_* indices that carried any non-zero value, with the readings
   that were non-zero (current, rpm, temperature);
 - the airframe's aerodynamic figures and the mass from the matching preset (said in the notes).
 
-``observe_tlog`` is the I/O shell over a tlog file.
+A VTOL (MAV_TYPE 19-24) is described as its fixed-wing cruise, said in the notes.
+
+``observe_tlog`` is the I/O shell over a tlog file; ``gcs_pdm.vehicle.from_log`` turns an
+autopilot's own log (DataFlash, ULog) into the same messages.
 """
 from __future__ import annotations
 
@@ -29,6 +33,8 @@ from gcs_pdm.vehicle.description import VehicleDescription, VehicleError, from_d
 #: MAV_TYPE -> rotor count, for the multirotor types
 MULTIROTOR_ROTORS = {2: 4, 3: 2, 13: 6, 14: 8, 15: 3}
 MAV_TYPE_FIXED_WING = 1
+#: VTOL MAV_TYPEs (tailsitters, tiltrotor, standard VTOL, tiltwing): their cruise is a fixed wing's
+MAV_TYPES_VTOL = {19, 20, 21, 22, 23, 24}
 #: HEARTBEATs that are not the vehicle: GCS (6), onboard controller (18), gimbal (26), ADSB (27), ...
 _NOT_A_VEHICLE_TYPES = {6, 18, 26, 27, 30}
 _MAV_AUTOPILOT_INVALID = 8
@@ -73,6 +79,10 @@ class ProvisionalObserver:
     packs: dict[int, _PackSeen] = field(default_factory=dict)
     escs: dict[int, _EscSeen] = field(default_factory=dict)
     messages: int = 0
+    #: the autopilot's parameters seen (PARAM_VALUE): name -> value
+    parameters: dict[str, float] = field(default_factory=dict)
+    #: where the airframe type came from, for the notes (default: the HEARTBEAT)
+    airframe_source: str | None = None
 
     def observe(self, name: str, fields: Mapping[str, Any]) -> None:
         self.messages += 1
@@ -84,6 +94,18 @@ class ProvisionalObserver:
             self._battery(fields)
         elif name in _ESC_MESSAGES:
             self._esc(_ESC_MESSAGES[name], fields)
+        elif name == "PARAM_VALUE" and fields.get("param_id") is not None:
+            self.parameters[str(fields["param_id"])] = float(fields.get("param_value", math.nan))
+
+    def capacity_parameter(self, pack_id: int) -> tuple[str, float] | None:
+        """The pack's capacity (mAh) as the autopilot is configured: (parameter, value), or None."""
+        names = ([("BATT_CAPACITY" if pack_id == 0 else f"BATT{pack_id + 1}_CAPACITY")]  # ArduPilot
+                 + [f"BAT{pack_id + 1}_CAPACITY"] + (["BAT_CAPACITY"] if pack_id == 0 else []))  # PX4
+        for n in names:
+            v = self.parameters.get(n)
+            if v is not None and math.isfinite(v) and v > 0:  # 0 / -1: not configured
+                return n, v
+        return None
 
     def _battery(self, f: Mapping[str, Any]) -> None:
         seen = self.packs.setdefault(int(f["id"]), _PackSeen())
@@ -126,16 +148,19 @@ class ProvisionalObserver:
         notes: list[str] = []
         if self.mav_type is None:
             raise VehicleError("no vehicle HEARTBEAT seen: cannot tell the airframe")
-        if self.mav_type == MAV_TYPE_FIXED_WING:
+        if self.mav_type == MAV_TYPE_FIXED_WING or self.mav_type in MAV_TYPES_VTOL:
             base = PRESETS["plane-3s"].to_dict()
             n_rotors = 1
+            if self.mav_type in MAV_TYPES_VTOL:
+                notes.append(f"MAV_TYPE {self.mav_type} is a VTOL: described as its fixed-wing cruise; the lift "
+                             f"motors and hover are not modelled")
         elif self.mav_type in MULTIROTOR_ROTORS:
             base = PRESETS["quad-4s"].to_dict()
             n_rotors = MULTIROTOR_ROTORS[self.mav_type]
         else:
             raise VehicleError(f"HEARTBEAT type {self.mav_type} (MAV_TYPE) is neither a fixed wing nor a "
                                f"multirotor: write the description by hand (docs/vehicles.md)")
-        notes.append(f"airframe from HEARTBEAT type {self.mav_type}; its figures and the mass "
+        notes.append(f"airframe from {self.airframe_source or 'HEARTBEAT type ' + str(self.mav_type)}; its figures and the mass "
                      f"({base['mass_kg']} kg) are the {base['name']} preset's: correct them")
         packs_seen = {i: p for i, p in sorted(self.packs.items()) if p.max_voltage > 0}
         if not packs_seen:
@@ -146,7 +171,11 @@ class ProvisionalObserver:
             cells = max(1, math.ceil(boot_v / MAX_CELL_VOLTAGE - CELL_COUNT_SLACK))
             pack = {"name": f"battery{i}", "mavlink_battery_id": i, "cells_series": cells,
                     "reports_temperature": seen.temperature_reported}
-            if seen.capacity_estimate_mah:
+            configured = self.capacity_parameter(i)
+            if configured:
+                pack["capacity_mah"] = configured[1]
+                how = f"from the autopilot's {configured[0]} parameter"
+            elif seen.capacity_estimate_mah:
                 pack["capacity_mah"] = round(seen.capacity_estimate_mah, -1)
                 how = "from the charge drawn against the remaining percentage reported"
             else:
@@ -185,7 +214,7 @@ def derive_provisional(messages: Iterable[tuple[str, Mapping[str, Any]]], name: 
     return obs.derive(name)
 
 
-_WANTED = ["HEARTBEAT", "BATTERY_STATUS", *_ESC_MESSAGES]
+_WANTED = ["HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", *_ESC_MESSAGES]
 
 
 def tlog_messages(path: str | Path, *, system: int | None = None) -> Iterable[tuple[str, dict]]:

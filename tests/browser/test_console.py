@@ -88,6 +88,9 @@ def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
         expect(card).to_contain_text("landing SoC")
         expect(card).to_contain_text(f'{plan["chosen"]["reward"]:.1f}')
         expect(card).to_contain_text("probability of failure")
+        # the Monte Carlo probability of the proposal (issue 16), as stored with the plan
+        pf = plan["chosen"]["failure_probability"]
+        expect(card.locator("[data-pfail]").filter(has_text=f"{100 * pf:.0f} %")).not_to_have_count(0)
         # the motor card shows the lost health
         expect(page.locator('[data-motor="aft"] h3')).to_contain_text("health 3")
 
@@ -112,6 +115,12 @@ def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
         took = time.monotonic() - t_last
         assert took < 12.0, took
         expect(page.locator("#conn")).not_to_have_attribute("data-state", "live")
+
+        # a reload keeps the track: the vehicle no longer moves, so the page alone would have one
+        # point, not a line; the line is the service's track (GET /status/track)
+        assert len(service.get("/status/track")["points"]) > 1
+        page.reload()
+        expect(page.locator("#map path.track")).to_have_count(1, timeout=10_000)
 
         assert requests.urls and not requests.foreign(service.host), requests.foreign(service.host)
     finally:

@@ -415,14 +415,25 @@ function renderBanners() {
 
 // ---------- decisions ----------
 const landingSoc = (c) => c && Array.isArray(c.final_soc) && c.final_soc.length ? Math.min(...c.final_soc) : null;
+const pct = (v) => `${(100 * v).toFixed(0)} %`;
+// the Monte Carlo landing SoC (lowest pack, of the samples that land) with its 5-95 % spread
+function landingCell(c) {
+  const q = c.landing_soc;
+  if (q && num(q.p50))
+    return `${pct(q.p50)} (${pct(q.p05)}–${pct(q.p95)}, lowest pack, ${c.landing_samples} of ${c.n_samples} samples land)`;
+  if (q && num(c.n_samples)) return unknown(`no sample of ${c.n_samples} lands`);
+  const soc = landingSoc(c);
+  return !c.feasible ? unknown("predicted to fail before landing") : soc == null ? unknown(c.risk_unknown || "not predicted")
+    : `${pct(soc)} (lowest pack, planner's nominal)`;
+}
 function candidateCells(c) {
   if (!c) return ["unknown", "unknown", "unknown", "unknown"].map(() => unknown("not evaluated"));
-  const soc = landingSoc(c);
-  const pf = num(c.failure_probability) ? `${(100 * c.failure_probability).toFixed(0)} %` :
-    num(c.p_fail) ? `${(100 * c.p_fail).toFixed(0)} %` :
-    `${unknown("the planner reports pass/fail, not a probability")}<br>${c.feasible ? '<span class="ok">predicted to get home</span>' : `<span class="bad">predicted to fail: ${esc(c.cause || "?")}</span>`}`;
+  const verdict = c.feasible ? '<span class="ok">planner: gets home</span>' : `<span class="bad">planner: fails (${esc(c.cause || "?")})</span>`;
+  const pf = num(c.failure_probability) ? `<span data-pfail="${c.failure_probability}">${pct(c.failure_probability)}</span> of ${c.n_samples} samples<br>${verdict}` :
+    num(c.p_fail) ? `${pct(c.p_fail)}<br>${verdict}` :
+    `${unknown(c.risk_unknown || "the planner reports pass/fail, not a probability")}<br>${verdict}`;
   return [esc(route(c.route)), num(c.reward) ? c.reward.toFixed(1) + (c.feasible ? "" : ` (reaches ${fmt(c.reward_reached, 1)} before failing)`) : unknown("not scored"),
-          !c.feasible ? unknown("predicted to fail before landing") : soc == null ? unknown("not predicted") : `${(100 * soc).toFixed(0)} % (lowest pack)`, pf];
+          landingCell(c), pf];
 }
 function uploadOutcome(planId) {
   const u = S.uploads.find((x) => x.plan_id === planId);
@@ -604,6 +615,7 @@ async function connectEvents() {
   try {
     const s = await getJSON("/console/settings");
     if (S.instance && s.instance !== S.instance) { S.lastSeq = 0; S.events = []; timelineDirty = true; }
+    if (!S.instance) loadTrack();  // first connect: the track so far, kept by the service
     S.instance = s.instance; S.settings = s;
   } catch (e) {
     S.sse = "reconnecting"; reconnectTimer = setTimeout(connectEvents, 2000); return;
@@ -615,6 +627,15 @@ async function connectEvents() {
   for (const k of KINDS) es.addEventListener(k, (m) => { try { onEvent(JSON.parse(m.data)); } catch (err) { console.warn("bad event", err); } });
 }
 
+// The service keeps the vehicle's recent track (GET /status/track), so a reload still shows where
+// it has been; from then on the page extends it from /status.
+async function loadTrack() {
+  try {
+    const t = await getJSON("/status/track");
+    const kept = (t.points || []).filter((p) => num(p[1]) && num(p[2])).map((p) => [p[1], p[2]]);
+    if (kept.length) S.track = kept.concat(S.track);
+  } catch (_e) { /* an older service without a track: the page collects its own */ }
+}
 async function pollStatus() {
   try {
     const st = await getJSON("/status");
