@@ -107,3 +107,9 @@ def _build() -> dict[str, VehicleDescription]:
 
 PRESETS: dict[str, VehicleDescription] = _build()
 DEFAULT_PRESET = "edge540"
+
+
+def is_paper_aircraft(desc) -> bool:
+    """The ``edge540`` preset: the service and replay run the paper's own code path for it (the
+    shared-shaft motor detector, the active parameter set), which it reproduces exactly."""
+    return desc == PRESETS[DEFAULT_PRESET]
