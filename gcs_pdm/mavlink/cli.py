@@ -50,11 +50,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         mapping = json.loads(args.mapping.read_text()) if args.mapping else None
         if mapping is None and desc is not None:
-            from gcs_pdm.mavlink.plausibility import PhysicalEnvelope
-            from gcs_pdm.vehicle.telemetry import frame_mapping
+            from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
 
             mapper = FrameMapper(frame_mapping(desc), target_system=args.system, target_component=args.component,
-                                 envelope=PhysicalEnvelope.from_packs({p.name: p.cells_series for p in desc.packs}))
+                                 envelope=envelope(desc))
         else:
             mapper = FrameMapper(mapping, target_system=args.system, target_component=args.component)
     except (OSError, ValueError, MappingError) as exc:

@@ -266,7 +266,7 @@ class PlanExecutor:
             svc.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
             planner=cfg.planner, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
             time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
-            limits=svc.limits)
+            limits=svc.limits, vehicle=svc.vehicle)
         chosen, why = choose(cands)
         load = (info["loads"].get(chosen.name), snap.time_s)
         body = {"reason": reason, "policy": svc.policy, "parameter_set": svc.params.name,

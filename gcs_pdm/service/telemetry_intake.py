@@ -20,7 +20,6 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusTextFrame
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
 from gcs_pdm.service import adapters
 
@@ -148,10 +147,10 @@ class TelemetryIntake:
         st = self.service.state
         if self.estimator.ready():
             est = self.estimator.estimate()
-            for i, n in enumerate(PACK_NAMES):
+            for i, n in enumerate(self.estimator.pack_names):
                 st.update_nested("packs", n, soc=float(est.soc[i]), soc_sd=float(est.soc_sd[i]),
                                  temperature_c=float(est.pack_temp_c[i]), temperature_sd=float(est.pack_temp_sd[i]))
-            for i, n in enumerate(MOTOR_NAMES):
+            for i, n in enumerate(self.estimator.motor_names):
                 st.update_nested("motors", n, temperature_c=float(est.motor_temp_c[i]),
                                  temperature_sd=float(est.motor_temp_sd[i]))
         st.update(link={"connected": True, "received": self.link.received, "frames": self.frames_seen,
@@ -169,16 +168,23 @@ class TelemetryIntake:
         power = float(shaft_power(airspeed, climb, air_density(alt)))
         amb = self.service.state.get("ambient_c")
         limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
-        job = adapters.prediction_job(self.estimator, power, float(amb) if amb is not None else 20.0,
-                                      self.motor_faults(), limits, seed=int(t))
+        if adapters.follows_description(self.service.vehicle):
+            # a described vehicle: each pack at its present draw (no four-pack shaft-power model)
+            job, power = adapters.cutoff_at_present_draw_job(self.estimator, self.service.vehicle, seed=int(t)), None
+        else:
+            job = adapters.prediction_job(self.estimator, power, float(amb) if amb is not None else 20.0,
+                                          self.motor_faults(), limits, seed=int(t))
         self._predicting = True
 
         def run() -> None:
             try:
                 pred = job()
                 st = self.service.state
-                for i, n in enumerate(PACK_NAMES):
-                    q05, q50, q95 = (float(v) for v in pred.pack_time_to_cutoff_s[i])
+                per_pack = getattr(pred, "pack_time_to_cutoff_s", None)
+                if per_pack is None:
+                    per_pack = pred.time_to_cutoff_s
+                for i, n in enumerate(self.estimator.pack_names):
+                    q05, q50, q95 = (float(v) for v in per_pack[i])
                     sd = (q95 - q05) / 3.29 if math.isfinite(q95) and math.isfinite(q05) else None
                     st.update_nested("packs", n, time_to_cutoff_s=q50 if math.isfinite(q50) else None,
                                      time_to_cutoff_sd=sd)

@@ -15,7 +15,8 @@ def health(service: ServiceDep):
     return S.Health(status="ok", version=gcs_pdm.__version__, schema_version=service.store.schema_version,
                     link_connected=bool(service.state.get("link")["connected"]), policy=service.policy,
                     active_parameter_set=service.store.active_parameter_set_name(),
-                    interrupted_jobs_at_start=service.store.interrupted_at_open)
+                    interrupted_jobs_at_start=service.store.interrupted_at_open,
+                    readiness=service.state.get("readiness"), vehicle=service.state.get("vehicle"))
 
 
 @router.get("/status", response_model=S.VehicleStatus)
