@@ -11,6 +11,7 @@ max-height:20em;overflow:auto}
 </style></head><body>
 <h1>gcs-pdm</h1>
 <p id="head">connecting…</p>
+<p id="vehicle"></p><table id="readiness"></table>
 <h2>Packs</h2><table id="packs"></table>
 <h2>Motors</h2><table id="motors"></table>
 <h2>Mission</h2><p id="mission"></p>
@@ -26,6 +27,13 @@ async function tick(){
       `mode ${f(s.mode)} · policy ${f(s.policy)} · params ${f(s.parameter_set)} · `+
       `pos ${f(s.position.lat_deg,6)}, ${f(s.position.lon_deg,6)}, ${f(s.position.relative_alt_m,0)} m`+
       (s.failed?` · <b class="bad">FAILED: ${s.failed}</b>`:'');
+    const v=s.vehicle||{};
+    document.getElementById('vehicle').innerHTML=`vehicle <b>${f(v.name)}</b> (${f(v.source)})`+
+      (v.provisional?` · <b class="bad">provisional</b>: ${(v.notes||[]).join('; ')} · ${v.save||''}`:'')+
+      (v.waiting_for?` · ${v.waiting_for}`:'');
+    let r='';
+    for(const[k,why] of Object.entries(s.readiness||{})) r+=`<tr><th>${k}</th><td class="${why==='ready'?'ok':'bad'}" style="text-align:left">${why}</td></tr>`;
+    document.getElementById('readiness').innerHTML=r;
     let h='<tr><th>pack</th><th>V</th><th>A</th><th>°C</th><th>SoC</th><th>± </th><th>cut-off in (s)</th><th>±</th></tr>';
     for(const[n,p] of Object.entries(s.packs)) h+=`<tr><th>${n}</th><td>${f(p.voltage_v)}</td><td>${f(p.current_a,1)}</td>`+
       `<td>${f(p.temperature_c,1)}</td><td>${f(p.soc,3)}</td><td>${f(p.soc_sd,3)}</td><td>${f(p.time_to_cutoff_s,0)}</td><td>${f(p.time_to_cutoff_sd,0)}</td></tr>`;
@@ -41,7 +49,7 @@ async function tick(){
 setInterval(tick,1000);tick();
 const log=document.getElementById('log');
 const es=new EventSource('/events?since=0');
-for(const k of ['fault','plan','upload','mission','job','policy','statustext','link','failure'])
+for(const k of ['fault','plan','upload','mission','job','policy','statustext','link','failure','vehicle'])
   es.addEventListener(k,e=>{const d=JSON.parse(e.data);
     log.textContent=`[${d.seq}] ${k}: ${JSON.stringify(d.data)}\\n`+log.textContent;});
 </script></body></html>
