@@ -1,6 +1,13 @@
-"""Benchmark: the paper's full learning procedure for one pack on 8 + 2 + 2 thirty-minute 1 Hz flights.
+"""Benchmark: the full learning procedure for one pack on 8 + 2 + 2 thirty-minute 1 Hz flights.
 
-    python benchmarks/bench_fit.py [--pack LLF20] [--seed 0] [--skip-compare]
+    python benchmarks/bench_fit.py [--pack LLF20] [--seed 0] [--skip-compare] [--skip-independent]
+
+Two data sets: the paper model's own synthetic flights (fitted with the paper variant, errors beside
+the true parameters', and with the default extended variant, timed against issue 18's 20 s floor),
+and the independent PyBaMM flights of fixtures/pybamm (per parameter set: the extended variant,
+timed against the floor, the paper variant and the one-RC polynomial-OCV baseline of
+tests/baseline_one_rc.py, with test voltage and temperature RMSE per flight: the table of
+docs/fitting.md).
 
 Full procedure = cleaning, electrical stage (10 annealing starts, 10 LM runs, selection on
 validation), thermal stage (same), test errors of the learned, reference and true parameters.
@@ -57,18 +64,70 @@ def _compare(train, base) -> dict:
             "dual_annealing_nfev": int(res.nfev)}
 
 
+FLOOR_S = 20.0  # issue 18: 8+2+2 x 30 min on the default variant
+
+
+def _timed_fit(train, val, test, settings, **kw):
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = fit_battery(train, val, test, settings, **kw)
+    return res, round(time.perf_counter() - t0, 2), round(time.process_time() - c0, 2)
+
+
+def _independent() -> dict:
+    """Extended, paper and baseline on the PyBaMM fixture flights, per parameter set and test flight."""
+    import pandas as pd  # noqa: F401  (read_table needs it)
+
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+    from baseline_one_rc import fit_baseline
+
+    from gcs_pdm.fitting.logs import read_table
+
+    root = os.path.join(os.path.dirname(__file__), "..", "fixtures", "pybamm")
+    manifest = json.load(open(os.path.join(root, "manifest.json")))
+    out = {}
+    for set_name in sorted({f["set"] for f in manifest["flights"]}):
+        splits = {k: [read_table(os.path.join(root, f["file"]), "battery", f["flight"]) for f in manifest["flights"]
+                      if f["set"] == set_name and f["split"] == k] for k in ("train", "validation", "test")}
+        entry = {"load_average_1min_before": round(os.getloadavg()[0], 2)}
+        fits = {}
+        for model in ("extended", "paper"):
+            fits[model], wall, cpu = _timed_fit(splits["train"], splits["validation"], splits["test"],
+                                                FitSettings(model=model))
+            entry[f"{model}_wall_s"], entry[f"{model}_cpu_s"] = wall, cpu
+        entry["floor_s"] = FLOOR_S
+        t0 = time.perf_counter()
+        base = fit_baseline(clean_flights(splits["train"])[0])
+        entry["baseline_s"] = round(time.perf_counter() - t0, 2)
+        table = []
+        for f in clean_flights(splits["test"])[0]:
+            row = {"flight": f.name}
+            for model, res in fits.items():
+                e = next(e for e in res.errors["learned"]["test"]["flights"] if e["flight"] == f.name)
+                row[f"{model}_v_mv"] = round(1000 * e["voltage"]["rmse"], 1)
+                row[f"{model}_t_k"] = round(e["temperature"]["rmse"], 2)
+            ok, okt = np.isfinite(f.voltage_v), np.isfinite(f.temperature_c)
+            row["baseline_v_mv"] = round(1000 * float(np.sqrt(np.mean((base.voltage(f)[ok] - f.voltage_v[ok]) ** 2))), 1)
+            row["baseline_t_k"] = round(float(np.sqrt(np.mean((base.temperature(f)[okt] - f.temperature_c[okt]) ** 2))), 2)
+            table.append(row)
+        entry["test_flights"] = table
+        entry["load_average_1min_after"] = round(os.getloadavg()[0], 2)
+        out[set_name] = entry
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--pack", default="LLF20", choices=PACK_NAMES)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--skip-compare", action="store_true")
+    ap.add_argument("--skip-independent", action="store_true", help="skip the PyBaMM flights")
     args = ap.parse_args()
     truth = synthetic_truth(seed=7)
     t0 = time.perf_counter()
     flights = generate_flights(truth, 12, seed=1, duration_s=1800.0, dt=1.0)
     gen_s = time.perf_counter() - t0
     fl = [f.packs[args.pack] for f in flights]
-    settings = FitSettings(search=SearchSettings(starts=10, seed=args.seed))
+    settings = FitSettings(search=SearchSettings(starts=10, seed=args.seed), model="paper")
     kernel.simulate_packs(builtin().pack_matrix()[:1], np.zeros((1, 4)) + [4e5, 0, 0, 20], np.ones(2), np.ones(2), 20.0)
     t0, c0 = time.perf_counter(), time.process_time()
     res = fit_battery(fl[:8], fl[8:10], fl[10:], settings, pack=args.pack)
@@ -95,6 +154,12 @@ def main() -> None:
         "test_learned": figs(learned), "test_reference_" + res.reference: figs(ref), "test_true_params": figs(true_err),
         "learned_over_true": {k: round(res.parameters[k] / true_vec[k], 3) for k in res.learned},
     }
+    ext, ext_wall, ext_cpu = _timed_fit(fl[:8], fl[8:10], fl[10:], FitSettings(model="extended"), pack=args.pack)
+    out["default_variant_on_paper_data"] = {
+        "model": ext.model, "wall_s": ext_wall, "cpu_s": ext_cpu, "floor_s": FLOOR_S, "under_floor": ext_wall <= FLOOR_S,
+        "load_average_1min": round(os.getloadavg()[0], 2), "test": figs(ext.errors["learned"]["test"]["overall"])}
+    if not args.skip_independent:
+        out["independent_pybamm"] = _independent()
     if not args.skip_compare:
         out["sa_choice"] = _compare(fl[:8], builtin("previous_si").pack_matrix()[i])
     print(json.dumps(out))

@@ -1,7 +1,9 @@
 """Speed of the simulation kernel.
 
 Prints, as one JSON object on its last line: the time of one 30-minute 1 Hz flight for a single
-parameter vector, the batched throughput in (parameter vector x step)/s on one core, the closed-loop
+parameter vector, the batched throughput in (parameter vector x step)/s on one thread and on all
+cores (``parallel=True``, beside the issue-18 floor of 5e7), for the paper and the extended
+variant, the load average while measuring (the machine is shared), the closed-loop
 powertrain (4 packs + 2 motors) flight time, and NASA progpy's BatteryCircuit on the same flight
 (if progpy is installed: `pip install -e '.[bench]'`).
 
@@ -14,11 +16,12 @@ import os
 import time
 import warnings
 
+import numba
 import numpy as np
 
 from gcs_pdm.models import kernel as K
 from gcs_pdm.models import powertrain as PT
-from gcs_pdm.models.params import PACK_CAPACITY_C, default_set, perturbed
+from gcs_pdm.models.params import PACK_CAPACITY_C, default_set, extended_default, perturbed
 
 N_STEPS = 1800  # 30 minutes at 1 Hz
 
@@ -55,6 +58,16 @@ def main() -> dict:
     xb = K.initial_pack_state(pb, 1.0, 20.0)
     K.simulate_packs(pb[:2], xb[:2], dt, current, ambient)
     batched = _best_of(lambda: K.simulate_packs(pb, xb, dt, current, ambient), 5)
+    K.simulate_packs(pb[:2], xb[:2], dt, current, ambient, parallel=True)
+    batched_par = _best_of(lambda: K.simulate_packs(pb, xb, dt, current, ambient, parallel=True), 5)
+
+    ext = np.tile(np.array(list(extended_default("lipo").values())), (n_vec, 1))
+    ext[:, 0] *= np.exp(rng.uniform(-0.2, 0.2, n_vec))  # vary R_0 so no two vectors are alike
+    xe = K.initial_extended_state(ext, 1.0, 20.0)
+    K.simulate_packs(ext[:2], xe[:2], dt, current, ambient, variant="extended")
+    K.simulate_packs(ext[:2], xe[:2], dt, current, ambient, variant="extended", parallel=True)
+    ext_serial = _best_of(lambda: K.simulate_packs(ext, xe, dt, current, ambient, variant="extended"), 3)
+    ext_par = _best_of(lambda: K.simulate_packs(ext, xe, dt, current, ambient, variant="extended", parallel=True), 3)
 
     state = PT.PowertrainState.full(ps, 20.0)
     power = np.full(N_STEPS, float(PT.shaft_power(25.0)))
@@ -65,8 +78,14 @@ def main() -> dict:
         "single_flight_1800_steps_s": single,
         "batched_vectors": n_vec,
         "batched_vector_steps_per_s": n_vec * N_STEPS / batched,
+        "batched_vector_steps_per_s_all_cores": n_vec * N_STEPS / batched_par,
+        "extended_batched_vector_steps_per_s": n_vec * N_STEPS / ext_serial,
+        "extended_batched_vector_steps_per_s_all_cores": n_vec * N_STEPS / ext_par,
+        "floor_vector_steps_per_s_all_cores": 5e7,
         "powertrain_flight_1800_steps_s": powertrain,
-        "threads": int(os.environ.get("NUMBA_NUM_THREADS", "1")),
+        "numba_threads": numba.get_num_threads(),
+        "cpu_count": os.cpu_count(),
+        "load_average_1min": round(os.getloadavg()[0], 2),
     }
     result.update(progpy_reference(dt, current))
     if "progpy_single_flight_s" in result:

@@ -5,17 +5,21 @@ import re
 from pathlib import Path
 
 from gcs_pdm.mavlink.connection import DEFAULT_URL
-from gcs_pdm.service.config import ServiceConfig, load_config
+import pytest
+
+from gcs_pdm.service.config import ConfigError, ServiceConfig, load_config
 
 DEPLOY = Path(__file__).resolve().parents[1] / "deploy"
 
 
 def test_shipped_config_loads_and_its_token_is_a_refusable_placeholder():
-    cfg = load_config(DEPLOY / "gcs-pdm.toml", env={})
     # The service refuses tokens shorter than 16 characters and known placeholders: the shipped
     # one must be one of those, so a forgotten edit can never become a working credential.
-    assert len(cfg.api_token) < 16
+    with pytest.raises(ConfigError, match="^api_token: is a known placeholder"):
+        load_config(DEPLOY / "gcs-pdm.toml", env={})
     assert "refuse" in (DEPLOY / "gcs-pdm.toml").read_text()
+    # the environment's token (as the Dockerfile and compose pass it) replaces the placeholder
+    cfg = load_config(DEPLOY / "gcs-pdm.toml", env={"GCS_PDM_API_TOKEN": "a-real-random-token-0123"})
     assert cfg.mavlink_url == DEFAULT_URL == ServiceConfig.model_fields["mavlink_url"].default
     assert cfg.source_system != 255 and cfg.target_system == 1
 

@@ -7,7 +7,7 @@ import pytest
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import MOTOR_POWER_LOSS, PACK_CAPACITY_LOSS, Fault
 from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, MotorPowerLossDetector, fault_magnitude
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import default_set
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 
@@ -51,7 +51,7 @@ def test_magnitude_from_currents_recovers_the_kernel_fault(motor, m):
     fault = np.zeros(2)
     fault[["fwd", "aft"].index(motor)] = m
     n = 50
-    run = kernel.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], st.pack_state[None],
+    run = topology.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], st.pack_state[None],
                                      st.motor_temp_c[None], np.ones(n), np.linspace(600, 1800, n), 20.0, fault[None],
                                      record=True)
     for k in (0, n // 2, n - 1):

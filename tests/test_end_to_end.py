@@ -12,7 +12,8 @@ from gcs_pdm.service.demo import run_demo
 @pytest.mark.timeout(240)
 def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     lines: list[str] = []
-    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=lines.append)
+    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=lines.append,
+                 hold_while_deciding=True)
     text = "\n".join(lines)
     # without the service the vehicle fails
     assert r.original["failed"] and not r.original["landed"], r.original
@@ -53,7 +54,7 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
 def test_advise_policy_operator_approves_over_http(tmp_path):
     lines: list[str] = []
     r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=1, timeout_s=180.0, out=lines.append,
-                 compare=False, policy="advise")
+                 compare=False, policy="advise", hold_while_deciding=True)
     text = "\n".join(lines)
     assert "PLAN     proposed" in text and "OPERATOR approves plan" in text, text
     assert text.index("PLAN     proposed") < text.index("OPERATOR approves") < text.index("UPLOAD   plan 1: confirmed")

@@ -226,7 +226,7 @@ def test_demo_tells_a_multirotor_story(tmp_path):
 
     lines: list[str] = []
     r = run_vehicle_demo("quad-4s", speedup=8.0, http_port=0, data_dir=str(tmp_path), timeout_s=240.0,
-                         out=lines.append)
+                         out=lines.append, hold_while_deciding=True)
     print_vehicle_summary(r, out=lines.append)
     text = "\n".join(lines)
     assert r.landed and r.fault_source == "diagnoser" and r.fault_detected_s > r.fault_injected_s

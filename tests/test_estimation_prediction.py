@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from gcs_pdm.estimation.prediction import FutureLoad, predict, restate, sample_parameters
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import default_set
 from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState, fly
 
@@ -94,7 +94,7 @@ def test_load_for_route_follows_the_planner_and_predicts_its_outcome():
     pred = predict(ps, st.pack_state, np.tile(np.eye(4) * 1e-9, (4, 1, 1)), st.motor_temp_c, np.zeros(2), load,
                    rng=np.random.default_rng(0), n_samples=4, param_rel_sigma=0.0,
                    fault=np.asarray(sim._fault[0]), limits=scenario.limits.kernel_limits())
-    ref = kernel.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], st.pack_state[None],
+    ref = topology.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], st.pack_state[None],
                                      np.asarray(st.motor_temp_c)[None], load.dt, load.shaft_power_w, load.ambient_c,
                                      sim._fault, limits=scenario.limits.kernel_limits().as_tuple(), stop_on_failure=True)
     assert pred.p_failure == float(ref.failed[0])

@@ -16,7 +16,7 @@ from gcs_pdm.fitting.synthetic import NO_DAMAGE, generate_flights, synthetic_tru
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import ParameterSet, builtin
 
-SMALL = FitSettings(search=SearchSettings(starts=3, sa_generations=20, lm_max_nfev=8, seed=5))
+SMALL = FitSettings(search=SearchSettings(starts=3, sa_generations=20, lm_max_nfev=8, seed=5), model="paper")
 
 
 @pytest.fixture(scope="module")

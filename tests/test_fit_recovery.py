@@ -10,7 +10,7 @@ from gcs_pdm.models import kernel
 from gcs_pdm.models.params import BUILTIN_SETS, PACK_NAMES
 
 PACK = "LRF40"
-SETTINGS = FitSettings(search=SearchSettings(starts=6, sa_generations=80, seed=3))
+SETTINGS = FitSettings(search=SearchSettings(starts=6, sa_generations=80, seed=3), model="paper")
 
 
 @pytest.fixture(scope="module")

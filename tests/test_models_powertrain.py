@@ -6,6 +6,7 @@ import pytest
 
 from gcs_pdm.models import kernel as K
 from gcs_pdm.models import powertrain as PT
+from gcs_pdm.models import topology as TOPO
 from gcs_pdm.models.params import default_set
 
 PS = default_set()
@@ -113,10 +114,10 @@ def test_batched_powertrain_equals_single_runs():
     faults = rng.uniform(0, 1, (n_vec, 2)) * (rng.uniform(size=(n_vec, 2)) < 0.5)
     x0 = np.stack([K.initial_pack_state(PS.pack_matrix(), rng.uniform(0.5, 1), 20.0) for _ in range(n_vec)])
     tm0 = np.full((n_vec, 2), 20.0)
-    run = K.simulate_powertrain(PS.pack_matrix(), PS.motor_vector(), x0, tm0, dt, power, 20.0, faults,
+    run = TOPO.simulate_powertrain(PS.pack_matrix(), PS.motor_vector(), x0, tm0, dt, power, 20.0, faults,
                                 record=True)
     for j in range(n_vec):
-        one = K.simulate_powertrain(PS.pack_matrix(), PS.motor_vector(), x0[j], tm0[j], dt, power[j], 20.0,
+        one = TOPO.simulate_powertrain(PS.pack_matrix(), PS.motor_vector(), x0[j], tm0[j], dt, power[j], 20.0,
                                     faults[j], record=True)
         np.testing.assert_array_equal(run.pack_voltage[j], one.pack_voltage[0])
         np.testing.assert_array_equal(run.energy_j[j], one.energy_j[0])

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gcs_pdm.models import kernel, multirotor
+from gcs_pdm.models import kernel, multirotor, topology
 from gcs_pdm.models.params import default_set
 from gcs_pdm.models.powertrain import Limits
 from gcs_pdm.models.topology import simulate_vehicle
@@ -28,7 +28,7 @@ def test_edge540_reproduces_the_paper_kernel(fault):
     dt = np.full(n, 2.0)
     power = 1500.0 + 800.0 * np.sin(np.arange(n) / 40.0)
     power[::97] = -50.0
-    old = kernel.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], x0, tm0, dt, power, 20.0, fault,
+    old = topology.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], x0, tm0, dt, power, 20.0, fault,
                                      limits=Limits().as_tuple(), stop_on_failure=True, record=True)
     new = simulate_vehicle(inputs, None, None, x0, tm0, dt, power, 20.0, fault, stop_on_failure=True, record=True)
     assert old.failed.any()                  # the comparison covers failures too

@@ -11,7 +11,7 @@ from gcs_pdm.service.api import create_app
 from gcs_pdm.service.config import load_config
 from gcs_pdm.service.runtime import Service
 
-TOKEN = "test-token-123"
+TOKEN = "api-test-token-0123456789"
 
 
 @pytest.fixture

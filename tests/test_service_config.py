@@ -15,7 +15,7 @@ from gcs_pdm.service.config import ConfigError, ServiceConfig, load_config
 def test_defaults_are_documented_values():
     c = load_config(env={})
     assert c.mavlink_url == "udpin:127.0.0.1:14551" and c.target_system == 1 and c.source_system != 255 and c.http_host == "127.0.0.1" and c.http_port == 8000
-    assert c.policy == "auto" and c.parameter_set == "paper_si"
+    assert c.policy == "advise" and c.parameter_set == "paper_si"  # advise: the operator approves (issue 12)
     assert str(c.database).endswith("gcs_pdm.sqlite3")
     # every field has a default, so an empty file is a valid configuration
     assert all(not f.is_required() for f in ServiceConfig.model_fields.values())
@@ -92,7 +92,7 @@ def test_serve_starts_answers_and_stops(tmp_path):
     from gcs_pdm.service.server import serve
 
     port = _free_port()
-    cfg = load_config(env={}, data_dir=str(tmp_path), http_port=port, api_token="tok",
+    cfg = load_config(env={}, data_dir=str(tmp_path), http_port=port, api_token="config-test-token-0123",
                       mavlink_url=f"udpin:127.0.0.1:{_free_port(socket.SOCK_DGRAM)}")
     stop = threading.Event()
     rc = {}
@@ -110,7 +110,7 @@ def test_serve_starts_answers_and_stops(tmp_path):
                 time.sleep(0.1)
         assert h["status"] == "ok" and h["link_connected"] is False
         r = httpx.put(f"http://127.0.0.1:{port}/policy", json={"policy": "advise"},
-                      headers={"Authorization": "Bearer tok"})
+                      headers={"Authorization": "Bearer config-test-token-0123"})
         assert r.json() == {"policy": "advise"}
         tl = httpx.get(f"http://127.0.0.1:{port}/tlogs").json()
         assert len(tl) == 1 and tl[0]["note"] == "live session"

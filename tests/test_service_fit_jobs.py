@@ -13,7 +13,7 @@ from gcs_pdm.service.api import create_app
 from gcs_pdm.service.config import load_config
 from gcs_pdm.service.runtime import Service
 
-TOKEN = "t0k"
+TOKEN = "fit-jobs-test-token-0123"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 

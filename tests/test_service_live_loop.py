@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from gcs_pdm import missions as M
 from gcs_pdm.estimation.synthetic import fly_synthetic
-from gcs_pdm.frames import MissionProgressFrame, PositionFrame
+from gcs_pdm.frames import AmbientFrame, MissionProgressFrame, PositionFrame
 from gcs_pdm.planning.mission import plan_to_mission
 from gcs_pdm.planning.plan import make_plan
 from gcs_pdm.geo import geodetic_from_enu
@@ -97,7 +97,7 @@ def frames():
 
 
 def make_loop(tmp_path, policy, mission, fail_uploads=0):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy=policy, planner_deadline_s=20.0))
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy=policy, planner_deadline_s=20.0))
     svc.load_objectives_scenario(preflight_scenario(10))
     link = FakeLink()
     vehicle = FakeVehicleMissions(mission.items, fail_uploads)
@@ -298,10 +298,10 @@ class AlteredReadback(FakeVehicleMissions):
         self.items[wp.seq] = M.as_sent(dataclasses.replace(wp, z=wp.z + 30.0))
 
 
-def _direct_loop(tmp_path, vehicle_cls, mission):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x", policy="auto"))
+def _direct_loop(tmp_path, vehicle_cls, mission, link=None, policy="auto"):
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy=policy))
     svc.load_objectives_scenario(preflight_scenario(10))
-    link = FakeLink()
+    link = link or FakeLink()
     vehicle = vehicle_cls(mission.items)
     loop = LiveLoop(svc, link, vehicle)
     svc.attach_loop(loop)
@@ -538,23 +538,75 @@ def test_choose_ranks_feasible_routes_by_objective_not_reward():
     assert best.name == "planner"
 
 
-def test_same_mission_compares_what_the_vehicle_stores():
-    from gcs_pdm.service.decision import same_mission
+class ArduPlaneLike(FakeVehicleMissions):
+    """Stores what it is sent as stock ArduPlane does (item 0 is home, frame 6 -> 3, NaN -> 0,
+    NAV_LAND param4 -> 1, centimetre altitudes): the sim's ``store_like_arduplane``."""
 
-    items = list(original_mission().items)
-    sent = [M.as_sent(i) for i in items]
-    assert same_mission(items, sent)
-    # the vehicle's own home at seq 0 and the current flag are not mission content
-    back = [dataclasses.replace(sent[0], x=sent[0].x + 500)] + [dataclasses.replace(i, current=1) for i in sent[1:]]
-    assert same_mission(items, back)
-    # a moved waypoint, a changed command, a missing or an extra item are
-    k = next(i.seq for i in sent if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
-    assert not same_mission(items, sent[:k] + [dataclasses.replace(sent[k], z=sent[k].z + 1.0)] + sent[k + 1:])
-    assert not same_mission(items, sent[:k] + [dataclasses.replace(sent[k], y=sent[k].y + 100)] + sent[k + 1:])
-    assert not same_mission(items, sent[:-1])
-    assert not same_mission(items, sent + [sent[-1]])
-    land = len(sent) - 1
-    assert not same_mission(items, sent[:land] + [dataclasses.replace(sent[land], command=M.MAV_CMD_NAV_WAYPOINT)])
+    moved_seq: int | None = None
+
+    def upload(self, items):
+        from gcs_pdm.sim.mission_server import arduplane_stored
+        from gcs_pdm.sim.model import SimConfig
+
+        super().upload(items)
+        self.items = [arduplane_stored(i, SimConfig()) for i in self.items]
+        if self.moved_seq is not None:  # a real difference: one waypoint 200 m further north
+            self.items[self.moved_seq] = dataclasses.replace(self.items[self.moved_seq],
+                                                             x=self.items[self.moved_seq].x + 18000)
+
+
+def vehicle_message(name: str, system: int = 1, component: int = 1, **fields):
+    """A message as received from ``system``/``component`` (packed and parsed, so its header is real)."""
+    sender = mavlink2.MAVLink(None, srcSystem=system, srcComponent=component)
+    buf = getattr(sender, f"{name.lower()}_encode")(**fields).pack(sender)
+    return mavlink2.MAVLink(None).decode(bytearray(buf))
+
+
+def arduplane_heartbeat():
+    return vehicle_message("HEARTBEAT", type=mavlink2.MAV_TYPE_FIXED_WING, autopilot=mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                           base_mode=0, custom_mode=0, system_status=mavlink2.MAV_STATE_STANDBY)
+
+
+def _upload_with_prediction(svc, loop, new):
+    """An upload whose plan predicts the discharge (what arms the deviation check)."""
+    cand = Candidate("planner", tuple(range(10, 0, -1)), True, 100.0, 100.0, 100.0, None,
+                     {"final_soc": [0.5] * 4, "flight_time_s": 600.0})
+    pid = svc.store.add_plan({"items": [], "chosen": cand.to_dict()}, "test", "approved", 0.0)
+    snap = dataclasses.replace(_snap(loop), soc=(0.9,) * 4)
+    return pid, loop.executor.upload(pid, list(new.items), cand, snap, new.current_seq)
+
+
+def test_an_arduplane_normalised_readback_is_confirmed_and_arms_the_expectation(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, ArduPlaneLike, mission)
+    try:
+        loop.executor.watch(arduplane_heartbeat(), 1.0)
+        pid, out = _upload_with_prediction(svc, loop, new)
+        assert not M.same_items([M.as_sent(i) for i in new.items], vehicle.items)  # stored normalised
+        assert out.record_status == "confirmed", svc.store.uploads()[0]
+        assert svc.store.plan(pid)["status"] == "uploaded"
+        up = svc.store.uploads()[0]
+        assert up["status"] == "confirmed" and "equivalent under ArduPilot (Plane)" in up["readback"]
+        assert loop.executor.expectation is not None and loop.executor.expectation["soc1"] == [0.5] * 4
+        assert M.same_items(loop.mission_items, vehicle.items)  # what the vehicle holds, as it holds it
+    finally:
+        svc.close()
+
+
+def test_a_real_difference_under_arduplane_rules_is_a_mismatch(tmp_path):
+    mission, new = original_mission(), _new_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, ArduPlaneLike, mission)
+    vehicle.moved_seq = next(i.seq for i in new.items if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
+    try:
+        loop.executor.watch(arduplane_heartbeat(), 1.0)
+        pid, out = _upload_with_prediction(svc, loop, new)
+        assert out.record_status == "mismatch"
+        assert svc.store.plan(pid)["status"] == "upload_mismatch"
+        up = svc.store.uploads()[0]
+        assert f"item {vehicle.moved_seq} x" in up["readback"] and "moved" in up["readback"]
+        assert loop.executor.expectation is None
+    finally:
+        svc.close()
 
 
 def test_operator_faults_are_kept_per_fault_and_the_worst_per_motor_counts(tmp_path):
@@ -571,5 +623,169 @@ def test_operator_faults_are_kept_per_fault_and_the_worst_per_motor_counts(tmp_p
         svc.clear_fault(strong)
         assert not [f for f in loop.faults.motor_faults([]) if f.motor == "aft"]
         assert svc.state.snapshot()["motors"]["aft"]["health"] == pytest.approx(1.0)
+    finally:
+        svc.close()
+
+
+# --- following the vehicle's mission -------------------------------------------------------------
+
+class SubscribingLink(FakeLink):
+    """A link with the real one's subscription: the test plays the vehicle's mission messages."""
+
+    def __init__(self):
+        super().__init__()
+        self.mav = mavlink2.MAVLink(None, srcSystem=245, srcComponent=195)  # the service's own ids
+        self.subscription = None
+
+    def subscribe(self, types, maxsize=1000):
+        import queue
+
+        link = self
+
+        class Subscription:
+            def __init__(self):
+                self.types, self.queue = types, queue.Queue(maxsize)
+
+            def get(self, timeout=None):
+                try:
+                    return self.queue.get(timeout=timeout)
+                except queue.Empty:
+                    return None
+
+            def close(self):
+                link.subscription = None
+
+        self.subscription = Subscription()
+        return self.subscription
+
+    def receive(self, msg):
+        if self.subscription is not None and msg.get_type() in self.subscription.types:
+            self.subscription.queue.put(msg)
+
+
+class HomelessVehicle(FakeVehicleMissions):
+    """ArduPilot before home is set: a mission read returns 0 items whatever it holds."""
+
+    home_set = False
+    downloads = 0
+
+    def download(self):
+        self.downloads += 1
+        return list(self.items) if self.home_set else []
+
+
+def test_the_current_mission_follows_home_and_a_ground_station_upload_within_5_s(tmp_path):
+    mission = original_mission()
+    svc, loop, link, vehicle = _direct_loop(tmp_path, HomelessVehicle, mission, SubscribingLink(), policy="advise")
+    loop.start()
+    wp = next(i.seq for i in vehicle.items if i.command == M.MAV_CMD_NAV_WAYPOINT and i.seq > 0)
+    changed = list(vehicle.items)
+    changed[wp] = dataclasses.replace(changed[wp], z=changed[wp].z + 40.0)  # same count: only the content says
+    seen = {}  # what the service showed -> message time it learned it
+
+    def shown():
+        cur = svc.current_mission()
+        if cur["items"] is None:
+            return None
+        items = [M.item_from_json(d) for d in cur["items"]]
+        for name, want in (("empty", []), ("home", vehicle_original), ("changed", changed)):
+            if M.same_items(items, want):
+                seen.setdefault(name, cur["time_s"])
+                return name
+        return "other"
+
+    vehicle_original = list(vehicle.items)
+    try:
+        t = 0.0
+        while t < 45.0:
+            link.receive(arduplane_heartbeat()) if t % 1.0 == 0 else None
+            if t % 1.0 == 0:
+                total = len(vehicle.items) if vehicle.home_set else 0
+                link.receive(vehicle_message("MISSION_CURRENT", seq=0, total=total))
+            if t == 10.0:  # the vehicle gets its GPS fix and sets home
+                vehicle.home_set = True
+                link.receive(vehicle_message("HOME_POSITION", latitude=mission.items[0].x, longitude=mission.items[0].y,
+                                             altitude=0, x=0, y=0, z=0, q=[1, 0, 0, 0], approach_x=0, approach_y=0,
+                                             approach_z=0))
+            if t == 25.0:  # an operator uploads a changed mission from the ground station (system 255)
+                vehicle.items = list(changed)
+                link.receive(vehicle_message("MISSION_ACK", target_system=255, target_component=190, type=0))
+            loop.telemetry.on_frame(AmbientFrame(t, 20.0))
+            time.sleep(0.1)
+            shown()
+            t += 0.25
+        deadline = time.monotonic() + 5
+        while shown() != "changed" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "empty" in seen  # read before home: 0 items, shown as such
+        assert "home" in seen and 10.0 <= seen["home"] <= 15.0, seen
+        assert "changed" in seen and 25.0 <= seen["changed"] <= 30.0, seen
+        # the plan baseline is what the vehicle holds now, under its autopilot's rules
+        assert M.same_items(loop.executor.mission_items, changed)
+        assert loop.executor.rules().name == "ArduPilot (Plane)"
+        reasons = [e.data.get("reason") for e in svc.events.since(0) if e.kind == "mission" and "count" in e.data]
+        assert "home set" in reasons and "upload by system 255 accepted" in reasons, reasons
+        # no busy polling: a handful of reads, not one per message
+        assert vehicle.downloads < 15, vehicle.downloads
+    finally:
+        svc.close()
+
+
+# --- an upload interrupted by a crash ---------------------------------------------------------------
+
+def test_an_upload_interrupted_by_a_crash_is_recovered_at_start(tmp_path):
+    """The service died between writing an upload's intent and its outcome, after the vehicle took
+    the mission: at the next start the upload is ``interrupted``, the vehicle's mission is read and
+    recorded with it, and no plan is left ``approved`` without an upload."""
+    from gcs_pdm.service.storage import Store
+
+    mission, new = original_mission(), _new_mission()
+    cfg = load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy="auto")
+    store = Store(cfg.database)
+    items_json = [M.item_to_json(i) for i in new.items]
+    crashed = store.add_plan({"items": items_json, "chosen": {}, "current_seq": new.current_seq}, "fault", "approved", 5.0)
+    uid = store.begin_upload(crashed, {"items": items_json, "previous_items": [], "route": [10, 9],
+                                       "started_time_s": 5.0, "current_seq": new.current_seq})
+    never_started = store.add_plan({"items": items_json, "chosen": {}}, "operator", "approved", 6.0)
+    store.close()  # (the kill -9: nothing more was written)
+
+    svc = Service(cfg)
+    svc.load_objectives_scenario(preflight_scenario(10))
+    vehicle = FakeVehicleMissions(new.items)  # the vehicle had taken the new mission
+    loop = LiveLoop(svc, FakeLink(), vehicle)
+    svc.attach_loop(loop)
+    loop.start()
+    try:
+        deadline = time.monotonic() + 10
+        while "vehicle_items" not in svc.store.uploads()[0] and time.monotonic() < deadline:
+            time.sleep(0.05)
+        up = svc.store.uploads()[0]
+        assert up["id"] == uid and up["status"] == "interrupted" and "stopped during the transfer" in up["error"]
+        assert M.same_items([M.item_from_json(d) for d in up["vehicle_items"]], vehicle.items)
+        assert up["vehicle_holds_plan"] is True
+        assert svc.store.plan(crashed)["status"] == "upload_interrupted"
+        assert "holds this plan's mission" in svc.store.plan(crashed)["history"][-1]["note"]
+        assert svc.store.plan(never_started)["status"] == "upload_interrupted"
+        assert svc.store.plans(status="approved") == [] and svc.store.unfinished_uploads() == []
+        assert vehicle.uploads == []  # recovery reads; it never uploads on its own
+    finally:
+        svc.close()
+
+
+def test_an_upload_writes_its_intent_before_the_transfer(tmp_path):
+    mission, new = original_mission(), _new_mission()
+
+    class Recording(FakeVehicleMissions):
+        seen = None
+
+        def upload(self, items):
+            Recording.seen = [(u["status"], len(u["items"])) for u in svc.store.uploads()]
+            return super().upload(items)
+
+    svc, loop, link, vehicle = _direct_loop(tmp_path, Recording, mission)
+    try:
+        pid, ok = _upload_direct(svc, loop, new)
+        assert Recording.seen == [("intent", len(new.items))]  # on disk while the transfer ran
+        assert ok and [u["status"] for u in svc.store.uploads()] == ["confirmed"]
     finally:
         svc.close()

@@ -11,7 +11,8 @@ import pytest
 from gcs_pdm.cli import main
 from gcs_pdm.models import kernel, multirotor
 from gcs_pdm.models.params import default_set
-from gcs_pdm.vehicle.description import VehicleError, dumps, from_dict, load, parse, resolve
+from gcs_pdm.vehicle.description import VehicleError, dumps, from_dict, load, parse
+from gcs_pdm.vehicle.presets import resolve
 from gcs_pdm.vehicle.model_inputs import model_inputs
 from gcs_pdm.vehicle.presets import PRESETS
 from gcs_pdm.vehicle.provisional import derive_provisional, observe_tlog

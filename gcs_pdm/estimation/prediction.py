@@ -3,7 +3,7 @@
 From the estimator's state (mean and covariance of every pack, motor temperatures), draw N
 samples of the state *and* of the parameters (multiplicative log-normal spread around the
 parameter set — the model's own uncertainty), and fly all of them through the future shaft-power
-profile in ONE ``kernel.simulate_powertrain`` call with ``stop_on_failure``. Each sample stops at
+profile in ONE ``topology.simulate_powertrain`` call with ``stop_on_failure``. Each sample stops at
 its first failure (cut-off voltage, depletion, over-temperature, power); the spread of the
 results is the prediction's uncertainty.
 
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import Limits
 
@@ -208,7 +208,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
     amb = load.ambient_c if np.ndim(load.ambient_c) == 0 else np.asarray(load.ambient_c, dtype=np.float64)
     power = np.asarray(load.shaft_power_w, dtype=np.float64)
     if vehicle is None:
-        run = kernel.simulate_powertrain(pp, mp, x0, tm0, dt, power, amb, f, limits=limits.as_tuple(),
+        run = topology.simulate_powertrain(pp, mp, x0, tm0, dt, power, amb, f, limits=limits.as_tuple(),
                                          stop_on_failure=stop_on_failure, record=True)
         cutoff_v = limits.pack_cutoff_v
     else:

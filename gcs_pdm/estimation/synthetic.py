@@ -1,6 +1,6 @@
 """Seeded synthetic flights as telemetry frames, with their truth — test and evaluation data.
 
-A flight is a shaft-power profile flown through ``kernel.simulate_powertrain(record=True)`` on a
+A flight is a shaft-power profile flown through ``topology.simulate_powertrain(record=True)`` on a
 "true" parameter set, optionally with a motor fault switched on at a given time (the kernel holds a
 fault constant over a call, so the flight is flown in two segments, the second starting from the
 first one's final state) and optionally with degraded packs (capacity loss, resistance rise). The
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs_pdm.frames import AirdataFrame, AmbientFrame, MotorFrame, PackFrame
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, degraded
 from gcs_pdm.models.powertrain import (Limits, PowertrainState, air_density, ambient_temperature, shaft_power,
                                        shaft_rpm)
@@ -129,7 +129,7 @@ def fly_synthetic(truth: ParameterSet, rng: np.random.Generator, *, duration_s: 
         if b <= a or failed_at is not None:
             continue
         # the vehicle stops flying at its first failure (it would land or be lost): so does the log
-        run = kernel.simulate_powertrain(flown.pack_matrix()[None], flown.motor_vector()[None], x0, tm0,
+        run = topology.simulate_powertrain(flown.pack_matrix()[None], flown.motor_vector()[None], x0, tm0,
                                          dt[a:b], power[a:b], ambient[a:b], f[None], record=True,
                                          limits=limits.as_tuple(), stop_on_failure=True)
         end = b - a if run.fail_step[0] < 0 else int(run.fail_step[0]) + 1

@@ -151,6 +151,10 @@ def clean_flight(flight: Flight, settings: CleaningSettings = CleaningSettings()
     c = rep.counts
     cols = {k: np.array(getattr(flight, k), dtype=np.float64) for k in flight.columns()}
     measured = ("voltage_v", "temperature_c") if flight.kind == BATTERY else ("temperature_c",)
+    if flight.kind == BATTERY and not np.isfinite(cols["temperature_c"]).any():
+        # no pack temperature at all (common in real logs): the voltage alone is still usable
+        measured = ("voltage_v",)
+        c["no_temperature"] += 1
     inputs = ("current_a", "ambient_c")
 
     def reject(reason: str) -> CleanResult:

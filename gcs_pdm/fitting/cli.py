@@ -1,6 +1,7 @@
 """``gcs-pdm fit battery|motor|synthetic``: learn parameters from flight logs (the paper's §IV).
 
     gcs-pdm fit battery --train F… --val F… --test F… --out DIR [--pack LLF20|ULA20|LRF40|URA40|all]
+                        [--model extended|paper]
     gcs-pdm fit motor   --train F… --val F… --test F… --out DIR
     gcs-pdm fit synthetic --out DIR [--flights 12] [--seed 1]     (CSV logs with known truth)
 
@@ -19,6 +20,10 @@ from pathlib import Path
 
 from gcs_pdm.models.params import PACK_NAMES
 
+#: `gcs-pdm fit battery|set` with no --model (kept equal to procedure.DEFAULT_MODEL by a test; a
+#: literal here so the CLI's --help does not import the fitting stack)
+DEFAULT_MODEL = "extended"
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("fit", help="learn battery/motor parameters from flight logs (SA -> LM)")
@@ -33,7 +38,11 @@ def register(subparsers) -> None:
             q.add_argument("--pack", default=None, choices=PACK_NAMES + ("all",),
                            help="pack to fit: tlogs hold all four (default all); tables hold one (its fixed values "
                                 "and reference come from this pack, default LLF20)")
-        q.add_argument("--starts", type=int, default=10, help="annealing starts = LM runs (default 10)")
+        if what == "battery":
+            q.add_argument("--model", default=DEFAULT_MODEL, choices=("extended", "paper"),
+                           help="battery model variant (docs/model.md): extended (default) or paper (eqs. 1-7)")
+        q.add_argument("--starts", type=int, default=None,
+                       help="annealing starts = LM runs (default 10; 4 for the extended variant)")
         q.add_argument("--sa-generations", type=int, default=None, help="annealing generations per start")
         q.add_argument("--sa-proposals", type=int, default=None, help="proposals per chain and generation")
         q.add_argument("--lm-max-nfev", type=int, default=None, help="LM residual evaluations per run")
@@ -60,7 +69,8 @@ def register(subparsers) -> None:
     st.add_argument("--name", default="learned")
     st.add_argument("--note", default="", help="free text stored in the set's provenance")
     st.add_argument("--seed", type=int, default=0)
-    st.add_argument("--starts", type=int, default=10)
+    st.add_argument("--model", default=DEFAULT_MODEL, choices=("extended", "paper"), help="battery model variant")
+    st.add_argument("--starts", type=int, default=None)
     st.add_argument("--sa-generations", type=int, default=None)
     st.add_argument("--sa-proposals", type=int, default=None)
     st.add_argument("--lm-max-nfev", type=int, default=None)
@@ -106,21 +116,30 @@ def _settings(args):
     from gcs_pdm.fitting.procedure import FitSettings
     from gcs_pdm.fitting.search import SearchSettings
 
-    search = {"starts": args.starts, "seed": args.seed}
-    for k, attr in (("sa_generations", "sa_generations"), ("sa_proposals", "sa_proposals"), ("lm_max_nfev", "lm_max_nfev")):
-        if getattr(args, attr) is not None:
-            search[k] = getattr(args, attr)
-    return FitSettings(search=SearchSettings(**search), base=args.base, reference=args.reference, workers=args.workers)
+    import dataclasses
+
+    given = {"seed": args.seed}
+    for k in ("starts", "sa_generations", "sa_proposals", "lm_max_nfev"):
+        if getattr(args, k) is not None:
+            given[k] = getattr(args, k)
+    defaults = FitSettings()
+    # the flags tune the search of the variant being fitted (each variant keeps its own defaults)
+    return FitSettings(search=SearchSettings(**given), base=args.base, reference=args.reference, workers=args.workers,
+                       model=getattr(args, "model", "paper") if getattr(args, "fit_what", None) != "motor" else "paper",
+                       extended_search=dataclasses.replace(defaults.extended_search, **given))
 
 
 def _summary(res) -> dict:
     e = res.errors
-    out = {"component": res.component, "pack": res.pack, "seconds": round(res.seconds, 2)}
+    out = {"component": res.component, "pack": res.pack, "model": res.model, "seconds": round(res.seconds, 2)}
+    if res.model is not None and not res.thermal.get("fitted", True):
+        out["thermal_not_fitted"] = res.thermal.get("reason", "")
     for which in ("learned", "reference"):
         t = e[which]["test"]["overall"]
         if "voltage" in t:
             out[f"{which}_test_voltage_rmse_v"] = round(t["voltage"]["rmse"], 4)
-        out[f"{which}_test_temperature_rmse_f"] = round(t["temperature"]["rmse_f"], 3)
+        if t.get("temperature", {}).get("rmse_f") is not None:
+            out[f"{which}_test_temperature_rmse_f"] = round(t["temperature"]["rmse_f"], 3)
     return out
 
 
@@ -209,7 +228,7 @@ def run_learn_synthetic(args: argparse.Namespace) -> int:
 
     truth = true_parameters(args.truth_seed if args.truth_seed is not None else DEFAULT_TRUTH_SEED)
     merged, results = learn_from_synthetic(truth, flights=args.flights, seed=args.seed,
-                                           settings=FitSettings(search=SearchSettings(seed=args.fit_seed)),
+                                           settings=FitSettings(search=SearchSettings(seed=args.fit_seed), model="paper"),
                                            progress=_ProgressLine("learn: ", args.quiet))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(merged.to_json(indent=2))
@@ -222,8 +241,6 @@ def run_learn_synthetic(args: argparse.Namespace) -> int:
 def run_set(args: argparse.Namespace) -> int:
     from gcs_pdm.fitting.learn_set import learn_from_tlogs
     from gcs_pdm.fitting.logs import write_outputs
-    from gcs_pdm.fitting.procedure import FitSettings
-    from gcs_pdm.fitting.search import SearchSettings
     from gcs_pdm.fitting.tables import FlightDataError
 
     try:

@@ -33,7 +33,8 @@ def pooled(per_flight: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
     pred = np.concatenate([p for p, _ in per_flight])
     meas = np.concatenate([m for _, m in per_flight])
     out = error_stats(pred, meas)
-    flights = [error_stats(p, m) for p, m in per_flight]
-    out["mean_flight_rmse"] = float(np.nanmean([f["rmse"] for f in flights]))
-    out["mean_flight_mae"] = float(np.nanmean([f["mae"] for f in flights]))
+    flights = [f for f in (error_stats(p, m) for p, m in per_flight) if np.isfinite(f["rmse"])]
+    # a quantity no flight measured (e.g. pack temperature in a log without it) has no mean: NaN -> null
+    out["mean_flight_rmse"] = float(np.mean([f["rmse"] for f in flights])) if flights else float("nan")
+    out["mean_flight_mae"] = float(np.mean([f["mae"] for f in flights])) if flights else float("nan")
     return out

@@ -14,10 +14,13 @@ from gcs_pdm.fitting.synthetic import generate_flights
 from gcs_pdm.models.params import PACK_NAMES, ParameterSet, builtin
 
 
-def learn_from_synthetic(truth: ParameterSet, *, flights: int = 12, seed: int = 1, settings: FitSettings = FitSettings(),
+def learn_from_synthetic(truth: ParameterSet, *, flights: int = 12, seed: int = 1, settings: FitSettings = FitSettings(model="paper"),
                          name: str = "learned_sim", progress: Callable[[float, str], None] | None = None,
                          ) -> tuple[ParameterSet, dict[str, FitResult]]:
-    """(merged learned set over ``settings.base``, fit result per pack and ``"motor"``)."""
+    """(merged learned set over ``settings.base``, fit result per pack and ``"motor"``).
+
+    The simulated vehicle's truth is a paper-variant set, so the default settings fit the paper
+    variant (the learned set then drops into the planner and simulator unchanged)."""
     if flights < 3:
         raise ValueError("need at least 3 flights (train, validation, test)")
     syn = generate_flights(truth, flights, seed=seed)

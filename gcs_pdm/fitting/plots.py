@@ -1,4 +1,8 @@
-"""Predicted versus measured voltage and temperature of one flight (the paper's Figures 3 and 4)."""
+"""Predicted versus measured voltage and temperature of one flight (the paper's Figures 3 and 4).
+
+Each panel shows the measurements, the learned model's prediction (its variant named: extended or
+paper) and the reference set's (a paper-variant set), so an extended fit is seen beside the paper's
+model on the same flight."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -20,9 +24,11 @@ def plot_flight(pred, path: str | Path, reference: str = "reference") -> Path:
     t_min = (np.asarray(pred.time_s) - pred.time_s[0]) / 60.0
     for ax, (label, meas, learned, ref) in zip(axes[:, 0], panels):
         ax.plot(t_min, meas, ".", ms=2, color="0.4", label="measured")
-        ax.plot(t_min, learned, "-", lw=1.4, color="C0", label="predicted (learned)")
+        model = getattr(pred, "model", "paper")
+        ref_model = getattr(pred, "reference_model", "paper")
+        ax.plot(t_min, learned, "-", lw=1.4, color="C0", label=f"predicted (learned, {model} model)")
         if ref is not None:
-            ax.plot(t_min, ref, "--", lw=1.0, color="C3", label=f"predicted ({reference})")
+            ax.plot(t_min, ref, "--", lw=1.0, color="C3", label=f"predicted ({reference}, {ref_model} model)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
         ax.legend(loc="best", fontsize=8)

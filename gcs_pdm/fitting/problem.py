@@ -61,6 +61,41 @@ BATTERY_THERMAL_BOUNDS: tuple[Bound, ...] = (
     Bound("C_t", 200.0, 5000.0, "J/K", "0.2-5 kJ/K: a 1 kg pack at c_p ~ 1 kJ/(kg K), with its mounting"),
     Bound("h", 0.2, 10.0, "W/K", "natural to strong forced convection over ~0.06 m^2"),
 )
+def _ocv_increment_bounds() -> tuple[Bound, ...]:
+    # pack-level (5S) rise of the open-circuit voltage between neighbouring knots: positive (monotone)
+    # and at most what a discharge curve shows between those SoCs (the lowest knots are the steepest)
+    out = []
+    for k in range(1, kernel.N_OCV_KNOTS):
+        width = float(kernel.EXT_OCV_SOC[k] - kernel.EXT_OCV_SOC[k - 1])
+        out.append(Bound(f"docv_{k}", 1e-3, max(0.5, 25.0 * width) if k > 2 else 3.0, "V",
+                         f"OCV rise over SoC {kernel.EXT_OCV_SOC[k - 1]:.2f}-{kernel.EXT_OCV_SOC[k]:.2f}"))
+    return tuple(out)
+
+
+#: extended variant, 5S ~7.8 Ah pack (docs/model.md explains each)
+EXTENDED_RC_BOUNDS: tuple[Bound, ...] = (
+    Bound("R_0", 1e-3, 0.2, "ohm", "ohmic + fast charge-transfer resistance at 25 C, mid SoC: 0.2-40 mOhm per cell"),
+    Bound("R_1", 1e-4, 0.2, "ohm", "fast polarisation pair"),
+    Bound("tau_1", 1.0, 100.0, "s", "charge transfer / double layer: seconds to a minute"),
+    Bound("R_2", 1e-4, 0.2, "ohm", "slow (diffusion) polarisation pair"),
+    Bound("tau_2", 60.0, 3000.0, "s", "solid-state diffusion: minutes to an hour"),
+    Bound("E_r", 100.0, 8000.0, "K", "Arrhenius E_a/R: activation energies 1-65 kJ/mol"),
+    Bound("k_soc", 1e-3, 10.0, "1", "resistance rise near empty: f = 1 + k_soc exp(-SoC/0.1)"),
+    Bound("b_ct", 1e-3, 1.0, "V", "charge-transfer slope: 5 cells x RT/(alpha F) ~ 0.25 V; small = no kinetics"),
+    Bound("i_ct", 0.1, 500.0, "A", "current where the charge-transfer drop turns logarithmic (exchange current)"),
+    Bound("k_d", 1e-2, 3000.0, "s", "surface depletion I k_d / C_max: up to 0.3 SoC at 3C (slow solid diffusion)"),
+    Bound("C_max", 0.6 * PACK_CAPACITY_C, 1.4 * PACK_CAPACITY_C, "C", "usable capacity 60-140 % of the rated 7.8 Ah"),
+)
+EXTENDED_OCV_BOUNDS: tuple[Bound, ...] = (
+    Bound("ocv_0", 12.5, 18.0, "V", "OCV of the pack at SoC 0: 2.5-3.6 V per cell"),
+) + _ocv_increment_bounds()
+EXTENDED_ELECTRICAL_BOUNDS: tuple[Bound, ...] = EXTENDED_RC_BOUNDS + EXTENDED_OCV_BOUNDS
+EXTENDED_THERMAL_BOUNDS: tuple[Bound, ...] = (
+    Bound("C_t", 50.0, 2e4, "J/K", "pack (0.05-20 kJ/K) as the one sensor sees it, with its mounting"),
+    Bound("h", 0.02, 50.0, "W/K", "still air to strong forced convection, pack in a fuselage or outside"),
+    Bound("dU_dT", -5e-3, 5e-3, "V/K", "entropic coefficient of the pack: +-1 mV/K per cell (searched linearly)"),
+)
+
 MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
     Bound("C_t", 100.0, 3000.0, "J/K", "motor (~0.6 kg copper/iron) and its aluminium bracket"),
     Bound("h", 0.2, 10.0, "W/K", "propeller-wash cooled out-runner"),
@@ -70,23 +105,30 @@ MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
 
 
 class ParameterSpace:
-    """Unit-cube coordinates ↔ log-scaled physical values of the free parameters."""
+    """Unit-cube coordinates ↔ physical values of the free parameters: log-scaled, except a parameter
+    whose range includes zero or negative values (e.g. the entropic coefficient), which is linear."""
 
     def __init__(self, bounds: Sequence[Bound]):
         self.bounds = tuple(bounds)
         self.names = tuple(b.name for b in self.bounds)
-        self.log_lo = np.log([b.lo for b in self.bounds])
-        self.log_hi = np.log([b.hi for b in self.bounds])
+        lo = np.array([b.lo for b in self.bounds], dtype=np.float64)
+        hi = np.array([b.hi for b in self.bounds], dtype=np.float64)
+        self.linear = lo <= 0.0
+        self.log_lo = np.where(self.linear, lo, np.log(np.where(self.linear, 1.0, lo)))
+        self.log_hi = np.where(self.linear, hi, np.log(np.where(self.linear, 1.0, hi)))
 
     @property
     def dim(self) -> int:
         return len(self.bounds)
 
     def to_values(self, U: np.ndarray) -> np.ndarray:
-        return np.exp(self.log_lo + np.asarray(U) * (self.log_hi - self.log_lo))
+        x = self.log_lo + np.asarray(U) * (self.log_hi - self.log_lo)
+        return np.where(self.linear, x, np.exp(x)) if self.linear.any() else np.exp(x)
 
     def to_unit(self, values: np.ndarray) -> np.ndarray:
-        return (np.log(np.asarray(values, dtype=np.float64)) - self.log_lo) / (self.log_hi - self.log_lo)
+        v = np.asarray(values, dtype=np.float64)
+        x = np.where(self.linear, v, np.log(np.where(self.linear, 1.0, v))) if self.linear.any() else np.log(v)
+        return (x - self.log_lo) / (self.log_hi - self.log_lo)
 
 
 @dataclass(frozen=True)
@@ -102,6 +144,9 @@ class Prepared:
     init_current: float
     init_voltage: float       # NaN for motor flights
     init_temperature: float
+    #: measured temperature, interpolated over drop-outs (NaN if the flight has none); drives the
+    #: extended variant's resistances in its electrical stage
+    drive_temperature: np.ndarray | None = None
 
 
 #: a leading sample belongs to the initial-state window while its current stays this close to the first
@@ -116,9 +161,16 @@ def prepare(flight: Flight, target: str, init_samples: int = 10) -> Prepared:
     if np.any(np.diff(flight.time_s) <= 0):
         raise ValueError(f"{flight.name}: time must increase (clean the flight first)")
     y = np.asarray(flight.voltage_v if target == "voltage" else flight.temperature_c, dtype=np.float64)
-    first_temp = flight.temperature_c[np.isfinite(flight.temperature_c)][:max(init_samples // 2, 1)]
-    if first_temp.size == 0:
+    has_temp = np.isfinite(flight.temperature_c)
+    first_temp = flight.temperature_c[has_temp][:max(init_samples // 2, 1)]
+    if first_temp.size == 0 and (flight.kind != BATTERY or target == "temperature"):
         raise ValueError(f"{flight.name}: no temperature sample for the initial state")
+    if first_temp.size == 0:
+        # a pack without a temperature sensor: it starts at the air temperature
+        first_temp = flight.ambient_c[:1]
+        drive = np.full(len(flight), np.nan)
+    else:
+        drive = np.interp(flight.time_s, flight.time_s[has_temp], flight.temperature_c[has_temp])
     if flight.kind == BATTERY:
         # only the leading samples at a steady current (the pack at rest before arming, or idling):
         # once the current ramps up, the R-C pairs are charging and "settled" no longer holds
@@ -137,7 +189,8 @@ def prepare(flight: Flight, target: str, init_samples: int = 10) -> Prepared:
         init_v, init_i = float("nan"), float(flight.current_a[0])
     return Prepared(name=flight.name, dt=np.ascontiguousarray(flight.dt), current=np.ascontiguousarray(flight.current_a),
                     ambient=np.ascontiguousarray(flight.ambient_c), target=y, mask=np.isfinite(y),
-                    init_current=init_i, init_voltage=init_v, init_temperature=float(np.median(first_temp)))
+                    init_current=init_i, init_voltage=init_v, init_temperature=float(np.median(first_temp)),
+                    drive_temperature=np.ascontiguousarray(drive))
 
 
 def pack_vectors_with(base: np.ndarray, names: Sequence[str], values: np.ndarray) -> np.ndarray:
@@ -310,6 +363,45 @@ class PackProblem(_Problem):
         P = self.pack_vectors(self.space.to_values(u[:, :d]))
         return [float(initial_soc(P, f.init_voltage, f.init_current)[0]
                       + self.soc_offset(u[0, d + i] if u.shape[1] > d else None))
+                for i, f in enumerate(self.flights)]
+
+
+class ExtendedPackProblem(PackProblem):
+    """One pack in the extended variant; the free parameters replace those of ``base`` (23,) in
+    EXT_PACK_PARAMS order. For the voltage target the resistances follow the *measured* temperature
+    (so the electrical stage needs no thermal parameters); for the temperature target the model's
+    own temperature drives them, as in a prediction. The initial SoC comes from the first rest
+    voltage through this vector's open-circuit voltage."""
+
+    def pack_vectors(self, values: np.ndarray) -> np.ndarray:
+        values = np.atleast_2d(values)
+        P = np.tile(self.base, (values.shape[0], 1))
+        for j, name in enumerate(self.space.names):
+            P[:, kernel.EXT_PACK_PARAMS.index(name)] = values[:, j]
+        return P
+
+    def canonical(self, u: np.ndarray) -> np.ndarray | None:
+        return None  # the two pairs' time-constant ranges keep them apart
+
+    def rest_soc(self, P: np.ndarray, f: Prepared) -> np.ndarray:
+        return kernel.extended_rest_soc(P, f.init_voltage, f.init_current, f.init_temperature)
+
+    def initial_states(self, P: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:
+        soc = self.rest_soc(P, f) + self.soc_offset(extra)
+        return kernel.initial_extended_state(P, soc, f.init_temperature, f.init_current)
+
+    def simulate(self, values: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:
+        P = self.pack_vectors(values)
+        drive = f.drive_temperature if self.target == "voltage" else None
+        traj = kernel.simulate_packs(P, self.initial_states(P, f, extra), f.dt, f.current, f.ambient,
+                                     variant="extended", measured_temperature=drive)
+        return traj.voltage if self.target == "voltage" else traj.temperature
+
+    def initial_soc(self, u: np.ndarray) -> list[float]:
+        u = np.atleast_2d(u)
+        d = self.space.dim
+        P = self.pack_vectors(self.space.to_values(u[:, :d]))
+        return [float(self.rest_soc(P, f)[0] + self.soc_offset(u[0, d + i] if u.shape[1] > d else None))
                 for i, f in enumerate(self.flights)]
 
 

@@ -17,6 +17,7 @@ The physics, the search and the cleaning are the pure modules it calls.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -31,14 +32,16 @@ from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
 from gcs_pdm.fitting.search import FitCancelled, SearchSettings, anneal, levenberg_marquardt
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
-from gcs_pdm.models.params import (PACK_NAMES, MotorParams, PackParams, ParameterSet, builtin, motor_from_vector,
-                                   pack_from_vector)
+from gcs_pdm.models.params import (PACK_NAMES, MotorParams, PackParams, ParameterSet, builtin, extended_default,
+                                   motor_from_vector, pack_from_vector)
 
 log = logging.getLogger(__name__)
 
 Progress = Callable[[float, str], None]
 ShouldStop = Callable[[], bool]
 SPLITS = ("train", "validation", "test")
+#: the variant of new fits from the command line (`gcs-pdm fit battery` with no --model)
+DEFAULT_MODEL = "extended"
 
 
 @dataclass(frozen=True)
@@ -54,9 +57,31 @@ class FitSettings:
     #: first-samples estimate is noisy, and near the knee a 0.005 SoC error is a visible voltage error
     soc_offset_range: float = 0.05
     workers: int = 2
+    #: model variant of a battery fit: "extended" or "paper" (eqs. 1-7). New fits from the command
+    #: line use "extended" (`gcs-pdm fit battery`, DEFAULT_MODEL); the library default stays "paper"
+    #: while the service's consumers of a stored set (estimator, planner, simulated vehicle) read the
+    #: paper layout only: a job runner opts in with model="extended"
+    model: str = "paper"
+    #: open-circuit-voltage default (start of the search) when the base set has no extended values
+    chemistry: str = "lipo"
+    #: search of the extended variant: its 23 electrical unknowns make each LM run costlier, and LM
+    #: (not the annealing, which only sees the 10 resistance/time-constant/capacity values) does most
+    #: of the work, so fewer starts with a longer LM; its 3-value thermal stage needs few generations
+    extended_search: SearchSettings = SearchSettings(starts=4, sa_generations=60, lm_max_nfev=40)
+    extended_thermal_generations: int = 20
+
+    def search_for(self, stage: str) -> SearchSettings:
+        """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
+        if self.model != "extended":
+            return self.search
+        if stage == "thermal":
+            return dataclasses.replace(self.extended_search, sa_generations=self.extended_thermal_generations)
+        return self.extended_search
 
     def to_dict(self) -> dict:
         return {"search": self.search.to_dict(), "base": self.base, "reference": self.reference,
+                "model": self.model, "chemistry": self.chemistry, "extended_search": self.extended_search.to_dict(),
+                "extended_thermal_generations": self.extended_thermal_generations,
                 "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range, "workers": self.workers,
                 "cleaning": {k: v for k, v in self.cleaning.__dict__.items()}}
 
@@ -110,6 +135,9 @@ class FlightPrediction:
     reference_voltage: np.ndarray | None
     reference_temperature: np.ndarray
     initial_soc: float | None
+    #: model variants of the learned and the reference predictions (the plots name them)
+    model: str = "paper"
+    reference_model: str = "paper"
 
 
 @dataclass
@@ -127,11 +155,21 @@ class FitResult:
     settings: FitSettings
     seconds: float
     predictions: list[FlightPrediction] = field(default_factory=list, repr=False)
+    #: model variant of a battery fit ("paper" | "extended"); None for the motor
+    model: str | None = None
+    #: the base set's pack (an extended fit keeps its paper values for the paper-layout users)
+    base_pack: PackParams | None = None
+    #: {"fitted": bool, "reason": str} of the thermal stage
+    thermal: dict[str, Any] = field(default_factory=lambda: {"fitted": True, "reason": ""})
 
     @property
     def pack_params(self) -> PackParams | None:
         if self.component != BATTERY:
             return None
+        if self.model == "extended":
+            base = self.base_pack if self.base_pack is not None else builtin(self.settings.base).packs[PACK_NAMES[0]]
+            return dataclasses.replace(base, model="extended",
+                                       extended={k: float(self.parameters[k]) for k in kernel.EXT_PACK_PARAMS})
         return pack_from_vector(np.array([self.parameters[k] for k in kernel.PACK_PARAMS]))
 
     @property
@@ -147,6 +185,8 @@ class FitResult:
             "format": "gcs-pdm-fit/1",
             "component": self.component,
             "pack": self.pack,
+            "model": self.model,
+            "thermal": dict(self.thermal),
             "parameters": dict(self.parameters),
             "learned": list(self.learned),
             "reference": self.reference,
@@ -212,7 +252,15 @@ class _Stepper:
 
 def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], train: Sequence[Flight],
                val: Sequence[Flight], search: SearchSettings, pool: ThreadPoolExecutor, workers: int,
-               stepper: _Stepper, span: tuple[float, float], seed_offset: int) -> tuple[np.ndarray, StageResult, pb._Problem]:
+               stepper: _Stepper, span: tuple[float, float], seed_offset: int,
+               make_sa: Callable[[Sequence[Flight], int], pb._Problem] | None = None,
+               ) -> tuple[np.ndarray, StageResult, pb._Problem]:
+    """SA from random starts, LM from each SA result, the LM result with the lowest validation error.
+
+    ``make_sa`` (optional) builds a problem over a subset of the free parameters for the annealing;
+    LM then starts from each annealed point with the other parameters at the base values (the
+    extended variant anneals its resistances and time constants with the default OCV curve, and
+    lets LM, which is good at the nearly linear OCV knots, learn the curve)."""
     t0 = time.perf_counter()
     prob = make(train, workers, True)
     vprob = make(val, 1, False)
@@ -220,8 +268,16 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
     sa_end = a + 0.65 * (b - a)
     rng = np.random.default_rng([search.seed, seed_offset])
     label = f"{name}: annealing"
-    ann = anneal(prob.mse, prob.space.dim, search, rng,
+    sa_prob = make_sa(train, workers) if make_sa is not None else prob
+    ann = anneal(sa_prob.mse, sa_prob.space.dim, search, rng,
                  progress=lambda f: stepper.report(a + f * (sa_end - a), label), should_stop=stepper.should_stop)
+    if make_sa is not None:
+        base_values = np.array([prob.base[kernel.EXT_PACK_PARAMS.index(n)] for n in prob.space.names])
+        full = np.tile(base_values, (ann.best_u.shape[0], 1))
+        sa_values = sa_prob.space.to_values(ann.best_u)
+        for j, n in enumerate(sa_prob.space.names):
+            full[:, prob.space.names.index(n)] = sa_values[:, j]
+        ann.best_u = np.clip(prob.space.to_unit(full), 0.0, 1.0)
     stepper.check()
     stepper.report(sa_end, f"{name}: Levenberg-Marquardt")
 
@@ -300,15 +356,21 @@ def _split_errors(pairs: dict[str, list[tuple[str, dict[str, tuple[np.ndarray, n
 
 # ---- battery -----------------------------------------------------------------------------------------
 
-def _pack_traces(vec: np.ndarray, flights: Sequence[Flight], init_samples: int) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """(voltage, temperature, initial SoC) per flight for one full pack vector."""
+def _pack_traces(vec: np.ndarray, flights: Sequence[Flight], init_samples: int, model: str = "paper",
+                 ) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(voltage, temperature, initial SoC) per flight for one full pack vector of variant ``model``
+    (a prediction: the model's own temperature drives the extended variant's resistances)."""
     out = []
     for f in flights:
         pv = pb.prepare(f, "voltage", init_samples)
         P = vec[None]
-        soc = pb.initial_soc(P, pv.init_voltage, pv.init_current)
-        x0 = kernel.initial_pack_state(P, soc, pv.init_temperature, pv.init_current)
-        tr = kernel.simulate_packs(P, x0, pv.dt, pv.current, pv.ambient)
+        if model == "extended":
+            soc = kernel.extended_rest_soc(P, pv.init_voltage, pv.init_current, pv.init_temperature)
+            x0 = kernel.initial_extended_state(P, soc, pv.init_temperature, pv.init_current)
+        else:
+            soc = pb.initial_soc(P, pv.init_voltage, pv.init_current)
+            x0 = kernel.initial_pack_state(P, soc, pv.init_temperature, pv.init_current)
+        tr = kernel.simulate_packs(P, x0, pv.dt, pv.current, pv.ambient, variant=model)
         out.append((tr.voltage[0], tr.temperature[0], float(soc[0])))
     return out
 
@@ -328,46 +390,74 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     base_set = base_set if base_set is not None else builtin(settings.base)
     ref_set = builtin(settings.reference)
     pack_name = pack if pack in PACK_NAMES else PACK_NAMES[0]
-    base_vec = base_set.pack_matrix()[PACK_NAMES.index(pack_name)]
+    base_pack = base_set.packs[pack_name]
     ref_vec = ref_set.pack_matrix()[PACK_NAMES.index(pack_name)]
     s = settings
+    if s.model not in kernel.MODEL_VARIANTS:
+        raise ValueError(f"model: expected one of {', '.join(kernel.MODEL_VARIANTS)}, got {s.model!r}")
+    extended = s.model == "extended"
+    if extended:
+        base_vec = (base_pack.extended_vector() if base_pack.extended is not None
+                    else np.array(list(extended_default(s.chemistry).values())))
+        problem_cls, el_bounds, th_bounds = pb.ExtendedPackProblem, pb.EXTENDED_ELECTRICAL_BOUNDS, pb.EXTENDED_THERMAL_BOUNDS
+    else:
+        base_vec = base_set.pack_matrix()[PACK_NAMES.index(pack_name)]
+        problem_cls, el_bounds, th_bounds = pb.PackProblem, pb.BATTERY_ELECTRICAL_BOUNDS, pb.BATTERY_THERMAL_BOUNDS
+    # a pack without temperature samples in training or validation still gets its circuit learned
+    no_temp = [f.name for sp in ("train", "validation") for f in splits[sp] if not np.isfinite(f.temperature_c).any()]
+    thermal = {"fitted": not no_temp,
+               "reason": "" if not no_temp else f"no pack temperature in {', '.join(no_temp)}: thermal values "
+                                                f"are the base set's, not learned"}
     stepper.report(0.02, "electrical: annealing")
     with ThreadPoolExecutor(max_workers=max(1, s.workers)) as pool:
         def make_el(flights, workers, training):
-            return pb.PackProblem(flights, base_vec, pb.BATTERY_ELECTRICAL_BOUNDS, "voltage", init_samples=s.init_samples,
-                                  mapper=pool.map, workers=workers,
-                                  soc_offset_range=s.soc_offset_range if training else 0.0)
-        u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"], s.search, pool,
-                                          s.workers, stepper, (0.02, 0.55), 1)
-        el_vec = prob_el.pack_vectors(prob_el.space.to_values(u_el))[0]
+            return problem_cls(flights, base_vec, el_bounds, "voltage", init_samples=s.init_samples,
+                               mapper=pool.map, workers=workers,
+                               soc_offset_range=s.soc_offset_range if training else 0.0)
 
-        def make_th(flights, workers, training):
-            return pb.PackProblem(flights, el_vec, pb.BATTERY_THERMAL_BOUNDS, "temperature", init_samples=s.init_samples,
-                                  mapper=pool.map, workers=workers)
-        u_th, st_th, prob_th = _run_stage("thermal", make_th, splits["train"], splits["validation"], s.search, pool,
-                                          s.workers, stepper, (0.55, 0.95), 2)
-        final = prob_th.pack_vectors(prob_th.space.to_values(u_th))[0]
+        def make_el_sa(flights, workers):
+            return problem_cls(flights, base_vec, pb.EXTENDED_RC_BOUNDS, "voltage", init_samples=s.init_samples,
+                               mapper=pool.map, workers=workers)
+        u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"],
+                                          s.search_for("electrical"), pool,
+                                          s.workers, stepper, (0.02, 0.55), 1, make_sa=make_el_sa if extended else None)
+        el_vec = prob_el.pack_vectors(prob_el.space.to_values(u_el))[0]
+        stages = [st_el]
+        final = el_vec
+        if thermal["fitted"]:
+            def make_th(flights, workers, training):
+                return problem_cls(flights, el_vec, th_bounds, "temperature", init_samples=s.init_samples,
+                                   mapper=pool.map, workers=workers)
+            u_th, st_th, prob_th = _run_stage("thermal", make_th, splits["train"], splits["validation"],
+                                              s.search_for("thermal"), pool, s.workers, stepper, (0.55, 0.95), 2)
+            final = prob_th.pack_vectors(prob_th.space.to_values(u_th))[0]
+            stages.append(st_th)
+        else:
+            log.warning("battery fit: thermal part not fitted: %s", thermal["reason"])
     stepper.report(0.96, "errors")
     pairs_l: dict[str, list] = {}
     pairs_r: dict[str, list] = {}
     predictions: list[FlightPrediction] = []
     for split in SPLITS:
         flights = splits[split]
-        learned = _pack_traces(final, flights, s.init_samples)
+        learned = _pack_traces(final, flights, s.init_samples, s.model)
         refs = _pack_traces(ref_vec, flights, s.init_samples)
         pairs_l[split] = [(f.name, {"voltage": (lv, f.voltage_v), "temperature": (lt, f.temperature_c)})
                           for f, (lv, lt, _) in zip(flights, learned)]
         pairs_r[split] = [(f.name, {"voltage": (rv, f.voltage_v), "temperature": (rt, f.temperature_c)})
                           for f, (rv, rt, _) in zip(flights, refs)]
         for f, (lv, lt, soc), (rv, rt, _) in zip(flights, learned, refs):
-            predictions.append(FlightPrediction(f.name, split, f.time_s, f.voltage_v, lv, f.temperature_c, lt, rv, rt, soc))
+            predictions.append(FlightPrediction(f.name, split, f.time_s, f.voltage_v, lv, f.temperature_c, lt, rv, rt, soc,
+                                                model=s.model))
     result = FitResult(
-        component=BATTERY, pack=pack, parameters={k: float(v) for k, v in zip(kernel.PACK_PARAMS, final)},
-        learned=st_el.free + st_th.free, reference=settings.reference,
+        component=BATTERY, pack=pack,
+        parameters={k: float(v) for k, v in zip(kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS, final)},
+        learned=sum((st.free for st in stages), ()), reference=settings.reference,
         errors={"learned": _split_errors(pairs_l), "reference": _split_errors(pairs_r)},
-        stages=[st_el, st_th], cleaning=reports, rejected=rejected,
+        stages=stages, cleaning=reports, rejected=rejected,
         flights={k: [f.name for f in v] for k, v in splits.items()}, settings=settings,
-        seconds=time.perf_counter() - t_start, predictions=predictions)
+        seconds=time.perf_counter() - t_start, predictions=predictions, model=s.model, base_pack=base_pack,
+        thermal=thermal)
     stepper.report(1.0, "done")
     return result
 
@@ -447,11 +537,12 @@ def _fit_provenance(res: FitResult) -> dict:
 
 # ---- evaluation of a given set ----------------------------------------------------------------------
 
-def evaluate_battery(vector: np.ndarray, flights: Sequence[Flight], settings: FitSettings = FitSettings()) -> dict:
-    """Errors of one pack vector (12,) on flights, cleaned and initialised exactly as in a fit
-    (so the errors of the true parameters compare with a fit's on the same data)."""
+def evaluate_battery(vector: np.ndarray, flights: Sequence[Flight], settings: FitSettings = FitSettings(),
+                     model: str = "paper") -> dict:
+    """Errors of one pack vector ((12,) paper or (23,) extended, per ``model``) on flights, cleaned and
+    initialised exactly as in a fit (so the errors of the true parameters compare with a fit's)."""
     usable, _, _ = clean_flights(list(flights), settings.cleaning)
-    traces = _pack_traces(np.asarray(vector, dtype=np.float64), usable, settings.init_samples)
+    traces = _pack_traces(np.asarray(vector, dtype=np.float64), usable, settings.init_samples, model)
     return _split_errors({"eval": [(f.name, {"voltage": (v, f.voltage_v), "temperature": (t, f.temperature_c)})
                                    for f, (v, t, _) in zip(usable, traces)]})["eval"]
 

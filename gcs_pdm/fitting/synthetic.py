@@ -3,7 +3,7 @@
 A flight is flown through the real models: a random but plausible mission profile (ground idle,
 climb-out, cruise legs at varying airspeed with climbs and descents, descent, landing, idle) gives
 shaft power (``powertrain.shaft_power`` at the ISA density), the one kernel's closed-loop powertrain
-(``kernel.simulate_powertrain(record=True)``) gives every pack's current, voltage and temperature
+(``topology.simulate_powertrain(record=True)``) gives every pack's current, voltage and temperature
 and both motors' current and temperature. Then what real logs have is added, seeded: sensor noise
 and quantisation, and optionally (:class:`Damage`) drop-outs, short gaps, duplicated and
 backwards timestamps, spikes, a stuck temperature sensor and a stretch of sign-flipped current.
@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import PACK_NAMES, ParameterSet, builtin, motor_from_vector, perturbed
 from gcs_pdm.models.powertrain import Limits, air_density, ambient_temperature, shaft_power
 
@@ -201,7 +201,7 @@ def generate_flight(truth: ParameterSet, seed: int, *, name: str | None = None, 
     x0 = kernel.initial_pack_state(pm, soc0, t_pack0, truth.motor.I_0)
     t_motor0 = np.full(2, ground + rng.uniform(0.0, 4.0))
     step = np.diff(t, prepend=t[0])
-    run = kernel.simulate_powertrain(pm[None], truth.motor_vector()[None], x0[None], t_motor0[None], step, power, amb,
+    run = topology.simulate_powertrain(pm[None], truth.motor_vector()[None], x0[None], t_motor0[None], step, power, amb,
                                      limits=Limits().as_tuple(), stop_on_failure=True, record=True)
     if run.fail_step[0] >= 0:
         # the pilot lands when a pack reaches its cut-off: the log ends there

@@ -19,9 +19,12 @@ MOTOR = "motor"
 KINDS = (BATTERY, MOTOR)
 
 REQUIRED_COLUMNS: dict[str, tuple[str, ...]] = {
-    BATTERY: ("time_s", "current_a", "voltage_v", "temperature_c", "ambient_c"),
+    BATTERY: ("time_s", "current_a", "voltage_v", "ambient_c"),
     MOTOR: ("time_s", "current_a", "temperature_c", "ambient_c"),
 }
+#: columns a flight may lack: read as all missing (many real logs have no pack temperature; the fit
+#: then learns the electrical part and reports the thermal part as not fitted)
+OPTIONAL_COLUMNS: dict[str, tuple[str, ...]] = {BATTERY: ("temperature_c",), MOTOR: ()}
 
 
 class FlightDataError(ValueError):
@@ -93,7 +96,10 @@ def flight_from_columns(name: str, kind: str, columns: Mapping[str, object], sou
         raise FlightDataError(f"{name}: missing required column(s) {', '.join(missing)} for a {kind} flight "
                               f"(need {', '.join(REQUIRED_COLUMNS[kind])}; have {', '.join(sorted(map(str, have))) or 'none'})")
     arrays = {}
-    for c in REQUIRED_COLUMNS[kind]:
+    for c in OPTIONAL_COLUMNS[kind]:
+        if c not in have:
+            arrays[c] = np.full(len(np.asarray(columns["time_s"])), np.nan)
+    for c in REQUIRED_COLUMNS[kind] + tuple(c for c in OPTIONAL_COLUMNS[kind] if c in have):
         try:
             arrays[c] = np.asarray(columns[c], dtype=np.float64)
         except (TypeError, ValueError) as exc:

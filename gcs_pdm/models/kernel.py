@@ -27,7 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 PACK_PARAMS: tuple[str, ...] = (
     "R_s", "R_p", "R_cp0", "R_cp1", "R_cp2", "C_s", "C_b", "C_cp", "q_max", "C_max", "C_t", "h",
@@ -113,29 +113,46 @@ def _thermal_advance(m, temperature, current, ambient, dt):
 
 # ---- current-driven packs (fitting, estimation) --------------------------------------------------
 
+@njit(inline="always", **_JIT)
+def _simulate_one_pack(j, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                       record_states, final):
+    n = current.shape[1]
+    x = np.empty(N_PACK_STATE)
+    p = params[j]
+    ci = j if current.shape[0] > 1 else 0
+    ai = j if ambient.shape[0] > 1 else 0
+    di = j if dt.shape[0] > 1 else 0
+    for s in range(N_PACK_STATE):
+        x[s] = x0[j, s]
+    for k in range(n):
+        _pack_advance(p, x, current[ci, k], ambient[ai, k], dt[di, k], max_dt)
+        voltage[j, k] = _terminal_voltage(p, x)
+        temperature[j, k] = x[S_T]
+        soc[j, k] = _soc(p, x[S_QB])
+        if record_states:
+            for s in range(N_PACK_STATE):
+                states[j, k, s] = x[s]
+    for s in range(N_PACK_STATE):
+        final[j, s] = x[s]
+
+
 @njit(**_JIT)
 def _simulate_packs(params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
                     record_states, final):
-    n_vec = params.shape[0]
-    n = current.shape[1]
-    x = np.empty(N_PACK_STATE)
-    for j in range(n_vec):
-        p = params[j]
-        ci = j if current.shape[0] > 1 else 0
-        ai = j if ambient.shape[0] > 1 else 0
-        di = j if dt.shape[0] > 1 else 0
-        for s in range(N_PACK_STATE):
-            x[s] = x0[j, s]
-        for k in range(n):
-            _pack_advance(p, x, current[ci, k], ambient[ai, k], dt[di, k], max_dt)
-            voltage[j, k] = _terminal_voltage(p, x)
-            temperature[j, k] = x[S_T]
-            soc[j, k] = _soc(p, x[S_QB])
-            if record_states:
-                for s in range(N_PACK_STATE):
-                    states[j, k, s] = x[s]
-        for s in range(N_PACK_STATE):
-            final[j, s] = x[s]
+    for j in range(params.shape[0]):
+        _simulate_one_pack(j, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                           record_states, final)
+
+
+@njit(parallel=True, **_JIT)
+def _simulate_packs_parallel(params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                             record_states, final):
+    # the same loop spread over the cores; only for callers on one thread (numba's default
+    # threading layer does not take parallel launches from several Python threads at once)
+    for j in prange(params.shape[0]):
+        # signed index: prange's unsigned one would not unify with 0 in the shared-row choice
+        _simulate_one_pack(np.int64(j), params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                           record_states, final)
 
 
 @njit(**_JIT)
@@ -183,12 +200,22 @@ class PackTrajectory:
 
 def simulate_packs(params: np.ndarray, x0: np.ndarray, dt: np.ndarray, current: np.ndarray,
                    ambient: np.ndarray | float, *, max_dt: float = DEFAULT_MAX_DT,
-                   record_states: bool = False) -> PackTrajectory:
+                   record_states: bool = False, variant: str = "paper",
+                   measured_temperature: np.ndarray | None = None, parallel: bool = False) -> PackTrajectory:
     """Simulate N packs (one parameter vector each) over a current/ambient profile.
 
-    params (N, 12) in PACK_PARAMS order; x0 (N, 4) in PACK_STATE order; dt, current, ambient
-    (n,) shared or (N, n) per vector — see the module docstring for the time convention.
+    ``variant`` "paper": params (N, 12) in PACK_PARAMS order, x0 (N, 4) in PACK_STATE order;
+    "extended": params (N, N_EXT_PARAMS) in EXT_PACK_PARAMS order, x0 (N, 5) in EXT_PACK_STATE order, and
+    optionally ``measured_temperature`` ((n,) or (N, n), NaN where missing) to drive the resistances'
+    temperature dependence instead of the model's own temperature (the electrical fit uses it).
+    dt, current, ambient (n,) shared or (N, n) per vector — see the module docstring for the time
+    convention. ``parallel`` spreads the vectors over the cores (call it from one thread only).
     """
+    if variant == "extended":
+        return _simulate_packs_extended(params, x0, dt, current, ambient, max_dt, record_states,
+                                        measured_temperature, parallel)
+    if variant != "paper":
+        raise ValueError(f"variant: expected one of {MODEL_VARIANTS}, got {variant!r}")
     params = _params2d(params, N_PACK_PARAMS, "params")
     n_vec = params.shape[0]
     x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, N_PACK_STATE)))
@@ -204,8 +231,8 @@ def simulate_packs(params: np.ndarray, x0: np.ndarray, dt: np.ndarray, current: 
     soc = np.empty((n_vec, n))
     states = np.empty((n_vec, n, N_PACK_STATE) if record_states else (1, 1, N_PACK_STATE))
     final = np.empty((n_vec, N_PACK_STATE))
-    _simulate_packs(params, x0, dt_, cur, amb, float(max_dt), voltage, temperature, soc, states,
-                    record_states, final)
+    run = _simulate_packs_parallel if parallel else _simulate_packs
+    run(params, x0, dt_, cur, amb, float(max_dt), voltage, temperature, soc, states, record_states, final)
     return PackTrajectory(voltage, temperature, soc, final, states if record_states else None)
 
 
@@ -268,6 +295,272 @@ def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
     """q_b for a SoC; handy for estimators that keep SoC as their state."""
     params = np.asarray(params, dtype=np.float64)
     return params[..., I_QMAX] - (1.0 - np.asarray(soc)) * params[..., I_CMAX]
+
+
+# ---- the extended equivalent circuit (variant "extended") ----------------------------------------
+#
+# docs/model.md gives the equations. States: SoC, the two R–C voltages and the temperature. The
+# open-circuit voltage is a monotone piecewise-cubic (PCHIP, Fritsch–Carlson slopes) through knots
+# at EXT_OCV_SOC, parametrised by the voltage at SoC 0 and positive increments, so any parameter
+# vector inside the bounds is monotone. Every resistance is scaled by
+#     f(T, SoC) = exp(E_r (1/T_K - 1/298.15 K)) * (1 + k_soc exp(-SoC / EXT_SOC_SCALE)),
+# the charge-transfer (Butler–Volmer) overpotential b_ct asinh(I f / i_ct) is linear at small current
+# and logarithmic at high current, heat is I (OCV - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges heat with the
+# air as in eq. 7. With f and the OCV slope frozen over a step, the R–C pairs and the temperature have
+# exact exponential steps, as in the paper variant.
+#
+# Solid diffusion: the OCV is read at the particles' *surface* SoC, SoC - s_d, where the depletion
+# s_d relaxes towards I k_d / C_max with the slow time constant tau_2 (a one-state diffusion
+# approximation). On the plateau it acts as one more R–C drop; near empty, where the OCV falls
+# steeply, it makes the knee arrive earlier at high current, as it does in real cells.
+
+MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
+#: SoC of the open-circuit-voltage knots (denser at the bottom, where the curve bends)
+EXT_OCV_SOC = np.array([0.0, 0.03, 0.07, 0.12, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0])
+N_OCV_KNOTS = len(EXT_OCV_SOC)
+#: SoC scale of the low-charge resistance rise
+EXT_SOC_SCALE = 0.1
+EXT_T_REF_K = 298.15
+EXT_PACK_PARAMS: tuple[str, ...] = (
+    "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "k_soc", "b_ct", "i_ct", "k_d", "C_max", "C_t", "h", "dU_dT",
+    "ocv_0",
+) + tuple(f"docv_{k}" for k in range(1, N_OCV_KNOTS))
+EXT_PACK_STATE: tuple[str, ...] = ("soc", "v_1", "v_2", "T", "s_d")
+N_EXT_STATE = len(EXT_PACK_STATE)
+N_EXT_PARAMS = len(EXT_PACK_PARAMS)
+(E_R0, E_R1, E_TAU1, E_R2, E_TAU2, E_ER, E_KSOC, E_BCT, E_ICT, E_KD, E_CMAX, E_CT, E_H, E_DUDT, E_OCV0) = range(15)
+(X_SOC, X_V1, X_V2, X_T, X_SD) = range(N_EXT_STATE)
+
+
+@njit(inline="always", **_JIT)
+def _pchip_slope(h0, h1, d0, d1):
+    # Fritsch–Carlson interior slope: weighted harmonic mean of the neighbouring secants (0 at an extremum)
+    if d0 * d1 <= 0.0:
+        return 0.0
+    w1 = 2.0 * h1 + h0
+    w2 = h1 + 2.0 * h0
+    return (w1 + w2) / (w1 / d0 + w2 / d1)
+
+
+@njit(**_JIT)
+def _ocv_knots(p, y, d):
+    """Knot voltages ``y`` and PCHIP slopes ``d`` of one extended vector (once per simulation)."""
+    xs = EXT_OCV_SOC
+    last = N_OCV_KNOTS - 1
+    y[0] = p[E_OCV0]
+    for m in range(1, N_OCV_KNOTS):
+        y[m] = y[m - 1] + p[E_OCV0 + m]
+    d[0] = (y[1] - y[0]) / (xs[1] - xs[0])
+    d[last] = (y[last] - y[last - 1]) / (xs[last] - xs[last - 1])
+    for m in range(1, last):
+        h0 = xs[m] - xs[m - 1]
+        h1 = xs[m + 1] - xs[m]
+        d[m] = _pchip_slope(h0, h1, (y[m] - y[m - 1]) / h0, (y[m + 1] - y[m]) / h1)
+
+
+@njit(inline="always", **_JIT)
+def _ocv_eval(y, d, soc):
+    """Open-circuit voltage (V, pack) at ``soc`` from knots; linear beyond the end knots."""
+    xs = EXT_OCV_SOC
+    last = N_OCV_KNOTS - 1
+    if soc <= xs[0]:
+        return y[0] + (soc - xs[0]) * d[0]
+    if soc >= xs[last]:
+        return y[last] + (soc - xs[last]) * d[last]
+    k = 0
+    while soc > xs[k + 1]:
+        k += 1
+    hk = xs[k + 1] - xs[k]
+    t = (soc - xs[k]) / hk
+    t2 = t * t
+    t3 = t2 * t
+    return ((2.0 * t3 - 3.0 * t2 + 1.0) * y[k] + (t3 - 2.0 * t2 + t) * hk * d[k]
+            + (-2.0 * t3 + 3.0 * t2) * y[k + 1] + (t3 - t2) * hk * d[k + 1])
+
+
+@njit(inline="always", **_JIT)
+def _resistance_factor(p, temperature_c, soc):
+    arrhenius = math.exp(p[E_ER] * (1.0 / (temperature_c + 273.15) - 1.0 / EXT_T_REF_K))
+    return arrhenius * (1.0 + p[E_KSOC] * math.exp(-max(soc, 0.0) / EXT_SOC_SCALE))
+
+
+@njit(inline="always", **_JIT)
+def _kinetic(p, current, f):
+    # symmetric Butler–Volmer overpotential; slower kinetics (cold, empty) scale the current up
+    return p[E_BCT] * math.asinh(current * f / p[E_ICT])
+
+
+@njit(**_JIT)
+def _ext_advance(p, y, d, x, current, ambient, t_drive, dt, max_dt):
+    """Advance one extended pack state ``x`` (in place) by ``dt`` s at constant current.
+
+    ``t_drive`` (°C) sets the resistances' temperature if finite (a measured temperature), else the
+    model's own temperature does. Returns the terminal voltage at the end of the step."""
+    if dt <= 0.0:
+        t_res = x[X_T] if math.isnan(t_drive) else t_drive
+        f = _resistance_factor(p, t_res, x[X_SOC])
+        return (_ocv_eval(y, d, x[X_SOC] - x[X_SD]) - current * p[E_R0] * f - _kinetic(p, current, f)
+                - x[X_V1] - x[X_V2])
+    n_sub = 1
+    if dt > max_dt:
+        n_sub = int(math.ceil(dt / max_dt))
+    h = dt / n_sub
+    decay_1 = math.exp(-h / p[E_TAU1])
+    decay_2 = math.exp(-h / p[E_TAU2])
+    decay_t = math.exp(-h * p[E_H] / p[E_CT])
+    d_soc = current * h / p[E_CMAX]
+    s_inf = current * p[E_KD] / p[E_CMAX]
+    v = 0.0
+    for _ in range(n_sub):
+        t_res = x[X_T] if math.isnan(t_drive) else t_drive
+        soc_mid = x[X_SOC] - 0.5 * d_soc
+        f = _resistance_factor(p, t_res, soc_mid)
+        i1 = current * p[E_R1] * f
+        i2 = current * p[E_R2] * f
+        v1 = i1 + (x[X_V1] - i1) * decay_1
+        v2 = i2 + (x[X_V2] - i2) * decay_2
+        # heat over the step: I (OCV - V) at the step's mean overpotential, minus the entropic term
+        eta = current * p[E_R0] * f + _kinetic(p, current, f)
+        s_d = s_inf + (x[X_SD] - s_inf) * decay_2
+        soc_new = x[X_SOC] - d_soc
+        ocv_surface = _ocv_eval(y, d, soc_new - s_d)
+        # diffusion overpotential at the step's end (OCV at the bulk minus at the surface)
+        over = eta + 0.5 * (x[X_V1] + v1 + x[X_V2] + v2) + _ocv_eval(y, d, soc_new) - ocv_surface
+        heat = current * over - current * (x[X_T] + 273.15) * p[E_DUDT]
+        t_inf = ambient + heat / p[E_H]
+        x[X_T] = t_inf + (x[X_T] - t_inf) * decay_t
+        x[X_V1] = v1
+        x[X_V2] = v2
+        x[X_SD] = s_d
+        x[X_SOC] = soc_new
+        v = ocv_surface - eta - v1 - v2
+    return v
+
+
+@njit(inline="always", **_JIT)
+def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final):
+    n = current.shape[1]
+    x = np.empty(N_EXT_STATE)
+    p = params[j]
+    y = np.empty(N_OCV_KNOTS)
+    d = np.empty(N_OCV_KNOTS)
+    _ocv_knots(p, y, d)
+    ci = j if current.shape[0] > 1 else 0
+    ai = j if ambient.shape[0] > 1 else 0
+    di = j if dt.shape[0] > 1 else 0
+    ti = j if t_meas.shape[0] > 1 else 0
+    for s in range(N_EXT_STATE):
+        x[s] = x0[j, s]
+    for k in range(n):
+        voltage[j, k] = _ext_advance(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], dt[di, k], max_dt)
+        temperature[j, k] = x[X_T]
+        soc[j, k] = x[X_SOC]
+    for s in range(N_EXT_STATE):
+        final[j, s] = x[s]
+
+
+@njit(**_JIT)
+def _simulate_ext(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final):
+    for j in range(params.shape[0]):
+        _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final)
+
+
+@njit(parallel=True, **_JIT)
+def _simulate_ext_parallel(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final):
+    for j in prange(params.shape[0]):
+        _simulate_one_ext(np.int64(j), params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final)
+
+
+def _simulate_packs_extended(params, x0, dt, current, ambient, max_dt, record_states, measured_temperature,
+                             parallel) -> PackTrajectory:
+    if record_states:
+        raise ValueError("record_states: not available for the extended variant")
+    params = _params2d(params, N_EXT_PARAMS, "params")
+    n_vec = params.shape[0]
+    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, N_EXT_STATE)))
+    cur = np.asarray(current, dtype=np.float64)
+    n = cur.shape[-1]
+    cur = _rows(cur, n_vec, n, "current")
+    dt_ = _rows(dt, n_vec, n, "dt")
+    amb = _rows(ambient, n_vec, n, "ambient")
+    t_meas = _rows(np.nan if measured_temperature is None else measured_temperature, n_vec, n, "measured_temperature")
+    if np.any(dt_ < 0):
+        raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
+    voltage = np.empty((n_vec, n))
+    temperature = np.empty((n_vec, n))
+    soc = np.empty((n_vec, n))
+    final = np.empty((n_vec, N_EXT_STATE))
+    run = _simulate_ext_parallel if parallel else _simulate_ext
+    run(params, x0, dt_, cur, amb, t_meas, float(max_dt), voltage, temperature, soc, final)
+    return PackTrajectory(voltage, temperature, soc, final, None)
+
+
+@njit(**_JIT)
+def _ocv_batch(params, soc, out):
+    y = np.empty(N_OCV_KNOTS)
+    d = np.empty(N_OCV_KNOTS)
+    for j in range(soc.shape[0]):
+        if j == 0 or params.shape[0] > 1:
+            _ocv_knots(params[j if params.shape[0] > 1 else 0], y, d)
+        out[j] = _ocv_eval(y, d, soc[j])
+
+
+def open_circuit_voltage(params: np.ndarray, soc: np.ndarray | float) -> np.ndarray:
+    """OCV (V) of extended pack vectors (N or 1, 23) at SoC (N,) — the kernel's own curve."""
+    params = _params2d(params, N_EXT_PARAMS, "params")
+    soc = np.ascontiguousarray(np.atleast_1d(np.asarray(soc, dtype=np.float64)))
+    if params.shape[0] > 1 and soc.shape[0] == 1:
+        soc = np.repeat(soc, params.shape[0])
+    out = np.empty(soc.shape[0])
+    _ocv_batch(params, soc, out)
+    return out
+
+
+def resistance_factor(params: np.ndarray, temperature_c: np.ndarray | float, soc: np.ndarray | float) -> np.ndarray:
+    """f(T, SoC) of extended pack vectors (N, 23), numpy (for initial states and reports)."""
+    params = np.atleast_2d(np.asarray(params, dtype=np.float64))
+    t_k = np.asarray(temperature_c, dtype=np.float64) + 273.15
+    soc = np.maximum(np.asarray(soc, dtype=np.float64), 0.0)
+    return (np.exp(params[:, E_ER] * (1.0 / t_k - 1.0 / EXT_T_REF_K))
+            * (1.0 + params[:, E_KSOC] * np.exp(-soc / EXT_SOC_SCALE)))
+
+
+def initial_extended_state(params: np.ndarray, soc: np.ndarray | float, temperature: np.ndarray | float,
+                           current: np.ndarray | float = 0.0) -> np.ndarray:
+    """Extended pack states (N, 5) at a SoC and temperature with both R–C pairs and the diffusion
+    depletion settled at ``current``."""
+    params = _params2d(params, N_EXT_PARAMS, "params")
+    n_vec = params.shape[0]
+    soc = np.broadcast_to(np.asarray(soc, dtype=np.float64), (n_vec,))
+    f = resistance_factor(params, temperature, soc)
+    current = np.asarray(current, dtype=np.float64)
+    x = np.empty((n_vec, N_EXT_STATE))
+    x[:, X_SOC] = soc
+    x[:, X_SD] = current * params[:, E_KD] / params[:, E_CMAX]
+    x[:, X_V1] = current * params[:, E_R1] * f
+    x[:, X_V2] = current * params[:, E_R2] * f
+    x[:, X_T] = temperature
+    return x
+
+
+def extended_rest_soc(params: np.ndarray, voltage: float, current: float, temperature: float,
+                      iterations: int = 40) -> np.ndarray:
+    """SoC (N,) at which each extended vector, settled at ``current`` and ``temperature``, shows
+    terminal ``voltage``: V = OCV(SoC - I k_d / C_max) - I (R_0 + R_1 + R_2) f - b_ct asinh(I f / i_ct);
+    bisection on [-0.3, 1.3]."""
+    params = _params2d(params, N_EXT_PARAMS, "params")
+    r = params[:, E_R0] + params[:, E_R1] + params[:, E_R2]
+    lo = np.full(params.shape[0], -0.3)
+    hi = np.full(params.shape[0], 1.3)
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        f = resistance_factor(params, temperature, mid)
+        v = (open_circuit_voltage(params, mid - current * params[:, E_KD] / params[:, E_CMAX]) - current * r * f
+             - params[:, E_BCT] * np.arcsinh(current * f / params[:, E_ICT]))
+        above = v > voltage
+        hi = np.where(above, mid, hi)
+        lo = np.where(above, lo, mid)
+    return 0.5 * (lo + hi)
 
 
 # ---- power-driven powertrain (planner, simulated vehicle) ---------------------------------------
@@ -339,29 +632,3 @@ class PowertrainRun:
     @property
     def failed(self) -> np.ndarray:
         return self.fail_cause != FAIL_NONE
-
-
-def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: np.ndarray,
-                        motor_temp0: np.ndarray, dt: np.ndarray, shaft_power: np.ndarray,
-                        ambient: np.ndarray | float, fault: np.ndarray | None = None, *,
-                        limits: tuple[float, float, float] = (-np.inf, np.inf, np.inf),
-                        fault_drag: float = 0.1, max_dt: float = DEFAULT_MAX_DT,
-                        stop_on_failure: bool = False, record: bool = False) -> PowertrainRun:
-    """Fly N vehicles (routes, particles, parameter vectors) through shaft-power profiles.
-
-    pack_params (N or 1, 4, 12); motor_params (N or 1, 5); x0 (N, 4, 4) pack states; motor_temp0
-    (N, 2); dt, shaft_power [W], ambient [°C] (n,) or (N, n); fault (N or 1, 2) magnitudes m in
-    [0, 1] for (fwd, aft): a faulted motor delivers (1 - m) of its share of the shaft power.
-    limits = (pack cut-off voltage V, pack max °C, motor max °C) decide ``fail_cause``.
-    """
-    from gcs_pdm.models.topology import PAPER_TOPOLOGY, simulate_vehicle
-
-    pp = np.asarray(pack_params, dtype=np.float64)
-    if (pp[None] if pp.ndim == 2 else pp).shape[1:] != (N_PACKS, N_PACK_PARAMS):
-        raise ValueError(f"pack_params: expected (N, {N_PACKS}, {N_PACK_PARAMS}), got {pp.shape}")
-    mp = _params2d(motor_params, N_MOTOR_PARAMS, "motor_params")
-    # both motors are one type: the same parameter vector on each
-    mp = np.repeat(mp[:, None, :], N_MOTORS, axis=1)
-    return simulate_vehicle(PAPER_TOPOLOGY.with_limits(*limits), pp, mp, x0, motor_temp0, dt, shaft_power, ambient,
-                            fault, fault_drag=fault_drag, max_dt=max_dt, stop_on_failure=stop_on_failure,
-                            record=record)

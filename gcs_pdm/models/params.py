@@ -66,10 +66,55 @@ class ThermalParams:
     h: float = _unit("W/K", "heat transfer coefficient to ambient")
 
 
+#: open-circuit voltage per cell (V) at the kernel's knots ``EXT_OCV_SOC`` = 0, 0.03, 0.07, 0.12, 0.2,
+#: 0.3 … 1.0: typical discharge curves at rest (C/20, 25 °C) of a LiPo (LiCoO2/graphite) and a
+#: Li-ion NMC/graphite cell. Starting points and fallbacks; a fit learns the pack's own curve.
+OCV_PER_CELL: Mapping[str, tuple[float, ...]] = {
+    "lipo": (3.27, 3.45, 3.60, 3.68, 3.73, 3.77, 3.80, 3.84, 3.88, 3.95, 4.02, 4.10, 4.20),
+    "li-ion": (3.00, 3.30, 3.42, 3.50, 3.57, 3.63, 3.68, 3.73, 3.80, 3.88, 3.96, 4.06, 4.18),
+}
+CHEMISTRIES: tuple[str, ...] = tuple(OCV_PER_CELL)
+#: extended-variant values other than the OCV for a 5S 7.8 Ah pack (docs/model.md)
+_EXTENDED_DEFAULTS = dict(R_0=0.02, R_1=0.01, tau_1=20.0, R_2=0.01, tau_2=300.0, E_r=2500.0, k_soc=0.3,
+                          b_ct=0.1, i_ct=20.0, k_d=1.0,
+                          C_max=PACK_CAPACITY_C, C_t=1000.0, h=2.0, dU_dT=0.0)
+#: extended-variant fields that may be zero (the rest must be > 0); dU_dT may have either sign
+_EXTENDED_MAY_BE_ZERO = {"E_r", "k_soc"}
+
+
+def extended_default(chemistry: str = "lipo", cells: int = CELLS_PER_PACK) -> dict[str, float]:
+    """Extended-variant values (EXT_PACK_PARAMS names) for a pack of ``cells`` in series."""
+    from gcs_pdm.models.kernel import EXT_PACK_PARAMS
+
+    try:
+        ocv = np.asarray(OCV_PER_CELL[chemistry]) * cells
+    except KeyError:
+        raise ParameterError(f"chemistry: expected one of {', '.join(CHEMISTRIES)}, got {chemistry!r}") from None
+    values = dict(_EXTENDED_DEFAULTS, ocv_0=float(ocv[0]))
+    values.update({f"docv_{k}": float(ocv[k] - ocv[k - 1]) for k in range(1, len(ocv))})
+    return {k: float(values[k]) for k in EXT_PACK_PARAMS}
+
+
 @dataclass(frozen=True)
 class PackParams:
+    """One pack: the paper's circuit and thermal values, and which model variant the pack uses.
+
+    ``model`` "paper" simulates ``battery``/``thermal`` (eqs. 1–7); "extended" simulates
+    ``extended`` (kernel EXT_PACK_PARAMS names; docs/model.md). An extended pack keeps paper values
+    too, so users of the kernel's paper layout (the powertrain) still have a circuit for it.
+    """
+
     battery: BatteryParams
     thermal: ThermalParams
+    model: str = "paper"
+    extended: Mapping[str, float] | None = None
+
+    def extended_vector(self) -> np.ndarray:
+        from gcs_pdm.models.kernel import EXT_PACK_PARAMS
+
+        if self.extended is None:
+            raise ParameterError("this pack has no extended-variant values")
+        return np.array([self.extended[k] for k in EXT_PACK_PARAMS], dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -115,8 +160,7 @@ class ParameterSet:
             "description": self.description,
             "physical": self.physical,
             "provenance": dict(self.provenance),
-            "packs": {n: {"battery": dataclasses.asdict(p.battery), "thermal": dataclasses.asdict(p.thermal)}
-                      for n, p in self.packs.items()},
+            "packs": {n: _pack_dict(p) for n, p in self.packs.items()},
             "motor": dataclasses.asdict(self.motor),
             "units": units(),
         }
@@ -135,6 +179,9 @@ class ParameterSet:
                 n: PackParams(
                     battery=_build(BatteryParams, packs_in[n]["battery"], f"packs.{n}.battery"),
                     thermal=_build(ThermalParams, packs_in[n]["thermal"], f"packs.{n}.thermal"),
+                    model=str(packs_in[n].get("model", "paper")),
+                    extended=(_build_extended(packs_in[n]["extended"], f"packs.{n}.extended")
+                              if packs_in[n].get("extended") is not None else None),
                 )
                 for n in PACK_NAMES
             }
@@ -183,11 +230,46 @@ def _build(cls: type, values: Mapping[str, Any], where: str) -> Any:
     return cls(**out)
 
 
+def _pack_dict(p: PackParams) -> dict[str, Any]:
+    out: dict[str, Any] = {"model": p.model, "battery": dataclasses.asdict(p.battery),
+                           "thermal": dataclasses.asdict(p.thermal)}
+    if p.extended is not None:
+        out["extended"] = {k: float(v) for k, v in p.extended.items()}
+    return out
+
+
+def _build_extended(values: Mapping[str, Any], where: str) -> dict[str, float]:
+    from gcs_pdm.models.kernel import EXT_PACK_PARAMS
+
+    missing = [n for n in EXT_PACK_PARAMS if n not in values]
+    if missing:
+        raise ParameterError(f"{where}.{missing[0]}: missing")
+    out = {}
+    for n in EXT_PACK_PARAMS:
+        v = values[n]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ParameterError(f"{where}.{n}: expected a number, got {v!r}")
+        out[n] = float(v)
+    return out
+
+
+#: units of the extended variant's values (docs/model.md)
+EXTENDED_UNITS: Mapping[str, str] = {
+    "R_0": "ohm", "R_1": "ohm", "tau_1": "s", "R_2": "ohm", "tau_2": "s", "E_r": "K", "k_soc": "1",
+    "b_ct": "V", "i_ct": "A", "k_d": "s",
+    "C_max": "C", "C_t": "J/K", "h": "W/K", "dU_dT": "V/K", "ocv_0": "V",
+}
+
+
 def units() -> dict[str, dict[str, str]]:
-    return {
+    out = {
         cls.__name__: {f.name: f.metadata["unit"] for f in dataclasses.fields(cls)}
         for cls in (BatteryParams, ThermalParams, MotorParams)
     }
+    from gcs_pdm.models.kernel import EXT_PACK_PARAMS
+
+    out["extended"] = {k: EXTENDED_UNITS.get(k, "V") for k in EXT_PACK_PARAMS}
+    return out
 
 
 # Fields that may be zero (everything else must be strictly positive).
@@ -206,6 +288,26 @@ def _check_record(obj: Any, where: str) -> None:
                                  f"{f.metadata['unit']}, got {v!r}")
 
 
+def _check_variant(p: PackParams, where: str) -> None:
+    from gcs_pdm.models.kernel import MODEL_VARIANTS
+
+    if p.model not in MODEL_VARIANTS:
+        raise ParameterError(f"{where}.model: expected one of {', '.join(MODEL_VARIANTS)}, got {p.model!r}")
+    if p.model == "extended" and p.extended is None:
+        raise ParameterError(f"{where}.extended: an extended pack needs its extended-variant values")
+    if p.extended is None:
+        return
+    for k, v in _build_extended(p.extended, f"{where}.extended").items():
+        if not math.isfinite(v):
+            raise ParameterError(f"{where}.extended.{k}: must be finite, got {v!r}")
+        if k == "dU_dT":
+            continue
+        if v < 0 or (v == 0 and k not in _EXTENDED_MAY_BE_ZERO):
+            # docv_* > 0 is what keeps the open-circuit voltage monotone in SoC
+            raise ParameterError(f"{where}.extended.{k}: must be {'>= 0' if k in _EXTENDED_MAY_BE_ZERO else '> 0'}"
+                                 f" {EXTENDED_UNITS.get(k, 'V')}, got {v!r}")
+
+
 def validate(ps: ParameterSet) -> None:
     missing = [n for n in PACK_NAMES if n not in ps.packs]
     if missing:
@@ -213,6 +315,7 @@ def validate(ps: ParameterSet) -> None:
     for n in PACK_NAMES:
         _check_record(ps.packs[n].battery, f"packs.{n}.battery")
         _check_record(ps.packs[n].thermal, f"packs.{n}.thermal")
+        _check_variant(ps.packs[n], f"packs.{n}")
         b = ps.packs[n].battery
         if b.C_max > b.q_max:
             raise ParameterError(f"packs.{n}.battery.C_max: usable capacity {b.C_max} C exceeds q_max {b.q_max} C")

@@ -4,7 +4,7 @@ The airframe is a 33 %-scale Edge 540-class aerobatic monoplane (the NASA Langle
 class). Level-flight power uses the parabolic drag polar; a climb adds m·g·ḣ; a descent gives
 back part of it down to a windmilling floor. Propulsive efficiency turns air power into shaft
 power. The electrical side (two motors on one shaft, each fed by two packs in series, motor
-faults) lives in the kernel (``gcs_pdm.models.kernel.simulate_powertrain``) because the current
+faults) lives in the kernel (``gcs_pdm.models.topology.simulate_powertrain``) because the current
 depends on the packs' voltage at every step. See docs/model.md for the numbers and their sources.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 
 G = 9.80665
@@ -153,7 +153,7 @@ def fly(params: ParameterSet, state: PowertrainState, dt: np.ndarray, shaft_powe
         **kw) -> kernel.PowertrainRun:
     """One vehicle through a shaft-power profile (a convenience over the batched kernel); it stops
     at the first failure, as the aircraft would."""
-    return kernel.simulate_powertrain(
+    return topology.simulate_powertrain(
         params.pack_matrix()[None], params.motor_vector()[None], state.pack_state[None],
         np.asarray(state.motor_temp_c)[None], dt, shaft_power_w, ambient_c, fault_vector(faults)[None],
         limits=(limits or Limits()).as_tuple(), record=record, stop_on_failure=stop_on_failure, **kw)

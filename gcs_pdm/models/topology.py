@@ -12,7 +12,7 @@ from a description's ``gcs_pdm.vehicle.model_inputs.ModelInputs``):
   the kernel;
 * limits per pack (cut-off voltage, temperature) and per motor (temperature).
 
-``kernel.simulate_powertrain`` (the paper's aircraft) runs on this with ``PAPER_TOPOLOGY``; ``edge540``'s
+``simulate_powertrain`` below (the paper's aircraft) runs on this with ``PAPER_TOPOLOGY``; ``edge540``'s
 model inputs give exactly the same numbers (tests/test_models_topology.py).
 """
 from __future__ import annotations
@@ -275,3 +275,27 @@ def simulate_vehicle(inputs: "Topology | ModelInputs", pack_params: np.ndarray |
                         rec)) if record else {}
     return PowertrainRun(out["final_x"], out["final_tm"], out["min_v"], out["max_tp"], out["max_tm"], out["charge"],
                          out["energy"], out["fail_k"], out["fail_cause"], out["elapsed"], **recorded)
+
+
+def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: np.ndarray,
+                        motor_temp0: np.ndarray, dt: np.ndarray, shaft_power: np.ndarray,
+                        ambient: np.ndarray | float, fault: np.ndarray | None = None, *,
+                        limits: tuple[float, float, float] = (-np.inf, np.inf, np.inf),
+                        fault_drag: float = 0.1, max_dt: float = kernel.DEFAULT_MAX_DT,
+                        stop_on_failure: bool = False, record: bool = False) -> PowertrainRun:
+    """Fly N vehicles (routes, particles, parameter vectors) through shaft-power profiles.
+
+    pack_params (N or 1, 4, 12); motor_params (N or 1, 5); x0 (N, 4, 4) pack states; motor_temp0
+    (N, 2); dt, shaft_power [W], ambient [°C] (n,) or (N, n); fault (N or 1, 2) magnitudes m in
+    [0, 1] for (fwd, aft): a faulted motor delivers (1 - m) of its share of the shaft power.
+    limits = (pack cut-off voltage V, pack max °C, motor max °C) decide ``fail_cause``.
+    """
+    pp = np.asarray(pack_params, dtype=np.float64)
+    if (pp[None] if pp.ndim == 2 else pp).shape[1:] != (kernel.N_PACKS, N_PACK_PARAMS):
+        raise ValueError(f"pack_params: expected (N, {kernel.N_PACKS}, {N_PACK_PARAMS}), got {pp.shape}")
+    mp = kernel._params2d(motor_params, N_MOTOR_PARAMS, "motor_params")
+    # both motors are one type: the same parameter vector on each
+    mp = np.repeat(mp[:, None, :], kernel.N_MOTORS, axis=1)
+    return simulate_vehicle(PAPER_TOPOLOGY.with_limits(*limits), pp, mp, x0, motor_temp0, dt, shaft_power, ambient,
+                            fault, fault_drag=fault_drag, max_dt=max_dt, stop_on_failure=stop_on_failure,
+                            record=record)

@@ -72,7 +72,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         return 2
     vehicle, motor_faults = None, {}
     if args.vehicle:
-        from gcs_pdm.vehicle.description import VehicleError, resolve
+        from gcs_pdm.vehicle.description import VehicleError
+        from gcs_pdm.vehicle.presets import resolve
 
         try:
             vehicle = resolve(args.vehicle)

@@ -4,7 +4,7 @@ A route is an ordered list of waypoint indices (positions in ``scenario.waypoint
 vehicle's current position and always closed by the return to the landing site. Each leg is
 flown at constant airspeed and climb rate, so its shaft power (``powertrain.shaft_power``) is
 constant; the leg is cut into equal samples of at most ``dt_s`` seconds and all candidate routes
-are flown through ``kernel.simulate_powertrain`` together in one call (profiles padded with
+are flown through ``topology.simulate_powertrain`` together in one call (profiles padded with
 zero-length samples, which the kernel treats as no-ops).
 
 Two ways in, one physics:
@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
                                        fault_vector, shaft_power)
@@ -200,9 +200,9 @@ class VehicleSimulator:
         """One batched kernel call; ``verdict``: with the verdict limits, stopping at a failure."""
         if self._inputs is None:
             if verdict:
-                return kernel.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
+                return topology.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
                                                   limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
-            return kernel.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
+            return topology.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
                                               fault_drag=0.1, max_dt=self.dt_s)
         topo = self._topology if verdict else self._inputs.topology.with_limits(-np.inf, np.inf, np.inf)
         return simulate_vehicle(topo, self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,

@@ -206,9 +206,10 @@ def set_mission_load(diagnoser, load, start_s: float) -> None:
 
 # --- simulated vehicle -------------------------------------------------------------------------
 
-def start_sim_vehicle(sim_config, url: str, speedup: float, telemetry=None):
+def start_sim_vehicle(sim_config, url: str, speedup: float, telemetry=None, hold=None):
     """The loopback simulated vehicle in a background thread, talking MAVLink on ``url``; the
-    returned object has ``.stop()``, ``.state`` (the truth) and ``.fault_log``."""
+    returned object has ``.stop()``, ``.state`` (the truth) and ``.fault_log``; ``hold()`` True
+    stops its clock (``gcs_pdm.sim.vehicle``)."""
     from gcs_pdm.sim.vehicle import SimulatedVehicle
 
-    return SimulatedVehicle(sim_config, url, speedup=speedup, telemetry=telemetry).start()
+    return SimulatedVehicle(sim_config, url, speedup=speedup, telemetry=telemetry, hold=hold).start()

@@ -7,15 +7,18 @@ one router per resource; the service and the token check reach them as FastAPI d
 """
 from __future__ import annotations
 
-import importlib.util
 import logging
 
 from fastapi import FastAPI, Request
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.exception_handlers import http_exception_handler
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import gcs_pdm
+from gcs_pdm.service.console_routes import include_console
 from gcs_pdm.service.routers import events, faults, files, health, jobs, missions, parameter_sets
 from gcs_pdm.service.storage import Conflict, NotFound
+from gcs_pdm.service.uploads import UploadBodyLimit
 
 log = logging.getLogger(__name__)
 
@@ -26,8 +29,10 @@ ROUTERS = (health.router, faults.router, missions.router, parameter_sets.router,
 
 def create_app(service) -> FastAPI:
     app = FastAPI(title="gcs-pdm", version=gcs_pdm.__version__,
-                  description="Prognostic decision making beside a MAVLink ground station")
+                  description="Prognostic decision making beside a MAVLink ground station",
+                  docs_url=None, redoc_url=None)  # /docs is the console's: Swagger UI served without a CDN
     app.state.service = service  # what ``routers.deps.get_service`` hands every endpoint
+    app.add_middleware(UploadBodyLimit, path="/files", max_bytes=lambda: service.config.max_upload_bytes)
 
     @app.exception_handler(NotFound)
     async def _not_found(_req: Request, exc: NotFound):
@@ -37,17 +42,17 @@ def create_app(service) -> FastAPI:
     async def _conflict(_req: Request, exc: Conflict):
         return JSONResponse(status_code=409, content={"detail": str(exc)})
 
-    # --- the web console: its router goes here (gcs_pdm/service/console_routes.py, ``router``) ---
-    if importlib.util.find_spec("gcs_pdm.service.console_routes") is not None:
-        from gcs_pdm.service.console_routes import router as console_router
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(req: Request, exc: StarletteHTTPException):
+        # FastAPI answers a body it cannot parse (bad UTF-8, broken JSON or multipart) with a 400;
+        # it is an invalid body like any other, so it gets the documented 422 and its shape.
+        if exc.status_code == 400:
+            return JSONResponse(status_code=422, content={"detail": [
+                {"loc": ["body"], "msg": str(exc.detail), "type": "value_error"}]})
+        return await http_exception_handler(req, exc)
 
-        app.include_router(console_router)
-    else:
-        from gcs_pdm.service.status_page import STATUS_PAGE
-
-        @app.get("/", response_class=HTMLResponse, include_in_schema=False)
-        def status_page() -> str:
-            return STATUS_PAGE
+    # the operator's console at /, its assets and the local Swagger UI at /docs (console_routes.py)
+    include_console(app, service)
 
     for router in ROUTERS:
         app.include_router(router)

@@ -17,7 +17,7 @@ from contextvars import ContextVar
 from pathlib import Path
 from typing import Annotated, Any, Literal, Mapping
 
-from pydantic import Field, ValidationError
+from pydantic import Field, ValidationError, field_validator
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, EnvSettingsSource, PydanticBaseSettingsSource, SettingsConfigDict
 from pydantic_settings.sources.utils import parse_env_vars
@@ -25,6 +25,25 @@ from pydantic_settings.sources.utils import parse_env_vars
 from gcs_pdm.planning.planners import SERVICE_PLANNERS
 
 ENV_PREFIX = "GCS_PDM_"
+
+
+#: shortest accepted api_token: a generated one is 32 characters; a few letters can be guessed
+MIN_TOKEN_CHARS = 16
+#: tokens that come from examples and templates (compared case-insensitively, ignoring - and _)
+PLACEHOLDER_TOKENS = frozenset({
+    "changeme", "changemeplease", "changethis", "replaceme", "token", "secret", "password", "passw0rd",
+    "test", "testing", "example", "default", "admin", "apitoken", "yourtoken", "yourapitoken",
+    "mytoken", "secrettoken", "xxxxxxxxxxxxxxxx", "0123456789abcdef", "1234567890123456",
+})
+
+
+def token_problem(token: str) -> str | None:
+    """Why ``token`` cannot be the API's bearer token, or None."""
+    if token.lower().replace("-", "").replace("_", "").replace(" ", "") in PLACEHOLDER_TOKENS:
+        return "is a known placeholder; set a random one (e.g. python -c 'import secrets; print(secrets.token_urlsafe(24))')"
+    if len(token) < MIN_TOKEN_CHARS:
+        return f"is shorter than {MIN_TOKEN_CHARS} characters; set a random one, or leave it unset to have one generated"
+    return None
 
 
 class ConfigError(ValueError):
@@ -70,11 +89,16 @@ class ServiceConfig(BaseSettings):
     db_path: str | None = Field(None, description="SQLite file (default: <data_dir>/gcs_pdm.sqlite3)")
     record_tlog: bool = Field(True, description="record every live session to <data_dir>/tlogs/")
 
+    # --- uploads (POST /files) -------------------------------------------------------------------
+    max_upload_bytes: int = Field(256 * 1024 * 1024, ge=1, description="largest accepted upload (bytes); larger is 413")
+    max_upload_rows: int = Field(5_000_000, ge=1, description="most rows of an uploaded CSV/Parquet table; more is 413")
+    tlog_min_mavlink_fraction: float = Field(0.9, gt=0, le=1, description="share of an uploaded tlog's bytes that must be CRC-valid MAVLink records")
+
     # --- auth --------------------------------------------------------------------------------
     api_token: str | None = Field(None, description="bearer token for mutating endpoints; generated and logged if unset")
 
     # --- decision loop -----------------------------------------------------------------------
-    policy: Literal["auto", "advise"] = Field("auto", description="auto: upload and tell the operator; advise: propose, operator approves")
+    policy: Literal["auto", "advise"] = Field("advise", description="advise: propose, the operator approves (the safe start); auto: upload and tell the operator")
     vehicle: str | None = Field(None, description="vehicle description: a preset (edge540, plane-3s, quad-4s, ...) or "
                                 "a TOML/JSON file (docs/vehicles.md); unset: a provisional one from the first telemetry")
     parameter_set: str = Field("paper_si", description="parameter set active at start-up (name in the store)")
@@ -86,7 +110,16 @@ class ServiceConfig(BaseSettings):
     replan_cooldown_s: float = Field(30.0, ge=0, description="message-time seconds between two replans for deviations")
     deviation_soc: float = Field(0.08, gt=0, description="SoC deviation (observed vs predicted at plan time) that triggers a replan")
     confirm_download: bool = Field(True, description="confirm each upload by downloading the mission back")
+    link_lost_after_s: float = Field(5.0, gt=0, description="seconds without a heartbeat from the vehicle before the link is declared lost (replans and uploads refused until it returns)")
     fit_workers: int = Field(1, ge=1, le=8, description="worker threads for fitting jobs")
+
+    @field_validator("api_token")
+    @classmethod
+    def _usable_token(cls, token: str | None) -> str | None:
+        problem = None if token is None else token_problem(token)
+        if problem:
+            raise ValueError(problem)
+        return token
 
     @classmethod
     def settings_customise_sources(cls, settings_cls, init_settings, env_settings, dotenv_settings,
@@ -131,7 +164,8 @@ def load_config(path: str | Path | None = None, env: Mapping[str, str] | None = 
     except ValidationError as exc:
         err = exc.errors()[0]
         where = ".".join(str(x) for x in err["loc"]) or "config"
-        raise ConfigError(f"{where}: {err['msg']}") from None
+        # pydantic prefixes a validator's own message with "Value error, "; the field name says enough
+        raise ConfigError(f"{where}: {err['msg'].removeprefix('Value error, ')}") from None
     finally:
         _SOURCES.reset(token)
 

@@ -110,19 +110,6 @@ def choose(candidates: Sequence[Candidate]) -> tuple[Candidate, str]:
     return best, "no candidate is predicted to get home inside the limits; operator decision needed"
 
 
-def same_mission(sent: Sequence[M.MissionItem], back: Sequence[M.MissionItem]) -> bool:
-    """The downloaded mission is the uploaded one: item for item as float32 on the wire, ignoring
-    the ``current`` flag (vehicle state, not mission content) and the home item at seq 0, which
-    ArduPilot-style vehicles overwrite with their own home."""
-    from dataclasses import replace
-
-    if len(sent) != len(back):
-        return False
-    norm_sent = [replace(M.as_sent(i), current=0) for i in sent[1:]]
-    norm_back = [replace(i, current=0) for i in back[1:]]
-    return M.same_items(norm_sent, norm_back)
-
-
 def route_of_items(items: Sequence[M.MissionItem], catalogue: Sequence[CatalogueWaypoint]) -> list[int]:
     seq_to_number = match_items(items, catalogue)
     return [seq_to_number[i.seq] for i in items if i.seq in seq_to_number]

@@ -322,9 +322,45 @@ def fly_until_on_ground(vehicle, wall0: float, timeout_s: float, out=print, ever
     time.sleep(0.5)
 
 
+class DecisionHold:
+    """Holds the simulated vehicle's clock while the service is deciding, so when its answer
+    arrives in flight time does not depend on how loaded the machine is (the tests' mode; ``gcs-pdm
+    demo`` flies on at its speed-up like a real aircraft).
+
+    Held while: the service's telemetry is more than ``lag_s`` of message time behind the vehicle
+    (it has not seen what the vehicle did yet), the decision worker plans, uploads or reads the
+    mission, or a proposal waits for the operator (policy advise)."""
+
+    LAG_S = 3.0
+    PROPOSALS_EVERY_S = 0.05  # wall seconds between two looks at the store
+
+    def __init__(self, service: Service):
+        self.service = service
+        self.vehicle = None  # set once started
+        self._proposals = (0.0, False)
+
+    def __call__(self) -> bool:
+        loop, vehicle = self.service.loop, self.vehicle
+        if loop is None or vehicle is None:
+            return False
+        seen = loop.telemetry.time_s
+        if seen is not None and vehicle.core.time_s - seen > self.LAG_S:
+            return True
+        return loop.executor.working or self._proposal_waiting()
+
+    def _proposal_waiting(self) -> bool:
+        at, waiting = self._proposals
+        if time.monotonic() - at > self.PROPOSALS_EVERY_S:
+            waiting = bool(self.service.store.plans(status="proposed", limit=1))
+            self._proposals = (time.monotonic(), waiting)
+        return waiting
+
+
 def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None = None, seed: int = 0,
              timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned",
-             policy: str = "auto") -> DemoResult:
+             policy: str = "auto", hold_while_deciding: bool = False) -> DemoResult:
+    """The demo; ``hold_while_deciding`` stops the vehicle's clock while the service decides
+    (:class:`DecisionHold`: deterministic under load, for tests)."""
     from gcs_pdm.service.adapters import start_sim_vehicle
     from gcs_pdm.service.server import start_mavlink, stop_mavlink
 
@@ -337,8 +373,10 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         data_dir = tmp.name
     port = free_udp_port()
     token = new_token()
+    # A held vehicle is silent: the link may only be declared lost after the longest decision.
+    held = {"link_lost_after_s": 600.0} if hold_while_deciding else {}
     config = load_config(env={}, data_dir=data_dir, api_token=token, policy=policy, http_port=http_port,
-                         mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0, vehicle="edge540")
+                         mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0, vehicle="edge540", **held)
     service = Service(config)
     if params == "learned" and not LEARNED_SET.exists():
         params = "paper_si"
@@ -352,7 +390,10 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     printer = TerminalPrinter(service, out).start()
     operator = Operator(http.url, token, out).start() if policy == "advise" else None
     start_mavlink(service)
-    vehicle = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry())
+    hold = DecisionHold(service) if hold_while_deciding else None
+    vehicle = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry(), hold=hold)
+    if hold is not None:
+        hold.vehicle = vehicle
     try:
         fly_until_on_ground(vehicle, wall0, timeout_s, out, every_s=120.0)
     finally:

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 
 from gcs_pdm.service.config import load_config, new_token
-from gcs_pdm.service.demo import (TerminalPrinter, demo_telemetry, fly_until_on_ground, free_udp_port,
+from gcs_pdm.service.demo import (DecisionHold, TerminalPrinter, demo_telemetry, fly_until_on_ground, free_udp_port,
                                   start_status_page)
 from gcs_pdm.service.runtime import Service
 
@@ -51,12 +51,15 @@ def survey_mission(desc):
 
 
 def run_vehicle_demo(vehicle: str, *, speedup: float = 8.0, http_port: int = 8000, data_dir: str | None = None,
-                     seed: int = 0, timeout_s: float = 170.0, out=print, policy: str = "auto") -> VehicleDemoResult:
+                     seed: int = 0, timeout_s: float = 170.0, out=print, policy: str = "auto",
+                     hold_while_deciding: bool = False) -> VehicleDemoResult:
+    """``hold_while_deciding``: the vehicle's clock stops while the service decides (the tests'
+    mode, ``demo.DecisionHold``); the command flies on at its speed-up like a real aircraft."""
     from gcs_pdm.service.adapters import start_sim_vehicle
     from gcs_pdm.service.server import start_mavlink, stop_mavlink
     from gcs_pdm.sim.faults import parse_fault
     from gcs_pdm.sim.model import vehicle_config
-    from gcs_pdm.vehicle.description import resolve
+    from gcs_pdm.vehicle.presets import resolve
 
     wall0 = time.monotonic()
     desc = resolve(vehicle)
@@ -71,7 +74,9 @@ def run_vehicle_demo(vehicle: str, *, speedup: float = 8.0, http_port: int = 800
     port = free_udp_port()
     token = new_token()
     config = load_config(env={}, data_dir=data_dir, api_token=token, policy=policy, http_port=http_port,
-                         mavlink_url=f"udpin:127.0.0.1:{port}", vehicle=vehicle, planner_deadline_s=5.0)
+                         mavlink_url=f"udpin:127.0.0.1:{port}", vehicle=vehicle, planner_deadline_s=5.0,
+                         # a held vehicle is silent: the link may only be declared lost after the longest decision
+                         **({"link_lost_after_s": 600.0} if hold_while_deciding else {}))
     service = Service(config)
     http = start_status_page(service, out)
     out(f"  vehicle: simulated {desc.name} ({desc.description}), x{speedup:g} real time, MAVLink udp 127.0.0.1:{port}")
@@ -81,7 +86,10 @@ def run_vehicle_demo(vehicle: str, *, speedup: float = 8.0, http_port: int = 800
     printer = TerminalPrinter(service, out).start()
     start_mavlink(service)
     out(f"  readiness: {service.state.get('readiness')}")
-    sim = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry())
+    hold = DecisionHold(service) if hold_while_deciding else None
+    sim = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry(), hold=hold)
+    if hold is not None:
+        hold.vehicle = sim
     try:
         fly_until_on_ground(sim, wall0, timeout_s, out, every_s=60.0)
     finally:

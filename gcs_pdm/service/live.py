@@ -25,12 +25,13 @@ from gcs_pdm.diagnosis.faults import Fault
 from gcs_pdm.models.powertrain import PowertrainState
 from gcs_pdm.service import adapters
 from gcs_pdm.service.fault_tracker import FaultTracker
+from gcs_pdm.service.live_state import LinkLost
 from gcs_pdm.service.plan_executor import MAV_SEVERITY_NOTICE, PlanExecutor, Snapshot, UploadOutcome
 from gcs_pdm.service.telemetry_intake import TelemetryIntake
 from gcs_pdm.service.vehicle_discovery import AwaitingVehicle, VehicleDiscovery
 from gcs_pdm.vehicle.presets import PRESETS
 
-__all__ = ["LiveLoop", "Snapshot", "UploadOutcome"]
+__all__ = ["LinkLost", "LiveLoop", "Snapshot", "UploadOutcome"]
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +63,7 @@ class LiveLoop:
         # wiring (late-bound through self, so a replaced method is the one called)
         self.telemetry.on_reached = self.executor.reached
         self.telemetry.on_tick = self._tick
+        self.telemetry.on_message = self.executor.watch
         self.telemetry.motor_faults = lambda: self.faults.motor_faults()
         self.executor.request_replan = lambda reason: self.request_replan(reason)
         self.publish_readiness()
@@ -145,7 +147,8 @@ class LiveLoop:
         if new_or_grown:
             self.request_replan("fault: " + ", ".join(f"{f.type} {f.component}" for f in new_or_grown))
         self.executor.check_deviation(t)
-        if self._deferred is not None and self.estimator.ready():
+        self.executor.check_mission_read(t)
+        if self._deferred is not None and self.estimator.ready() and not self.telemetry.link_lost:
             self.request_replan(self._deferred)
 
     def snapshot(self) -> Snapshot:
@@ -163,13 +166,24 @@ class LiveLoop:
 
     # --- operator and triggers (any thread) ------------------------------------------------------
 
+    @property
+    def link_lost(self) -> bool:
+        return self.telemetry.link_lost
+
+    def require_link(self, action: str) -> None:
+        """Refuse ``action`` (raise :class:`LinkLost`, a 409) while the vehicle is not heard."""
+        if self.telemetry.link_lost:
+            raise LinkLost(f"{action} refused: link lost ({self.telemetry.link_lost_reason})")
+
     def request_replan(self, reason: str) -> None:
         """Queue a replan from the present state (the snapshot is taken on the telemetry thread)."""
         if self.telemetry.elsewhere():
             self.telemetry.call_soon(lambda: self.request_replan(reason))
             return
-        if not self.estimator.ready():
-            log.info("replan (%s) deferred: estimator not ready", reason)
+        if not self.estimator.ready() or self.telemetry.link_lost:
+            # A silent vehicle's state is unknown: plan when it (and its state) is back.
+            log.info("replan (%s) deferred: %s", reason, "link lost" if self.telemetry.link_lost
+                     else "estimator not ready")
             self._deferred = reason
             return
         self._deferred = None
@@ -203,7 +217,7 @@ class LiveLoop:
         self.executor.request_refresh()
 
     def refresh_mission(self) -> list[M.MissionItem]:
-        return self.executor.refresh_mission()
+        return self.executor.refresh_mission("operator")
 
     def upload(self, plan_id, items, chosen, snap, current_seq: int = 1) -> bool:
         """Upload a plan's mission now (on the caller's thread); whether it is confirmed on board."""

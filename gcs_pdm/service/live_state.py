@@ -13,6 +13,15 @@ from typing import Any
 from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, MotorFrame, PackFrame,
                             PositionFrame, StatusFrame)
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
+from gcs_pdm.service.storage import Conflict
+
+#: the link's states in /status: no vehicle heard yet, telemetry flowing, vehicle silent too long
+LINK_WAITING, LINK_UP, LINK_LOST = "waiting", "up", "lost"
+
+
+class LinkLost(Conflict):
+    """An action that needs the vehicle (replan, upload, approval, mission read) while the link is
+    lost: refused (HTTP 409 with the reason), never queued to run against a silent vehicle."""
 
 
 def _clean(v: Any) -> Any:
@@ -36,7 +45,8 @@ class LiveState:
         self._lock = threading.Lock()
         self._s: dict[str, Any] = {
             "time_s": None,
-            "link": {"url": None, "connected": False, "vehicle": None, "received": 0, "last_frame_time_s": None},
+            "link": {"url": None, "connected": False, "state": LINK_WAITING, "reason": None, "vehicle": None,
+                     "received": 0, "last_frame_time_s": None},
             "packs": _packs(PACK_NAMES),
             "motors": _motors(MOTOR_NAMES),
             "ambient_c": None,

@@ -25,11 +25,13 @@ import numpy as np
 
 from gcs_pdm import missions as M
 from gcs_pdm.diagnosis.faults import Fault
+from gcs_pdm.mavlink.autopilots import AutopilotRules, missions_equivalent, rules_for
 from gcs_pdm.mavlink.mission_client import MissionError
+from gcs_pdm.mavlink.mission_watch import MissionWatcher
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service import adapters
 from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, match_items, remaining_route,
-                                      route_of_items, same_mission)
+                                      route_of_items)
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +84,7 @@ class _Transfer:
     source: str                           # how we know: "upload" or "download"
     error: str | None = None
     stats: Any = None
+    readback: str | None = None           # the read-back's comparison with what was sent, in words
 
 
 class PlanExecutor:
@@ -97,6 +100,7 @@ class PlanExecutor:
         self._lock = threading.Lock()
         self._busy = False
         self._pending: tuple[str, Snapshot] | None = None
+        self._queued = 0  # tasks submitted to the worker and not finished
         #: wired by the live loop: how a replan is asked for (the deviation check's trigger)
         self.request_replan: Callable[[str], None] = lambda reason: None
         self.last_replan_s = -math.inf
@@ -110,11 +114,20 @@ class PlanExecutor:
         # the chosen plan's prediction (deviation check) and each plan's load (diagnoser's prognosis)
         self.expectation: dict | None = None
         self.loads: dict[int, tuple] = {}  # plan id -> (FutureLoad of its route, message time)
+        # when to read the vehicle's mission again, and its autopilot (whose storage rules decide
+        # whether a read-back is the mission sent); fed by the telemetry thread, read by the worker
+        self.watcher = MissionWatcher(getattr(getattr(link, "mav", None), "srcSystem", 255),
+                                      getattr(getattr(link, "mav", None), "srcComponent", 190))
+        self._watch_lock = threading.Lock()
+        #: uploads interrupted by the last stop, waiting for a read of what the vehicle holds
+        self._interrupted: list[tuple[int, int | None, dict]] = []
 
     # --- lifecycle -------------------------------------------------------------------------------
 
     def start(self) -> None:
-        self._worker.submit(self._guard, self.initial_download)
+        self.recover_interrupted()
+        # not counted in ``working``: it may wait for the vehicle's first heartbeat for ever
+        self._worker.submit(self._guard, self.initial_download, counted=False)
 
     def stop(self) -> None:
         self._stop.set()
@@ -125,15 +138,34 @@ class PlanExecutor:
         """A plan is running or waiting to run."""
         return self._busy or self._pending is not None
 
-    def _guard(self, fn, *args) -> Any:
+    @property
+    def working(self) -> bool:
+        """Anything (plan, upload, mission read) is running or queued on the worker."""
+        return self._queued > 0 or self.busy
+
+    def _submit(self, fn, *args) -> None:
+        with self._lock:
+            self._queued += 1
+        self._worker.submit(self._guard, fn, *args)
+
+    def _guard(self, fn, *args, counted: bool = True) -> Any:
         try:
             return fn(*args)
         except Exception:  # noqa: BLE001 - the worker must survive any one failure
             log.exception("decision worker: %s failed", getattr(fn, "__name__", fn))
             return None
+        finally:
+            if counted:
+                with self._lock:
+                    self._queued -= 1
 
     def _now(self) -> float | None:
         return self.telemetry.time_s
+
+    def rules(self) -> AutopilotRules:
+        """How the vehicle's autopilot stores mission items (from its HEARTBEAT; generic before)."""
+        with self._watch_lock:
+            return rules_for(self.watcher.autopilot, self.watcher.vehicle_type)
 
     # --- the vehicle's mission -------------------------------------------------------------------
 
@@ -147,19 +179,100 @@ class PlanExecutor:
                 continue
         else:
             return
-        self.service.events.publish("link", connected=True, vehicle=[self.link.target_system, self.link.target_component])
+        self.service.events.publish("link", status="connected", connected=True, vehicle=[self.link.target_system, self.link.target_component])
         self.refresh_mission()
 
     def request_refresh(self) -> None:
         """Read the vehicle's mission again (e.g. after the ground station changed it), on the worker."""
-        self._worker.submit(self._guard, self.refresh_mission)
+        self._submit(self.refresh_mission)
 
-    def refresh_mission(self) -> list[M.MissionItem]:
-        items = self.mc.download()
-        self.set_mission(items, source="download")
+    def refresh_mission(self, reason: str | None = None) -> list[M.MissionItem]:
+        """Read the vehicle's mission now (on the caller's thread) and make it the plan baseline."""
+        with self._watch_lock:
+            if not self.watcher.reading:
+                self.watcher.read_started(self._now() or 0.0)
+        try:
+            items = self.mc.download()
+        except BaseException:
+            with self._watch_lock:
+                self.watcher.read_failed(self._now() or 0.0)
+            raise
+        with self._watch_lock:
+            self.watcher.read_done(len(items), self._now() or 0.0)
+            home_known = self.watcher.home is not None
+        if self._interrupted and (items or home_known):  # ArduPilot reads 0 items before home: not yet
+            self._record_interrupted(items)
+        if self.mission_items is not None and not missions_equivalent(self.mission_items, items, self.rules()):
+            # Changed on board (e.g. by the ground station): the chosen plan's prediction no
+            # longer describes the mission being flown.
+            self.expectation = None
+        self.set_mission(items, source="download", reason=reason)
         return items
 
-    def set_mission(self, items: list[M.MissionItem], source: str) -> None:
+    # --- recovery of uploads the last stop interrupted ---------------------------------------------
+
+    def recover_interrupted(self) -> None:
+        """At start, before anything is uploaded: an upload intent without an outcome (the service
+        stopped mid-transfer) is ``interrupted`` and its plan ``upload_interrupted``; a plan left
+        ``approved`` with no upload at all (stopped before the transfer began) too, since nothing
+        will upload it now. What the vehicle holds is added at the first mission read."""
+        store = self.service.store
+        intents = store.unfinished_uploads()
+        for up in intents:
+            body = {k: v for k, v in up.items() if k not in ("id", "plan_id", "status", "created_at")}
+            body["error"] = "the service stopped during the transfer"
+            store.finish_upload(up["id"], "interrupted", body)
+            self._interrupted.append((up["id"], up["plan_id"], body))
+            if up["plan_id"] is not None:
+                store.transition_plan(up["plan_id"], "approved", "upload_interrupted",
+                                      f"upload {up['id']} interrupted: the service stopped during the transfer")
+            log.warning("upload %d of plan %s was interrupted by the last stop; the vehicle's mission will be read "
+                        "and recorded with it", up["id"], up["plan_id"])
+            self.service.events.publish("upload", id=up["id"], plan_id=up["plan_id"], status="interrupted")
+        for plan in store.plans(status="approved", limit=100000):
+            store.transition_plan(plan["id"], "approved", "upload_interrupted",
+                                  "the service stopped before its upload began")
+            log.warning("plan %d was approved but never uploaded before the last stop", plan["id"])
+            self.service.events.publish("plan", id=plan["id"], status="upload_interrupted")
+
+    def _record_interrupted(self, on_board: list[M.MissionItem]) -> None:
+        """What the vehicle holds, recorded with each interrupted upload (did the plan get there?)."""
+        rules = self.rules()
+        for uid, plan_id, body in self._interrupted:
+            sent = [M.item_from_json(d) for d in body["items"]]
+            comparison = missions_equivalent(sent, on_board, rules)
+            body.update(vehicle_items=[M.item_to_json(i) for i in on_board], vehicle_read_time_s=self._now(),
+                        readback=comparison.summary(), vehicle_holds_plan=comparison.equivalent)
+            self.service.store.finish_upload(uid, "interrupted", body)
+            if plan_id is not None:
+                held = "holds" if comparison.equivalent else "does not hold"
+                self.service.store.set_plan_status(plan_id, "upload_interrupted",
+                                                   f"read at restart: the vehicle {held} this plan's mission")
+            self.service.events.publish("upload", id=uid, plan_id=plan_id, status="interrupted",
+                                        vehicle_holds_plan=comparison.equivalent, time_s=self._now())
+        self._interrupted = []
+
+    # --- following the vehicle's mission -----------------------------------------------------------
+
+    def watch(self, msg, time_s: float) -> None:
+        """One of the vehicle's messages, at its message time, for the mission watcher (telemetry thread)."""
+        with self._watch_lock:
+            self.watcher.on_message(msg, time_s)
+
+    def check_mission_read(self, time_s: float) -> None:
+        """Start a read of the vehicle's mission on the worker when the watcher says one is due
+        (telemetry thread): home set, the mission changed on board, or an earlier read to retry."""
+        if self.telemetry.link_lost:
+            return
+        with self._watch_lock:
+            due = self.watcher.due(time_s)
+            if due is None:
+                return
+            self.watcher.read_started(time_s)
+        log.info("reading the vehicle's mission: %s", due.reason)
+        self._submit(self.refresh_mission, due.reason)
+
+    def set_mission(self, items: list[M.MissionItem], source: str, reason: str | None = None) -> None:
         self.mission_items = list(items)
         self.mission_time_s = self._now()
         if items:
@@ -177,7 +290,8 @@ class PlanExecutor:
             log.info("no mission objectives configured: each of the %d waypoints is worth 1", len(self.catalogue))
         self.service.state.update(mission={"count": len(items)})
         route = route_of_items(items, self.catalogue or [])
-        self.service.events.publish("mission", time_s=self._now(), source=source, count=len(items), route=route)
+        self.service.events.publish("mission", time_s=self._now(), source=source, count=len(items), route=route,
+                                    **({"reason": reason} if reason else {}))
 
     def reached(self, seq: int, t: float) -> None:
         """The vehicle reached mission item ``seq`` (telemetry thread): collect its waypoint's reward."""
@@ -232,7 +346,7 @@ class PlanExecutor:
                 self._pending = (reason, snap)
                 return
             self._busy = True
-        self._worker.submit(self._plan_then_next, reason, snap)
+        self._submit(self._plan_then_next, reason, snap)
 
     def _plan_then_next(self, reason: str, snap: Snapshot) -> None:
         while True:
@@ -320,7 +434,7 @@ class PlanExecutor:
         cand = Candidate(chosen["name"], tuple(chosen["route"]), chosen["feasible"], chosen["reward"],
                          chosen["reward_reached"], chosen["objective"], chosen.get("cause"),
                          {k: chosen[k] for k in ("final_soc", "flight_time_s") if k in chosen})
-        self._worker.submit(self._guard, self.upload, plan_id, items, cand, None, plan.get("current_seq", 1))
+        self._submit(self.upload, plan_id, items, cand, None, plan.get("current_seq", 1))
 
     def revert(self, upload: dict, note: str) -> int:
         """A plan that restores ``upload``'s previous mission, uploaded on the worker; its id."""
@@ -340,19 +454,24 @@ class PlanExecutor:
         pid = self.service.store.add_plan(body, body["reason"], "approved", self._now())
         self.service.events.publish("plan", id=pid, status="approved", time_s=self._now(), reason=body["reason"],
                                     chosen=chosen.to_dict())
-        self._worker.submit(self._guard, self.upload, pid, items, chosen, None, current_seq)
+        self._submit(self.upload, pid, items, chosen, None, current_seq)
         return pid
 
     # --- upload ------------------------------------------------------------------------------------
 
     def _transfer(self, items: list[M.MissionItem], current_seq: int) -> _Transfer:
         """Upload, make ``current_seq`` current, read back: which outcome, and what is on board."""
+        if self.telemetry.link_lost:
+            # Never spend minutes retrying a transfer to a vehicle that is not heard.
+            return _Transfer(UploadOutcome.FAILED, None, "upload", f"link lost ({self.telemetry.link_lost_reason})")
         try:
             stats = self.mc.upload(items)
         except (MissionError, OSError) as exc:
             # Usually the vehicle keeps its mission; but if only the final MISSION_ACK was lost it
             # may hold the new one: read back what is really on board when the link allows.
             return _Transfer(UploadOutcome.FAILED, self._readback(), "download", str(exc))
+        with self._watch_lock:  # our own change: the vehicle's new mission id needs no read
+            self.watcher.uploaded(len(items))
         try:
             # An airborne vehicle heads for the first item of the new route, never the take-off
             # (gcs_pdm.planning.mission documents the layout).
@@ -367,25 +486,33 @@ class PlanExecutor:
             on_board = self._readback()
             return _Transfer(UploadOutcome.UPLOADED_UNCONFIRMED, on_board if on_board is not None else items,
                              "download" if on_board is not None else "upload", str(exc), stats)
-        outcome = UploadOutcome.CONFIRMED if same_mission(items, back) else UploadOutcome.UPLOAD_MISMATCH
-        return _Transfer(outcome, back, "upload", stats=stats)
+        # By meaning, not bytes: the autopilot stores items normalised (frames, NaN, item 0 as home).
+        comparison = missions_equivalent(items, back, self.rules())
+        outcome = UploadOutcome.CONFIRMED if comparison.equivalent else UploadOutcome.UPLOAD_MISMATCH
+        return _Transfer(outcome, back, "download", stats=stats, readback=comparison.summary())
 
     def upload(self, plan_id: int, items: list[M.MissionItem], chosen: Candidate, snap: Snapshot | None,
                current_seq: int = 1) -> UploadOutcome:
         """Upload a plan's mission and record how it ended (one record per outcome, written once)."""
         svc = self.service
         previous = list(self.mission_items or [])
-        svc.events.publish("upload", plan_id=plan_id, status="uploading", count=len(items), time_s=self._now())
+        # The intent first: if the service dies mid-transfer, the next start finds it (see
+        # recover_interrupted) instead of an approved plan with no trace of an upload.
+        intent = {"items": [M.item_to_json(i) for i in items], "previous_items": [M.item_to_json(i) for i in previous],
+                  "route": list(chosen.route), "started_time_s": self._now(), "current_seq": current_seq}
+        uid = svc.store.begin_upload(plan_id, intent)
+        svc.events.publish("upload", id=uid, plan_id=plan_id, status="uploading", count=len(items), time_s=self._now())
         tr = self._transfer(items, current_seq)
         out = tr.outcome
-        body = {"items": [M.item_to_json(i) for i in items], "previous_items": [M.item_to_json(i) for i in previous],
-                "route": list(chosen.route), "time_s": self._now(), "current_seq": current_seq,
+        body = {**intent, "time_s": self._now(),
                 "stats": dataclasses.asdict(tr.stats) if dataclasses.is_dataclass(tr.stats) else None}
         if tr.error is not None:
             body["error"] = tr.error
-        uid = svc.store.add_upload(plan_id, out.record_status, body)
-        note = tr.error or ("mission readback differs from the plan" if out is UploadOutcome.UPLOAD_MISMATCH
-                            else out.record_status)
+        if tr.readback is not None:
+            body["readback"] = tr.readback
+        svc.store.finish_upload(uid, out.record_status, body)
+        note = tr.error or (f"mission readback differs from the plan: {tr.readback}"
+                            if out is UploadOutcome.UPLOAD_MISMATCH else out.record_status)
         svc.store.set_plan_status(plan_id, out.plan_status, note)
         if tr.on_board is not None:
             self.set_mission(tr.on_board, source=tr.source)

@@ -49,12 +49,13 @@ class Service:
         #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the kernel's defaults
         self.limits = None
         self.loop = None
+        self.foreign_watch = None  # status_report.ForeignSystemWatcher, once a link is attached
         self.state.update(policy=self.policy, parameter_set=self.params.name)
         #: the vehicle description (``vehicle`` in the config); None: the live loop derives a
         #: provisional one from the first telemetry (service/vehicle_discovery.py)
         self.vehicle = None
         if config.vehicle:
-            from gcs_pdm.vehicle.description import resolve
+            from gcs_pdm.vehicle.presets import resolve
 
             self.vehicle = resolve(config.vehicle)  # VehicleError: serve says it in one line
             self.describe_vehicle(self.vehicle, "given")
@@ -62,8 +63,12 @@ class Service:
     # --- lifecycle ---------------------------------------------------------------------------------
 
     def attach_loop(self, loop) -> None:
+        from gcs_pdm.service.status_report import ForeignSystemWatcher
+
         self.loop = loop
         self.state.update(link={"url": self.config.mavlink_url})
+        if getattr(loop, "link", None) is not None:
+            self.foreign_watch = ForeignSystemWatcher(self, loop.link).start()
 
     def describe_vehicle(self, desc, source: str, notes: list[str] | tuple = (), waiting: str | None = None) -> None:
         """Say in /status which description is in use (and its packs and motors by name)."""
@@ -91,6 +96,8 @@ class Service:
         self.events.publish("vehicle", **about)
 
     def close(self) -> None:
+        if self.foreign_watch is not None:
+            self.foreign_watch.stop()
         if self.loop is not None:
             self.loop.stop()
         self.runner.shutdown()
@@ -157,6 +164,7 @@ class Service:
         self._proposed(plan_id)
         if self.loop is None:
             raise Conflict("no vehicle link: a plan cannot be uploaded")
+        self.loop.require_link(f"approval of plan {plan_id}")
         # conditional: a newer plan may have superseded this one since it was read
         if not self.store.transition_plan(plan_id, "proposed", "approved", note or "operator"):
             raise Conflict(f"plan {plan_id} is {self.store.plan(plan_id)['status']}, not proposed")
@@ -172,6 +180,7 @@ class Service:
     def request_replan(self, reason: str) -> None:
         if self.loop is None:
             raise Conflict("no vehicle link: nothing to replan")
+        self.loop.require_link("replan")
         why = self.loop.replan_blocker()
         if why is not None:  # said now (409), not accepted and then deferred in a log line
             raise Conflict(f"cannot replan now: {why}")
@@ -186,11 +195,13 @@ class Service:
             raise Conflict(f"upload {upload_id} recorded no previous mission")
         if self.loop is None:
             raise Conflict("no vehicle link: a mission cannot be uploaded")
+        self.loop.require_link(f"revert of upload {upload_id}")
         return self.loop.revert(up, note)
 
     def refresh_mission(self) -> None:
         if self.loop is None:
             raise Conflict("no vehicle link: no mission to read")
+        self.loop.require_link("mission read")
         self.loop.request_refresh()
 
     def set_policy(self, policy: str) -> None:
@@ -219,46 +230,35 @@ class Service:
 
     # --- files -------------------------------------------------------------------------------------
 
-    @staticmethod
-    def check_upload(filename: str, kind: str, data: bytes) -> str | None:
-        """Why an uploaded flight file cannot be used, or None (a tlog needs one valid MAVLink packet;
-        a table must be readable by gcs_pdm.fitting.logs with at least a motor flight's columns)."""
-        import tempfile
+    @property
+    def upload_limits(self):
+        from gcs_pdm.service.uploads import UploadLimits
 
-        if kind == "tlog":
-            from gcs_pdm.mavlink.tlog import scan_tlog_bytes
+        c = self.config
+        return UploadLimits(c.max_upload_bytes, c.max_upload_rows, c.tlog_min_mavlink_fraction)
 
-            try:
-                first = next(iter(scan_tlog_bytes(data)), None)
-            except Exception as exc:  # noqa: BLE001 - any scanner failure means "not a tlog"
-                return f"not a MAVLink tlog ({type(exc).__name__}: {exc})"
-            return None if first is not None else "not a MAVLink tlog: no valid packet found"
-        from gcs_pdm.fitting.logs import read_table
-        from gcs_pdm.fitting.tables import MOTOR, FlightDataError
+    @property
+    def incoming_dir(self) -> Path:
+        """Where uploads are received before they are checked (the data directory's file system,
+        so keeping one is a rename)."""
+        return self.config.data_path / "uploads" / ".incoming"
 
-        suffix = Path(filename).suffix.lower()
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / f"upload{suffix}"
-            path.write_bytes(data)
-            try:
-                read_table(path, MOTOR, name=filename)
-            except FlightDataError as exc:
-                return str(exc).replace(str(path), filename)
-            except Exception as exc:  # noqa: BLE001 - a damaged table
-                return f"{filename}: cannot read table ({type(exc).__name__}: {exc})"
-        return None
+    def save_upload(self, filename: str, kind: str, received) -> str:
+        """Keep a received and checked upload (gcs_pdm.service.uploads.ReceivedFile) under a safe name."""
+        from gcs_pdm.service.uploads import stored_name
 
-    def save_upload(self, filename: str, kind: str, data: bytes) -> str:
         folder = self.config.data_path / "uploads"
         folder.mkdir(parents=True, exist_ok=True)
         stamp = time.strftime("%Y%m%dT%H%M%S")
-        path = folder / f"{stamp}_{filename}"
+        safe = stored_name(filename)
+        path = folder / f"{stamp}_{safe}"
         n = 1
         while path.exists():
-            path = folder / f"{stamp}_{n}_{filename}"
+            path = folder / f"{stamp}_{n}_{safe}"
             n += 1
-        path.write_bytes(data)
-        file_id = self.store.add_file(filename, str(path), kind, len(data))
+        received.path.replace(path)
+        received.path = path
+        file_id = self.store.add_file(filename, str(path), kind, received.size_bytes)
         if kind == "tlog":
             self.store.close_tlog(self.store.add_tlog(str(path), note=f"uploaded as {filename}"))
         return file_id
@@ -282,6 +282,9 @@ class Service:
             return f"not found: {exc.args[0]}"
         except PermissionError as exc:
             return str(exc)
-        if not path.is_file():
-            return f"file {path} does not exist or is not a file"
+        try:
+            if not path.is_file():
+                return f"file {path} does not exist or is not a file"
+        except (OSError, ValueError) as exc:  # e.g. a name longer than the file system allows
+            return f"file {path.name[:80]}...: cannot be read ({exc.strerror if isinstance(exc, OSError) else exc})"
         return None

@@ -7,13 +7,41 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 
+#: SQLite's INTEGER is a signed 64-bit number: a larger id names no row (and overflows the driver: a 500)
+SQLITE_INT_MAX = 2**63 - 1
+#: longest operator note kept with a fault, plan decision or upload
+MAX_NOTE_CHARS = 2000
+
 MotorName = Literal["fwd", "aft"]
 PackName = Literal["LLF20", "ULA20", "LRF40", "URA40"]
 assert set(MotorName.__args__) == set(MOTOR_NAMES) and set(PackName.__args__) == set(PACK_NAMES)
 
 
+class ErrorOut(BaseModel):
+    """Every error answer: ``detail`` says what went wrong. A 422 carries a list of
+    ``{loc, msg, type}`` naming the field (FastAPI's validation shape); other codes carry text."""
+
+    detail: str | list[dict[str, Any]]
+
+
+#: what each error status means on this API (the OpenAPI descriptions)
+ERROR_MEANINGS = {
+    401: "missing or wrong bearer token",
+    404: "no such resource",
+    409: "the resource is not in a state that allows this",
+    413: "the upload is larger than the configured limit (bytes or rows)",
+    422: "a parameter or body field is invalid (named in detail[].loc)",
+}
+
+
+def errors(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """``responses=`` of a route: each error status it can answer, with the common error model."""
+    return {code: {"model": ErrorOut, "description": ERROR_MEANINGS[code]} for code in codes}
+
+
 class Health(BaseModel):
-    status: Literal["ok"]
+    status: Literal["ok", "degraded"]
+    reasons: list[str] = Field(default_factory=list, description="why the status is degraded")
     version: str
     schema_version: int
     link_connected: bool
@@ -22,6 +50,8 @@ class Health(BaseModel):
     interrupted_jobs_at_start: int
     readiness: dict[str, str] | None = Field(None, description="per capability: 'ready' or why not (e.g. 'waiting for pack battery voltage')")
     vehicle: dict[str, Any] | None = Field(None, description="the vehicle description in use: name, source (given, default, deriving, provisional), notes")
+    foreign_systems: list[int] = Field(default_factory=list, description="other systems sending vehicle heartbeats "
+                                       "on our link (ignored, never tracked; details in /status link_trust)")
 
 
 class PackStatus(BaseModel):
@@ -61,6 +91,9 @@ class VehicleStatus(BaseModel):
     policy: str | None
     parameter_set: str | None
     failed: str | None = None
+    link_trust: dict[str, Any] = Field(default_factory=dict, description=(
+        "what the link refused to believe (Link.trust_report): foreign_systems [{system, component, heartbeats, "
+        "first_seen_s, last_seen_s}], time_rejected, gated values by field, bad_data; available: false without a link"))
     model_config = ConfigDict(extra="allow")
 
 
@@ -71,7 +104,7 @@ class FaultIn(BaseModel):
     motor: str = Field(..., min_length=1, max_length=64,
                        description="a motor of the vehicle description in use (/status motors; the paper's: fwd, aft)")
     magnitude: float = Field(..., ge=0.0, le=1.0, description="fraction of the motor's power lost")
-    note: str = ""
+    note: str = Field("", max_length=MAX_NOTE_CHARS)
     replan: bool = Field(True, description="re-plan the mission with this fault")
 
 
@@ -120,7 +153,7 @@ class PlanOut(BaseModel):
 
 
 class Decision(BaseModel):
-    note: str = ""
+    note: str = Field("", max_length=MAX_NOTE_CHARS)
 
 
 class UploadOut(BaseModel):
@@ -157,9 +190,10 @@ class ParameterSetImport(BaseModel):
 class FlightRef(BaseModel):
     """One flight: an uploaded file (``POST /files``) or a recorded tlog from the index."""
 
-    file_id: str | None = None
-    tlog_id: int | None = None
-    path: str | None = Field(None, description="a server-side path (only under the data directory or fixtures)")
+    file_id: str | None = Field(None, min_length=1, max_length=64)
+    tlog_id: int | None = Field(None, ge=1, le=SQLITE_INT_MAX)
+    path: str | None = Field(None, min_length=1, max_length=4096, pattern=r"^[^\x00]*$",
+                             description="a server-side path (only under the data directory or fixtures)")
 
     @model_validator(mode="after")
     def _one(self) -> "FlightRef":
@@ -178,8 +212,8 @@ class FitJobIn(BaseModel):
     component: Literal["battery", "motor"] = "battery"
     packs: list[PackName] = Field(default_factory=lambda: list(PACK_NAMES), min_length=1)
     flights: FitFlights
-    base_set: str = Field("paper_si", description="parameter set the fitted values are merged into")
-    save_as: str | None = Field(None, pattern=r"^[A-Za-z0-9_.\-]+$",
+    base_set: str = Field("paper_si", max_length=128, description="parameter set the fitted values are merged into")
+    save_as: str | None = Field(None, min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.\-]+$",
                                 description="store the result under this name (a new one, unless overwrite)")
     overwrite: bool = Field(False, description="save_as may replace an existing user set (never a built-in or the active set)")
     settings: dict[str, Any] = Field(default_factory=dict, description="fitter settings: search {starts, seed, sa_generations, ...}, cleaning {...}, "

@@ -290,10 +290,27 @@ class Store:
                                    (plan_id, status, _dumps(body), self._clock()))
             return int(cur.lastrowid)
 
+    #: an upload whose transfer began and whose outcome is not written yet (see begin_upload)
+    UPLOAD_INTENT = "intent"
+
+    def begin_upload(self, plan_id: int | None, body: dict) -> int:
+        """Record an upload's intent (plan, items, time) before the transfer starts, so a crash
+        mid-transfer leaves a record to recover at the next start; :meth:`finish_upload` ends it."""
+        return self.add_upload(plan_id, self.UPLOAD_INTENT, body)
+
+    def finish_upload(self, upload_id: int, status: str, body: dict) -> None:
+        """An upload's outcome: its status and the full body (replacing the intent's)."""
+        with self._lock:
+            self._db.execute("UPDATE uploads SET status=?, body=? WHERE id=?", (status, _dumps(body), upload_id))
+
+    def unfinished_uploads(self) -> list[dict]:
+        """Intents without an outcome: the service stopped during their transfer."""
+        rows = self._db.execute("SELECT * FROM uploads WHERE status=? ORDER BY id", (self.UPLOAD_INTENT,)).fetchall()
+        return [_upload_row(r) for r in rows]
+
     def uploads(self, limit: int = 100) -> list[dict]:
         rows = self._db.execute("SELECT * FROM uploads ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
-        return [{"id": r["id"], "plan_id": r["plan_id"], "status": r["status"], "created_at": r["created_at"],
-                 **json.loads(r["body"])} for r in rows]
+        return [_upload_row(r) for r in rows]
 
     # --- files and tlogs -----------------------------------------------------------------------
 
@@ -347,6 +364,11 @@ def _job_row(r: sqlite3.Row) -> dict:
     return {"id": r["id"], "kind": r["kind"], "status": r["status"], "progress": r["progress"], "stage": r["stage"],
             "request": json.loads(r["request"]), "result": json.loads(r["result"]) if r["result"] else None,
             "error": r["error"], "created_at": r["created_at"], "updated_at": r["updated_at"]}
+
+
+def _upload_row(r: sqlite3.Row) -> dict:
+    return {"id": r["id"], "plan_id": r["plan_id"], "status": r["status"], "created_at": r["created_at"],
+            **json.loads(r["body"])}
 
 
 def _plan_row(r: sqlite3.Row) -> dict:

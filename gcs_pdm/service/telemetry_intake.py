@@ -6,6 +6,8 @@ message time.
 * the telemetry thread (:meth:`TelemetryIntake._run`) feeds the estimator and the diagnoser and
   updates the live state. It never plans, uploads or fits, so telemetry is never held up. The
   filters are not thread-safe: other threads hand work over with :meth:`call_soon`;
+* it watches the link: after ``link_lost_after_s`` without a heartbeat from the tracked vehicle the
+  link is lost (live state, event, predictions marked stale) until the vehicle is heard again;
 * once a second of message time it publishes the estimate and calls ``on_tick`` (the live loop's
   fault and deviation checks); every ``PREDICT_PERIOD_S`` it starts a time-to-cut-off prediction
   on its own worker (a long plan must not freeze the status page's numbers).
@@ -16,16 +18,23 @@ import logging
 import math
 import queue
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusTextFrame
 from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
 from gcs_pdm.service import adapters
+from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
 
 log = logging.getLogger(__name__)
 
 STATUS_PERIOD_S = 1.0
+#: the messages that tell when the vehicle's mission must be read again (mavlink.mission_watch)
+MISSION_WATCH_TYPES = frozenset({"HEARTBEAT", "HOME_POSITION", "MISSION_CURRENT", "MISSION_ACK", "MISSION_CHANGED",
+                                 "MISSION_COUNT"})
+#: wall seconds between two checks of the vehicle's silence
+LINK_CHECK_PERIOD_S = 0.2
 PREDICT_PERIOD_S = 10.0
 #: below this airspeed the vehicle is on the ground: no flight load to extrapolate
 FLYING_AIRSPEED_MPS = 5.0
@@ -53,15 +62,25 @@ class TelemetryIntake:
         self.position = (math.nan, math.nan, math.nan)  # lat, lon, altitude above home
         self.ground_alt_amsl: float | None = None
         self._airdata: tuple[float, float] | None = None  # airspeed, climb rate
+        #: the vehicle has been silent too long (see check_link); why, for the refusals and /health
+        self.link_lost = False
+        self.link_lost_reason: str | None = None
+        self._last_link_check = -math.inf
         # wired by the live loop
         self.on_reached: Callable[[int, float], None] = lambda seq, t: None
         self.on_tick: Callable[[float], None] = lambda t: None
+        self.on_link_restored: Callable[[], None] = lambda: None
+        self.on_message: Callable[[object, float], None] = lambda msg, t: None
+        self._messages = None  # the link's subscription to MISSION_WATCH_TYPES
         self.motor_faults: Callable[[], list[MotorFault]] = lambda: []
 
     # --- lifecycle -------------------------------------------------------------------------------
 
     def start(self) -> None:
         self.link.add_frame_listener(self.on_frame)
+        subscribe = getattr(self.link, "subscribe", None)
+        if subscribe is not None:
+            self._messages = subscribe(MISSION_WATCH_TYPES, maxsize=1000)
         self._thread = threading.Thread(target=self._run, name="telemetry", daemon=True)
         self._thread.start()
 
@@ -69,6 +88,8 @@ class TelemetryIntake:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
+        if self._messages is not None:
+            self._messages.close()
         self._predictor.shutdown(wait=True, cancel_futures=True)
 
     # --- threads ---------------------------------------------------------------------------------
@@ -81,8 +102,15 @@ class TelemetryIntake:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            if time.monotonic() - self._last_link_check >= LINK_CHECK_PERIOD_S:
+                self._last_link_check = time.monotonic()
+                try:
+                    self.check_link()
+                except Exception:  # noqa: BLE001 - the check must not stop the loop
+                    log.exception("link check failed")
+            self._pass_messages()
             try:
-                frame = self._frames.get(timeout=0.2)
+                frame = self._frames.get(timeout=LINK_CHECK_PERIOD_S)
             except queue.Empty:
                 continue
             try:
@@ -139,7 +167,7 @@ class TelemetryIntake:
             self._last_status_s = t
             self._publish_estimate()
             self.on_tick(t)
-            if t - self._last_predict_s >= PREDICT_PERIOD_S:
+            if t - self._last_predict_s >= PREDICT_PERIOD_S and not self.link_lost:
                 self._last_predict_s = t
                 self._predict(t)
 
@@ -153,9 +181,71 @@ class TelemetryIntake:
             for i, n in enumerate(self.estimator.motor_names):
                 st.update_nested("motors", n, temperature_c=float(est.motor_temp_c[i]),
                                  temperature_sd=float(est.motor_temp_sd[i]))
-        st.update(link={"connected": True, "received": self.link.received, "frames": self.frames_seen,
+        st.update(link={"connected": not self.link_lost, "state": LINK_LOST if self.link_lost else LINK_UP,
+                        "received": self.link.received, "frames": self.frames_seen,
                         "frames_dropped": self.frames_dropped,
                         "vehicle": [self.link.target_system, self.link.target_component]})
+
+    def _pass_messages(self) -> None:
+        """The tracked vehicle's mission-related messages to ``on_message``, at the latest message
+        time (these messages carry no timestamp of their own). Other systems' are not our vehicle's."""
+        if self._messages is None:
+            return
+        while True:
+            msg = self._messages.get(timeout=0)
+            if msg is None:
+                return
+            if (msg.get_srcSystem(), msg.get_srcComponent()) != (self.link.target_system, self.link.target_component):
+                continue
+            try:
+                self.on_message(msg, self.time_s if self.time_s is not None else 0.0)
+            except Exception:  # noqa: BLE001 - one odd message must not stop the loop
+                log.exception("message %s could not be watched", msg.get_type())
+
+    # --- the link's state ------------------------------------------------------------------------
+
+    def check_link(self) -> None:
+        """Declare the link lost after ``link_lost_after_s`` without a heartbeat from the tracked
+        vehicle, and restored when one arrives again.
+
+        This one check runs on receive (monotonic wall) time, not message time: message time comes
+        from the vehicle's own timestamps and simply stops while the vehicle is silent, so silence
+        cannot be measured in it. Before the vehicle was ever heard the link is waiting, not lost."""
+        silent_fn = getattr(self.link, "vehicle_silent_s", None)
+        silent = silent_fn() if silent_fn is not None else None
+        if silent is None:
+            return
+        limit = self.service.config.link_lost_after_s
+        lost = silent > limit
+        st = self.service.state
+        if lost and self.link_lost:
+            st.update(link={"silent_s": silent})
+            return
+        if lost == self.link_lost:
+            return
+        self.link_lost = lost
+        vehicle = [self.link.target_system, self.link.target_component]
+        if lost:
+            self.link_lost_reason = (f"no heartbeat from vehicle {vehicle[0]} for {silent:.1f} s "
+                                     f"(link_lost_after_s = {limit:g})")
+            log.warning("link lost: %s", self.link_lost_reason)
+            st.update(link={"connected": False, "state": LINK_LOST, "reason": self.link_lost_reason,
+                            "silent_s": silent, "lost_at_time_s": self.time_s})
+            # No count-down for a vehicle we cannot hear: its load and state since are unknown.
+            for n in PACK_NAMES:
+                st.update_nested("packs", n, time_to_cutoff_s=None, time_to_cutoff_sd=None)
+            st.update(prediction={"stale": True, "reason": "link lost: " + self.link_lost_reason,
+                                  "time_s": self.time_s})
+            self.service.events.publish("link", status="lost", reason=self.link_lost_reason, vehicle=vehicle,
+                                        time_s=self.time_s, silent_s=silent)
+        else:
+            log.warning("link restored: vehicle %s heard again", vehicle[0])
+            reason, self.link_lost_reason = self.link_lost_reason, None
+            st.update(link={"connected": True, "state": LINK_UP, "reason": None, "silent_s": silent})
+            self._last_predict_s = -math.inf  # a fresh prediction at the next status tick
+            self.service.events.publish("link", status="restored", vehicle=vehicle, time_s=self.time_s,
+                                        was=reason)
+            self.on_link_restored()
 
     def _predict(self, t: float) -> None:
         """Time to each pack's cut-off at the present load (Monte Carlo), off the telemetry thread."""
@@ -179,6 +269,8 @@ class TelemetryIntake:
         def run() -> None:
             try:
                 pred = job()
+                if self.link_lost:  # the vehicle went silent meanwhile: these numbers are stale already
+                    return
                 st = self.service.state
                 per_pack = getattr(pred, "pack_time_to_cutoff_s", None)
                 if per_pack is None:

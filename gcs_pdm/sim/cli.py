@@ -72,7 +72,8 @@ def build_config(args: argparse.Namespace):
 
     desc = None
     if getattr(args, "vehicle", None):
-        from gcs_pdm.vehicle.description import VehicleError, resolve
+        from gcs_pdm.vehicle.description import VehicleError
+        from gcs_pdm.vehicle.presets import resolve
 
         try:
             desc = resolve(args.vehicle)

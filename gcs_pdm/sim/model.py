@@ -5,7 +5,7 @@
 clocks: the MAVLink shell (``gcs_pdm.sim.vehicle``) and the offline recorder (``gcs_pdm.sim.record``)
 drive it, and tests fly whole missions with it directly.
 
-Truth: the four packs and two motors run through ``kernel.simulate_powertrain`` one tick at a time,
+Truth: the four packs and two motors run through ``topology.simulate_powertrain`` one tick at a time,
 carrying ``final_pack_state``/``final_motor_temp`` forward, with the hidden parameter set of
 ``gcs_pdm.sim.truth`` (optionally degraded) and the motor faults that have triggered so far. The
 kernel's limits decide a failure; the aircraft then loses its propulsion and glides to the ground.
@@ -27,7 +27,7 @@ import numpy as np
 from gcs_pdm.geo import enu_from_geodetic, geodetic_from_enu
 from gcs_pdm.missions import (MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF,
                               MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT, MissionItem)
-from gcs_pdm.models import kernel
+from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, Limits, air_density, ambient_temperature, shaft_power,
                                        shaft_rpm)
@@ -646,7 +646,7 @@ class VehicleModel:
             self.motor_current = np.zeros(n_motors)
             return
         if self._inputs is None:
-            run = kernel.simulate_powertrain(
+            run = topology.simulate_powertrain(
                 self._pack_matrix[None], self._motor_vector[None], self.pack_state[None], self.motor_temp[None],
                 np.array([dt]), np.array([power]), amb, self.fault[None], limits=c.limits.as_tuple(),
                 fault_drag=c.fault_drag, record=True, stop_on_failure=False)

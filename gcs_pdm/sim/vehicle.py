@@ -8,7 +8,10 @@
 
 Time: ``speedup=1`` is real time, ``speedup=N`` runs the simulated clock N times faster, and
 ``speedup=None`` is lock-step — as fast as the CPU allows while the vehicle is armed, real time
-while it waits disarmed on the ground (so a GCS has time to connect and upload). Telemetry and
+while it waits disarmed on the ground (so a GCS has time to connect and upload). ``hold`` (a
+callable) stops the simulated clock while it returns True: the vehicle still answers the mission
+protocol but neither flies nor sends telemetry, so a test can make "when does the GCS's answer
+arrive in flight time" independent of how loaded the machine is. Telemetry and
 every ``time_boot_ms`` carry simulated time; the mission protocol's timeouts run on wall time,
 as the GCS's do.
 
@@ -43,13 +46,15 @@ class SimulatedVehicle:
 
     def __init__(self, config: SimConfig, url: str = "udpout:127.0.0.1:14550", *, speedup: float | None = 1.0,
                  telemetry: TelemetryConfig | None = None, tlog_path: str | Path | None = None,
-                 timeouts: ServerTimeouts | None = None, idle_speedup: float = 1.0):
+                 timeouts: ServerTimeouts | None = None, idle_speedup: float = 1.0,
+                 hold: Callable[[], bool] | None = None):
         if speedup is not None and not speedup > 0:
             raise ValueError(f"speedup: must be > 0 (or None for lock-step), got {speedup!r}")
         self.config = config
         self.url = url
         self.speedup = speedup
         self.idle_speedup = idle_speedup
+        self.hold = hold
         self.core = VehicleCore(config, telemetry, timeouts)
         warm_up_kernel(config)
         self.tlog_path = tlog_path
@@ -225,7 +230,10 @@ class SimulatedVehicle:
             lockstep_now = self.speedup is None and core.model.armed
             now = time.monotonic()
             ticks = 0
-            if lockstep_now:
+            if self.hold is not None and self.hold():
+                wall_ref, sim_ref = now, core.time_s  # the clock resumes from here, no catching up
+                lockstep_now = False
+            elif lockstep_now:
                 while ticks < MAX_TICKS_PER_LOOP and core.model.armed:
                     self._send(core.tick())
                     ticks += 1

@@ -5,7 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from gcs_pdm.vehicle.description import VehicleError, dumps, load, resolve
+from gcs_pdm.vehicle.description import VehicleError, dumps, load
+from gcs_pdm.vehicle.presets import resolve
 from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 

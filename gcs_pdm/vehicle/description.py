@@ -312,16 +312,3 @@ def dumps(desc: VehicleDescription, fmt: str = "toml") -> str:
     import tomli_w
 
     return tomli_w.dumps(data)
-
-
-def resolve(spec: str | Path | VehicleDescription) -> VehicleDescription:
-    """``--vehicle FILE|PRESET``: a preset's name, or a description file."""
-    if isinstance(spec, VehicleDescription):
-        return spec
-    from gcs_pdm.vehicle.presets import PRESETS
-
-    if str(spec) in PRESETS:
-        return PRESETS[str(spec)]
-    if Path(spec).exists():
-        return load(spec)
-    raise VehicleError(f"--vehicle {spec}: neither a preset ({', '.join(PRESETS)}) nor a file")

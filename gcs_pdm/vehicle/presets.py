@@ -7,9 +7,11 @@ this). The others are typical vehicles whose packs use the chemistry default sca
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 from gcs_pdm.models.params import PACK_NAMES, default_set
 from gcs_pdm.models.powertrain import EDGE_540, Limits
-from gcs_pdm.vehicle.description import VehicleDescription, from_dict
+from gcs_pdm.vehicle.description import VehicleDescription, VehicleError, from_dict, load
 
 
 def _edge540() -> dict:
@@ -107,6 +109,17 @@ def _build() -> dict[str, VehicleDescription]:
 
 PRESETS: dict[str, VehicleDescription] = _build()
 DEFAULT_PRESET = "edge540"
+
+
+def resolve(spec: str | Path | VehicleDescription) -> VehicleDescription:
+    """``--vehicle FILE|PRESET``: a preset's name, or a description file."""
+    if isinstance(spec, VehicleDescription):
+        return spec
+    if str(spec) in PRESETS:
+        return PRESETS[str(spec)]
+    if Path(spec).exists():
+        return load(spec)
+    raise VehicleError(f"--vehicle {spec}: neither a preset ({', '.join(PRESETS)}) nor a file")
 
 
 def is_paper_aircraft(desc) -> bool:

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.vehicle.description import VehicleDescription, VehicleError, resolve
-from gcs_pdm.vehicle.presets import PRESETS, is_paper_aircraft
+from gcs_pdm.vehicle.description import VehicleDescription, VehicleError
+from gcs_pdm.vehicle.presets import PRESETS, is_paper_aircraft, resolve
 
 #: a pack is "drawing" (its time to cut-off is worth predicting) from this current, A
 DRAWING_CURRENT_A = 1.0

@@ -7,9 +7,18 @@ import secrets
 from typing import Annotated, Any
 
 from fastapi import Depends, HTTPException, Request
+from fastapi import Path as PathParam
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from gcs_pdm.service.runtime import Service
+from gcs_pdm.service.schemas import SQLITE_INT_MAX
+
+
+#: a database row id in a path (plans, faults, uploads); out of range is a 422 naming the parameter
+RowId = Annotated[int, PathParam(ge=1, le=SQLITE_INT_MAX, description="row id, 1 .. 2^63-1")]
+
+#: a name or id string in a path (jobs, parameter sets, plots): bounded, so no 5 kB key reaches the store
+PathName = Annotated[str, PathParam(min_length=1, max_length=128)]
 
 
 def get_service(request: Request) -> Service:

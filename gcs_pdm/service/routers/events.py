@@ -7,23 +7,25 @@ import json
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import StreamingResponse
 
-from gcs_pdm.service.routers.deps import ServiceDep, finite
+from gcs_pdm.service import schemas as S
+from gcs_pdm.service.routers.deps import SQLITE_INT_MAX, ServiceDep, finite
 
 router = APIRouter(prefix="/events")
 
 
-@router.get("/poll")
-def events_poll(service: ServiceDep, since: int = Query(0, ge=0)) -> list[dict]:
+@router.get("/poll", responses=S.errors(422))
+def events_poll(service: ServiceDep, since: int = Query(0, ge=0, le=SQLITE_INT_MAX)) -> list[dict]:
     return [finite(e.to_dict()) for e in service.events.since(since)]
 
 
-@router.get("")
-async def events(request: Request, service: ServiceDep, since: int | None = Query(None, ge=0)):
+@router.get("", responses={200: {"content": {"text/event-stream": {}}}, **S.errors(422)})
+async def events(request: Request, service: ServiceDep, since: int | None = Query(None, ge=0, le=SQLITE_INT_MAX)):
     """Server-Sent Events: one ``event: <kind>`` per fault, plan, upload, job change, status tick."""
     start = since
     if start is None:
         header = request.headers.get("last-event-id", "").strip()
-        start = int(header) if header.isdigit() else service.events.last_seq
+        # ASCII digits only ("²".isdigit() is true but no int), and no more than a row id can be
+        start = int(header) if header.isascii() and header.isdigit() and len(header) < 19 else service.events.last_seq
 
     async def stream():
         seq = start

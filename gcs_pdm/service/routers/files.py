@@ -1,35 +1,38 @@
-"""``/files`` (uploaded flight files) and ``/tlogs`` (the recorded and uploaded tlogs)."""
+"""``/files`` (uploaded flight files) and ``/tlogs`` (the recorded and uploaded tlogs).
+
+An upload is streamed to disk and checked by gcs_pdm.service.uploads (size, rows, content) before
+it is kept; the limits are the service's configuration (``max_upload_bytes``, ``max_upload_rows``,
+``tlog_min_mavlink_fraction``)."""
 from __future__ import annotations
 
 import asyncio
-from pathlib import Path
 
 from fastapi import APIRouter, File, HTTPException, UploadFile
 
 from gcs_pdm.service import schemas as S
+from gcs_pdm.service import uploads
 from gcs_pdm.service.routers.deps import AUTH, ServiceDep, unprocessable
 
 router = APIRouter()
 
-UPLOAD_KINDS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet", ".tlog": "tlog"}
-MAX_UPLOAD_BYTES = 512 * 1024 * 1024
 
-
-@router.post("/files", response_model=S.FileOut, status_code=201, dependencies=AUTH)
+@router.post("/files", response_model=S.FileOut, status_code=201, dependencies=AUTH,
+             responses=S.errors(401, 413, 422))
 async def upload_file(service: ServiceDep, file: UploadFile = File(...)):
-    name = Path(file.filename or "").name
-    kind = UPLOAD_KINDS.get(Path(name).suffix.lower())
-    if not name or kind is None:
-        raise unprocessable("file", f"expected a .csv, .parquet or .tlog file, got {name!r}")
-    data = await file.read(MAX_UPLOAD_BYTES + 1)
-    if len(data) > MAX_UPLOAD_BYTES:
-        raise HTTPException(413, detail=f"file: larger than {MAX_UPLOAD_BYTES} bytes")
-    if not data:
-        raise unprocessable("file", "empty file")
-    problem = await asyncio.to_thread(service.check_upload, name, kind, data)
-    if problem:
-        raise unprocessable("file", problem)
-    file_id = service.save_upload(name, kind, data)
+    received = None
+    try:
+        name, kind = uploads.upload_kind(file.filename)
+        received = await uploads.receive(file, service.incoming_dir, service.config.max_upload_bytes)
+        await asyncio.to_thread(uploads.check, received, name, kind, service.upload_limits)
+        file_id = service.save_upload(name, kind, received)
+    except BaseException as exc:
+        if received is not None:
+            received.discard()  # nothing refused or half-received stays on disk
+        if not isinstance(exc, uploads.UploadRefused):
+            raise
+        if exc.status == 422:
+            raise unprocessable("file", exc.message) from None
+        raise HTTPException(exc.status, detail=f"file: {exc.message}") from None
     return service.store.file(file_id)
 
 

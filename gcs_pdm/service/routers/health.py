@@ -6,22 +6,27 @@ from fastapi import APIRouter
 import gcs_pdm
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite
+from gcs_pdm.service.status_report import foreign_system_ids, link_trust
 
 router = APIRouter()
 
 
 @router.get("/health", response_model=S.Health)
 def health(service: ServiceDep):
-    return S.Health(status="ok", version=gcs_pdm.__version__, schema_version=service.store.schema_version,
-                    link_connected=bool(service.state.get("link")["connected"]), policy=service.policy,
+    link = service.state.get("link")
+    reasons = [f"link lost: {link.get('reason')}"] if link.get("state") == "lost" else []
+    return S.Health(status="degraded" if reasons else "ok", reasons=reasons, version=gcs_pdm.__version__,
+                    schema_version=service.store.schema_version,
+                    link_connected=bool(link["connected"]), policy=service.policy,
                     active_parameter_set=service.store.active_parameter_set_name(),
                     interrupted_jobs_at_start=service.store.interrupted_at_open,
+                    foreign_systems=foreign_system_ids(service),
                     readiness=service.state.get("readiness"), vehicle=service.state.get("vehicle"))
 
 
 @router.get("/status", response_model=S.VehicleStatus)
 def status(service: ServiceDep):
-    return finite(service.state.snapshot())
+    return finite({**service.state.snapshot(), "link_trust": link_trust(service)})
 
 
 @router.get("/policy", response_model=S.PolicyIn)
@@ -29,7 +34,7 @@ def get_policy(service: ServiceDep):
     return S.PolicyIn(policy=service.policy)
 
 
-@router.put("/policy", response_model=S.PolicyIn, dependencies=AUTH)
+@router.put("/policy", response_model=S.PolicyIn, dependencies=AUTH, responses=S.errors(401, 422))
 def set_policy(body: S.PolicyIn, service: ServiceDep):
     service.set_policy(body.policy)
     return S.PolicyIn(policy=service.policy)

@@ -6,13 +6,13 @@ from fastapi.responses import FileResponse
 
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.fit_jobs import check_save_as, check_settings
-from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite, unprocessable
+from gcs_pdm.service.routers.deps import AUTH, PathName, ServiceDep, finite, unprocessable
 from gcs_pdm.service.storage import NotFound
 
 router = APIRouter(prefix="/jobs")
 
 
-@router.post("/fit", response_model=S.JobCreated, status_code=202, dependencies=AUTH)
+@router.post("/fit", response_model=S.JobCreated, status_code=202, dependencies=AUTH, responses=S.errors(401, 422))
 def fit(body: S.FitJobIn, service: ServiceDep):
     try:
         service.store.parameter_set(body.base_set)
@@ -33,31 +33,32 @@ def fit(body: S.FitJobIn, service: ServiceDep):
     return S.JobCreated(id=job_id, status="queued")
 
 
-@router.get("", response_model=list[S.JobOut])
+@router.get("", response_model=list[S.JobOut], responses=S.errors(422))
 def jobs(service: ServiceDep, limit: int = Query(100, ge=1, le=1000)):
     return finite(service.store.jobs(limit))
 
 
-@router.get("/{job_id}", response_model=S.JobOut)
-def job(job_id: str, service: ServiceDep):
+@router.get("/{job_id}", response_model=S.JobOut, responses=S.errors(404, 422))
+def job(job_id: PathName, service: ServiceDep):
     return finite(service.store.job(job_id))
 
 
-@router.post("/{job_id}/cancel", response_model=S.JobOut, dependencies=AUTH)
-def cancel(job_id: str, service: ServiceDep):
+@router.post("/{job_id}/cancel", response_model=S.JobOut, dependencies=AUTH, responses=S.errors(401, 404, 409, 422))
+def cancel(job_id: PathName, service: ServiceDep):
     return finite(service.runner.cancel(job_id))
 
 
-@router.get("/{job_id}/result")
-def job_result(job_id: str, service: ServiceDep) -> dict:
+@router.get("/{job_id}/result", responses=S.errors(404, 409, 422))
+def job_result(job_id: PathName, service: ServiceDep) -> dict:
     job = service.store.job(job_id)
     if job["status"] != "succeeded":
         raise HTTPException(409, detail=f"job {job_id} is {job['status']}, no result")
     return finite(job["result"])
 
 
-@router.get("/{job_id}/plots/{name}", response_class=FileResponse)
-def job_plot(job_id: str, name: str, service: ServiceDep):
+@router.get("/{job_id}/plots/{name}", response_class=FileResponse,
+            responses={200: {"content": {"image/png": {}}}, **S.errors(404, 422)})
+def job_plot(job_id: PathName, name: PathName, service: ServiceDep):
     job = service.store.job(job_id)
     plots = (job["result"] or {}).get("plots", {})
     if name not in plots:

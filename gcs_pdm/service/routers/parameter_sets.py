@@ -5,7 +5,7 @@ from fastapi import APIRouter
 
 from gcs_pdm.models.params import ParameterError, ParameterSet
 from gcs_pdm.service import schemas as S
-from gcs_pdm.service.routers.deps import AUTH, ServiceDep, unprocessable
+from gcs_pdm.service.routers.deps import AUTH, PathName, ServiceDep, unprocessable
 
 router = APIRouter(prefix="/parameter-sets")
 
@@ -15,13 +15,14 @@ def parameter_sets(service: ServiceDep):
     return service.store.parameter_sets()
 
 
-@router.get("/{name}")
-def parameter_set(name: str, service: ServiceDep) -> dict:
+@router.get("/{name}", responses=S.errors(404, 422))
+def parameter_set(name: PathName, service: ServiceDep) -> dict:
     """The full set as JSON (the export format; ``POST /parameter-sets`` imports it)."""
     return service.store.parameter_set(name).to_dict()
 
 
-@router.post("", response_model=S.ParameterSetSummary, status_code=201, dependencies=AUTH)
+@router.post("", response_model=S.ParameterSetSummary, status_code=201, dependencies=AUTH,
+             responses=S.errors(401, 404, 409, 422))
 def import_parameter_set(body: S.ParameterSetImport, service: ServiceDep):
     data = dict(body.parameter_set)
     if body.name:
@@ -38,8 +39,9 @@ def import_parameter_set(body: S.ParameterSetImport, service: ServiceDep):
     return next(p for p in service.store.parameter_sets() if p["name"] == ps.name)
 
 
-@router.post("/{name}/activate", response_model=S.ParameterSetSummary, dependencies=AUTH)
-def activate(name: str, service: ServiceDep):
+@router.post("/{name}/activate", response_model=S.ParameterSetSummary, dependencies=AUTH,
+             responses=S.errors(401, 404, 409, 422))
+def activate(name: PathName, service: ServiceDep):
     service.activate_parameter_set(name)
     return next(p for p in service.store.parameter_sets() if p["name"] == name)
 

@@ -1,0 +1,80 @@
+"""What the link refused to believe, for ``/status`` and ``/health``, and the operator's alert when
+another system sends vehicle heartbeats on our link.
+
+The link (gcs_pdm.mavlink.connection.Link) already counts everything it gates: foreign systems,
+rejected timestamps, values outside the physical envelope, undecodable packets. This module only
+reads that report (``Link.trust_report()``) for the HTTP answers and turns each newly heard foreign
+system into one ``foreign_system`` event; the link logs its own warning when it first hears one.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+
+log = logging.getLogger(__name__)
+
+#: how often the watcher looks for newly heard foreign systems (wall seconds; the link records them)
+WATCH_PERIOD_S = 0.5
+
+
+def _link(service):
+    loop = service.loop
+    return getattr(loop, "link", None) if loop is not None else None
+
+
+def link_trust(service) -> dict:
+    """The link's trust report for ``/status`` (``link_trust``): foreign systems with their heartbeat
+    counts, rejected timestamps, gated values; ``available: false`` and why when there is no link."""
+    link = _link(service)
+    if link is None or not hasattr(link, "trust_report"):
+        return {"available": False, "reason": "no MAVLink link"}
+    return {"available": True, **link.trust_report()}
+
+
+def foreign_system_ids(service) -> list[int]:
+    """Systems other than the tracked vehicle that sent vehicle heartbeats (for ``/health``)."""
+    link = _link(service)
+    return sorted(f.system for f in getattr(link, "foreign_systems", ()) or ())
+
+
+class ForeignSystemWatcher:
+    """Publishes one ``foreign_system`` event per system the link reports as foreign (a second
+    vehicle, or someone impersonating one), on its own thread, so it is told at once even when
+    nobody polls ``/status`` and the vehicle itself is silent."""
+
+    def __init__(self, service, link, period_s: float = WATCH_PERIOD_S):
+        self.service = service
+        self.link = link
+        self.period_s = period_s
+        self.reported: set[int] = set()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="foreign-systems", daemon=True)
+
+    def start(self) -> "ForeignSystemWatcher":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+
+    def check(self) -> list[int]:
+        """Report the foreign systems not reported yet; their ids."""
+        new = []
+        for foreign in list(getattr(self.link, "foreign_systems", ()) or ()):
+            if foreign.system in self.reported:
+                continue
+            self.reported.add(foreign.system)
+            new.append(foreign.system)
+            self.service.events.publish("foreign_system", **foreign.to_dict(),
+                                        tracked_system=getattr(self.link, "target_system", None),
+                                        note="sends vehicle heartbeats on our link; ignored, never tracked")
+        return new
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            try:
+                self.check()
+            except Exception:  # noqa: BLE001 - the watcher must outlive a bad read; the link keeps counting
+                log.exception("foreign-system check failed")

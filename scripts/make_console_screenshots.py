@@ -1,0 +1,84 @@
+"""Screenshots of the operator's console in its main states, for docs/console.md.
+
+Runs ``gcs-pdm serve`` (advise policy) fed by ``gcs-pdm sim`` with the demo's motor fault on free
+loopback ports, opens the console in the system's Chromium, and saves into docs/console/:
+the proposal waiting for the operator, the confirmed upload, the stale link after the vehicle goes
+silent, Swagger UI served offline, and a finished fit job. About a minute:
+
+    python scripts/make_console_screenshots.py [--out docs/console] [--speedup 40]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests" / "browser"))
+sys.path.insert(0, str(REPO))
+
+from console_harness import RequestLog, Service, Sim, launch, motor_fit_request  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default=str(REPO / "docs" / "console"))
+    ap.add_argument("--speedup", type=float, default=40.0)
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    from playwright.sync_api import expect, sync_playwright
+
+    shots: list[str] = []
+    with tempfile.TemporaryDirectory(prefix="gcs-pdm-shots-") as tmp, sync_playwright() as p:
+        service = Service(Path(tmp) / "svc").start()
+        sim = Sim(service, speedup=args.speedup).start()
+        browser = launch(p)
+        try:
+            page = browser.new_page(viewport={"width": 1400, "height": 1000})
+            requests = RequestLog(page)
+
+            def shot(name: str, full_page: bool = True) -> None:
+                path = out / name
+                page.screenshot(path=str(path), full_page=full_page)
+                shots.append(str(path.relative_to(REPO) if path.is_relative_to(REPO) else path))
+
+            page.goto(service.url + "/")
+            expect(page.locator("#map path.proposed-route")).to_have_count(1, timeout=120_000)
+            page.wait_for_timeout(2500)  # let the track and the plots gather a few more points
+            shot("1_fault_and_proposal.png")
+            plan = service.get("/missions/proposed")[0]
+            page.locator(f"#approve-{plan['id']}").click()
+            page.locator("#token-input").fill(service.token)
+            page.locator("#token-save").click()
+            expect(page.locator('.outcome[data-upload-status="confirmed"]')).to_have_count(1, timeout=60_000)
+            page.wait_for_timeout(4000)
+            shot("2_upload_confirmed.png")
+            sim.stop()
+            expect(page.locator('[data-banner="stale"], [data-banner="link-lost"]')).to_have_count(1, timeout=60_000)
+            shot("3_link_stale.png")
+            page.goto(service.url + "/docs")
+            expect(page.locator(".swagger-ui .info .title")).to_contain_text("gcs-pdm", timeout=20_000)
+            shot("4_api_docs_offline.png", full_page=False)
+            job = service.send("POST", "/jobs/fit", motor_fit_request("motor_from_learn_01"))["id"]
+            page.goto(service.url + "/")
+            expect(page.locator(f'[data-job="{job}"]')).to_have_attribute("data-status", "succeeded", timeout=120_000)
+            page.wait_for_timeout(1000)
+            path = out / "5_fit_job.png"
+            page.locator("#fits-panel").screenshot(path=str(path))
+            shots.append(str(path.relative_to(REPO) if path.is_relative_to(REPO) else path))
+            foreign = requests.foreign(service.host)
+            if foreign:
+                raise SystemExit(f"the console asked other hosts: {foreign}")
+        finally:
+            browser.close()
+            sim.stop()
+            service.stop()
+    print(json.dumps({"screenshots": shots}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

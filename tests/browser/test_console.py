@@ -1,0 +1,189 @@
+"""The operator's console in a real Chromium, against ``gcs-pdm serve`` fed by ``gcs-pdm sim``.
+
+A motor fault under the ``advise`` policy: the fault banner appears, the proposed route is drawn
+on the map, Approve (with the token typed into the page) uploads it and the page shows it
+confirmed; when the vehicle stops sending, a stale/link-lost banner appears within seconds. The
+page, and Swagger UI at /docs, ask nothing of any host but the service.
+"""
+from __future__ import annotations
+
+import time
+
+import pytest
+from playwright.sync_api import expect, sync_playwright
+
+from gcs_pdm.service.console_routes import TILE_URL_ENV
+from console_harness import RequestLog, Service, Sim, launch, motor_fit_request
+
+pytestmark = pytest.mark.slow
+
+
+def service_time_settled(service, quiet_s: float = 1.0, limit_s: float = 60.0) -> float:
+    """Wall time (monotonic) at which the service's message time last advanced."""
+    start = time.monotonic()
+    last, changed = service.get("/status")["time_s"], start
+    while time.monotonic() - changed < quiet_s:
+        assert time.monotonic() - start < limit_s, "the service's message time kept advancing without the vehicle"
+        time.sleep(0.1)
+        now = service.get("/status")["time_s"]
+        if now != last:
+            last, changed = now, time.monotonic()
+    return changed
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with sync_playwright() as p:
+        b = launch(p)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser):
+    ctx = browser.new_context(viewport={"width": 1400, "height": 1000})
+    pg = ctx.new_page()
+    errors: list[str] = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    yield pg
+    ctx.close()
+    assert not errors, f"JavaScript errors on the page: {errors}"
+
+
+@pytest.fixture
+def service(tmp_path):
+    svc = Service(tmp_path / "svc").start()
+    yield svc
+    svc.stop()
+
+
+@pytest.mark.timeout(180)
+def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
+    sim = Sim(service).start()
+    try:
+        requests = RequestLog(page)
+        page.goto(service.url + "/")
+        expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+        # the mission is drawn in the local frame (no tiles configured), home marked
+        expect(page.locator("#map path.current-route")).to_have_count(1, timeout=20_000)
+        expect(page.locator("#map-legend")).to_contain_text("local frame")
+        # one card per pack and per motor the service reports, with numbers once telemetry flows
+        status = service.get("/status")
+        expect(page.locator("#packs .card")).to_have_count(len(status["packs"]))
+        expect(page.locator("#motors .card")).to_have_count(len(status["motors"]))
+
+        # the diagnoser's fault becomes a banner
+        fault_banner = page.locator('[data-banner^="fault-"]')
+        expect(fault_banner).to_have_count(1, timeout=90_000)
+        expect(fault_banner).to_contain_text("motor power loss on aft")
+        # the proposal is drawn over the current mission, and compared with it
+        expect(page.locator("#map path.proposed-route")).to_have_count(1, timeout=60_000)
+        proposed = service.get("/missions/proposed")
+        assert proposed, "the service proposed nothing"
+        plan = proposed[0]
+        dropped = set(plan["previous_route"]) - set(plan["chosen"]["route"])
+        expect(page.locator("#map .wp-label.dropped")).to_have_count(len(dropped))
+        expect(page.locator("#map .wp-label.proposed")).to_have_count(len(plan["chosen"]["route"]))
+        card = page.locator(f'[data-plan="{plan["id"]}"]')
+        expect(card).to_contain_text("landing SoC")
+        expect(card).to_contain_text(f'{plan["chosen"]["reward"]:.1f}')
+        expect(card).to_contain_text("probability of failure")
+        # the motor card shows the lost health
+        expect(page.locator('[data-motor="aft"] h3')).to_contain_text("health 3")
+
+        # Approve: the page asks for the token once, then the upload is confirmed by read-back
+        page.locator(f"#approve-{plan['id']}").click()
+        expect(page.locator("#token-dialog")).to_be_visible()
+        page.locator("#token-input").fill(service.token)
+        page.locator("#token-save").click()
+        expect(page.locator(f'.outcome[data-upload-status="confirmed"]')).to_contain_text(
+            f"Plan {plan['id']}", timeout=45_000)
+        assert any(u["plan_id"] == plan["id"] and u["status"] == "confirmed" for u in service.get("/missions/uploads"))
+        expect(page.locator("#timeline")).to_contain_text(f"Upload of plan {plan['id']}: confirmed")
+        assert page.evaluate("sessionStorage.getItem('gcs-pdm-token')") == service.token
+
+        # the vehicle goes silent: a banner says so within seconds
+        expect(page.locator('[data-banner="stale"], [data-banner="link-lost"]')).to_have_count(0)
+        sim.stop()
+        # The service may still be working through datagrams that arrived before the stop (on a
+        # busy machine); the page can only know once the vehicle's message time stops advancing.
+        t_last = service_time_settled(service)
+        expect(page.locator('[data-banner="stale"], [data-banner="link-lost"]')).to_have_count(1, timeout=20_000)
+        took = time.monotonic() - t_last
+        assert took < 12.0, took
+        expect(page.locator("#conn")).not_to_have_attribute("data-state", "live")
+
+        assert requests.urls and not requests.foreign(service.host), requests.foreign(service.host)
+    finally:
+        sim.stop()
+
+
+@pytest.mark.timeout(120)
+def test_swagger_ui_offline_and_reconnect_after_restart(service, page, tmp_path):
+    requests = RequestLog(page)
+    page.goto(service.url + "/docs")
+    expect(page.locator(".swagger-ui .info .title")).to_contain_text("gcs-pdm", timeout=20_000)
+    expect(page.locator(".swagger-ui .opblock-summary-path").first).to_be_visible()
+    assert not requests.foreign(service.host), requests.foreign(service.host)
+
+    page.goto(service.url + "/")
+    expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+    expect(page.locator('[data-banner="no-telemetry"]')).to_contain_text("No telemetry yet")
+    first = page.evaluate("S.instance")
+    service.stop()
+    expect(page.locator('[data-banner="service"]')).to_have_count(1, timeout=10_000)
+    expect(page.locator("#conn")).to_have_attribute("data-state", "down")
+    # the restarted service has a tile server configured (its own host here: the test has no other)
+    tiles = f"{service.url}/console/vendor/leaflet/images/layers.png?z={{z}}&x={{x}}&y={{y}}"
+    again = Service(tmp_path / "svc2", http_port=service.http_port, extra_env={TILE_URL_ENV: tiles}).start()
+    try:
+        expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=20_000)
+        expect(page.locator('[data-banner="service"]')).to_have_count(0)
+        assert page.evaluate("S.instance") not in (None, first)
+        # the new service's events reach the page (its numbering began again)
+        again.send("PUT", "/policy", {"policy": "auto"})
+        expect(page.locator("#timeline")).to_contain_text("Policy set to auto", timeout=10_000)
+        # with a tile URL the map draws over tiles instead of the local frame
+        expect(page.locator("#map-legend")).to_contain_text("map tiles", timeout=10_000)
+        expect(page.locator("#map img.leaflet-tile-loaded").first).to_be_visible(timeout=10_000)
+        assert any("layers.png?z=" in u for u in requests.urls)
+    finally:
+        again.stop()
+    assert not requests.foreign(service.host), requests.foreign(service.host)
+
+
+@pytest.mark.timeout(150)
+def test_fit_jobs_progress_results_cancel_and_activate(service, page):
+    requests = RequestLog(page)
+    page.goto(service.url + "/")
+    expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+    done = service.send("POST", "/jobs/fit", motor_fit_request("console_motor"))["id"]
+    job = page.locator(f'[data-job="{done}"]')
+    expect(job).to_have_attribute("data-status", "succeeded", timeout=90_000)
+    expect(job).to_contain_text("saved as console_motor")
+    expect(job.locator("table.compare")).to_contain_text("RMSE learned")
+    plot = job.locator("img").first
+    expect(plot).to_be_visible()
+    assert page.evaluate("(img) => img.naturalWidth", plot.element_handle()) > 100
+    # progress ticks never reach the timeline, even with jobs shown
+    page.locator('#filters input[value="jobs"]').check()
+    expect(page.locator("#timeline")).to_contain_text("succeeded")
+    ticks = [e for e in service.get("/events/poll?since=0") if e["kind"] == "job" and e["data"].get("progress", 0) > 0]
+    assert ticks, "the fit reported no progress"
+    shown = page.locator('#timeline li[data-kind="job"]').count()
+    assert shown < len(ticks) + 3 and shown <= 4, (shown, len(ticks))
+
+    # cancel a long one from the page (the token is asked once)
+    slow = service.send("POST", "/jobs/fit", motor_fit_request("console_slow", starts=40))["id"]
+    cancel = page.locator(f'[data-job="{slow}"] button[data-cancel]')
+    expect(cancel).to_be_visible(timeout=20_000)
+    cancel.click()
+    page.locator("#token-input").fill(service.token)
+    page.locator("#token-save").click()
+    expect(page.locator(f'[data-job="{slow}"]')).to_have_attribute("data-status", "cancelled", timeout=60_000)
+
+    # activate the fitted set
+    page.locator('#paramsets button[data-activate="console_motor"]').click()
+    expect(page.locator('#paramsets [data-set="console_motor"]')).to_contain_text("active", timeout=10_000)
+    assert next(p for p in service.get("/parameter-sets") if p["name"] == "console_motor")["active"]
+    assert not requests.foreign(service.host), requests.foreign(service.host)

@@ -1,0 +1,87 @@
+"""The fit procedure on the extended variant: result, merged set, CLI default, flights without temperature."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs_pdm.cli import main
+from gcs_pdm.fitting.logs import read_table, write_table
+from gcs_pdm.fitting.procedure import FitSettings, fit_battery, merge_results
+from gcs_pdm.fitting.search import SearchSettings
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import ParameterSet, builtin
+
+ROOT = Path(__file__).resolve().parents[1] / "fixtures" / "pybamm"
+TINY = SearchSettings(starts=2, sa_generations=6, lm_max_nfev=6, seed=2)
+SMALL_EXT = FitSettings(model="extended", extended_search=TINY, extended_thermal_generations=4)
+FLIGHTS = ("chen2020_02", "chen2020_12", "chen2020_04")  # train, validation, test
+
+
+def flights():
+    return [read_table(ROOT / "Chen2020" / f"{n}.parquet", "battery", n) for n in FLIGHTS]
+
+
+@pytest.fixture(scope="module")
+def fit():
+    tr, va, te = flights()
+    return fit_battery([tr], [va], [te], SMALL_EXT, pack="URA40")
+
+
+def test_default_of_new_fits_is_the_extended_variant_and_the_result_names_it(fit):
+    from gcs_pdm.fitting import cli, procedure
+
+    assert procedure.DEFAULT_MODEL == cli.DEFAULT_MODEL == "extended"
+    d = json.loads(json.dumps(fit.to_dict(), allow_nan=False))
+    assert d["model"] == "extended" and d["thermal"]["fitted"] is True
+    assert set(d["parameters"]) == set(kernel.EXT_PACK_PARAMS)
+    assert {"ocv_0", "docv_12", "R_0", "E_r", "C_t", "h", "dU_dT"} <= set(d["learned"])
+    assert [s["stage"] for s in d["stages"]] == ["electrical", "thermal"]
+    assert 0.0 < d["initial_soc"]["chen2020_04"] < 1.2
+    # a fit is better than the chemistry default it started from
+    assert d["errors"]["learned"]["train"]["overall"]["voltage"]["rmse"] < 0.3
+
+
+def test_merged_set_keeps_paper_values_and_round_trips(fit):
+    ps = merge_results(builtin("previous_si"), {"URA40": fit}, name="learned_ext")
+    pack = ps.packs["URA40"]
+    assert pack.model == "extended"
+    assert pack.battery == builtin("previous_si").packs["URA40"].battery  # the powertrain's paper circuit
+    np.testing.assert_array_equal(pack.extended_vector(), [fit.parameters[k] for k in kernel.EXT_PACK_PARAMS])
+    assert ParameterSet.from_json(ps.to_json()) == ps
+    # the learned OCV is monotone, as every vector inside the bounds is
+    v = kernel.open_circuit_voltage(pack.extended_vector(), np.linspace(0, 1, 501))
+    assert np.all(np.diff(v) > 0)
+
+
+def test_flights_without_temperature_fit_the_circuit_and_say_why_not_the_heat():
+    no_t = [f.with_columns(temperature_c=np.full(len(f), np.nan)) for f in flights()]
+    res = fit_battery([no_t[0]], [no_t[1]], [no_t[2]], SMALL_EXT)
+    assert res.thermal["fitted"] is False and "no pack temperature" in res.thermal["reason"]
+    assert [s.name for s in res.stages] == ["electrical"]
+    d = json.loads(json.dumps(res.to_dict(), allow_nan=False))
+    assert d["errors"]["learned"]["test"]["overall"]["temperature"]["rmse"] is None
+    assert d["errors"]["learned"]["test"]["overall"]["voltage"]["rmse"] < 0.5
+
+
+def test_cli_fits_a_table_without_a_temperature_column_and_takes_model_paper(tmp_path):
+    tr, va, te = flights()
+    paths = []
+    for f in (tr, va, te):
+        p = write_table(f, tmp_path / f"{f.name}.csv")
+        text = p.read_text().splitlines()
+        cols = text[0].split(",")
+        k = cols.index("temperature_c")
+        p.write_text("\n".join(",".join(c for i, c in enumerate(line.split(",")) if i != k) for line in text) + "\n")
+        paths.append(p)
+    budget = ["--starts", "2", "--sa-generations", "4", "--lm-max-nfev", "4", "--quiet", "--no-plots"]
+    rc = main(["fit", "battery", "--train", str(paths[0]), "--val", str(paths[1]), "--test", str(paths[2]),
+               "--out", str(tmp_path / "ext"), *budget])
+    assert rc == 0
+    d = json.loads((tmp_path / "ext" / "result.json").read_text())
+    assert d["model"] == "extended" and d["thermal"]["fitted"] is False
+    rc = main(["fit", "battery", "--train", str(paths[0]), "--val", str(paths[1]), "--test", str(paths[2]),
+               "--out", str(tmp_path / "paper"), "--model", "paper", *budget])
+    assert rc == 0
+    d = json.loads((tmp_path / "paper" / "result.json").read_text())
+    assert d["model"] == "paper" and set(d["parameters"]) == set(kernel.PACK_PARAMS)

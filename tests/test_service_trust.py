@@ -1,0 +1,81 @@
+"""/status and /health show what the link refused to believe (issue 12): foreign systems sending
+vehicle heartbeats are reported at once (one event per system, a log warning), never tracked."""
+from __future__ import annotations
+
+import logging
+import socket
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from gcs_pdm.mavlink.connection import Link, LinkConfig
+from gcs_pdm.service.api import create_app
+from gcs_pdm.service.config import load_config
+from gcs_pdm.service.runtime import Service
+
+sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
+from mavlink_builders import PacketFactory  # noqa: E402
+from mavlink_peers import free_udp_port  # noqa: E402
+
+
+class LinkOnlyLoop:
+    """The part of a live loop the status report reads: its link (no estimator, no planner)."""
+
+    def __init__(self, link):
+        self.link = link
+
+    def stop(self) -> None:
+        self.link.close()
+
+
+@pytest.fixture
+def service(tmp_path):
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="trust-test-token-0123456"))
+    yield svc
+    svc.close()
+
+
+def wait_for(condition, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.02)
+
+
+def test_without_a_link_the_report_says_why(service):
+    client = TestClient(create_app(service))
+    assert client.get("/status").json()["link_trust"] == {"available": False, "reason": "no MAVLink link"}
+    assert client.get("/health").json()["foreign_systems"] == []
+
+
+def test_foreign_vehicles_are_reported_in_status_health_events_and_log(service, caplog):
+    port = free_udp_port()
+    link = Link(LinkConfig(url=f"udpin:127.0.0.1:{port}", heartbeat_hz=0)).start()
+    service.attach_loop(LinkOnlyLoop(link))
+    service.foreign_watch.period_s = 0.05
+    client = TestClient(create_app(service))
+    vehicle, intruders = PacketFactory(1, 1), (PacketFactory(42, 1), PacketFactory(43, 1))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx, caplog.at_level(logging.WARNING):
+        tx.sendto(vehicle.heartbeat(), ("127.0.0.1", port))
+        for _ in range(3):
+            for intruder in intruders:
+                tx.sendto(intruder.heartbeat(), ("127.0.0.1", port))
+        wait_for(lambda: sum(e.kind == "foreign_system" for e in service.events.since(0)) == 2)
+        tx.sendto(intruders[0].heartbeat(), ("127.0.0.1", port))
+        wait_for(lambda: client.get("/status").json()["link_trust"]["foreign_systems"][0]["heartbeats"] == 4)
+        time.sleep(0.2)  # several watcher periods: a system is reported once, however often it is heard
+
+    trust = client.get("/status").json()["link_trust"]
+    assert trust["available"] is True and trust["target_system"] == 1
+    assert {f["system"]: f["heartbeats"] for f in trust["foreign_systems"]} == {42: 4, 43: 3}
+    assert {"time_rejected", "gated", "bad_data", "clock"} <= set(trust)
+    assert client.get("/health").json()["foreign_systems"] == [42, 43]
+    events = [e.data for e in service.events.since(0) if e.kind == "foreign_system"]
+    assert sorted(e["system"] for e in events) == [42, 43] and all(e["tracked_system"] == 1 for e in events)
+    for system in (42, 43):
+        assert sum(f"system {system} " in r.getMessage() and r.levelno == logging.WARNING
+                   for r in caplog.records) == 1
+    assert link.target_system == 1  # the vehicle, never an intruder
