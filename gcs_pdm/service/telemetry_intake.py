@@ -232,7 +232,7 @@ class TelemetryIntake:
             st.update(link={"connected": False, "state": LINK_LOST, "reason": self.link_lost_reason,
                             "silent_s": silent, "lost_at_time_s": self.time_s})
             # No count-down for a vehicle we cannot hear: its load and state since are unknown.
-            for n in PACK_NAMES:
+            for n in self.estimator.pack_names:
                 st.update_nested("packs", n, time_to_cutoff_s=None, time_to_cutoff_sd=None)
             st.update(prediction={"stale": True, "reason": "link lost: " + self.link_lost_reason,
                                   "time_s": self.time_s})
