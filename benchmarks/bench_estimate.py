@@ -1,29 +1,37 @@
-"""Speed of the state estimator and the Monte Carlo prediction (issue 6 floors), vs progpy.
+"""Speed of the state estimator, the diagnosis pipeline and the Monte Carlo prediction (issues 6
+and 18), beside progpy's BatteryCircuit particle filter and Monte Carlo predictor.
 
-Prints its figures as ONE JSON object on the last line:
+Prints one line per figure and, last, ONE JSON object. Every figure is ``{"wall", "cpu", "floor",
+"loadavg_1min"}``: best-of wall time and process CPU time (``time.process_time``), with the load
+average when measured — on a shared machine CPU time is the figure to trust.
 
 - ``update_4packs_2motors_us``: one estimator update of all four packs and both motors (the two
-  batched filter steps: 32 pack sigma points in one kernel call, 4 motor sigma points in another)
-  — floor 1000 µs;
-- ``consume_per_frame_us``: ``StateEstimator.consume`` per telemetry frame on a synthetic flight;
-- ``pipeline_per_frame_us``: the whole ``DiagnosisPipeline`` per frame (estimator, detectors,
-  and the prognosis' Monte Carlo every 30 s of message time, amortised);
-- ``mc_100_30min_s``: a 100-sample Monte Carlo prediction of time to cut-off 30 minutes ahead
-  (1 s steps, one ``simulate_powertrain`` call with ``stop_on_failure``) — floor 0.1 s; with the
-  median trajectories as well: ``mc_100_30min_with_trajectories_s``;
+  compiled filter steps, ``PackFilterBank.step`` and ``MotorThermalFilter.step``) — floor 80 µs;
+- ``consume_per_frame_us``: ``StateEstimator.consume`` per telemetry frame of a synthetic flight;
+- ``pipeline_per_frame_us``: the whole ``DiagnosisPipeline`` per frame (estimator, detectors, pack
+  health fits every 60 s and the prognosis' Monte Carlo every 30 s of message time, amortised)
+  — floor 60 µs;
+- ``pipeline_per_frame_no_mission_us``: the same without a mission, so without the Monte Carlo
+  (what a replay of a tlog costs per frame);
+- ``mc_100_30min_ms``: a 100-sample Monte Carlo prediction 30 minutes ahead at 1 s steps (without
+  the median trajectories; ``mc_100_30min_with_trajectories_ms`` with them) — floor 15 ms;
 - progpy (if installed): ``progpy_pf_update_100_us`` — ParticleFilter over BatteryCircuit (one
-  cell, 100 particles), one update; ``progpy_mc_100_30min_s_est`` — its MonteCarlo predictor,
+  cell, 100 particles), one update; ``progpy_mc_100_30min_ms_est`` — its MonteCarlo predictor,
   measured on 10 samples and scaled ×10 (the full run takes tens of seconds).
 
-Run: ``python benchmarks/bench_estimate.py``
+Run: ``PYTHONPATH=$PWD python benchmarks/bench_estimate.py``
 """
 from __future__ import annotations
 
 import json
-import time
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from measure import timed  # noqa: E402
 
 from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 from gcs_pdm.estimation.estimator import StateEstimator
@@ -33,14 +41,12 @@ from gcs_pdm.models.params import default_set
 from gcs_pdm.sim.truth import true_parameters
 
 
-def best_of(fn, repeat: int, number: int) -> float:
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        for _ in range(number):
-            fn()
-        best = min(best, (time.perf_counter() - t0) / number)
-    return best
+def figure(t: dict, scale: float, floor: float | None, unit: str) -> dict:
+    out = {"wall": round(t["wall_s"] * scale, 1), "cpu": round(t["cpu_s"] * scale, 1), "floor": floor,
+           "unit": unit, "loadavg_1min": t["loadavg_1min"]}
+    if floor is not None:
+        out["reached_cpu"] = out["cpu"] <= floor
+    return out
 
 
 def main() -> dict:
@@ -59,16 +65,15 @@ def main() -> dict:
         est.packs.step(idx4, np.full(4, 0.5), np.full(4, 12.0), 20.0, v, tp)
         est.motors.step(idx2, np.full(2, 0.5), np.full(2, 12.0), 20.0, tm)
 
-    result = {"update_4packs_2motors_us": round(best_of(update, 5, 200) * 1e6, 1)}
+    figures = {"update_4packs_2motors_us": figure(timed(update, 5, 200), 1e6, 80, "µs")}
 
     def consume_all():
         e = StateEstimator(ps)
         for fr in flight.frames:
             e.consume(fr)
 
-    per_flight = best_of(consume_all, 3, 1)
-    result["consume_per_frame_us"] = round(per_flight / len(flight.frames) * 1e6, 1)
-    result["frames_per_flight"] = len(flight.frames)
+    n = len(flight.frames)
+    figures["consume_per_frame_us"] = figure(timed(consume_all, 3, 1), 1e6 / n, None, "µs")
 
     def pipeline_all():
         p = DiagnosisPipeline(ps)
@@ -77,20 +82,29 @@ def main() -> dict:
         for fr in flight.frames:
             p.consume(fr)
 
-    t_pipe = best_of(pipeline_all, 2, 1)
-    result["pipeline_per_frame_us"] = round(t_pipe / len(flight.frames) * 1e6, 1)
-    result["pipeline_flight_s"] = round(t_pipe, 3)
-    result["flight_duration_s"] = round(flight.duration_s, 1)
+    figures["pipeline_per_frame_us"] = figure(timed(pipeline_all, 2, 1), 1e6 / n, 60, "µs")
+
+    def pipeline_no_mission():
+        p = DiagnosisPipeline(ps)
+        for fr in flight.frames:
+            p.consume(fr)
+
+    # without a mission the prognosis' Monte Carlo does not run: what is left is the per-frame work
+    figures["pipeline_per_frame_no_mission_us"] = figure(timed(pipeline_no_mission, 2, 1), 1e6 / n, None, "µs")
 
     load = FutureLoad.constant(1000.0, 1800.0, 1.0)
     rng = np.random.default_rng(0)
-    result["mc_100_30min_s"] = round(best_of(lambda: predict_from_estimator(
-        est, load, rng=rng, n_samples=100, trajectories=False), 5, 3), 4)
-    result["mc_100_30min_with_trajectories_s"] = round(best_of(lambda: predict_from_estimator(
-        est, load, rng=rng, n_samples=100, trajectories=True), 3, 2), 4)
-    result["floors"] = {"update_us": 1000, "mc_100_30min_s": 0.1}
-    result.update(progpy_reference())
-    return result
+    figures["mc_100_30min_ms"] = figure(timed(lambda: predict_from_estimator(
+        est, load, rng=rng, n_samples=100, trajectories=False), 5, 3), 1e3, 15, "ms")
+    figures["mc_100_30min_with_trajectories_ms"] = figure(timed(lambda: predict_from_estimator(
+        est, load, rng=rng, n_samples=100, trajectories=True), 3, 2), 1e3, None, "ms")
+    figures.update(progpy_reference())
+    for name, f in figures.items():
+        if isinstance(f, dict):
+            print(f"{name:<36} wall {f['wall']:>9} cpu {f['cpu']:>9} {f['unit']:<3} floor {f['floor']}  "
+                  f"(load {f['loadavg_1min']})")
+    return {"benchmark": "bench_estimate", "frames_per_flight": n, "flight_duration_s": round(flight.duration_s, 1),
+            "figures": figures}
 
 
 def progpy_reference() -> dict:
@@ -122,17 +136,15 @@ def progpy_reference() -> dict:
             pf.estimate(tt + 30.0 * (k[0] // len(zs)), u, z)
             k[0] += 1
 
-        out["progpy_pf_update_100_us"] = round(best_of(pf_step, 3, 20) * 1e6, 1)
+        out["progpy_pf_update_100_us"] = figure(timed(pf_step, 3, 20), 1e6, None, "µs")
         mc = MonteCarlo(m)
         x_dist = MultivariateNormalDist(list(x.keys()), list(x.values()), np.diag([1e-6] * len(x)))
 
         def future_load(t, x=None):
             return u
 
-        t0 = time.perf_counter()
-        mc.predict(x_dist, future_load, n_samples=10, dt=1.0, horizon=1800, save_freq=60)
-        out["progpy_mc_10_30min_s"] = round(time.perf_counter() - t0, 3)
-        out["progpy_mc_100_30min_s_est"] = round(10 * out["progpy_mc_10_30min_s"], 2)
+        t = timed(lambda: mc.predict(x_dist, future_load, n_samples=10, dt=1.0, horizon=1800, save_freq=60), 1, 1)
+        out["progpy_mc_100_30min_ms_est"] = figure(t, 10 * 1e3, None, "ms")
     return out
 
 

@@ -1,9 +1,14 @@
-"""Replay throughput: messages per second through decoding to frames, against pymavlink's loop.
+"""Replay throughput: messages per second through decoding to frames, against pymavlink's loop,
+and ``gcs-pdm replay FILE --json`` as a whole process on the issue-18 tlog.
 
-    python benchmarks/bench_replay.py [TLOG ...] [--repeat 3]
+    PYTHONPATH=$PWD python benchmarks/bench_replay.py [TLOG ...] [--repeat 3]
 
 Defaults to every tlog of the shared corpus (``../shared/tlogs`` or ``$GCS_PDM_TLOG_DIR``); also
-measures a generated tlog in which every message becomes a frame (the service's worst case).
+measures a generated tlog in which every message becomes a frame (the service's worst case), and a
+100,000-message tlog of the simulated vehicle (four packs, ESC telemetry, typical rates; generated
+once, ~40 s, cached in the temp directory) replayed with diagnosis: the whole process (start-up
+included, floor 60,000 msg/s) and in-process, beside pymavlink's ``recv_msg`` loop over the same
+file. Every figure has wall and CPU time (the child's ``getrusage``) and the load average.
 Runs pinned to one CPU. Prints a line per measurement and, last, one JSON object.
 """
 from __future__ import annotations
@@ -21,6 +26,9 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from measure import rate, timed, timed_process  # noqa: E402
 
 from gcs_pdm.mavlink.dialect import mavutil  # noqa: E402
 from gcs_pdm.mavlink.mapping import FrameMapper  # noqa: E402
@@ -64,6 +72,24 @@ def pymavlink_loop(paths, match: bool) -> int:
     return messages
 
 
+def ours_diagnosed(paths) -> int:
+    from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
+
+    return sum(replay_tlog(p, mapper=FrameMapper(), frame_consumer=DiagnosisPipeline()).messages for p in paths)
+
+
+def whole_process_replay(path: Path, repeat: int) -> dict:
+    """``gcs-pdm replay FILE --json`` in a child process (our PYTHONPATH), start-up included."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    t = timed_process([sys.executable, "-m", "gcs_pdm.cli", "replay", str(path), "--json"], repeat, env)
+    summary = json.loads(t["stdout"])
+    n = summary["messages"]
+    return {"file": path.name, "messages": n, "frames": summary["frames"], "faults": len(summary["faults"]),
+            "cpu_per_s": round(n / t["cpu_s"]), "wall_per_s": round(n / t["wall_s"]),
+            "cpu_s": round(t["cpu_s"], 3), "wall_s": round(t["wall_s"], 3), "loadavg_1min": t["loadavg_1min"],
+            "in_process_elapsed_s": summary["elapsed_s"]}
+
+
 def synthetic_telemetry_tlog(path: Path, seconds: int = 1500) -> None:
     """Worst case for the mapping: every message is one the service turns into frames
     (10 Hz position/pressure/air data, 4 packs, 2 motors), as our vehicle would send it."""
@@ -89,6 +115,40 @@ def synthetic_telemetry_tlog(path: Path, seconds: int = 1500) -> None:
     path.write_bytes(bytes(out))
 
 
+#: the project's typical stream (the simulated vehicle's defaults: 2 Hz BATTERY_STATUS per pack,
+#: 2 Hz ESC telemetry) with position and air data at 10 Hz, as a ground station asks for them
+TYPICAL_RATES_OVERRIDE = {"GLOBAL_POSITION_INT": 10.0, "VFR_HUD": 10.0}
+TYPICAL_MESSAGES = 100_000
+
+
+def typical_telemetry_tlog(path: Path, messages: int = TYPICAL_MESSAGES) -> Path:
+    """A ``messages``-record tlog of the simulated vehicle (four packs, two ESCs) flying a long
+    mission at typical rates: the figure of issue 18. Deterministic; cached at ``path``."""
+    if path.exists():
+        return path
+    import numpy as np
+
+    sys.path.insert(0, str(REPO / "fixtures"))
+    from make_fixtures import route
+    from gcs_pdm.sim.model import SimConfig
+    from gcs_pdm.sim.record import fly
+    from gcs_pdm.sim.routes import mission_from_enu
+    from gcs_pdm.sim.telemetry import DEFAULT_RATES, TelemetryConfig
+
+    points = route(np.random.default_rng(18), 80.0, 20.0, speed_changes=True)
+    mission = mission_from_enu(points, takeoff_alt_m=float(points[0][2]))
+    cfg = SimConfig(seed=18, ground_temp_c=20.0, cruise_airspeed_mps=20.0, initial_soc=1.0, mission=tuple(mission))
+    full = path.with_suffix(".full.tlog")
+    fly(cfg, TelemetryConfig(rates_hz={**DEFAULT_RATES, **TYPICAL_RATES_OVERRIDE}), full)
+    data = full.read_bytes()
+    ends = [end for *_, end in scan_tlog_bytes(data)]
+    if len(ends) < messages:
+        raise RuntimeError(f"the simulated flight gave only {len(ends)} messages, not {messages}")
+    path.write_bytes(data[:ends[messages - 1]])
+    full.unlink()
+    return path
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("tlogs", nargs="*", type=Path)
@@ -105,6 +165,17 @@ def main() -> int:
     synthetic = Path(tempfile.mkdtemp()) / "all_mapped.tlog"
     synthetic_telemetry_tlog(synthetic)
     results = {}
+    typical = typical_telemetry_tlog(Path(tempfile.gettempdir()) / "gcs_pdm_bench_typical_100k_v1.tlog")
+    whole = whole_process_replay(typical, args.repeat)
+    print(f"{'gcs_pdm_replay_json_whole_process':<30} {whole['messages']:>7} messages: "
+          f"cpu {whole['cpu_per_s']:>8,} msg/s, wall {whole['wall_per_s']:>8,} msg/s (load {whole['loadavg_1min']})")
+    for name, fn in [("gcs_pdm_replay_diagnosed_in_process", lambda: ours_diagnosed([typical])),
+                     ("pymavlink_recv_msg_typical", lambda: pymavlink_loop([typical], match=False))]:
+        count = fn()
+        t = timed(fn, args.repeat)
+        results[name] = {"messages": count, **rate(count, t, "messages_per_s")}
+        print(f"{name:<36} cpu {results[name]['cpu_messages_per_s']:>8,} msg/s, wall "
+              f"{results[name]['wall_messages_per_s']:>8,} msg/s")
     for name, fn in [("gcs_pdm_replay_to_frames", lambda: ours_to_frames(paths)),
                      ("gcs_pdm_replay_to_frames_all_mapped", lambda: ours_to_frames([synthetic])),
                      ("pymavlink_recv_msg_all_mapped", lambda: pymavlink_loop([synthetic], match=False)),
@@ -116,6 +187,8 @@ def main() -> int:
         print(f"{name:<30} {count:>7} messages in {seconds:7.3f} s = {count / seconds:>10,.0f} msg/s")
     ours = results["gcs_pdm_replay_to_frames"]["messages_per_s"]
     summary = {
+        "replay_json_whole_process": {**{k: v for k, v in whole.items()}, "floor_messages_per_s": 60_000,
+                                      "reached_cpu": whole["cpu_per_s"] >= 60_000},
         "benchmark": "bench_replay",
         "files": [Path(p).name for p in paths],
         "bytes": size,

@@ -89,6 +89,8 @@ class MotorPowerLossDetector:
         self._window: deque = deque(maxlen=config.window)
         self._debounce = {name: Debouncer(config.debounce) for name in MOTOR_NAMES}
         self._active_samples: dict[str, list[float]] = {name: [] for name in MOTOR_NAMES}
+        # their running sum: the reported magnitude is their mean, asked for at every sample
+        self._active_sum: dict[str, float] = {name: 0.0 for name in MOTOR_NAMES}
         self.faults: dict[str, Fault] = {}
         self.samples = 0
         self.low_power_skipped = 0
@@ -110,8 +112,8 @@ class MotorPowerLossDetector:
         self._window.append(m)
         if len(self._window) < self._window.maxlen:
             return []
-        med = float(np.median(self._window))
-        spread = float(np.std(self._window)) / math.sqrt(len(self._window)) + 1e-3
+        med, sd = _median_sd(self._window)
+        spread = sd / math.sqrt(len(self._window)) + 1e-3
         events = []
         for q, name in enumerate(MOTOR_NAMES):
             mq = med if q == 0 else -med
@@ -120,7 +122,9 @@ class MotorPowerLossDetector:
             if deb.active or ev == "clear":
                 if deb.active:
                     self._active_samples[name].append(mq)
-                mag = float(np.mean(self._active_samples[name])) if self._active_samples[name] else mq
+                    self._active_sum[name] += mq
+                n_active = len(self._active_samples[name])
+                mag = self._active_sum[name] / n_active if n_active else mq
                 conf = _phi((mq - self.config.clear_threshold) / spread) if deb.active else 0.0
                 # the propeller gets what the motors deliver less the faulted rotor's drag (kernel:
                 # fault_drag = 0.1 of its share) and its unpowered no-load loss
@@ -142,6 +146,7 @@ class MotorPowerLossDetector:
                                                 evidence=evidence)
                     self.faults[name] = f
                     self._active_samples[name] = []
+                    self._active_sum[name] = 0.0
                     events.append(("clear", f))
                 else:
                     f = self.faults[name].with_(magnitude=min(max(mag, 0.0), 1.0), confidence=conf,
@@ -149,12 +154,23 @@ class MotorPowerLossDetector:
                     self.faults[name] = f
             elif not deb.active:
                 self._active_samples[name] = []
+                self._active_sum[name] = 0.0
         return events
 
     def fault_vector(self) -> np.ndarray:
         """Active magnitudes (fwd, aft) for the kernel."""
         return np.array([self.faults[n].magnitude if n in self.faults and self.faults[n].active else 0.0
                          for n in MOTOR_NAMES])
+
+
+def _median_sd(window) -> tuple[float, float]:
+    """Median and population standard deviation of a short window (np.median/np.std without the
+    array round trip: this runs at every paired sample)."""
+    v = sorted(window)
+    n = len(v)
+    med = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+    mean = sum(v) / n
+    return float(med), math.sqrt(sum((x - mean) ** 2 for x in v) / n)
 
 
 def _phi(z: float) -> float:

@@ -1,8 +1,8 @@
 """Pack degradation: a voltage residual that persists beyond noise, read as capacity loss or
 resistance rise, with an estimate of each.
 
-Every ``check_every_s`` of message time the pack's whole record so far (cleaned current,
-measured voltage, ambient) is fitted through the kernel with three unknowns: a scale on the series
+Every ``check_every_s`` of message time the pack's record (cleaned current, measured voltage,
+ambient; the newest ``max_samples``, since the last gap longer than ``max_gap_s``) is fitted through the kernel with three unknowns: a scale on the series
 resistance (R_s and R_cp0 together), a scale on the capacity (C_b, q_max, C_max together: a pack
 that lost capacity loses bulk capacitance, so its voltage falls faster per coulomb) and the
 initial SoC (the record may start anywhere). A few Gauss–Newton steps with a finite-difference
@@ -18,12 +18,14 @@ the simulated vehicle); after the fitter has learned the real pack they can be t
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, Fault
+from gcs_pdm.estimation.parallel import thread_map
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import PACK_NAMES
 
@@ -42,6 +44,12 @@ class PackHealthConfig:
     capacity_loss_clear: float = 0.15
     resistance_rise_raise: float = 0.6
     resistance_rise_clear: float = 0.4
+    #: the record a check fits is at most this many samples (the newest; the fit's initial SoC is
+    #: free, so it may start anywhere): each check's work is bounded by samples, not time span
+    max_samples: int = 3000
+    #: a gap longer than this starts a new record: the fit would have to simulate the gap at a
+    #: current nobody measured (a 49.7-day gap was re-simulated at every check)
+    max_gap_s: float = 60.0
     debounce: DebounceConfig = DebounceConfig(raise_after_s=120.0, clear_after_s=120.0)
 
 
@@ -153,7 +161,8 @@ class PackHealthMonitor:
         self.config = config
         #: the packs' names, in the rows' order (a vehicle description's, or the paper's)
         self.names = tuple(names)
-        self._buf: list[list[tuple[float, float, float, float]]] = [[] for _ in self.names]
+        self._buf: list[deque[tuple[float, float, float, float]]] = [deque(maxlen=config.max_samples)
+                                                                    for _ in self.names]
         self._last_check = -math.inf
         self._debounce = {(ty, n): Debouncer(config.debounce) for n in self.names
                           for ty in (PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE)}
@@ -166,6 +175,8 @@ class PackHealthMonitor:
             return
         if self._buf[b] and time_s < self._buf[b][-1][0]:
             return  # out of order: the estimator drops (and counts) it too
+        if self._buf[b] and time_s - self._buf[b][-1][0] > self.config.max_gap_s:
+            self._buf[b].clear()
         self._buf[b].append((time_s, current_a, voltage_v, ambient_c))
 
     def check(self, time_s: float) -> list[tuple[str, Fault]]:
@@ -173,18 +184,25 @@ class PackHealthMonitor:
             return []
         self._last_check = time_s
         events = []
-        for b, name in enumerate(self.names):
+
+        def fit(b: int):
             buf = self._buf[b]
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
-                continue
+                return None
             arr = np.asarray(buf)
             p = self.params[b]
             drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
-            fit = fit_pack_residual(p, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc,
-                                    fit_capacity=drawn >= self.config.min_drawn_for_capacity)
-            if fit is None:
+            return drawn, fit_pack_residual(p, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc,
+                                            fit_capacity=drawn >= self.config.min_drawn_for_capacity)
+
+        # the packs' fits are independent: on the threads available (the kernel releases the GIL)
+        fits = thread_map(fit, range(len(self.names)))
+        for b, name in enumerate(self.names):
+            if fits[b] is None or fits[b][1] is None:
                 continue
-            theta, se, rms, n = fit
+            drawn, fit_b = fits[b]
+            p = self.params[b]
+            theta, se, rms, n = fit_b
             r_nom = p[kernel.I_RS] + p[kernel.I_RCP0]
             est = PackHealthEstimate(name, n, float(theta[2]), float((theta[0] - 1.0) * r_nom), float(theta[0] - 1.0),
                                      float(theta[1]), float(1.0 - theta[1]), float(se[0]), float(se[1]), rms)

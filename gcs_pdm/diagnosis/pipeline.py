@@ -87,7 +87,8 @@ class DiagnosisPipeline:
         self._record(pack_events)
         if pack_events or self.pack_health.faults:
             self._adopt_pack_degradation()
-        self._record(self.prognosis.check(t, est, self.motor_power.fault_vector()))
+        if self.prognosis.due(t):
+            self._record(self.prognosis.check(t, est, self.motor_power.fault_vector()))
 
     #: a pipeline is itself a frame consumer (``replay_tlog(frame_consumer=pipeline)`` then finds ``report``)
     def __call__(self, frame) -> None:
@@ -100,18 +101,23 @@ class DiagnosisPipeline:
         if abs(tc[0] - tc[1]) > self.pair_within_s or t < max(tc[0], tc[1]):
             return
         v_string = np.empty(2)
-        v_filter, _ = est.packs.voltage()
+        v_filter = None  # the filter's voltages only if a reading is stale (rare: spare the einsum)
         for q in range(2):
             total = 0.0
             for b in range(4):
                 if MOTOR_OF_PACK[b] != q:
                     continue
-                fresh = t - self._pack_v_time[b] <= self.voltage_fresh_s
-                total += self._pack_v[b] if fresh else v_filter[b]
+                if t - self._pack_v_time[b] <= self.voltage_fresh_s:
+                    total += self._pack_v[b]
+                else:
+                    if v_filter is None:
+                        v_filter, _ = est.packs.voltage()
+                    total += v_filter[b]
             v_string[q] = total
         if not np.all(np.isfinite(v_string)):
             return
-        rpm = float(np.nanmean(est.motor_rpm)) if np.isfinite(est.motor_rpm).any() else math.nan
+        heard = [r for r in est.motor_rpm.tolist() if math.isfinite(r)]  # np.nanmean, without its warning machinery
+        rpm = sum(heard) / len(heard) if heard else math.nan
         self._record(self.motor_power.update(t, float(est.motor_current[0]), float(est.motor_current[1]),
                                              float(v_string[0]), float(v_string[1]), rpm))
         # keep stored faults' latest state in step with the detector's (magnitude refines while active)

@@ -72,8 +72,12 @@ class PrognosisMonitor:
         """Forget the rate baseline (the estimator's parameters changed under it)."""
         self._baseline = None
 
+    def due(self, time_s: float) -> bool:
+        """Whether ``check`` at ``time_s`` would run (the caller can skip building its inputs)."""
+        return time_s - self._last_check >= self.config.check_every_s
+
     def check(self, time_s: float, estimator, fault_vector: np.ndarray) -> list[tuple[str, Fault]]:
-        if time_s - self._last_check < self.config.check_every_s:
+        if not self.due(time_s):
             return []
         self._last_check = time_s
         if self.mission is None:

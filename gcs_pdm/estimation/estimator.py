@@ -55,6 +55,9 @@ class EstimatorConfig:
     #: longest gap the filters integrate through in one step; longer gaps are still integrated,
     #: but logged, because the held current is then a guess
     long_gap_s: float = 30.0
+    #: a gap longer than this restarts the component's filter from its next reading: the held current
+    #: (or heat) says nothing about hours of silence — the vehicle was parked, charged or swapped
+    restart_after_s: float = 600.0
     #: relative uncertainty of the parameter set's capacity against the real pack (1σ). No
     #: telemetry can remove it within a flight — the voltage-to-charge map carries the same
     #: mismatch — so it is added to the filter's SoC spread: σ² = σ_filter² + (σ_cap (1 - SoC))².
@@ -204,7 +207,7 @@ class StateEstimator:
             if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
                 refs.append(self.motor_current[q])
         refs = [r for r in refs if math.isfinite(r)]
-        return float(np.median(refs)) if len(refs) >= self._min_references else math.nan
+        return _median(refs) if len(refs) >= self._min_references else math.nan
 
     def _pack(self, f: PackFrame) -> None:
         b = self._pack_index.get(f.pack)
@@ -233,6 +236,10 @@ class StateEstimator:
             self.seen[f"{f.pack}.voltage"] = t
         if math.isfinite(temp):
             self.seen[f"{f.pack}.temperature"] = t
+        if self.packs.initialised[b] and t - self.pack_time[b] > self.config.restart_after_s:
+            self._restart("pack", f.pack, t - self.pack_time[b])
+            self.packs.initialised[b] = False
+            self._i_sum[b], self._i_n[b] = 0.0, 0
         if not self.packs.initialised[b]:
             if not math.isfinite(v):
                 return  # nothing to start from yet
@@ -250,7 +257,7 @@ class StateEstimator:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
-        self.packs.step(np.array([b]), np.array([dt]), np.array([i_used]), self.ambient_c, np.array([v]), np.array([temp]))
+        self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
         self.charge_c[b] += i_used * dt
         self.pack_time[b] = t
 
@@ -280,6 +287,9 @@ class StateEstimator:
         temp = _num(f.temperature_c)
         if math.isfinite(temp):
             self.seen[f"{f.motor}.temperature"] = t
+        if self.motors.initialised[q] and t - self.motor_time[q] > self.config.restart_after_s:
+            self._restart("motor", f.motor, t - self.motor_time[q])
+            self.motors.initialised[q] = False
         if not self.motors.initialised[q]:
             readings = self._motor_reports.get(f.motor)
             if not math.isfinite(temp) and readings is not None and not readings.temperature:
@@ -292,8 +302,7 @@ class StateEstimator:
             self.motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
             self.motor_time[q] = t
             return
-        self.motors.step(np.array([q]), np.array([t - self.motor_time[q]]),
-                         np.array([cur if math.isfinite(cur) else 0.0]), self.ambient_c, np.array([temp]))
+        self.motors.step_one(q, t - self.motor_time[q], cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
         self.motor_time[q] = t
 
     def adopt_pack_scales(self, pack: str, resistance_scale: float, capacity_scale: float) -> None:
@@ -307,6 +316,10 @@ class StateEstimator:
         row[[kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX]] *= float(capacity_scale)
         self.packs.set_params(b, row)
         self.counters["parameter_updates"] += 1
+
+    def _restart(self, kind: str, name: str, gap_s: float) -> None:
+        self.counters["restarts"] += 1
+        log.warning("%s %s: %.0f s without telemetry; its filter restarts from the next reading", kind, name, gap_s)
 
     def _skip(self, kind: str, message: str) -> None:
         """Count a skipped frame; warn on the first of each kind (the counters tell the rest)."""
@@ -402,6 +415,13 @@ class StateEstimator:
         tm = self.motors.mean[:, 0]
         return PowertrainState(pack_state=self.packs.mean.copy(),
                                motor_temp_c=np.where(np.isfinite(tm), tm, self.ambient_c))
+
+
+def _median(values: list[float]) -> float:
+    """np.median of a few finite floats, without the array round trip (a per-frame call)."""
+    v = sorted(values)
+    n = len(v)
+    return v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
 
 
 def _num(x) -> float:

@@ -35,7 +35,10 @@ class MotorThermalFilter:
         self.rejected_in_row = np.zeros(n_motors, dtype=np.int64)
         self.rejected_total = np.zeros(n_motors, dtype=np.int64)
         self.relocks = np.zeros(n_motors, dtype=np.int64)
-        self._h = np.ones((n_motors, 1))
+        # the compiled step's view of the counters: one channel per motor
+        self._rejected_total_2d = self.rejected_total.reshape(-1, 1)
+        self._rejected_in_row_2d = self.rejected_in_row.reshape(-1, 1)
+        self._one_idx = [np.array([q], dtype=np.int64) for q in range(n_motors)]
 
     def initialise(self, idx: np.ndarray, temperature: np.ndarray, sigma: float | None = None) -> None:
         idx = np.atleast_1d(idx)
@@ -46,40 +49,23 @@ class MotorThermalFilter:
 
     def step(self, idx: np.ndarray, dt: np.ndarray, current: np.ndarray, ambient: float,
              temperature: np.ndarray) -> None:
+        """Advance motors ``idx`` by ``dt`` s at ``current`` A, then update with ``temperature`` °C
+        (NaN = not measured). Compiled (``ukf.motor_step_rows``), in place."""
         idx = np.atleast_1d(np.asarray(idx, dtype=np.int64))
-        dt = np.broadcast_to(np.asarray(dt, dtype=np.float64), idx.shape)
-        current = np.broadcast_to(np.asarray(current, dtype=np.float64), idx.shape)
-        mean, cov = self.mean[idx], self.cov[idx]
-        if np.any(dt > 0):
-            pts = ukf.sigma_points(mean, cov)                          # (m, 2, 1)
-            out = kernel.simulate_motor_thermal(np.repeat(self.params[idx], 2, axis=0), pts.reshape(-1),
-                                                np.repeat(dt, 2)[:, None], np.repeat(current, 2)[:, None],
-                                                float(ambient))
-            pmean, pcov = ukf.recombine(out[:, -1].reshape(idx.size, 2, 1))
-            still = dt <= 0
-            pmean[still], pcov[still] = mean[still], cov[still]
-            mean = pmean
-            cov = pcov + self.config.process_sigma_c ** 2 * np.maximum(dt, 0.0)[:, None, None]
-        z = np.broadcast_to(np.asarray(temperature, dtype=np.float64), idx.shape)
-        have = np.isfinite(z)
-        if have.any():
-            sel = np.flatnonzero(have)
-            r = self.config.temperature_sigma_c ** 2
-            nm, nc, _, norm = ukf.scalar_update(mean[sel], cov[sel], self._h[idx][sel], z[sel], r, self.config.gate)
-            mean[sel], cov[sel] = nm, nc
-            rows = idx[sel]
-            gated = np.abs(norm) > self.config.gate
-            self.rejected_total[rows[gated]] += 1
-            self.rejected_in_row[rows] = np.where(gated, self.rejected_in_row[rows] + 1, 0)
-            relock = self.rejected_in_row[rows] >= self.config.relock_after
-            if relock.any():
-                k = sel[relock]
-                cov[k] *= self.config.relock_inflation
-                rm, rc, _, _ = ukf.scalar_update(mean[k], cov[k], self._h[idx][k], z[k], r, np.inf)
-                mean[k], cov[k] = rm, rc
-                self.relocks[rows[relock]] += 1
-                self.rejected_in_row[rows[relock]] = 0
-        self.mean[idx], self.cov[idx] = mean, cov
+        c = self.config
+        rows = idx.shape
+        ukf.motor_step_rows(self.params, self.mean, self.cov, idx, ukf.as_rows(dt, rows), ukf.as_rows(current, rows),
+                            float(ambient), ukf.as_rows(temperature, rows), c.process_sigma_c ** 2,
+                            c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
+                            self._rejected_total_2d, self._rejected_in_row_2d, self.relocks)
+
+    def step_one(self, q: int, dt: float, current: float, ambient: float, temperature: float) -> None:
+        """``step`` for one motor and plain floats (a telemetry frame), without the array set-up."""
+        c = self.config
+        ukf.motor_step_rows(self.params, self.mean, self.cov, self._one_idx[q], np.array([dt]), np.array([current]),
+                            float(ambient), np.array([temperature]), c.process_sigma_c ** 2,
+                            c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
+                            self._rejected_total_2d, self._rejected_in_row_2d, self.relocks)
 
     def temperature(self) -> tuple[np.ndarray, np.ndarray]:
         return self.mean[:, 0].copy(), np.sqrt(np.maximum(self.cov[:, 0, 0], 0.0))

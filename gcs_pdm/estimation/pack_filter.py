@@ -4,8 +4,9 @@ State per pack: the kernel's ``PACK_STATE`` (q_b, q_cp, q_s, T). Input: measured
 current. Observations: terminal voltage and pack temperature (both linear in the state).
 
 One ``step`` advances any subset of packs, each by its own dt (frames arrive per pack at their
-own times): the 2n = 8 sigma points of every pack advanced become rows of ONE
-``kernel.simulate_packs`` call (sigma points × packs as the kernel's N dimension, one sample).
+own times): the 2n = 8 sigma points of every pack advanced go through the kernel's own step
+(``kernel._pack_advance``) inside one compiled call (``ukf.pack_step_rows``) — a telemetry frame
+steps one pack, and at that size array set-up, not arithmetic, was the cost (issue 18).
 
 Robustness: each observation channel is gated on its normalised innovation (spikes are
 rejected and counted); a channel rejected ``relock_after`` times in a row is taken as a real
@@ -61,7 +62,7 @@ class PackFilterBank:
         self._h_v = np.stack([1.0 / p[:, kernel.I_CB], -1.0 / p[:, kernel.I_CCP], -1.0 / p[:, kernel.I_CS],
                               np.zeros(n_packs)], axis=1)
         self._h_t = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n_packs, 1))
-        self._rows = {}
+        self._one_idx = [np.array([b], dtype=np.int64) for b in range(n_packs)]
 
     # ---- initialisation -------------------------------------------------------------------------
     def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray,
@@ -93,51 +94,24 @@ class PackFilterBank:
     def step(self, idx: np.ndarray, dt: np.ndarray, current: np.ndarray, ambient: float | np.ndarray,
              voltage: np.ndarray, temperature: np.ndarray) -> None:
         """Advance packs ``idx`` by ``dt`` s at ``current`` A, then update with ``voltage`` V and
-        ``temperature`` °C (NaN = not measured)."""
+        ``temperature`` °C (NaN = not measured). Compiled (``ukf.pack_step_rows``), in place."""
         idx = np.atleast_1d(np.asarray(idx, dtype=np.int64))
-        dt = np.broadcast_to(np.asarray(dt, dtype=np.float64), idx.shape)
-        current = np.broadcast_to(np.asarray(current, dtype=np.float64), idx.shape)
-        m = idx.size
-        mean, cov = self.mean[idx], self.cov[idx]
-        if np.any(dt > 0):
-            pts = ukf.sigma_points(mean, cov)                       # (m, 8, 4)
-            n_sig = pts.shape[1]
-            rows = self._param_rows(idx, n_sig)
-            run = kernel.simulate_packs(rows, pts.reshape(m * n_sig, N_STATE),
-                                        np.repeat(dt, n_sig)[:, None], np.repeat(current, n_sig)[:, None],
-                                        np.broadcast_to(np.asarray(ambient, dtype=np.float64), (m,)).repeat(n_sig)[:, None]
-                                        if np.ndim(ambient) else float(ambient))
-            moved = run.final_state.reshape(m, n_sig, N_STATE)
-            pmean, pcov = ukf.recombine(moved)
-            still = dt <= 0
-            pmean[still], pcov[still] = mean[still], cov[still]
-            mean = pmean
-            cov = pcov + self._q[None] * np.maximum(dt, 0.0)[:, None, None]
-        obs = ((0, np.asarray(voltage, dtype=np.float64), self._h_v[idx], self.config.voltage_sigma_v ** 2),
-               (1, np.asarray(temperature, dtype=np.float64), self._h_t[idx], self.config.temperature_sigma_c ** 2))
-        for ch, z, h, r in obs:
-            z = np.broadcast_to(z, idx.shape)
-            have = np.isfinite(z)
-            if not have.any():
-                continue
-            sel = np.flatnonzero(have)
-            new_mean, new_cov, nu, norm = ukf.scalar_update(mean[sel], cov[sel], h[sel], z[sel], r, self.config.gate)
-            mean[sel], cov[sel] = new_mean, new_cov
-            rows_idx = idx[sel]
-            self.last_innovation[rows_idx, ch] = nu
-            gated = np.abs(norm) > self.config.gate
-            self.rejected_total[rows_idx[gated], ch] += 1
-            self.rejected_in_row[rows_idx, ch] = np.where(gated, self.rejected_in_row[rows_idx, ch] + 1, 0)
-            relock = self.rejected_in_row[rows_idx, ch] >= self.config.relock_after
-            if relock.any():
-                # the model has lost the pack (a real jump, a sensor re-zeroed): widen and re-lock
-                k = sel[relock]
-                cov[k] *= self.config.relock_inflation
-                rm, rc, _, _ = ukf.scalar_update(mean[k], cov[k], h[k], z[k], r, np.inf)
-                mean[k], cov[k] = rm, rc
-                self.relocks[rows_idx[relock]] += 1
-                self.rejected_in_row[rows_idx[relock], ch] = 0
-        self.mean[idx], self.cov[idx] = mean, cov
+        shape = idx.shape
+        c = self.config
+        ukf.pack_step_rows(self.params, self.mean, self.cov, idx, ukf.as_rows(dt, shape), ukf.as_rows(current, shape),
+                           ukf.as_rows(ambient, shape), ukf.as_rows(voltage, shape), ukf.as_rows(temperature, shape), self._q,
+                           self._h_v, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
+                           c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
+                           self.rejected_in_row, self.relocks)
+
+    def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> None:
+        """``step`` for one pack and plain floats (a telemetry frame), without the array set-up."""
+        c = self.config
+        ukf.pack_step_rows(self.params, self.mean, self.cov, self._one_idx[b], np.array([dt]), np.array([current]),
+                           np.array([ambient]), np.array([voltage]), np.array([temperature]), self._q,
+                           self._h_v, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
+                           c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
+                           self.rejected_in_row, self.relocks)
 
     def set_params(self, b: int, row: np.ndarray) -> None:
         """Adopt new parameters for pack ``b`` (e.g. a diagnosed capacity loss), keeping what the
@@ -154,15 +128,6 @@ class PackFilterBank:
             self.mean[b] = x
         self.params[b] = row
         self._h_v[b] = [1.0 / row[kernel.I_CB], -1.0 / row[kernel.I_CCP], -1.0 / row[kernel.I_CS], 0.0]
-        self._rows.clear()
-
-    def _param_rows(self, idx: np.ndarray, n_sig: int) -> np.ndarray:
-        key = (idx.tobytes(), n_sig)
-        rows = self._rows.get(key)
-        if rows is None:
-            rows = np.ascontiguousarray(np.repeat(self.params[idx], n_sig, axis=0))
-            self._rows[key] = rows
-        return rows
 
     # ---- read-outs ---------------------------------------------------------------------------------
     def soc(self) -> tuple[np.ndarray, np.ndarray]:

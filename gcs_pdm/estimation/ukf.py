@@ -10,7 +10,12 @@ positive, so the predicted covariance stays positive semi-definite without repai
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
+
+from gcs_pdm.models import kernel
 
 
 def sigma_points(mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -54,3 +59,173 @@ def scalar_update(mean: np.ndarray, cov: np.ndarray, h: np.ndarray, z: np.ndarra
     a = eye - gain[:, :, None] * h[:, None, :]
     cov = np.einsum("kij,kjl,kml->kim", a, cov, a) + (r[:, None] * gain)[:, :, None] * gain[:, None, :]
     return mean, cov, nu, norm
+
+
+# ---- compiled filter steps -------------------------------------------------------------------------
+#
+# The live link and a replay step one pack (or one motor) per telemetry frame: at that size the
+# numpy version above spends its time in array overhead, not arithmetic. These compiled steps do the
+# same sums — the same sigma points, the kernel's own ``_pack_advance``/``_thermal_advance``, the
+# same gated scalar updates in Joseph form, the same re-lock — one row at a time, in place.
+
+def as_rows(a, shape) -> np.ndarray:
+    """An argument of the compiled steps as a contiguous float64 array of ``shape`` (scalars broadcast)."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), shape))
+
+
+_JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+_N = kernel.N_PACK_STATE
+
+
+@njit(**_JIT)
+def _cholesky_scaled(cov, scale, out):
+    """Lower factor of ``scale * cov`` into ``out``; False if not positive definite."""
+    n = cov.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            s = scale * cov[i, j]
+            for k in range(j):
+                s -= out[i, k] * out[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                out[i, i] = math.sqrt(s)
+            else:
+                out[i, j] = s / out[j, j]
+        for j in range(i + 1, n):
+            out[i, j] = 0.0
+    return True
+
+
+@njit(**_JIT)
+def _sigma_factor(cov, chol):
+    """``sigma_points``' factor of n·cov, with its jitter fallback for a round-off-edge covariance."""
+    n = cov.shape[0]
+    if _cholesky_scaled(cov, float(n), chol):
+        return
+    big = cov[0, 0]
+    for i in range(1, n):
+        big = max(big, cov[i, i])
+    fixed = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            fixed[i, j] = 0.5 * (cov[i, j] + cov[j, i])
+        fixed[i, i] += 1e-9 * big + 1e-12
+    if not _cholesky_scaled(fixed, float(n), chol):
+        raise np.linalg.LinAlgError("covariance is not positive semi-definite")
+
+
+@njit(**_JIT)
+def _scalar_update_row(mean, cov, h, z, r, gate):
+    """``scalar_update`` for one row, in place; returns (innovation, normalised innovation)."""
+    n = mean.shape[0]
+    ph = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += cov[i, j] * h[j]
+        ph[i] = s
+    s = r
+    nu = z
+    for i in range(n):
+        s += h[i] * ph[i]
+        nu -= h[i] * mean[i]
+    norm = nu / math.sqrt(s)
+    if not abs(norm) <= gate:
+        return nu, norm  # gain 0: the Joseph form leaves mean and covariance as they are
+    gain = ph / s
+    for i in range(n):
+        mean[i] += gain[i] * nu
+    a = np.eye(n)
+    for i in range(n):
+        for j in range(n):
+            a[i, j] -= gain[i] * h[j]
+    ac = a @ cov
+    new = ac @ a.T
+    for i in range(n):
+        for j in range(n):
+            cov[i, j] = new[i, j] + r * gain[i] * gain[j]
+    return nu, norm
+
+
+@njit(**_JIT)
+def _observe(mean, cov, h, z, r, gate, relock_after, relock_inflation, ch, b, last_innovation,
+             rejected_total, rejected_in_row, relocks):
+    """One gated channel of one row, with the filters' re-lock rule (see pack_filter's docstring)."""
+    nu, norm = _scalar_update_row(mean, cov, h, z, r, gate)
+    last_innovation[b, ch] = nu
+    if abs(norm) > gate:
+        rejected_total[b, ch] += 1
+        rejected_in_row[b, ch] += 1
+    else:
+        rejected_in_row[b, ch] = 0
+    if rejected_in_row[b, ch] >= relock_after:
+        for i in range(cov.shape[0]):
+            for j in range(cov.shape[1]):
+                cov[i, j] *= relock_inflation
+        _scalar_update_row(mean, cov, h, z, r, np.inf)
+        relocks[b] += 1
+        rejected_in_row[b, ch] = 0
+
+
+@njit(**_JIT)
+def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temperature, q, h_v,
+                   r_v, r_t, gate, relock_after, relock_inflation, max_dt,
+                   last_innovation, rejected_total, rejected_in_row, relocks):
+    """``PackFilterBank.step`` for rows ``idx``, in place on the bank's arrays."""
+    n = _N
+    chol = np.empty((n, n))
+    pts = np.empty((2 * n, n))
+    x = np.empty(n)
+    h_t = np.zeros(n)
+    h_t[n - 1] = 1.0
+    for k in range(idx.shape[0]):
+        b = idx[k]
+        m, c, p = mean[b], cov[b], params[b]
+        if dt[k] > 0.0:
+            _sigma_factor(c, chol)
+            for s in range(2 * n):
+                sign = 1.0 if s < n else -1.0
+                col = s % n
+                for i in range(n):
+                    x[i] = m[i] + sign * chol[i, col]
+                kernel._pack_advance(p, x, current[k], ambient[k], dt[k], max_dt)
+                for i in range(n):
+                    pts[s, i] = x[i]
+            for i in range(n):
+                acc = 0.0
+                for s in range(2 * n):
+                    acc += pts[s, i]
+                m[i] = acc / (2 * n)
+            for i in range(n):
+                for j in range(n):
+                    acc = 0.0
+                    for s in range(2 * n):
+                        acc += (pts[s, i] - m[i]) * (pts[s, j] - m[j])
+                    c[i, j] = acc / (2 * n) + q[i, j] * dt[k]
+        if math.isfinite(voltage[k]):
+            _observe(m, c, h_v[b], voltage[k], r_v, gate, relock_after, relock_inflation, 0, b,
+                     last_innovation, rejected_total, rejected_in_row, relocks)
+        if math.isfinite(temperature[k]):
+            _observe(m, c, h_t, temperature[k], r_t, gate, relock_after, relock_inflation, 1, b,
+                     last_innovation, rejected_total, rejected_in_row, relocks)
+
+
+@njit(**_JIT)
+def motor_step_rows(params, mean, cov, idx, dt, current, ambient, temperature, process_var, r, gate,
+                    relock_after, relock_inflation, rejected_total, rejected_in_row, relocks):
+    """``MotorThermalFilter.step`` for rows ``idx``, in place (one state per motor)."""
+    h = np.ones(1)
+    innovation = np.empty((mean.shape[0], 1))
+    for k in range(idx.shape[0]):
+        q = idx[k]
+        m, c = mean[q], cov[q]
+        if dt[k] > 0.0:
+            sd = math.sqrt(c[0, 0]) if c[0, 0] > 0.0 else math.sqrt(c[0, 0] + 1e-9 * c[0, 0] + 1e-12)
+            hi = kernel._thermal_advance(params[q], m[0] + sd, current[k], ambient, dt[k])
+            lo = kernel._thermal_advance(params[q], m[0] - sd, current[k], ambient, dt[k])
+            m[0] = 0.5 * (hi + lo)
+            c[0, 0] = 0.5 * ((hi - m[0]) ** 2 + (lo - m[0]) ** 2) + process_var * dt[k]
+        if math.isfinite(temperature[k]):
+            _observe(m, c, h, temperature[k], r, gate, relock_after, relock_inflation, 0, q,
+                     innovation, rejected_total, rejected_in_row, relocks)
