@@ -94,7 +94,7 @@ class Running:
         self.serve = subprocess.Popen(
             [sys.executable, "-m", "gcs_pdm.cli", "serve", "--mavlink", f"udpin:127.0.0.1:{self.udp}",
              "--http", f"127.0.0.1:{http}", "--data-dir", str(tmp_path / "data"), "--policy", "advise",
-             "--objectives", str(REPO / "deploy" / "table3_objectives.json")],
+             "--vehicle", "edge540", "--objectives", str(REPO / "deploy" / "table3_objectives.json")],
             cwd=REPO, env=self.env, stdout=subprocess.DEVNULL, stderr=open(tmp_path / "serve.log", "w"))
         self.sim = None
         self.client = httpx.Client(base_url=f"http://127.0.0.1:{http}", timeout=5)

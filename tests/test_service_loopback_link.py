@@ -40,7 +40,7 @@ def running(tmp_path):
     port = _free_udp_port()
     svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="loopback-token-0123456789",
                               policy="advise", mavlink_url=f"udpin:127.0.0.1:{port}", link_lost_after_s=1.5,
-                              record_tlog=False))
+                              record_tlog=False, vehicle="edge540"))
     svc.load_objectives_scenario(scenario)
     start_mavlink(svc)
     held = {"on": False}

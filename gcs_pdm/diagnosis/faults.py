@@ -12,7 +12,8 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any, Iterable
 
-from gcs_pdm.models.powertrain import MotorFault
+from gcs_pdm.models.params import MOTOR_NAMES
+from gcs_pdm.models.powertrain import DescribedMotorFault, MotorFault
 
 MOTOR_POWER_LOSS = "motor_power_loss"
 PACK_CAPACITY_LOSS = "pack_capacity_loss"
@@ -64,7 +65,10 @@ class Fault:
         """The planner's view of a motor power loss."""
         if self.type != MOTOR_POWER_LOSS:
             raise ValueError(f"only {MOTOR_POWER_LOSS} faults map to a MotorFault, not {self.type}")
-        return MotorFault(self.component, min(max(self.magnitude, 0.0), 1.0))
+        magnitude = min(max(self.magnitude, 0.0), 1.0)
+        if self.component in MOTOR_NAMES:
+            return MotorFault(self.component, magnitude)
+        return DescribedMotorFault(self.component, magnitude)  # a vehicle description's motor
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -20,6 +20,9 @@ def register(subparsers) -> None:
     p.add_argument("--system", type=int, default=None, help="vehicle system id (default: first autopilot heartbeat)")
     p.add_argument("--component", type=int, default=None, help="vehicle component id (default: first autopilot heartbeat)")
     p.add_argument("--no-diagnose", action="store_true", help="skip the estimator/diagnoser (gcs_pdm.diagnosis)")
+    p.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
+                   help="the vehicle description to diagnose (docs/vehicles.md); default: a provisional one "
+                        "derived from the log, as `gcs-pdm vehicle init --from LOG` writes it")
     p.set_defaults(func=run)
 
 
@@ -29,20 +32,33 @@ def run(args: argparse.Namespace) -> int:
     if not args.file.is_file():
         print(f"replay: no such file: {args.file}", file=sys.stderr)
         return 2
+    consumer = desc = None
+    if not args.no_diagnose:
+        from gcs_pdm.vehicle.description import VehicleError
+        from gcs_pdm.vehicle.replay import TracedPipeline, replay_vehicle
+
+        try:
+            desc, about = replay_vehicle(args.file, args.vehicle)
+        except VehicleError as exc:
+            print(f"replay: --vehicle: {exc}", file=sys.stderr)
+            return 2
+        if desc is None:
+            logging.getLogger(__name__).warning("replay: %s; diagnosing as the paper's aircraft (edge540): "
+                                                "give --vehicle", about["why"])
+        # The estimator/diagnoser consume the frames; faults and the sampled estimate land in the summary.
+        consumer = TracedPipeline(desc, about)
     try:
         mapping = json.loads(args.mapping.read_text()) if args.mapping else None
-        mapper = FrameMapper(mapping, target_system=args.system, target_component=args.component)
+        if mapping is None and desc is not None:
+            from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+
+            mapper = FrameMapper(frame_mapping(desc), target_system=args.system, target_component=args.component,
+                                 envelope=envelope(desc))
+        else:
+            mapper = FrameMapper(mapping, target_system=args.system, target_component=args.component)
     except (OSError, ValueError, MappingError) as exc:
         print(f"replay: bad mapping: {exc}", file=sys.stderr)
         return 2
-    consumer = None
-    if not args.no_diagnose:
-        # The estimator/diagnoser consume the frames and report faults raised into the summary.
-        try:
-            from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
-            consumer = DiagnosisPipeline()
-        except ImportError as exc:
-            logging.getLogger(__name__).warning("replay without diagnosis: %s", exc)
     if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
         from gcs_pdm.logs.replay import print_replay
         return print_replay(args.file, consumer, as_json=args.json)
@@ -71,8 +87,28 @@ def run(args: argparse.Namespace) -> int:
         print(f"    {name:<28} {count}")
     print(f"  time: {summary['mapping']['time_rejected']} messages with a rejected timestamp; "
           f"values outside the physical envelope: {summary['mapping']['gated'] or 'none'}")
+    about = (summary["consumer"] or {}).get("vehicle")
+    if about:
+        if about["source"] == "none":
+            print(f"  vehicle: none ({about['why']}); diagnosed as the paper's aircraft")
+        else:
+            print(f"  vehicle description: {about['name']} ({about['source']})")
+            for note in about["notes"]:
+                print(f"    provisional: {note}")
+            if about.get("save"):
+                print(f"    save and correct it: {about['save']}")
+    trace = (summary["consumer"] or {}).get("trace") or []
+    for sample in trace[::max(1, len(trace) // 8)]:
+        packs = "; ".join(f"{n} SoC {_f(p['soc'])}, {_f(p['temperature_c'])} °C, {_f(p['current_a'])} A"
+                          + (f", cut-off in {_f(p['time_to_cutoff_s'][1])} s" if p["time_to_cutoff_s"] else "")
+                          for n, p in sample["packs"].items())
+        print(f"  t={sample['time_s']:.0f} s: {packs}")
     for reason in summary["not_diagnosed"]:
         print(f"  not diagnosed: {reason}")
     print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}"
           + ("" if diagnosable else " (nothing could be diagnosed: see above)"))
     return status
+
+
+def _f(x) -> str:
+    return "?" if x is None else f"{x:.3g}"

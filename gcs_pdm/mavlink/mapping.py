@@ -262,6 +262,15 @@ def _compile_rule(message: str, rule: dict) -> _CompiledRule:
     return _CompiledRule(cls, instances, key_position, tuple(match))
 
 
+def _compile_mapping(mapping: dict) -> dict[int, list[_CompiledRule]]:
+    rules: dict[int, list[_CompiledRule]] = {}
+    for message, message_rules in mapping.items():
+        for rule in message_rules:
+            compiled = _compile_rule(message, rule)  # names an unknown message before the lookup below
+            rules.setdefault(MESSAGE_IDS_BY_NAME[message], []).append(compiled)
+    return rules
+
+
 @dataclass
 class MappingStats:
     frames_by_kind: Counter = field(default_factory=Counter)
@@ -322,11 +331,7 @@ class FrameMapper:
                  target_component: int | None = None, sync_window_s: float = 30.0,
                  envelope: PhysicalEnvelope | None | str = "default"):
         self.mapping = default_mapping() if mapping is None else mapping
-        self.rules: dict[int, list[_CompiledRule]] = {}
-        for message, rules in self.mapping.items():
-            for rule in rules:
-                compiled = _compile_rule(message, rule)
-                self.rules.setdefault(MESSAGE_IDS_BY_NAME[message], []).append(compiled)
+        self.rules: dict[int, list[_CompiledRule]] = _compile_mapping(self.mapping)
         self.target_system = target_system
         self.target_component = target_component
         self.locked = target_system is not None and target_component is not None
@@ -338,6 +343,16 @@ class FrameMapper:
         self.gate = FrameGate(envelope, self.stats.gated) if envelope is not None else None
         # frames held until the clock has a time: (receive time, own time_boot s or None, class, values)
         self._pending: list[tuple[float, float | None, type, tuple]] = []
+
+    def remap(self, mapping: dict, envelope: PhysicalEnvelope | None = None) -> None:
+        """Another vehicle layout (a description derived from the first telemetry), keeping the
+        clock and the vehicle lock. The rules are swapped in one assignment: the reader thread
+        maps each packet with the old rules or the new, never a mix."""
+        rules = _compile_mapping(mapping)
+        if envelope is not None:
+            self.gate = FrameGate(envelope, self.stats.gated)
+        self.mapping = mapping
+        self.rules = rules
 
     def _note_foreign(self, sysid: int, compid: int, payload) -> None:
         """A heartbeat from a system that is not our vehicle: record it if it claims to be an autopilot."""

@@ -93,16 +93,25 @@ class MotorFault:
     kind: str = "motor_power_loss"
 
     def __post_init__(self) -> None:
-        if self.motor not in MOTOR_NAMES:
+        if self.motor not in MOTOR_NAMES and not (type(self) is not MotorFault and isinstance(self.motor, str)
+                                                  and self.motor):
             raise ValueError(f"motor: expected one of {MOTOR_NAMES}, got {self.motor!r}")
         if not 0.0 <= float(self.magnitude) <= 1.0:
             raise ValueError(f"magnitude: must be within [0, 1], got {self.magnitude!r}")
+
+
+@dataclass(frozen=True)
+class DescribedMotorFault(MotorFault):
+    """A power loss of a vehicle description's motor (any name it gives, e.g. "m2"): flown by the
+    description's simulator, never by the paper's four-pack kernel (``fault_vector`` refuses it)."""
 
 
 def fault_vector(faults: "list[MotorFault] | tuple[MotorFault, ...]" = ()) -> np.ndarray:
     """Per-motor fault magnitudes (fwd, aft) for the kernel; several faults on one motor compound."""
     health = np.ones(len(MOTOR_NAMES))
     for f in faults:
+        if f.motor not in MOTOR_NAMES:
+            raise ValueError(f"motor: expected one of {MOTOR_NAMES}, got {f.motor!r}")
         health[MOTOR_NAMES.index(f.motor)] *= 1.0 - float(f.magnitude)
     return 1.0 - health
 

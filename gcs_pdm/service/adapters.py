@@ -23,10 +23,15 @@ log = logging.getLogger(__name__)
 
 # --- estimation --------------------------------------------------------------------------------
 
-def make_estimator(params: ParameterSet):
+def make_estimator(params: ParameterSet, vehicle=None):
+    """The estimator of ``vehicle`` (a ``VehicleDescription``), or the paper's aircraft on ``params``
+    (None or the ``edge540`` preset: the paper's code path with the active parameter set)."""
     from gcs_pdm.estimation.estimator import StateEstimator
+    from gcs_pdm.vehicle.presets import is_paper_aircraft
 
-    return StateEstimator(params)
+    if vehicle is None or is_paper_aircraft(vehicle):
+        return StateEstimator(params)
+    return StateEstimator(vehicle=vehicle)
 
 
 def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Sequence[MotorFault], limits=None,
@@ -106,13 +111,35 @@ def route_risk(estimator, load, faults: Sequence[MotorFault], limits=None, *, n_
             "landing_soc_packs": {n: q(soc[:, i]) for i, n in enumerate(names)}}
 
 
+def follows_description(vehicle) -> bool:
+    """A vehicle description other than the paper's aircraft (whose own code path runs for it)."""
+    from gcs_pdm.vehicle.presets import is_paper_aircraft
+
+    return vehicle is not None and not is_paper_aircraft(vehicle)
+
+
+def cutoff_at_present_draw_job(estimator, vehicle, *, n_samples: int = 64, seed: int = 0):
+    """Each pack's Monte Carlo time to its cut-off if it keeps its present draw (any description),
+    as a callable to run elsewhere (the estimator is copied here, on the telemetry thread)."""
+    from gcs_pdm.estimation.prediction import predict_packs_at_current
+    from gcs_pdm.vehicle.model_inputs import model_inputs
+
+    frozen = copy.deepcopy(estimator)
+    cutoff = model_inputs(vehicle).pack_cutoff_v
+    return lambda: predict_packs_at_current(frozen, cutoff, rng=np.random.default_rng(seed), n_samples=n_samples)
+
+
 # --- diagnosis ---------------------------------------------------------------------------------
 
-def make_diagnoser(params: ParameterSet, limits=None):
-    """The diagnosis pipeline: ``.consume(frame)`` and a list of active faults (``active_faults``)."""
-    from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
+def make_diagnoser(params: ParameterSet, limits=None, vehicle=None):
+    """The diagnosis pipeline: ``.consume(frame)``, ``active_faults()``, ``readiness()``; of
+    ``vehicle`` or (None, ``edge540``) the paper's aircraft on ``params``."""
+    from gcs_pdm.vehicle.presets import is_paper_aircraft
+    from gcs_pdm.vehicle.replay import pipeline_for
 
-    return DiagnosisPipeline(params) if limits is None else DiagnosisPipeline(params, limits=limits)
+    # the scenario's limits are the paper aircraft's; a described vehicle carries its own
+    paper = vehicle is None or is_paper_aircraft(vehicle)
+    return pipeline_for(vehicle, params, limits=limits) if paper and limits is not None else pipeline_for(vehicle, params)
 
 
 def estimator_of(diagnoser):
@@ -145,11 +172,15 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                     ground_temp_c: float, position: tuple[float, float, float], keep_route: Sequence[int],
                     *, planner: str, particles: int, seed: int, deadline_s: float, time_s: float,
                     visited: Sequence[int] = (), reward_collected: float = 0.0,
-                    limits: Any = None) -> tuple[list[Candidate], dict]:
+                    limits: Any = None, vehicle=None) -> tuple[list[Candidate], dict]:
     """Plan from the live state; evaluate the planner's route, the current one and the way home.
 
     Each candidate carries the mission that flies it (``extra["mission"]``: items in the planner's
-    ArduPilot layout and the item to make current after the upload)."""
+    ArduPilot layout and the item to make current after the upload). ``vehicle``: a description to
+    fly instead of the paper's aircraft; ``state`` and ``faults`` are then its packs' and motors'
+    (the scenario keeps the position and waypoints; its four-pack start is a placeholder the
+    simulator does not read, and ``info["vehicle"]`` records the state planned from)."""
+    from gcs_pdm.vehicle.presets import is_paper_aircraft
     from gcs_pdm.missions import item_to_json
     from gcs_pdm.planning.mission import plan_to_mission
     from gcs_pdm.planning.plan import make_plan
@@ -167,10 +198,16 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                             airspeed_mps=w.airspeed_mps))
     e, n = enu_from_geodetic(position[0], position[1], lat0, lon0)
     # The ground ambient is what the scenario wants; aloft it follows the lapse rate from there.
-    scenario = Scenario.from_live(params, state, list(faults), wps, (e, n, position[2]),
+    paper = vehicle is None or is_paper_aircraft(vehicle)
+    scenario = Scenario.from_live(params, state if paper else _placeholder_state(params, ground_temp_c),
+                                  list(faults) if paper else [], wps, (e, n, position[2]),
                                   Home(lat_deg=lat0, lon_deg=lon0, ground_alt_m=alt0, ground_temp_c=ground_temp_c),
                                   limits, time_s=time_s, reward_collected=reward_collected, visited=tuple(visited))
-    sim = VehicleSimulator(scenario, params)
+    if paper:
+        sim = VehicleSimulator(scenario, params)
+    else:
+        sim = VehicleSimulator(scenario, vehicle=vehicle, state=state,
+                               motor_faults={f.motor: f.magnitude for f in faults})
     index_of = {w.number: i for i, w in enumerate(scenario.waypoints)}
     t0 = time.perf_counter()
     planned = run_planner(planner, sim, particles=particles, seed=seed, deadline_s=deadline_s)
@@ -189,7 +226,19 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                    "mission": {"items": [item_to_json(i) for i in mp.items], "current_seq": mp.current_seq}}))
     info = {"planner": getattr(planned, "planner", planner), "plan_time_s": plan_s, "scenario": scenario.to_dict(),
             "loads": {name: route_load(sim, p.route) for name, p in plans.items()}}
+    if not paper:
+        info["vehicle"] = {"name": vehicle.name, "pack_state": np.asarray(state.pack_state).tolist(),
+                           "motor_temp_c": np.asarray(state.motor_temp_c).tolist(),
+                           "motor_faults": {f.motor: f.magnitude for f in faults}}
     return cands, info
+
+
+def _placeholder_state(params: ParameterSet, temp_c: float) -> PowertrainState:
+    """Full packs of the paper's layout: the scenario's start when a description is flown (unread)."""
+    from gcs_pdm.models import kernel
+
+    return PowertrainState(pack_state=kernel.initial_pack_state(params.pack_matrix(), 1.0, temp_c),
+                           motor_temp_c=np.full(kernel.N_MOTORS, temp_c))
 
 
 def route_load(sim, route: Sequence[int]):

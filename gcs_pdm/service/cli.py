@@ -18,6 +18,9 @@ def register(subparsers) -> None:
     p.add_argument("--policy", choices=("auto", "advise"))
     p.add_argument("--data-dir", dest="data_dir")
     p.add_argument("--objectives", help="scenario JSON with the waypoints' rewards and the limits to plan with")
+    p.add_argument("--vehicle", metavar="FILE|PRESET",
+                   help="vehicle description (docs/vehicles.md); default: a provisional one derived from the first "
+                        "telemetry (said in /status and the log)")
     p.set_defaults(func=_serve)
     d = subparsers.add_parser("demo", help="simulated vehicle + service on loopback: the Table III flight, live")
     d.add_argument("--speedup", type=float, default=60.0, help="simulated seconds per wall second (default 60)")
@@ -29,6 +32,9 @@ def register(subparsers) -> None:
     d.add_argument("--params", default="learned",
                    help="parameter set the service flies with: learned (fixtures/params/learned_sim.json), "
                         "paper_si, previous_si")
+    d.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
+                   help="fly another vehicle description (e.g. quad-4s: a survey, a fault on one rotor, replan, "
+                        "upload); default: the paper's Edge 540 and its Table III flight")
     d.add_argument("--timeout", type=float, default=170.0, help="wall-clock limit, s")
     d.add_argument("--no-compare", action="store_true", help="skip flying the original mission without the service")
     d.add_argument("--export-tryout", metavar="DIR",
@@ -65,14 +71,18 @@ def _serve(args: argparse.Namespace) -> int:
             return fail(f"--http {args.http!r}: expected HOST:PORT")
     try:
         config = load_config(args.config, mavlink_url=args.mavlink_url, policy=args.policy, data_dir=args.data_dir,
-                             http_host=host or None, http_port=port, target_system=args.target_system)
+                             http_host=host or None, http_port=port, target_system=args.target_system,
+                             vehicle=args.vehicle)
     except ConfigError as exc:
         return fail(str(exc))
     from gcs_pdm.service.server import StartupError, serve
     from gcs_pdm.service.storage import Conflict, NotFound
+    from gcs_pdm.vehicle.description import VehicleError
 
     try:
         return serve(config, objectives=args.objectives)
+    except VehicleError as exc:
+        return fail(f"vehicle: {exc}")
     except StartupError as exc:
         return fail(str(exc))
     except NotFound as exc:  # e.g. parameter_set names no stored set
@@ -93,6 +103,19 @@ def _demo(args: argparse.Namespace) -> int:
 
     # The demo's own lines are the show; the libraries' INFO chatter would bury them.
     logging.getLogger().setLevel(logging.WARNING)
+    if args.vehicle not in (None, "edge540"):
+        from gcs_pdm.service.demo_vehicle import print_vehicle_summary, run_vehicle_demo
+        from gcs_pdm.vehicle.description import VehicleError
+
+        speedup = args.speedup if args.speedup != 60.0 else 8.0  # a small vehicle's short legs: 60x is a blur
+        try:
+            result = run_vehicle_demo(args.vehicle, speedup=speedup, http_port=args.http_port, data_dir=args.data_dir,
+                                      seed=args.seed, timeout_s=args.timeout, policy=args.policy)
+        except VehicleError as exc:
+            print(f"gcs-pdm demo: --vehicle: {exc}", file=sys.stderr)
+            return 2
+        print_vehicle_summary(result)
+        return 0 if result.landed else 1
     result = run_demo(speedup=args.speedup, http_port=args.http_port, data_dir=args.data_dir, seed=args.seed,
                       timeout_s=args.timeout, compare=not args.no_compare, params=args.params,
                       policy=args.policy)

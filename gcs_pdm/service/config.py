@@ -105,6 +105,8 @@ class ServiceConfig(BaseSettings):
 
     # --- decision loop -----------------------------------------------------------------------
     policy: Literal["auto", "advise"] = Field("advise", description="advise: propose, the operator approves (the safe start); auto: upload and tell the operator")
+    vehicle: str | None = Field(None, description="vehicle description: a preset (edge540, plane-3s, quad-4s, ...) or "
+                                "a TOML/JSON file (docs/vehicles.md); unset: a provisional one from the first telemetry")
     parameter_set: str = Field("paper_si", description="parameter set active at start-up (name in the store)")
     planner: Literal[SERVICE_PLANNERS] = Field(  # type: ignore[valid-type] - the registry's names
         "auto", description="auto (= pfls, alias stronger): PF + local search; pf: Algorithm 1 alone; exact: branch and bound")

@@ -291,6 +291,37 @@ def use_parameter_set(service: Service, which: str) -> str:
     return ps.name
 
 
+def start_status_page(service: Service, out=print):
+    """The HTTP API on the configured port (a free one when it is taken); its address said."""
+    from gcs_pdm.service.server import HttpServer
+
+    config = service.config
+    try:
+        http = HttpServer(service, config.http_host, config.http_port).start()
+    except RuntimeError:
+        out(f"port {config.http_port} is taken; the status page goes on a free port")
+        http = HttpServer(service, config.http_host, 0).start()
+    out(f"gcs-pdm demo: status page {http.url}/  (API docs {http.url}/docs, token {service.token})")
+    return http
+
+
+def fly_until_on_ground(vehicle, wall0: float, timeout_s: float, out=print, every_s: float = 120.0) -> None:
+    """Until the simulated vehicle is down and disarmed (or the wall-clock limit), a line every ``every_s``."""
+    last_status = -math.inf
+    while time.monotonic() - wall0 < timeout_s:
+        s = vehicle.state
+        if s.time_s - last_status >= every_s:
+            last_status = s.time_s
+            soc = ", ".join(f"{v:.2f}" for v in s.pack_soc)
+            temps = "/".join(f"{t:.0f}" for t in s.motor_temp_c)
+            out(f"[t={s.time_s:7.1f} s] vehicle  {s.mode:5s} alt {s.alt_m:5.0f} m  item {s.current_seq:2d}  "
+                f"SoC [{soc}]  motors {temps} °C")
+        if (s.landed or s.failed) and s.on_ground and not s.armed:
+            break
+        time.sleep(0.2)
+    time.sleep(0.5)
+
+
 class DecisionHold:
     """Holds the simulated vehicle's clock while the service is deciding, so when its answer
     arrives in flight time does not depend on how loaded the machine is (the tests' mode; ``gcs-pdm
@@ -331,7 +362,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     """The demo; ``hold_while_deciding`` stops the vehicle's clock while the service decides
     (:class:`DecisionHold`: deterministic under load, for tests)."""
     from gcs_pdm.service.adapters import start_sim_vehicle
-    from gcs_pdm.service.server import HttpServer, start_mavlink, stop_mavlink
+    from gcs_pdm.service.server import start_mavlink, stop_mavlink
 
     wall0 = time.monotonic()
     scenario, mission = table3_mission()
@@ -345,18 +376,13 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     # A held vehicle is silent: the link may only be declared lost after the longest decision.
     held = {"link_lost_after_s": 600.0} if hold_while_deciding else {}
     config = load_config(env={}, data_dir=data_dir, api_token=token, policy=policy, http_port=http_port,
-                         mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0, **held)
+                         mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0, vehicle="edge540", **held)
     service = Service(config)
     if params == "learned" and not LEARNED_SET.exists():
         params = "paper_si"
     params_name = use_parameter_set(service, params)
     service.load_objectives_scenario(scenario)
-    try:
-        http = HttpServer(service, config.http_host, config.http_port).start()
-    except RuntimeError:
-        out(f"port {config.http_port} is taken; the status page goes on a free port")
-        http = HttpServer(service, config.http_host, 0).start()
-    out(f"gcs-pdm demo: status page {http.url}/  (API docs {http.url}/docs, token {token})")
+    http = start_status_page(service, out)
     out(f"  vehicle: simulated Edge 540, hidden true parameters, x{speedup:g} real time, MAVLink udp 127.0.0.1:{port}")
     out(f"  service: policy {policy}, parameter set {params_name!r} (the vehicle's true parameters stay hidden)")
     out(f"  mission: waypoints 1..10 in numbered order; the {FAULT_MOTOR} motor will lose "
@@ -368,19 +394,8 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     vehicle = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry(), hold=hold)
     if hold is not None:
         hold.vehicle = vehicle
-    last_status = -math.inf
     try:
-        while time.monotonic() - wall0 < timeout_s:
-            s = vehicle.state
-            if s.time_s - last_status >= 120.0:
-                last_status = s.time_s
-                soc = ", ".join(f"{v:.2f}" for v in s.pack_soc)
-                out(f"[t={s.time_s:7.1f} s] vehicle  {s.mode:5s} alt {s.alt_m:5.0f} m  item {s.current_seq:2d}  "
-                    f"SoC [{soc}]  motors {s.motor_temp_c[0]:.0f}/{s.motor_temp_c[1]:.0f} °C")
-            if (s.landed or s.failed) and s.on_ground and not s.armed:
-                break
-            time.sleep(0.2)
-        time.sleep(0.5)
+        fly_until_on_ground(vehicle, wall0, timeout_s, out, every_s=120.0)
     finally:
         vehicle.stop()
         if operator is not None:

@@ -82,7 +82,7 @@ class FaultTracker:
 
     def update_motor_health(self, diagnosed: list[Fault] | None = None) -> None:
         faults = self.motor_faults(diagnosed)
-        for n in MOTOR_NAMES:
+        for n in getattr(adapters.estimator_of(self.diagnoser), "motor_names", MOTOR_NAMES):
             f = next((x for x in faults if x.motor == n), None)
             self.service.state.update_nested("motors", n, health=1.0 - (f.magnitude if f else 0.0),
                                              fault={"kind": f.kind, "magnitude": f.magnitude} if f else None)

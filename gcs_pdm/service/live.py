@@ -29,6 +29,8 @@ from gcs_pdm.service.fault_tracker import FaultTracker
 from gcs_pdm.service.live_state import LinkLost
 from gcs_pdm.service.plan_executor import MAV_SEVERITY_NOTICE, PlanExecutor, Snapshot, UploadOutcome
 from gcs_pdm.service.telemetry_intake import TelemetryIntake
+from gcs_pdm.service.vehicle_discovery import AwaitingVehicle, VehicleDiscovery
+from gcs_pdm.vehicle.presets import PRESETS
 
 __all__ = ["LinkLost", "LiveLoop", "Snapshot", "UploadOutcome"]
 
@@ -36,14 +38,25 @@ log = logging.getLogger(__name__)
 
 
 class LiveLoop:
-    def __init__(self, service, link, mission_client, *, estimator=None, diagnoser=None):
+    def __init__(self, service, link, mission_client, *, estimator=None, diagnoser=None, discover: bool = False):
+        """``discover``: without a vehicle description (``service.vehicle``), derive a provisional one
+        from the first telemetry (service/vehicle_discovery.py) instead of assuming the paper's aircraft."""
         self.service = service
         self.link = link
         self.mc = mission_client
+        self.discovery = None
+        if diagnoser is None and discover and service.vehicle is None:
+            self.discovery = VehicleDiscovery(link, lambda desc, notes: self.telemetry.call_soon(
+                lambda: self.adopt_vehicle(desc, notes)))
+            diagnoser = AwaitingVehicle(self.discovery.waiting)
+            service.describe_vehicle(None, "deriving", waiting=self.discovery.waiting())
+        elif service.vehicle is None:
+            service.describe_vehicle(PRESETS["edge540"], "default")
         self.diagnoser = diagnoser if diagnoser is not None else adapters.make_diagnoser(
-            service.params, service.limits.kernel_limits() if service.limits is not None else None)
+            service.params, service.limits.kernel_limits() if service.limits is not None else None,
+            vehicle=service.vehicle)
         shared = adapters.estimator_of(self.diagnoser) if estimator is None else None
-        self.estimator = estimator or shared or adapters.make_estimator(service.params)
+        self.estimator = estimator or shared or adapters.make_estimator(service.params, service.vehicle)
         self.telemetry = TelemetryIntake(service, link, self.estimator, self.diagnoser, feed_estimator=shared is None)
         self.faults = FaultTracker(service, self.diagnoser)
         self.executor = PlanExecutor(service, link, mission_client, self.telemetry, self.estimator, self.diagnoser)
@@ -54,17 +67,56 @@ class LiveLoop:
         self.telemetry.on_message = self.executor.watch
         self.telemetry.motor_faults = lambda: self.faults.motor_faults()
         self.executor.request_replan = lambda reason: self.request_replan(reason)
+        self.publish_readiness()
 
     # --- lifecycle -------------------------------------------------------------------------------
 
     def start(self) -> "LiveLoop":
         self.telemetry.start()
         self.executor.start()
+        if self.discovery is not None:
+            self.discovery.start()
         return self
 
     def stop(self) -> None:
+        if self.discovery is not None:
+            self.discovery.stop()
         self.telemetry.stop()
         self.executor.stop()
+
+    # --- the vehicle description and readiness ----------------------------------------------------
+
+    def adopt_vehicle(self, desc, notes: list[str]) -> None:
+        """A description derived from the first telemetry: the link maps its packs and motors from
+        now on, and the estimator and diagnoser are built from it (on the telemetry thread)."""
+        from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+
+        self.link.mapper.remap(frame_mapping(desc), envelope(desc))
+        self.diagnoser = adapters.make_diagnoser(self.service.params, vehicle=desc)
+        self.estimator = adapters.estimator_of(self.diagnoser)
+        for part in (self.telemetry, self.executor):
+            part.estimator, part.diagnoser = self.estimator, self.diagnoser
+        self.faults.diagnoser = self.diagnoser
+        self.service.adopt_vehicle(desc, "provisional", notes)
+        self.publish_readiness()
+
+    def readiness(self) -> dict[str, str]:
+        """What the service can do now and why not ("ready" or the reason), per capability."""
+        fn = getattr(self.diagnoser, "readiness", None) or getattr(self.estimator, "readiness", None)
+        out = dict(fn()) if fn is not None else {"state": "ready" if self.estimator.ready() else "not ready"}
+        out["replan"] = out.get("prediction", out["state"])
+        return out
+
+    def replan_blocker(self) -> str | None:
+        """Why a replan cannot run now (the operator's request is refused with it), or None."""
+        # the published copy: this runs on HTTP threads, the filters belong to the telemetry thread
+        why = (self.service.state.get("readiness") or {}).get("replan", "not known yet")
+        return None if why == "ready" else why
+
+    def publish_readiness(self) -> None:
+        self.service.state.update(readiness=self.readiness())
+        if self.discovery is not None and self.service.vehicle is None:
+            self.service.describe_vehicle(None, "deriving", waiting=self.discovery.waiting())
 
     # --- what the service reads ------------------------------------------------------------------
 
@@ -91,6 +143,7 @@ class LiveLoop:
         self.telemetry.process(frame)
 
     def _tick(self, t: float) -> None:
+        self.publish_readiness()
         new_or_grown = self.faults.check(t)
         if new_or_grown:
             self.request_replan("fault: " + ", ".join(f"{f.type} {f.component}" for f in new_or_grown))

@@ -31,6 +31,16 @@ def _clean(v: Any) -> Any:
     return v
 
 
+def _packs(names) -> dict[str, dict]:
+    return {n: {"voltage_v": None, "current_a": None, "temperature_c": None, "soc": None, "soc_sd": None,
+                "temperature_sd": None, "time_to_cutoff_s": None, "time_to_cutoff_sd": None} for n in names}
+
+
+def _motors(names) -> dict[str, dict]:
+    return {n: {"current_a": None, "rpm": None, "temperature_c": None, "temperature_sd": None,
+                "health": 1.0, "fault": None} for n in names}
+
+
 class LiveState:
     def __init__(self, track_window_s: float = 7200.0) -> None:
         self._lock = threading.Lock()
@@ -40,10 +50,8 @@ class LiveState:
             "time_s": None,
             "link": {"url": None, "connected": False, "state": LINK_WAITING, "reason": None, "vehicle": None,
                      "received": 0, "last_frame_time_s": None},
-            "packs": {n: {"voltage_v": None, "current_a": None, "temperature_c": None, "soc": None, "soc_sd": None,
-                          "temperature_sd": None, "time_to_cutoff_s": None, "time_to_cutoff_sd": None} for n in PACK_NAMES},
-            "motors": {n: {"current_a": None, "rpm": None, "temperature_c": None, "temperature_sd": None,
-                           "health": 1.0, "fault": None} for n in MOTOR_NAMES},
+            "packs": _packs(PACK_NAMES),
+            "motors": _motors(MOTOR_NAMES),
             "ambient_c": None,
             "position": {"lat_deg": None, "lon_deg": None, "alt_m": None, "relative_alt_m": None},
             "airdata": {"airspeed": None, "groundspeed": None, "climb_rate": None, "throttle_pct": None},
@@ -53,7 +61,17 @@ class LiveState:
             "policy": None,
             "parameter_set": None,
             "failed": None,
+            # what the service can and cannot do now, and why (the pipeline's readiness)
+            "readiness": {"state": "no vehicle link", "prediction": "no vehicle link",
+                          "motor_telemetry": "no vehicle link", "motor_diagnosis": "no vehicle link"},
+            "vehicle": None,
         }
+
+    def set_components(self, packs: tuple[str, ...] | list[str], motors: tuple[str, ...] | list[str]) -> None:
+        """The vehicle's packs and motors by name (a description's), their readings not yet known."""
+        with self._lock:
+            self._s["packs"] = _packs(packs)
+            self._s["motors"] = _motors(motors)
 
     def update(self, **sections: Any) -> None:
         with self._lock:

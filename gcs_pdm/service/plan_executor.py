@@ -384,7 +384,7 @@ class PlanExecutor:
             svc.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
             planner=cfg.planner, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
             time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
-            limits=svc.limits)
+            limits=svc.limits, vehicle=svc.vehicle)
         chosen, why = choose(cands)
         cands, chosen = self._assess_risk(snap, cands, chosen, info["loads"])
         load = (info["loads"].get(chosen.name), snap.time_s)
@@ -436,6 +436,10 @@ class PlanExecutor:
                 continue
             if snap.estimator is None:
                 risk = {"risk_unknown": "no state estimate when the plan was made"}
+            elif adapters.follows_description(self.service.vehicle):
+                # route_risk flies the paper's two-motor fault vector; a described vehicle's faults
+                # name its own motors, so no probability is shown rather than a wrong one
+                risk = {"risk_unknown": "probability of failure is computed for the paper's aircraft only so far"}
             elif loads.get(c.name) is None:
                 risk = {"risk_unknown": "no load profile for this route"}
             else:

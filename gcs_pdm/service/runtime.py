@@ -51,6 +51,14 @@ class Service:
         self.loop = None
         self.foreign_watch = None  # status_report.ForeignSystemWatcher, once a link is attached
         self.state.update(policy=self.policy, parameter_set=self.params.name)
+        #: the vehicle description (``vehicle`` in the config); None: the live loop derives a
+        #: provisional one from the first telemetry (service/vehicle_discovery.py)
+        self.vehicle = None
+        if config.vehicle:
+            from gcs_pdm.vehicle.presets import resolve
+
+            self.vehicle = resolve(config.vehicle)  # VehicleError: serve says it in one line
+            self.describe_vehicle(self.vehicle, "given")
 
     # --- lifecycle ---------------------------------------------------------------------------------
 
@@ -61,6 +69,31 @@ class Service:
         self.state.update(link={"url": self.config.mavlink_url})
         if getattr(loop, "link", None) is not None:
             self.foreign_watch = ForeignSystemWatcher(self, loop.link).start()
+
+    def describe_vehicle(self, desc, source: str, notes: list[str] | tuple = (), waiting: str | None = None) -> None:
+        """Say in /status which description is in use (and its packs and motors by name)."""
+        from gcs_pdm.service.vehicle_discovery import about_vehicle
+
+        previous = self.state.get("vehicle") or {}
+        self.state.update(vehicle=about_vehicle(desc, source, notes, waiting))
+        if previous.get("name") != (desc.name if desc is not None else None) or not previous:
+            self.state.set_components([p.name for p in desc.packs] if desc is not None else [],
+                                      [m.name for m in desc.motors] if desc is not None else [])
+
+    def adopt_vehicle(self, desc, source: str, notes: list[str]) -> None:
+        """A description the service now follows (derived from telemetry): said in /status, the log
+        and an event, with how to save and correct it."""
+        from gcs_pdm.service.vehicle_discovery import about_vehicle
+
+        self.vehicle = desc
+        self.describe_vehicle(desc, source, notes)
+        about = about_vehicle(desc, source, notes)
+        log.warning("no vehicle description given: using a %s one derived from telemetry (%d pack(s) %s, "
+                    "%d motor(s) %s); to save and correct it: %s", source, len(desc.packs), about["packs"],
+                    len(desc.motors), about["motors"], about.get("save", ""))
+        for note in notes:
+            log.warning("vehicle description: %s", note)
+        self.events.publish("vehicle", **about)
 
     def close(self) -> None:
         if self.foreign_watch is not None:
@@ -102,6 +135,9 @@ class Service:
         t = self.state.get("time_s")
         if kind != MOTOR_POWER_LOSS:
             raise ValueError(f"kind: an operator can declare {MOTOR_POWER_LOSS} only, not {kind!r}")
+        motors = list(self.state.get("motors"))
+        if motor not in motors:  # the vehicle description's motors (the paper's: fwd, aft)
+            raise ValueError(f"motor: no motor {motor!r} on this vehicle; have {', '.join(motors) or 'none yet'}")
         fault = operator_fault(motor, magnitude, t)
         fid = self.store.add_fault(fault, "operator", note)
         self.events.publish("fault", id=fid, time_s=t, kind=kind, target=motor, magnitude=magnitude, source="operator")
@@ -145,6 +181,9 @@ class Service:
         if self.loop is None:
             raise Conflict("no vehicle link: nothing to replan")
         self.loop.require_link("replan")
+        why = self.loop.replan_blocker()
+        if why is not None:  # said now (409), not accepted and then deferred in a log line
+            raise Conflict(f"cannot replan now: {why}")
         self.loop.request_replan(reason)
 
     def revert_upload(self, upload_id: int, note: str = "") -> int:

@@ -48,6 +48,8 @@ class Health(BaseModel):
     policy: Literal["auto", "advise"]
     active_parameter_set: str | None
     interrupted_jobs_at_start: int
+    readiness: dict[str, str] | None = Field(None, description="per capability: 'ready' or why not (e.g. 'waiting for pack battery voltage')")
+    vehicle: dict[str, Any] | None = Field(None, description="the vehicle description in use: name, source (given, default, deriving, provisional), notes")
     foreign_systems: list[int] = Field(default_factory=list, description="other systems sending vehicle heartbeats "
                                        "on our link (ignored, never tracked; details in /status link_trust)")
 
@@ -99,7 +101,8 @@ class FaultIn(BaseModel):
     """An operator-declared fault (e.g. seen on the ground station, not yet by the diagnoser)."""
 
     kind: Literal["motor_power_loss"] = "motor_power_loss"
-    motor: MotorName
+    motor: str = Field(..., min_length=1, max_length=64,
+                       description="a motor of the vehicle description in use (/status motors; the paper's: fwd, aft)")
     magnitude: float = Field(..., ge=0.0, le=1.0, description="fraction of the motor's power lost")
     note: str = Field("", max_length=MAX_NOTE_CHARS)
     replan: bool = Field(True, description="re-plan the mission with this fault")

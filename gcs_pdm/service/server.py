@@ -10,6 +10,7 @@ import time
 
 import uvicorn
 
+from gcs_pdm.service import adapters
 from gcs_pdm.service.api import create_app
 from gcs_pdm.service.config import ServiceConfig
 from gcs_pdm.service.runtime import Service
@@ -83,14 +84,24 @@ def start_mavlink(service: Service):
         folder.mkdir(parents=True, exist_ok=True)
         tlog_path = str(folder / time.strftime("live_%Y%m%dT%H%M%S.tlog"))
     target = None if cfg.target_system == "auto" else cfg.target_system
-    # Frames are gated against what the active parameter set's packs can physically report.
-    mapper = FrameMapper(target_system=target, envelope=PhysicalEnvelope.from_parameter_set(service.params))
+    # Frames are mapped by the vehicle description's pack ids and ESC indices, and gated against what
+    # its packs (the paper's aircraft: the active parameter set's) can physically report. Without a
+    # description no pack or motor is mapped until one is derived (service/vehicle_discovery.py).
+    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping, waiting_mapping
+
+    desc = service.vehicle
+    if desc is None:
+        mapper = FrameMapper(waiting_mapping(), target_system=target)
+    elif adapters.follows_description(desc):
+        mapper = FrameMapper(frame_mapping(desc), target_system=target, envelope=envelope(desc))
+    else:
+        mapper = FrameMapper(target_system=target, envelope=PhysicalEnvelope.from_parameter_set(service.params))
     link = Link(LinkConfig(url=cfg.mavlink_url, source_system=cfg.source_system,
                            source_component=cfg.source_component, signing_key_file=cfg.signing_key_file,
                            target_system=target, tlog_path=tlog_path), mapper).start()
     if tlog_path:
         service.store.add_tlog(tlog_path, note="live session")
-    loop = LiveLoop(service, link, MissionClient(link))
+    loop = LiveLoop(service, link, MissionClient(link), discover=desc is None)
     service.attach_loop(loop)
     loop.start()
     return loop

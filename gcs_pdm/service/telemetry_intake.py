@@ -23,7 +23,6 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusTextFrame
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
 from gcs_pdm.service import adapters
 from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
@@ -176,10 +175,10 @@ class TelemetryIntake:
         st = self.service.state
         if self.estimator.ready():
             est = self.estimator.estimate()
-            for i, n in enumerate(PACK_NAMES):
+            for i, n in enumerate(self.estimator.pack_names):
                 st.update_nested("packs", n, soc=float(est.soc[i]), soc_sd=float(est.soc_sd[i]),
                                  temperature_c=float(est.pack_temp_c[i]), temperature_sd=float(est.pack_temp_sd[i]))
-            for i, n in enumerate(MOTOR_NAMES):
+            for i, n in enumerate(self.estimator.motor_names):
                 st.update_nested("motors", n, temperature_c=float(est.motor_temp_c[i]),
                                  temperature_sd=float(est.motor_temp_sd[i]))
         st.update(link={"connected": not self.link_lost, "state": LINK_LOST if self.link_lost else LINK_UP,
@@ -233,7 +232,7 @@ class TelemetryIntake:
             st.update(link={"connected": False, "state": LINK_LOST, "reason": self.link_lost_reason,
                             "silent_s": silent, "lost_at_time_s": self.time_s})
             # No count-down for a vehicle we cannot hear: its load and state since are unknown.
-            for n in PACK_NAMES:
+            for n in self.estimator.pack_names:
                 st.update_nested("packs", n, time_to_cutoff_s=None, time_to_cutoff_sd=None)
             st.update(prediction={"stale": True, "reason": "link lost: " + self.link_lost_reason,
                                   "time_s": self.time_s})
@@ -259,8 +258,12 @@ class TelemetryIntake:
         power = float(shaft_power(airspeed, climb, air_density(alt)))
         amb = self.service.state.get("ambient_c")
         limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
-        job = adapters.prediction_job(self.estimator, power, float(amb) if amb is not None else 20.0,
-                                      self.motor_faults(), limits, seed=int(t))
+        if adapters.follows_description(self.service.vehicle):
+            # a described vehicle: each pack at its present draw (no four-pack shaft-power model)
+            job, power = adapters.cutoff_at_present_draw_job(self.estimator, self.service.vehicle, seed=int(t)), None
+        else:
+            job = adapters.prediction_job(self.estimator, power, float(amb) if amb is not None else 20.0,
+                                          self.motor_faults(), limits, seed=int(t))
         self._predicting = True
 
         def run() -> None:
@@ -269,8 +272,11 @@ class TelemetryIntake:
                 if self.link_lost:  # the vehicle went silent meanwhile: these numbers are stale already
                     return
                 st = self.service.state
-                for i, n in enumerate(PACK_NAMES):
-                    q05, q50, q95 = (float(v) for v in pred.pack_time_to_cutoff_s[i])
+                per_pack = getattr(pred, "pack_time_to_cutoff_s", None)
+                if per_pack is None:
+                    per_pack = pred.time_to_cutoff_s
+                for i, n in enumerate(self.estimator.pack_names):
+                    q05, q50, q95 = (float(v) for v in per_pack[i])
                     sd = (q95 - q05) / 3.29 if math.isfinite(q95) and math.isfinite(q05) else None
                     st.update_nested("packs", n, time_to_cutoff_s=q50 if math.isfinite(q50) else None,
                                      time_to_cutoff_sd=sd)

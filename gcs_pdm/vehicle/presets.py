@@ -120,3 +120,9 @@ def resolve(spec: str | Path | VehicleDescription) -> VehicleDescription:
     if Path(spec).exists():
         return load(spec)
     raise VehicleError(f"--vehicle {spec}: neither a preset ({', '.join(PRESETS)}) nor a file")
+
+
+def is_paper_aircraft(desc) -> bool:
+    """The ``edge540`` preset: the service and replay run the paper's own code path for it (the
+    shared-shaft motor detector, the active parameter set), which it reproduces exactly."""
+    return desc == PRESETS[DEFAULT_PRESET]

@@ -50,6 +50,12 @@ _ESC_MESSAGES = {"ESC_TELEMETRY_1_TO_4": 0, "ESC_TELEMETRY_5_TO_8": 4, "ESC_TELE
 FIRST_READINGS = 5
 #: cells of slack on the count: a pack at exactly 4.35 V/cell plus sensor noise is not one cell more
 CELL_COUNT_SLACK = 0.02
+#: loaded readings kept per pack for the stiffness check (pack voltage, current, reported SoC)
+LOADED_READINGS = 400
+#: a reading is "loaded" from this current on, A
+LOADED_CURRENT_A = 2.0
+#: per-cell gap (observed over modelled voltage under load) from which the full-cell voltage is raised
+STIFFNESS_GAP_CELL_V = 0.02
 
 
 @dataclass
@@ -61,6 +67,8 @@ class _PackSeen:
     first_consumed_mah: float | None = None
     capacity_estimate_mah: float | None = None
     frames: int = 0
+    #: (voltage V, current A, the autopilot's remaining fraction) under load
+    loaded: list = field(default_factory=list)
 
 
 @dataclass
@@ -120,6 +128,10 @@ class ProvisionalObserver:
         if temp is not None and temp != _INT16_MAX:
             seen.temperature_reported = True
         remaining, consumed = f.get("battery_remaining"), f.get("current_consumed")
+        current = f.get("current_battery")
+        if (cells and current is not None and current >= LOADED_CURRENT_A * 100 and remaining is not None
+                and 0 < remaining <= 100 and len(seen.loaded) < LOADED_READINGS):
+            seen.loaded.append((sum(cells) / 1000.0, current / 100.0, remaining / 100.0))
         if remaining is None or consumed is None or remaining < 0 or consumed < 0:
             return
         if seen.first_remaining is None:
@@ -139,6 +151,19 @@ class ProvisionalObserver:
             seen.current |= bool(values["current"])
             seen.rpm |= bool(values["rpm"])
             seen.temperature |= bool(values["temperature"])
+
+    def waiting_for(self) -> str | None:
+        """What a derivation still waits for (None: settled, derive now). Settled = the vehicle's
+        HEARTBEAT seen and every pack that reported a voltage has given its first readings (the
+        boot voltage is their median); by then a vehicle with ESC telemetry has sent it too."""
+        if self.mav_type is None:
+            return "the vehicle's HEARTBEAT"
+        packs = {i: p for i, p in sorted(self.packs.items()) if p.max_voltage > 0}
+        if not packs:
+            return "a BATTERY_STATUS with a voltage"
+        short = [f"battery{i} ({len(p.first_voltages)} of {FIRST_READINGS} readings)"
+                 for i, p in packs.items() if len(p.first_voltages) < FIRST_READINGS]
+        return "the first voltage readings of " + ", ".join(short) if short else None
 
     # ---- the description ----------------------------------------------------------------------
     def derive(self, name: str = "provisional") -> tuple[VehicleDescription, list[str]]:
@@ -200,9 +225,40 @@ class ProvisionalObserver:
                "motors": [m["name"] for m in motors]}
         if len(packs) > 1:
             notes.append("several packs: assumed in parallel on one bus feeding every motor")
-        data = {**base, "name": name, "provisional": True, "packs": packs, "motors": motors, "buses": [bus],
-                "description": "derived from telemetry: " + "; ".join(notes)}
+        data = {**base, "name": name, "provisional": True, "packs": packs, "motors": motors, "buses": [bus]}
+        _raise_full_cell_voltage(data, [seen.loaded for seen in packs_seen.values()], notes)
+        data["description"] = "derived from telemetry: " + "; ".join(notes)
         return from_dict(data), notes
+
+
+def _raise_full_cell_voltage(data: dict, loaded: list[list], notes: list[str]) -> None:
+    """A pack that holds more voltage under load than its model can at the SoC the autopilot
+    reports would be estimated above full: raise its full-cell voltage by the median gap per cell
+    (the model's voltage rises one for one with it), within the description's 4.5 V limit, and say
+    so. The model's loaded voltage is the kernel's (R–C pairs settled at the reading's current)."""
+    if not any(len(samples) >= FIRST_READINGS for samples in loaded):
+        return
+    import numpy as np
+
+    from gcs_pdm.models import kernel
+    from gcs_pdm.vehicle.model_inputs import model_inputs
+
+    desc = from_dict(data)
+    matrix = model_inputs(desc).pack_matrix
+    for k, samples in enumerate(loaded):
+        if len(samples) < FIRST_READINGS:
+            continue
+        v, i, soc = (np.array(c) for c in zip(*samples))
+        rows = np.repeat(matrix[k][None], len(v), axis=0)
+        modelled = kernel.terminal_voltage(rows, kernel.initial_pack_state(rows, soc, 25.0, i))
+        pack = data["packs"][k]
+        gap = float(np.median(v - modelled)) / pack["cells_series"]
+        if gap <= STIFFNESS_GAP_CELL_V:
+            continue
+        pack["full_cell_voltage"] = min(4.5, round(desc.packs[k].full_cell_v + gap + 0.005, 2))
+        notes.append(f"pack {pack['name']}: held {gap:.2f} V/cell more under load than the chemistry default "
+                     f"at the SoC the autopilot reported (stiffer than that model): full-cell voltage raised "
+                     f"to {pack['full_cell_voltage']:.2f} V; fit the pack for a real model (docs/vehicles.md)")
 
 
 def derive_provisional(messages: Iterable[tuple[str, Mapping[str, Any]]], name: str = "provisional"

@@ -37,3 +37,19 @@ def frame_mapping(desc: VehicleDescription) -> dict:
             rules.append(rule)
         rule["key"]["map"][str(motor.esc_index % 4)] = motor.name
     return mapping
+
+
+def waiting_mapping() -> dict:
+    """The mapping while no description exists yet: packs and motors are not mapped at all (a
+    BATTERY_STATUS id or an ESC index means nothing until the description names it)."""
+    mapping = default_mapping()
+    for message in [m for m in mapping if m == "BATTERY_STATUS" or m.startswith("ESC_TELEMETRY_")]:
+        del mapping[message]
+    return mapping
+
+
+def envelope(desc: VehicleDescription):
+    """The physical envelope of the description's packs (``gcs_pdm.mavlink.plausibility``)."""
+    from gcs_pdm.mavlink.plausibility import PhysicalEnvelope
+
+    return PhysicalEnvelope.from_packs({p.name: p.cells_series for p in desc.packs})

@@ -73,7 +73,7 @@ class Service:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "gcs_pdm.cli", "serve", "--mavlink", f"udpin:127.0.0.1:{self.udp_port}",
              "--http", f"127.0.0.1:{self.http_port}", "--policy", "advise", "--data-dir", str(self.folder / "data"),
-             "--objectives", self.tryout["objectives"]], env=env, stdout=log, stderr=subprocess.STDOUT)
+             "--vehicle", "edge540", "--objectives", self.tryout["objectives"]], env=env, stdout=log, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:

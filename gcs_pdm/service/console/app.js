@@ -382,6 +382,15 @@ function computeBanners() {
       out.push({id: "stale", level: "critical", title: "Telemetry stale — link lost?",
                 why: `the vehicle's message time has not advanced for ${staleSeconds().toFixed(0)} s (last t=${st.time_s.toFixed(0)} s); values below are old`});
     if (st.failed) out.push({id: "failed", level: "critical", title: "Vehicle failure", why: String(st.failed)});
+    // the vehicle description in use, when it is not one the operator gave (docs/vehicles.md)
+    const v = st.vehicle || {};
+    if (v.source === "deriving" || v.provisional)
+      out.push({id: "vehicle", level: "warning", title: v.provisional ? `Provisional vehicle description: ${v.name}` : "No vehicle description yet",
+                why: v.provisional ? `${(v.notes || []).join("; ")}. To save and correct it: ${v.save || ""}` : (v.waiting_for || "")});
+    // what the service cannot do now, and why (readiness; motor_diagnosis says how, unless it cannot)
+    for (const [k, why] of Object.entries(st.readiness || {}))
+      if (k !== "replan" && why !== "ready" && (k !== "motor_diagnosis" || String(why).startsWith("not diagnosable")))
+        out.push({id: "readiness-" + k, level: "warning", title: `${k.replace(/_/g, " ")}: not ready`, why: String(why)});
     if (st.model_mismatch) out.push({id: "mismatch", level: "warning", title: "Model mismatch", why: typeof st.model_mismatch === "string" ? st.model_mismatch : (st.model_mismatch.reason || JSON.stringify(st.model_mismatch))});
     for (const [i, w] of (st.warnings || st.banners || []).entries()) {
       const o = typeof w === "string" ? {text: w} : w;

@@ -1,7 +1,7 @@
 """``/faults``: the diagnosed and operator-declared faults; the operator declares and clears."""
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, HTTPException
 
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.routers.deps import AUTH, RowId, ServiceDep
@@ -16,7 +16,10 @@ def faults(service: ServiceDep, active: bool = False):
 
 @router.post("", response_model=S.FaultOut, status_code=201, dependencies=AUTH, responses=S.errors(401, 422))
 def declare_fault(body: S.FaultIn, service: ServiceDep):
-    fid = service.declare_fault(body.kind, body.motor, body.magnitude, body.note, replan=body.replan)
+    try:
+        fid = service.declare_fault(body.kind, body.motor, body.magnitude, body.note, replan=body.replan)
+    except ValueError as exc:  # a motor the vehicle description does not have: as pydantic would say it
+        raise HTTPException(422, detail=[{"loc": ["body", "motor"], "msg": str(exc), "type": "value_error"}]) from None
     return next(f for f in service.store.faults() if f["id"] == fid)
 
 

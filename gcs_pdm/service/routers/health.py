@@ -20,7 +20,8 @@ def health(service: ServiceDep):
                     link_connected=bool(link["connected"]), policy=service.policy,
                     active_parameter_set=service.store.active_parameter_set_name(),
                     interrupted_jobs_at_start=service.store.interrupted_at_open,
-                    foreign_systems=foreign_system_ids(service))
+                    foreign_systems=foreign_system_ids(service),
+                    readiness=service.state.get("readiness"), vehicle=service.state.get("vehicle"))
 
 
 @router.get("/status", response_model=S.VehicleStatus)
