@@ -356,6 +356,30 @@ class DecisionHold:
         return waiting
 
 
+def demo_config(data_dir: str | None, *, policy: str, http_port: int, hold_while_deciding: bool, **settings):
+    """A demo's service configuration: ``data_dir`` or a scratch directory (``tmp``, removed by
+    :func:`close_demo`), a free loopback UDP port for the simulated vehicle and a fresh token.
+    Returns ``(config, tmp, port, token)``."""
+    tmp = None
+    if data_dir is None:
+        tmp = tempfile.TemporaryDirectory(prefix="gcs-pdm-demo-")
+        data_dir = tmp.name
+    port = free_udp_port()
+    token = new_token()
+    # A held vehicle is silent: the link may only be declared lost after the longest decision.
+    held = {"link_lost_after_s": 600.0} if hold_while_deciding else {}
+    config = load_config(env={}, data_dir=data_dir, api_token=token, policy=policy, http_port=http_port,
+                         mavlink_url=f"udpin:127.0.0.1:{port}", **held, **settings)
+    return config, tmp, port, token
+
+
+def close_demo(http, service, tmp) -> None:
+    http.stop()
+    service.close()
+    if tmp is not None:
+        tmp.cleanup()
+
+
 def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None = None, seed: int = 0,
              timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned",
              policy: str = "auto", hold_while_deciding: bool = False) -> DemoResult:
@@ -367,16 +391,9 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     wall0 = time.monotonic()
     scenario, mission = table3_mission()
     cfg_sim = sim_config(scenario, mission, seed)
-    tmp = None
-    if data_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="gcs-pdm-demo-")
-        data_dir = tmp.name
-    port = free_udp_port()
-    token = new_token()
-    # A held vehicle is silent: the link may only be declared lost after the longest decision.
-    held = {"link_lost_after_s": 600.0} if hold_while_deciding else {}
-    config = load_config(env={}, data_dir=data_dir, api_token=token, policy=policy, http_port=http_port,
-                         mavlink_url=f"udpin:127.0.0.1:{port}", replan_cooldown_s=120.0, vehicle="edge540", **held)
+    config, tmp, port, token = demo_config(data_dir, policy=policy, http_port=http_port,
+                                           hold_while_deciding=hold_while_deciding, replan_cooldown_s=120.0,
+                                           vehicle="edge540")
     service = Service(config)
     if params == "learned" and not LEARNED_SET.exists():
         params = "paper_si"
@@ -426,10 +443,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         nums, rew = reward_of(orig["reached_seqs"], mission, scenario)
         result.original = {**orig, "reached": nums, "reward": rew}
     result.wall_s = time.monotonic() - wall0
-    http.stop()
-    service.close()
-    if tmp is not None:
-        tmp.cleanup()
+    close_demo(http, service, tmp)
     return result
 
 

@@ -9,13 +9,11 @@ the new mission, confirms it by download; the vehicle lands. The terminal shows 
 """
 from __future__ import annotations
 
-import tempfile
 import time
 from dataclasses import dataclass
 
-from gcs_pdm.service.config import load_config, new_token
-from gcs_pdm.service.demo import (DecisionHold, TerminalPrinter, demo_telemetry, fly_until_on_ground, free_udp_port,
-                                  start_status_page)
+from gcs_pdm.service.demo import (DecisionHold, TerminalPrinter, close_demo, demo_config, demo_telemetry,
+                                  fly_until_on_ground, start_status_page)
 from gcs_pdm.service.runtime import Service
 
 #: the survey about home (east m, north m, altitude m), scaled to the vehicle's cruise speed
@@ -67,16 +65,9 @@ def run_vehicle_demo(vehicle: str, *, speedup: float = 8.0, http_port: int = 800
     motor = desc.motors[min(1, len(desc.motors) - 1)].name
     fault = parse_fault(f"motor:{motor}:{FAULT_MAGNITUDE}@leg:3-4", desc.motor_names)
     cfg_sim = vehicle_config(desc, mission=tuple(mission), initial_soc=INITIAL_SOC, faults=(fault,), seed=seed)
-    tmp = None
-    if data_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="gcs-pdm-demo-")
-        data_dir = tmp.name
-    port = free_udp_port()
-    token = new_token()
-    config = load_config(env={}, data_dir=data_dir, api_token=token, policy=policy, http_port=http_port,
-                         mavlink_url=f"udpin:127.0.0.1:{port}", vehicle=vehicle, planner_deadline_s=5.0,
-                         # a held vehicle is silent: the link may only be declared lost after the longest decision
-                         **({"link_lost_after_s": 600.0} if hold_while_deciding else {}))
+    config, tmp, port, _token = demo_config(data_dir, policy=policy, http_port=http_port,
+                                            hold_while_deciding=hold_while_deciding, vehicle=vehicle,
+                                            planner_deadline_s=5.0)
     service = Service(config)
     http = start_status_page(service, out)
     out(f"  vehicle: simulated {desc.name} ({desc.description}), x{speedup:g} real time, MAVLink udp 127.0.0.1:{port}")
@@ -109,10 +100,7 @@ def run_vehicle_demo(vehicle: str, *, speedup: float = 8.0, http_port: int = 800
         reached=[e.data["waypoint"] for e in service.events.since(0)
                  if e.kind == "mission" and e.data.get("waypoint") is not None], sim_time_s=float(s.time_s),
         wall_s=time.monotonic() - wall0, readiness=readiness or {})
-    http.stop()
-    service.close()
-    if tmp is not None:
-        tmp.cleanup()
+    close_demo(http, service, tmp)
     return result
 
 
