@@ -115,6 +115,11 @@ def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
         took = time.monotonic() - t_last
         assert took < 12.0, took
         expect(page.locator("#conn")).not_to_have_attribute("data-state", "live")
+        # once the service declares the link lost, its event reads as a loss and no pack claims
+        # "no cut-off predicted" from a countdown the service has cleared
+        expect(page.locator('[data-banner="link-lost"]')).to_have_count(1, timeout=20_000)
+        expect(page.locator("#timeline")).to_contain_text("Link lost", timeout=10_000)
+        expect(page.locator("#packs")).not_to_contain_text("no cut-off predicted", timeout=10_000)
 
         # a reload keeps the track: the vehicle no longer moves, so the page alone would have one
         # point, not a line; the line is the service's track (GET /status/track)

@@ -283,6 +283,8 @@ function cutoffText(p, st) {
     return `${m.toFixed(1)} min` + (sd != null ? ` ± ${sd.toFixed(1)} min` : ` <span class="unknown">(spread unknown)</span>`);
   }
   if (!st.prediction) return unknown("no prediction yet");
+  // a stale prediction (link lost) cleared the countdown: that is not "no cut-off"
+  if (st.prediction.stale) return unknown(st.prediction.reason || "prediction stale");
   if (!num(p.soc)) return unknown("no state estimate");
   const hz = st.prediction.horizon_s;
   return `<span class="ok">no cut-off predicted${num(hz) ? ` within ${(hz / 60).toFixed(0)} min` : " within the prediction horizon"}</span>`;
@@ -356,6 +358,7 @@ function renderHeader() {
   let state, text;
   if (!S.statusOk) { state = "down"; text = "service unreachable"; }
   else if (S.sse !== "live") { state = "reconnecting"; text = "events reconnecting…"; }
+  else if (st && st.link && (st.link.state === "lost" || st.link.lost === true)) { state = "stale"; text = "link lost"; }
   else if (st && st.time_s != null && staleSeconds() > STALE_AFTER_S) { state = "stale"; text = `stale ${staleSeconds().toFixed(0)} s`; }
   else { state = "live"; text = "live"; }
   conn.dataset.state = state; conn.textContent = text;
@@ -573,7 +576,8 @@ function describe(ev) {
       if (d.waypoint != null) return `Reached waypoint ${d.waypoint} (+${d.reward}, total ${d.reward_collected})`;
       return `Mission ${d.source || ""}: ${d.count ?? "?"} items, waypoints ${route(d.route)}`;
     case "link":
-      if (d.connected === false || d.state === "lost") return `Link lost${d.reason ? ": " + d.reason : ""}`;
+      if (d.connected === false || d.state === "lost" || d.status === "lost") return `Link lost${d.reason ? ": " + d.reason : ""}`;
+      if (d.status === "restored") return `Link restored: vehicle ${Array.isArray(d.vehicle) ? d.vehicle.join("/") : ""}`;
       return `Link up: vehicle ${Array.isArray(d.vehicle) ? d.vehicle.join("/") : ""}`;
     case "statustext": return `${d.sent ? "Sent to the vehicle" : "Vehicle says"}: “${d.text}”`;
     case "job": return `Fit job ${String(d.id || "").slice(0, 8)}: ${d.status}${d.stage ? " (" + d.stage + ")" : ""}${d.error ? " — " + d.error : ""}`;
