@@ -105,6 +105,12 @@ class Prediction:
     #: the packs and motors the rows are (a vehicle description's, or the paper's)
     pack_names: tuple[str, ...] = PACK_NAMES
     motor_names: tuple[str, ...] = MOTOR_NAMES
+    #: per sample (``predict(..., per_sample=True)``, else None): when it first failed (``inf``: it
+    #: did not), the ``kernel.FAILURE_NAMES`` code of that failure (``kernel.FAIL_NONE``: none), and
+    #: each pack's SoC at the end of the load (NaN where the sample stopped at a failure before it)
+    sample_failure_time_s: np.ndarray | None = None   # (N,)
+    sample_failure_cause: np.ndarray | None = None    # (N,) int
+    sample_end_soc: np.ndarray | None = None          # (N, packs)
 
     def to_dict(self) -> dict:
         def q(a):
@@ -183,7 +189,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
             motor_temp_sd: np.ndarray, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
             param_rel_sigma: float = 0.08, fault: np.ndarray | None = None, limits: Limits = Limits(),
             trajectories: bool = True, stop_on_failure: bool = True, trajectory_every_s: float = 10.0,
-            vehicle=None) -> Prediction:
+            vehicle=None, per_sample: bool = False) -> Prediction:
     """Monte Carlo prediction over state and parameter uncertainty (one kernel call).
 
     ``params``: a ParameterSet or a (pack matrix (4, 12), motor vector (5,)) pair.
@@ -195,7 +201,11 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
 
     ``vehicle``: a description's ``ModelInputs``; then ``params`` is a (pack matrix (P, 12), motor
     matrix (M, 5)) pair, ``fault`` is (M,), the limits are the description's per pack and motor, and
-    the samples fly ``models.topology.simulate_vehicle`` instead of the paper's four-pack layout."""
+    the samples fly ``models.topology.simulate_vehicle`` instead of the paper's four-pack layout.
+
+    ``per_sample``: also report each sample's failure time and cause and its packs' SoC at the end
+    of the load (``Prediction.sample_*``), for a caller that needs more than the quantiles (a
+    route's landing SoC over the samples that land)."""
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     pp, mp = sample_parameters(params, n_samples, rng, param_rel_sigma)
@@ -235,6 +245,8 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         if traj_k is not None:
             out.update(soc=run.pack_soc[:, traj_k], pack_temp=run.pack_temp[:, traj_k],
                        motor_temp=run.motor_temp[:, traj_k])
+        if per_sample:
+            out["end_soc"] = run.pack_soc[:, -1]
         return out
 
     parts = _map_chunks(fly, n_samples)
@@ -260,6 +272,9 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         peak_pack_temp_c=np.quantile(peak_pack, QUANTILES, axis=0, method="nearest").T,
         peak_motor_temp_c=np.quantile(peak_motor, QUANTILES, axis=0, method="nearest").T,
         **({} if vehicle is None else {"pack_names": vehicle.pack_names, "motor_names": vehicle.motor_names}),
+        **({} if not per_sample else {"sample_failure_time_s": ttf,
+                                      "sample_failure_cause": np.where(failed, run["fail_cause"], kernel.FAIL_NONE),
+                                      "sample_end_soc": run["end_soc"]}),
     )
     if trajectories:
         with warnings.catch_warnings():

@@ -106,13 +106,17 @@ class DescribedMotorFault(MotorFault):
     description's simulator, never by the paper's four-pack kernel (``fault_vector`` refuses it)."""
 
 
-def fault_vector(faults: "list[MotorFault] | tuple[MotorFault, ...]" = ()) -> np.ndarray:
-    """Per-motor fault magnitudes (fwd, aft) for the kernel; several faults on one motor compound."""
-    health = np.ones(len(MOTOR_NAMES))
+def fault_vector(faults: "list[MotorFault] | tuple[MotorFault, ...]" = (),
+                 motor_names: "tuple[str, ...] | list[str] | None" = None) -> np.ndarray:
+    """Per-motor fault magnitudes for the kernel, in ``motor_names``' order (a vehicle
+    description's motors; default the paper's fwd, aft); several faults on one motor compound. A
+    fault on a motor the vehicle does not have is an error naming it, never silently dropped."""
+    names = list(MOTOR_NAMES if motor_names is None else motor_names)
+    health = np.ones(len(names))
     for f in faults:
-        if f.motor not in MOTOR_NAMES:
-            raise ValueError(f"motor: expected one of {MOTOR_NAMES}, got {f.motor!r}")
-        health[MOTOR_NAMES.index(f.motor)] *= 1.0 - float(f.magnitude)
+        if f.motor not in names:
+            raise ValueError(f"motor fault: no motor {f.motor!r} on this vehicle; have {', '.join(names)}")
+        health[names.index(f.motor)] *= 1.0 - float(f.magnitude)
     return 1.0 - health
 
 

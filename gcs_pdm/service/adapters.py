@@ -65,40 +65,28 @@ def route_risk(estimator, load, faults: Sequence[MotorFault], limits=None, *, n_
                seed: int = 0) -> dict:
     """Probability of failure and landing SoC of flying ``load`` (a route's ``FutureLoad``) from a
     frozen estimator, through the estimation package's ``predict_from_estimator`` (state and
-    parameter uncertainty, the believed motor faults).
+    parameter uncertainty, the believed motor faults): one batched call of ``n_samples``.
+
+    Any vehicle: an estimator built from a description (``make_estimator(vehicle=…)``) flies its
+    own packs, buses and motors with the description's limits, and ``faults`` name its motors
+    (``powertrain.fault_vector``); the paper's aircraft flies its two-motor layout with ``limits``.
 
     A sample fails if any failure (cut-off, depletion, over-temperature, power) occurs on the way.
     ``landing_soc`` is the lowest pack's SoC at the landing of the samples that land (5/50/95 %
     quantiles; ``None`` when none does: a failed sample has no landing SoC); ``landing_samples``
     says how many they are. Two routes assessed with one ``seed`` start from the same state and
-    parameter draws, so their difference is the route's.
-
-    ``Prediction`` reports no per-sample end state, so the samples are drawn one per call from one
-    rng (about 4 ms each: 0.3-0.5 s for 100 on the decision worker); a landing-SoC quantile in
-    ``Prediction`` would make this one batched call."""
+    parameter draws, so their difference is the route's."""
     from gcs_pdm.estimation.prediction import QUANTILES, predict_from_estimator
     from gcs_pdm.models.powertrain import Limits, fault_vector
 
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
-    fv = fault_vector(list(faults))
-    lim = limits or Limits()
-    rng = np.random.default_rng(seed)
-    # a trajectory grid of [0, end] (the load's own cumulative end, bit for bit): its last point is the landing
-    end = float(np.cumsum(load.dt)[-1])
-    every = end if end > 0 else 1.0
-    failed, causes, landing, names = 0, {}, [], ()
-    for _ in range(n_samples):
-        p = predict_from_estimator(estimator, load, rng=rng, n_samples=1, fault=fv, limits=lim, trajectories=True,
-                                   trajectory_every_s=every)
-        names = p.pack_names
-        if p.p_failure > 0:
-            failed += 1
-            for cause, n in p.failure_causes.items():
-                causes[cause] = causes.get(cause, 0) + n
-        else:
-            landing.append(p.soc_median[-1])
-    soc = np.asarray(landing, dtype=np.float64).reshape(-1, len(names))  # (landed samples, packs)
+    inputs = getattr(estimator, "inputs", None)
+    fv = fault_vector(list(faults), None if inputs is None else inputs.motor_names)
+    p = predict_from_estimator(estimator, load, rng=np.random.default_rng(seed), n_samples=n_samples, fault=fv,
+                               limits=limits or Limits(), trajectories=False, per_sample=True)
+    landed = ~np.isfinite(p.sample_failure_time_s)
+    soc = p.sample_end_soc[landed]  # (landed samples, packs)
 
     def q(a):
         a = a[np.isfinite(a)]
@@ -106,9 +94,9 @@ def route_risk(estimator, load, faults: Sequence[MotorFault], limits=None, *, n_
             return {f"p{round(100 * k):02d}": None for k in QUANTILES}
         return {f"p{round(100 * k):02d}": round(float(v), 4) for k, v in zip(QUANTILES, np.quantile(a, QUANTILES))}
 
-    return {"failure_probability": failed / n_samples, "failure_causes": causes, "n_samples": n_samples, "seed": seed,
-            "landing_samples": len(landing), "landing_soc": q(soc.min(axis=1)),
-            "landing_soc_packs": {n: q(soc[:, i]) for i, n in enumerate(names)}}
+    return {"failure_probability": p.p_failure, "failure_causes": dict(p.failure_causes), "n_samples": n_samples,
+            "seed": seed, "landing_samples": int(landed.sum()), "landing_soc": q(soc.min(axis=1)),
+            "landing_soc_packs": {n: q(soc[:, i]) for i, n in enumerate(p.pack_names)}}
 
 
 def follows_description(vehicle) -> bool:

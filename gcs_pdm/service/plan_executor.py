@@ -426,8 +426,10 @@ class PlanExecutor:
                      ) -> tuple[list[Candidate], Candidate]:
         """The chosen route's and the current mission's Monte Carlo probability of failure and
         landing SoC (``adapters.route_risk``), added to those candidates; on the worker. The
-        planner's verdict stays the decision: this is what the operator weighs it with. Without an
-        estimate or a route load a candidate gets ``risk_unknown`` with the reason instead."""
+        planner's verdict stays the decision: this is what the operator weighs it with. Any vehicle:
+        the snapshot's estimator flies the description's packs and motors (its faults by the
+        description's motor names, its limits). Without an estimate or a route load a candidate
+        gets ``risk_unknown`` with the reason instead."""
         limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
         out, new_chosen = [], chosen
         for c in cands:
@@ -436,10 +438,6 @@ class PlanExecutor:
                 continue
             if snap.estimator is None:
                 risk = {"risk_unknown": "no state estimate when the plan was made"}
-            elif adapters.follows_description(self.service.vehicle):
-                # route_risk flies the paper's two-motor fault vector; a described vehicle's faults
-                # name its own motors, so no probability is shown rather than a wrong one
-                risk = {"risk_unknown": "probability of failure is computed for the paper's aircraft only so far"}
             elif loads.get(c.name) is None:
                 risk = {"risk_unknown": "no load profile for this route"}
             else:
