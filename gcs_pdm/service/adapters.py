@@ -40,13 +40,16 @@ def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Se
 
     The estimator is copied here (on the telemetry thread) so the prediction can run on a worker
     while the filters move on; the prediction itself is the estimation package's
-    ``predict_from_estimator`` (the diagnoser's prognosis uses the same one, capacity spread included)."""
+    ``predict_from_estimator`` (the diagnoser's prognosis uses the same one, capacity spread included).
+    An estimator built from a description flies its packs and motors (``faults`` by its motor
+    names, its own limits; ``limits`` is the paper aircraft's)."""
     from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator
     from gcs_pdm.models.powertrain import Limits, fault_vector
 
     frozen = copy.deepcopy(estimator)
     load = FutureLoad.constant(shaft_power_w, horizon_s, step_s, ambient_c)
-    fv = fault_vector(list(faults))
+    inputs = getattr(estimator, "inputs", None)
+    fv = fault_vector(list(faults), None if inputs is None else inputs.motor_names)
     lim = limits or Limits()
 
     def run():

@@ -10,7 +10,9 @@ message time.
   link is lost (live state, event, predictions marked stale) until the vehicle is heard again;
 * once a second of message time it publishes the estimate and calls ``on_tick`` (the live loop's
   fault and deviation checks); every ``PREDICT_PERIOD_S`` it starts a time-to-cut-off prediction
-  on its own worker (a long plan must not freeze the status page's numbers).
+  on its own worker (a long plan must not freeze the status page's numbers) while the vehicle
+  flies (``flight_phase``: by airspeed for a fixed wing, by armed state, EXTENDED_SYS_STATE and
+  hover-level power for a multirotor); on the ground it says why there is none.
 """
 from __future__ import annotations
 
@@ -22,9 +24,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
-from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusTextFrame
+from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusFrame, StatusTextFrame
 from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
 from gcs_pdm.service import adapters
+from gcs_pdm.service.flight_phase import FlightPhase, flight_phase
 from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
 
 log = logging.getLogger(__name__)
@@ -33,11 +36,13 @@ STATUS_PERIOD_S = 1.0
 #: the messages that tell when the vehicle's mission must be read again (mavlink.mission_watch)
 MISSION_WATCH_TYPES = frozenset({"HEARTBEAT", "HOME_POSITION", "MISSION_CURRENT", "MISSION_ACK", "MISSION_CHANGED",
                                  "MISSION_COUNT"})
+#: the autopilot's own landed/in-air verdict (ArduCopter, PX4), read for the flight phase
+LANDED_STATE_TYPE = "EXTENDED_SYS_STATE"
+#: message seconds after which a landed state no longer counts (the vehicle stopped sending it)
+LANDED_STATE_MAX_AGE_S = 10.0
 #: wall seconds between two checks of the vehicle's silence
 LINK_CHECK_PERIOD_S = 0.2
 PREDICT_PERIOD_S = 10.0
-#: below this airspeed the vehicle is on the ground: no flight load to extrapolate
-FLYING_AIRSPEED_MPS = 5.0
 
 
 class TelemetryIntake:
@@ -62,6 +67,8 @@ class TelemetryIntake:
         self.position = (math.nan, math.nan, math.nan)  # lat, lon, altitude above home
         self.ground_alt_amsl: float | None = None
         self._airdata: tuple[float, float] | None = None  # airspeed, climb rate
+        self._armed: bool | None = None  # HEARTBEAT's armed flag (None: not heard)
+        self._landed_state: tuple[int, float] | None = None  # EXTENDED_SYS_STATE landed_state, message time
         #: the vehicle has been silent too long (see check_link); why, for the refusals and /health
         self.link_lost = False
         self.link_lost_reason: str | None = None
@@ -80,7 +87,7 @@ class TelemetryIntake:
         self.link.add_frame_listener(self.on_frame)
         subscribe = getattr(self.link, "subscribe", None)
         if subscribe is not None:
-            self._messages = subscribe(MISSION_WATCH_TYPES, maxsize=1000)
+            self._messages = subscribe(MISSION_WATCH_TYPES | {LANDED_STATE_TYPE}, maxsize=1000)
         self._thread = threading.Thread(target=self._run, name="telemetry", daemon=True)
         self._thread.start()
 
@@ -154,6 +161,8 @@ class TelemetryIntake:
                 self.ground_alt_amsl = frame.alt_m - frame.relative_alt_m
         elif isinstance(frame, AirdataFrame) and frame.airspeed is not None:
             self._airdata = (frame.airspeed, frame.climb_rate or 0.0)
+        elif isinstance(frame, StatusFrame):
+            self._armed = bool(frame.armed)
         elif isinstance(frame, MissionProgressFrame) and frame.reached_seq is not None:
             self.on_reached(frame.reached_seq, t)
         elif isinstance(frame, StatusTextFrame):
@@ -197,10 +206,18 @@ class TelemetryIntake:
                 return
             if (msg.get_srcSystem(), msg.get_srcComponent()) != (self.link.target_system, self.link.target_component):
                 continue
+            if msg.get_type() == LANDED_STATE_TYPE:
+                self.on_landed_state(getattr(msg, "landed_state", 0), self.time_s)
+                continue
             try:
                 self.on_message(msg, self.time_s if self.time_s is not None else 0.0)
             except Exception:  # noqa: BLE001 - one odd message must not stop the loop
                 log.exception("message %s could not be watched", msg.get_type())
+
+    def on_landed_state(self, landed_state: int, time_s: float | None) -> None:
+        """EXTENDED_SYS_STATE's MAV_LANDED_STATE (0 = undefined: not evidence) at message time."""
+        state = int(landed_state)
+        self._landed_state = (state, time_s if time_s is not None else 0.0) if state else None
 
     # --- the link's state ------------------------------------------------------------------------
 
@@ -247,23 +264,71 @@ class TelemetryIntake:
                                         was=reason)
             self.on_link_restored()
 
-    def _predict(self, t: float) -> None:
-        """Time to each pack's cut-off at the present load (Monte Carlo), off the telemetry thread."""
-        if self._predicting or self._airdata is None or not self.estimator.ready():
-            return
-        airspeed, climb = self._airdata
-        if airspeed < FLYING_AIRSPEED_MPS:
-            return
+    def flight_phase(self, t: float) -> FlightPhase:
+        """Flying or not, and why, from the latest telemetry and the vehicle's airframe."""
+        vehicle = self.service.vehicle
+        multirotor = vehicle is not None and vehicle.airframe.type == "multirotor"
+        airspeed, climb = self._airdata if self._airdata is not None else (None, None)
+        landed = self._landed_state
+        if landed is not None and t - landed[1] > LANDED_STATE_MAX_AGE_S:
+            landed = None
+        power = hover = None
+        if multirotor:
+            hover = float(self._described_power(vehicle, 0.0))
+            if self.estimator.ready():
+                v = self.estimator.estimate().pack_voltage_v
+                watts = [x for x in (v * self.estimator.pack_current) if math.isfinite(x)]
+                power = float(sum(watts)) if watts else None
+        return flight_phase(multirotor=multirotor, armed=self._armed, landed_state=landed[0] if landed else None,
+                            airspeed_mps=airspeed, climb_mps=climb, electrical_power_w=power, hover_power_w=hover)
+
+    def _density(self) -> float:
         alt = (self.ground_alt_amsl or 0.0) + (self.position[2] if math.isfinite(self.position[2]) else 0.0)
-        power = float(shaft_power(airspeed, climb, air_density(alt)))
+        return float(air_density(alt))
+
+    def _described_power(self, vehicle, airspeed: float) -> float:
+        """Level-flight shaft power of a description's airframe at ``airspeed`` (0: hover)."""
+        from gcs_pdm.vehicle.model_inputs import shaft_power_model
+
+        return float(shaft_power_model(vehicle)(airspeed, 0.0, self._density()))
+
+    def _not_flying(self, t: float, phase: FlightPhase) -> None:
+        """No flight load on the ground: no count-down, and the reason in its place."""
+        st = self.service.state
+        for n in self.estimator.pack_names:
+            st.update_nested("packs", n, time_to_cutoff_s=None, time_to_cutoff_sd=None)
+        # the section merges: the last flight's numbers are cleared, not left beside the reason
+        cleared = dict.fromkeys(st.get("prediction") or {})
+        st.update(prediction={**cleared, "stale": True, "flying": False, "reason": "not flying: " + phase.reason,
+                              "time_s": t})
+
+    def _predict(self, t: float) -> None:
+        """Time to each pack's cut-off at the present load (Monte Carlo), off the telemetry thread.
+
+        The load: the paper's aircraft at its shaft power from airspeed, climb and density; a
+        described multirotor at its airframe model's level-flight power at the present airspeed
+        (hover at zero; a climb lasts seconds, not the prediction's hour), its faults on its motors;
+        another described vehicle with each pack at its present draw."""
+        if self._predicting or not self.estimator.ready():
+            return
+        phase = self.flight_phase(t)
+        if not phase.flying:
+            self._not_flying(t, phase)
+            return
+        airspeed, climb = self._airdata if self._airdata is not None else (0.0, 0.0)
         amb = self.service.state.get("ambient_c")
+        amb = float(amb) if amb is not None else 20.0
         limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
-        if adapters.follows_description(self.service.vehicle):
-            # a described vehicle: each pack at its present draw (no four-pack shaft-power model)
-            job, power = adapters.cutoff_at_present_draw_job(self.estimator, self.service.vehicle, seed=int(t)), None
+        vehicle = self.service.vehicle
+        if adapters.follows_description(vehicle) and vehicle.airframe.type == "multirotor":
+            power = self._described_power(vehicle, airspeed)
+            job = adapters.prediction_job(self.estimator, power, amb, self.motor_faults(), seed=int(t))
+        elif adapters.follows_description(vehicle):
+            # a described fixed wing: each pack at its present draw (no four-pack shaft-power model)
+            job, power = adapters.cutoff_at_present_draw_job(self.estimator, vehicle, seed=int(t)), None
         else:
-            job = adapters.prediction_job(self.estimator, power, float(amb) if amb is not None else 20.0,
-                                          self.motor_faults(), limits, seed=int(t))
+            power = float(shaft_power(airspeed, climb, self._density()))
+            job = adapters.prediction_job(self.estimator, power, amb, self.motor_faults(), limits, seed=int(t))
         self._predicting = True
 
         def run() -> None:
@@ -280,7 +345,8 @@ class TelemetryIntake:
                     sd = (q95 - q05) / 3.29 if math.isfinite(q95) and math.isfinite(q05) else None
                     st.update_nested("packs", n, time_to_cutoff_s=q50 if math.isfinite(q50) else None,
                                      time_to_cutoff_sd=sd)
-                st.update(prediction={"time_s": t, "shaft_power_w": power, **pred.to_dict()})
+                st.update(prediction={"time_s": t, "shaft_power_w": power, "stale": False, "flying": True,
+                                      "reason": None, "flight": phase.reason, **pred.to_dict()})
             except Exception:  # noqa: BLE001 - a failed prediction only leaves the old numbers
                 log.exception("prediction failed")
             finally:

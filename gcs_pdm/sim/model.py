@@ -405,9 +405,11 @@ class VehicleModel:
                 flight.advance(k, dt, heading_cmd=None, airspeed_cmd=0.0, climb_cmd=0.0, limits=lim, airborne=False,
                                accel=lim.rollout_decel_mps2)
                 return 0.0, True
-            # no pilot in this simulation: MANUAL in the air holds heading and altitude
-            flight.advance(k, dt, heading_cmd=None, airspeed_cmd=self.target_airspeed, climb_cmd=0.0, limits=lim,
-                           wind_en=c.wind_en_mps)
+            # no pilot in this simulation: MANUAL in the air holds heading and altitude; a multirotor
+            # (ArduCopter's STABILIZE number) holds its position: it hovers
+            hover = self._inputs is not None and c.vehicle.airframe.type == "multirotor"
+            flight.advance(k, dt, heading_cmd=None, airspeed_cmd=0.0 if hover else self.target_airspeed, climb_cmd=0.0,
+                           limits=lim, wind_en=c.wind_en_mps)
             return self._flight_power(), True
         if self.mode == MODE_RTL or not self.mission or self.current_seq >= len(self.mission):
             return self._fly_home(dt)
