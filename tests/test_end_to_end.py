@@ -3,16 +3,29 @@
 and fault, nobody replanning) fails."""
 from __future__ import annotations
 
+import re
+
 import pytest
 
-from gcs_pdm.service.demo import run_demo
+from gcs_pdm.service.demo import http_json, run_demo
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(240)
 def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     lines: list[str] = []
-    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=lines.append,
+    in_flight: list[dict] = []  # /status read at the demo's progress lines while the vehicle flies AUTO
+    url: list[str] = []
+
+    def out(line: str) -> None:
+        lines.append(line)
+        found = re.search(r"status page (http://\S+)/ ", line)
+        if found:
+            url.append(found.group(1))
+        elif url and re.search(r"\] vehicle +AUTO", line):
+            in_flight.append(http_json(url[0], "/status")[1])
+
+    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=out,
                  hold_while_deciding=True)
     text = "\n".join(lines)
     # without the service the vehicle fails
@@ -39,13 +52,18 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     assert http["/status"]["motors"]["aft"]["health"] < 0.5
     assert http["/missions/current"]["source"] == "download"
     # the status carried a Monte Carlo time-to-cut-off with its spread while flying
-    packs = http["/status"]["packs"]
+    flying = [st for st in in_flight if (st.get("prediction") or {}).get("flying")]
+    assert flying, [st.get("prediction") for st in in_flight]
+    packs = flying[-1]["packs"]
     # null = no cut-off within the prediction horizon (the lightly loaded aft string)
     timed = [p for p in packs.values() if p["time_to_cutoff_s"] is not None]
     assert timed and all(p["time_to_cutoff_s"] > 0 and p["time_to_cutoff_sd"] > 0 for p in timed), packs
     assert packs["LLF20"]["time_to_cutoff_s"] is not None  # the most drained pack, on the loaded string
     assert all(p["soc"] is not None and 0.0 <= p["soc"] <= 1.0 for p in packs.values())
-    assert http["/status"]["prediction"]["n_samples"] > 0
+    assert flying[-1]["prediction"]["n_samples"] > 0
+    # landed and disarmed at the end: no count-down, and why
+    assert all(p["time_to_cutoff_s"] is None for p in http["/status"]["packs"].values())
+    assert http["/status"]["prediction"]["reason"] == "not flying: disarmed (HEARTBEAT)"
     assert http["/status"]["link"]["frames"] > 1000 and http["/status"]["link"]["frames_dropped"] == 0
 
 
