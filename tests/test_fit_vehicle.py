@@ -152,3 +152,22 @@ def test_fit_vehicle_names_an_unknown_pack(tmp_path, capsys):
     code = main(["fit", "battery", "--vehicle", "plane-3s", "--pack", "LLF20", "--train", str(TLOG),
                  "--val", str(TLOG), "--test", str(TLOG), "--out", str(tmp_path), "--quiet"])
     assert code == 2 and "vehicle plane-3s has packs battery" in capsys.readouterr().err
+
+
+def test_fit_motor_vehicle_says_why_sitl_motors_cannot_be_fitted(tmp_path, capsys):
+    """Stock SITL's ESC temperature never changes: cleaning rejects it, and the fit says so."""
+    code = main(["fit", "motor", "--vehicle", "plane-3s", "--train", str(TLOG), "--val", str(TLOG), "--test",
+                 str(TLOG), "--out", str(tmp_path), "--quiet", "--no-plots"])
+    assert code == 2 and "temperature_c missing" in capsys.readouterr().err
+
+
+def test_a_motor_set_is_pointed_at_by_every_motor(tmp_path):
+    from gcs_pdm.vehicle.fit import write_fitted
+
+    desc = PRESETS["quad-4s"]
+    start = base_set(desc, "paper")
+    set_path, desc_path = write_fitted(desc, start, (), tmp_path, motors=True)
+    again = load(desc_path)
+    assert {m.parameter_set for m in again.motors} == {str(set_path.resolve())}
+    assert all(m.values is None for m in again.motors)
+    np.testing.assert_allclose(model_inputs(again).motor_matrix, model_inputs(desc).motor_matrix[:1].repeat(4, 0))

@@ -34,11 +34,12 @@ def register(subparsers) -> None:
         q.add_argument("--val", nargs="+", type=Path, required=True, help="validation flights (select among LM solutions)")
         q.add_argument("--test", nargs="+", type=Path, required=True, help="test flights (errors reported)")
         q.add_argument("--out", type=Path, required=True, help="output directory")
+        q.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
+                       help="fit this vehicle description's packs (docs/vehicles.md): each from its own "
+                            "BATTERY_STATUS id / DataFlash instance, ranges scaled to its cells and capacity "
+                            "(motor: its motors' ESC indices); writes DIR/parameters.json and DIR/vehicle.toml "
+                            "pointing at it")
         if what == "battery":
-            q.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
-                           help="fit this vehicle description's packs (docs/vehicles.md): each from its own "
-                                "BATTERY_STATUS id / DataFlash instance, ranges scaled to its cells and capacity; "
-                                "writes DIR/parameters.json and DIR/vehicle.toml pointing at it")
             q.add_argument("--pack", default=None,
                            help="pack to fit: tlogs hold all four (default all); tables hold one (its fixed values "
                                 "and reference come from this pack, default LLF20); with --vehicle one of its packs")
@@ -152,9 +153,9 @@ def run_vehicle(args: argparse.Namespace, settings) -> int:
     """``fit battery --vehicle X``: each of the description's packs (or ``--pack``), a parameter set of
     its packs and the description pointing at it (gcs_pdm/vehicle/fit.py)."""
     from gcs_pdm.fitting.logs import read_flights, write_outputs
-    from gcs_pdm.fitting.tables import BATTERY, FlightDataError
+    from gcs_pdm.fitting.tables import BATTERY, MOTOR, FlightDataError
     from gcs_pdm.vehicle.description import VehicleError
-    from gcs_pdm.vehicle.fit import fit_packs, write_fitted
+    from gcs_pdm.vehicle.fit import fit_motors, fit_packs, write_fitted
     from gcs_pdm.vehicle.presets import resolve
 
     try:
@@ -162,26 +163,32 @@ def run_vehicle(args: argparse.Namespace, settings) -> int:
     except VehicleError as exc:
         print(f"fit: {exc}", file=sys.stderr)
         return 2
-    packs = desc.pack_names if args.pack in (None, "all") else (args.pack,)
+    pack_arg = getattr(args, "pack", None)
+    packs = desc.pack_names if pack_arg in (None, "all") else (pack_arg,)
     if any(p not in desc.pack_names for p in packs):
-        print(f"fit: --pack {args.pack}: vehicle {desc.name} has packs {', '.join(desc.pack_names)}", file=sys.stderr)
+        print(f"fit: --pack {pack_arg}: vehicle {desc.name} has packs {', '.join(desc.pack_names)}", file=sys.stderr)
         return 2
+    splits = {"train": args.train, "validation": args.val, "test": args.test}
 
     def read(paths, pack):
-        return [f for path in paths for f in read_flights(path, BATTERY, pack=pack, vehicle=desc)]
+        kind = BATTERY if args.fit_what == "battery" else MOTOR
+        return [f for path in paths for f in read_flights(path, kind, pack=pack or "all", vehicle=desc)]
 
     try:
-        merged, results = fit_packs(desc, read, {"train": args.train, "validation": args.val, "test": args.test},
-                                    settings, packs,
-                                    progress=lambda name: _ProgressLine(f"fit battery {name}: ", args.quiet))
+        if args.fit_what == "battery":
+            merged, results = fit_packs(desc, read, splits, settings, packs,
+                                        progress=lambda name: _ProgressLine(f"fit battery {name}: ", args.quiet))
+        else:
+            merged, results = fit_motors(desc, read, splits, settings, _ProgressLine("fit motor: ", args.quiet))
     except (FlightDataError, VehicleError, ValueError) as exc:
         print(f"fit: {exc}", file=sys.stderr)
         return 2
     for name, res in results.items():
         write_outputs(res, args.out / name if len(results) > 1 else args.out, plots=not args.no_plots)
         print(json.dumps({**_summary(res), "vehicle": desc.name}))
-    set_path, desc_path = write_fitted(desc, merged, tuple(results), args.out)
-    if settings.model == "extended":
+    set_path, desc_path = write_fitted(desc, merged, tuple(results) if args.fit_what == "battery" else (),
+                                       args.out, motors=args.fit_what == "motor")
+    if settings.model == "extended" and args.fit_what == "battery":
         print("fit: note: the service's estimator, planner and simulated vehicle read the paper variant; for them "
               "these packs keep their starting circuit (fit with --model paper for a circuit they use)", file=sys.stderr)
     print(f"fit: results in {args.out}; parameter set {set_path}; description {desc_path} "

@@ -101,20 +101,45 @@ def fit_packs(desc: VehicleDescription, read: Callable[[Sequence[Path], str], li
     return merged, results
 
 
-def described_with(desc: VehicleDescription, set_path: str | Path, packs: Sequence[str]) -> VehicleDescription:
-    """``desc`` with the named packs' parameters taken from the fitted set at ``set_path``."""
+def fit_motors(desc: VehicleDescription, read: Callable[[Sequence[Path], str | None], list],
+               splits: Mapping[str, Sequence[Path]], settings, progress: Callable | None = None,
+               ) -> tuple[ParameterSet, dict]:
+    """The description's motors (their ESC indices; one thermal model for all, as the paper's pair)
+    fitted from the logs; the set's packs are the description's as they are."""
+    from gcs_pdm.fitting.procedure import fit_motor, merge_results
+
+    start = base_set(desc, "paper", settings.reference)
+    train, val, test = (read(splits[k], None) for k in ("train", "validation", "test"))
+    res = fit_motor(train, val, test, settings, base_set=start, progress=progress)
+    merged = merge_results(start, {}, res, name=f"{desc.name}-fitted",
+                           description=f"the motors of vehicle {desc.name} learned from flight logs",
+                           provenance={"vehicle": desc.name,
+                                       "pack_formats": {s.name: format_record(s) for s in desc.packs},
+                                       "files": {k: [str(p) for p in v] for k, v in splits.items()}})
+    return merged, {"motor": res}
+
+
+def described_with(desc: VehicleDescription, set_path: str | Path, packs: Sequence[str],
+                   motors: bool = False) -> VehicleDescription:
+    """``desc`` with the named packs' parameters (and with ``motors`` every motor's) taken from the
+    fitted set at ``set_path``."""
     data = desc.to_dict()
+    where = str(Path(set_path).resolve())
     for p in data["packs"]:
         if p["name"] in packs:
-            p["parameters"] = {"set": str(Path(set_path).resolve()), "pack": p["name"], "scale_to_pack": False}
+            p["parameters"] = {"set": where, "pack": p["name"], "scale_to_pack": False}
+    for m in data["motors"] if motors else ():
+        m.pop("values", None)
+        m["parameter_set"] = where
     return from_dict(data)
 
 
-def write_fitted(desc: VehicleDescription, merged: ParameterSet, packs: Sequence[str], out: Path) -> tuple[Path, Path]:
+def write_fitted(desc: VehicleDescription, merged: ParameterSet, packs: Sequence[str], out: Path,
+                 motors: bool = False) -> tuple[Path, Path]:
     """``out/parameters.json`` and ``out/vehicle.toml`` (the description pointing at it)."""
     out.mkdir(parents=True, exist_ok=True)
     set_path = out / "parameters.json"
     set_path.write_text(merged.to_json(indent=2))
     desc_path = out / "vehicle.toml"
-    desc_path.write_text(dumps(described_with(desc, set_path, packs)))
+    desc_path.write_text(dumps(described_with(desc, set_path, packs, motors)))
     return set_path, desc_path
