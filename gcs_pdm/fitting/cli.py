@@ -3,6 +3,8 @@
     gcs-pdm fit battery --train F… --val F… --test F… --out DIR [--pack LLF20|ULA20|LRF40|URA40|all]
                         [--model extended|paper]
     gcs-pdm fit motor   --train F… --val F… --test F… --out DIR
+    gcs-pdm fit battery|motor --vehicle FILE|PRESET …   (a described vehicle's packs/motors:
+                        DIR/parameters.json of its packs and DIR/vehicle.toml pointing at it)
     gcs-pdm fit synthetic --out DIR [--flights 12] [--seed 1]     (CSV logs with known truth)
 
 Flight files are CSV/Parquet tables (one pack or the motors) or tlogs (all four packs and the
