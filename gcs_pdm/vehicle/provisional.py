@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from gcs_pdm.vehicle.description import VehicleDescription, VehicleError, from_dict
+from gcs_pdm.vehicle.description import CHEMISTRY_CELL_VOLTAGE, VehicleDescription, VehicleError, from_dict
 
 #: MAV_TYPE -> rotor count, for the multirotor types
 MULTIROTOR_ROTORS = {2: 4, 3: 2, 13: 6, 14: 8, 15: 3}
@@ -259,6 +259,14 @@ class ProvisionalObserver:
                                       f"in a description) or set the autopilot's capacity parameter")
             pack["capacity_mah"] = capacity.mah
             how = capacity.source
+            rest_cell_v = boot_v / cells
+            if rest_cell_v > CHEMISTRY_CELL_VOLTAGE["lipo"][0] + STIFFNESS_GAP_CELL_V:
+                # a pack cannot rest above its full voltage: a LiPo model full at 4.2 V/cell would read
+                # this pack above full (a SoC over 1, withheld by the estimator) from the first reading
+                pack["full_cell_voltage"] = min(4.5, round(rest_cell_v + 0.005, 2))
+                notes.append(f"pack battery{i}: rests at {rest_cell_v:.3f} V/cell at boot, above a LiPo's full "
+                             f"{CHEMISTRY_CELL_VOLTAGE['lipo'][0]} V: full-cell voltage set to "
+                             f"{pack['full_cell_voltage']:.2f} V")
             notes.append(f"pack battery{i}: {cells} cells from {boot_v:.2f} V at boot, "
                          f"capacity {pack['capacity_mah']:.0f} mAh {how}, chemistry-default parameters"
                          + ("" if seen.temperature_reported else "; temperature not reported (estimated)"))
