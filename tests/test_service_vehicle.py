@@ -95,6 +95,7 @@ def test_a_provisional_description_is_adopted_and_said(tmp_path):
     loop.adopt_vehicle(desc, notes)
     about = svc.state.get("vehicle")
     assert about["source"] == "provisional" and about["provisional"] and about["packs"] == ["battery0"]
+    assert any("capacity 5200 mAh from the autopilot's BATT_CAPACITY parameter" in n for n in about["notes"])
     assert about["motors"] == ["esc0", "esc1", "esc2", "esc3"] and "vehicle init --from LOG" in about["save"]
     assert [e for e in svc.events.since(0) if e.kind == "vehicle" and e.data["source"] == "provisional"]
     assert loop.estimator.pack_names == ("battery0",) and loop.telemetry.estimator is loop.estimator

@@ -14,6 +14,7 @@ name and a field dict, as ``msg.to_dict()`` gives them, or as the link layer dec
   the reported remaining percentage when it fell by 10 % or more, otherwise *unknown*: no number is
   made up; ``waiting_for`` and ``derive`` say why (the pack model — SoC by coulomb counting, time to
   cut-off, planning — needs it);
+- a pack resting at boot above a LiPo's full cell: that rest voltage as its full-cell voltage;
 - motors from the ESC_TELEMETRY_* indices that carried any non-zero value, with the readings
   that were non-zero (current, rpm, temperature);
 - the airframe's aerodynamic figures and the mass from the matching preset (said in the notes).
