@@ -1,5 +1,6 @@
 """COMMAND_LONG / SET_MODE handling of the simulated vehicle: arm, mission start, modes, RTL,
-set current item, message intervals, message requests (AUTOPILOT_VERSION and the telemetry messages). Every COMMAND_LONG gets a COMMAND_ACK (MAV_RESULT_UNSUPPORTED
+set current item, message intervals, message requests (AUTOPILOT_VERSION and the telemetry messages), and
+PARAM_REQUEST_READ of the battery capacity parameters. Every COMMAND_LONG gets a COMMAND_ACK (MAV_RESULT_UNSUPPORTED
 for the commands this vehicle does not know)."""
 from __future__ import annotations
 
