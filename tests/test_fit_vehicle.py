@@ -171,3 +171,15 @@ def test_a_motor_set_is_pointed_at_by_every_motor(tmp_path):
     assert {m.parameter_set for m in again.motors} == {str(set_path.resolve())}
     assert all(m.values is None for m in again.motors)
     np.testing.assert_allclose(model_inputs(again).motor_matrix, model_inputs(desc).motor_matrix[:1].repeat(4, 0))
+
+
+def test_a_start_outside_the_charge_range_is_warned_about():
+    from types import SimpleNamespace
+
+    from gcs_pdm.vehicle.fit import start_soc_warnings
+
+    spec = PRESETS["plane-3s"].packs[0]
+    res = SimpleNamespace(predictions=[SimpleNamespace(name="a", initial_soc=-0.27, split="test"),
+                                       SimpleNamespace(name="b", initial_soc=0.6, split="train")])
+    (w,) = start_soc_warnings(res, spec)
+    assert w.startswith("a: starts at SoC -0.27 with full at 4.35 V/cell") and "full_cell_voltage" in w

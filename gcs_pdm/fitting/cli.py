@@ -157,7 +157,7 @@ def run_vehicle(args: argparse.Namespace, settings) -> int:
     from gcs_pdm.fitting.logs import read_flights, write_outputs
     from gcs_pdm.fitting.tables import BATTERY, MOTOR, FlightDataError
     from gcs_pdm.vehicle.description import VehicleError
-    from gcs_pdm.vehicle.fit import fit_motors, fit_packs, write_fitted
+    from gcs_pdm.vehicle.fit import fit_motors, fit_packs, start_soc_warnings, write_fitted
     from gcs_pdm.vehicle.presets import resolve
 
     try:
@@ -187,7 +187,11 @@ def run_vehicle(args: argparse.Namespace, settings) -> int:
         return 2
     for name, res in results.items():
         write_outputs(res, args.out / name if len(results) > 1 else args.out, plots=not args.no_plots)
-        print(json.dumps({**_summary(res), "vehicle": desc.name}))
+        warnings = (start_soc_warnings(res, next(p for p in desc.packs if p.name == name))
+                    if args.fit_what == "battery" and settings.model == "paper" else [])
+        for w in warnings:
+            print(f"fit: warning: {name}: {w}", file=sys.stderr)
+        print(json.dumps({**_summary(res), "vehicle": desc.name, **({"warnings": warnings} if warnings else {})}))
     set_path, desc_path = write_fitted(desc, merged, tuple(results) if args.fit_what == "battery" else (),
                                        args.out, motors=args.fit_what == "motor")
     if settings.model == "extended" and args.fit_what == "battery":

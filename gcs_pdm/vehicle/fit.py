@@ -119,6 +119,23 @@ def fit_motors(desc: VehicleDescription, read: Callable[[Sequence[Path], str | N
     return merged, {"motor": res}
 
 
+#: a flight's start read this far outside [0, 1] says the pack's full voltage is not the description's
+START_SOC_SLACK = 0.05
+
+
+def start_soc_warnings(res, spec: PackSpec) -> list[str]:
+    """Flights whose start the fitted pack reads outside [0, 1]: the circuit is full at the
+    description's full-cell voltage, so a pack resting below/above it starts "below empty"/"above
+    full", and the fit bends the end-of-discharge terms to make up for it (docs/vehicles.md)."""
+    out = []
+    for p in res.predictions:
+        soc = p.initial_soc
+        if soc is not None and not (-START_SOC_SLACK <= soc <= 1.0 + START_SOC_SLACK):
+            out.append(f"{p.name}: starts at SoC {soc:.2f} with full at {spec.full_cell_v:.2f} V/cell; set the "
+                       f"pack's full_cell_voltage to what it rests at when full, then fit again")
+    return sorted(set(out))
+
+
 def described_with(desc: VehicleDescription, set_path: str | Path, packs: Sequence[str],
                    motors: bool = False) -> VehicleDescription:
     """``desc`` with the named packs' parameters (and with ``motors`` every motor's) taken from the
