@@ -183,3 +183,22 @@ def test_a_start_outside_the_charge_range_is_warned_about():
                                        SimpleNamespace(name="b", initial_soc=0.6, split="train")])
     (w,) = start_soc_warnings(res, spec)
     assert w.startswith("a: starts at SoC -0.27 with full at 4.35 V/cell") and "full_cell_voltage" in w
+
+
+@pytest.mark.skipif(not TLOG.is_file(), reason="needs ../shared/logs (the stock ArduPlane SITL session)")
+def test_an_extended_fit_of_a_3s_pack_stays_in_its_scaled_ranges(tmp_path, capsys):
+    out = tmp_path / "ext"
+    assert main(["fit", "battery", "--vehicle", "plane-3s", "--model", "extended", "--train", str(TLOG),
+                 "--val", str(TLOG), "--test", str(TLOG), "--out", str(out), "--no-plots", "--quiet",
+                 "--starts", "2", "--sa-generations", "15", "--lm-max-nfev", "10"]) == 0
+    assert "read the paper variant" in capsys.readouterr().err
+    result = json.loads((out / "result.json").read_text())
+    assert result["errors"]["learned"]["train"]["overall"]["voltage"]["rmse"] < 0.1
+    bounds = result["stages"][0]["bounds"]
+    ref = {b.name: b for b in pb.EXTENDED_ELECTRICAL_BOUNDS}
+    assert bounds["ocv_0"][1] == pytest.approx(ref["ocv_0"].hi * 3 / 5)
+    assert bounds["C_max"][1] == pytest.approx(ref["C_max"].hi * 3300 / 7800)
+    p = ParameterSet.from_json((out / "parameters.json").read_text()).packs["battery"]
+    assert p.model == "extended" and 2.5 * 3 < p.extended["ocv_0"] < 3.6 * 3
+    # the paper circuit the service reads stays the pack's start (3 cells, full at 4.35 V/cell)
+    assert p.battery.q_max / p.battery.C_b == pytest.approx(3 * 4.35)
