@@ -18,6 +18,9 @@ mean current, with both R–C pairs settled (bisection on the model's own
 voltage–SoC curve, vectorised over the batch). Because it is recomputed for every vector, the
 initial SoC is profiled out of the search instead of traded off against C_b.
 
+Bounds are written for the paper's 5S 7.8 Ah pack; ``battery_bounds(model, PackFormat(...))`` carries
+them to any pack (cells in series, capacity) with ``models.pack_scaling``.
+
 Pure: numpy in, numpy out. Parallelism is injected (``mapper``: a ``map``-like callable, e.g. a
 thread pool's ``map``; the kernel releases the GIL).
 """
