@@ -86,11 +86,16 @@ def test_a_provisional_description_is_adopted_and_said(tmp_path):
                                        "battery_remaining": 90, "current_consumed": 10, "current_battery": 50})
         obs.observe("ESC_TELEMETRY_1_TO_4", {"current": [100, 110, 90, 100], "rpm": [5000] * 4,
                                              "temperature": [30] * 4})
+    # no capacity parameter yet and no discharge: waited for, said, never guessed
+    assert obs.waiting_for().startswith("the capacity of battery0 (unknown: no BATT_CAPACITY/BAT1_CAPACITY")
+    obs.observe("PARAM_VALUE", {"param_id": "BATT_CAPACITY", "param_value": 5200.0})
     assert obs.waiting_for() is None
     desc, notes = obs.derive()
+    assert desc.packs[0].capacity_mah == 5200.0 and any("BATT_CAPACITY parameter" in n for n in notes)
     loop.adopt_vehicle(desc, notes)
     about = svc.state.get("vehicle")
     assert about["source"] == "provisional" and about["provisional"] and about["packs"] == ["battery0"]
+    assert any("capacity 5200 mAh from the autopilot's BATT_CAPACITY parameter" in n for n in about["notes"])
     assert about["motors"] == ["esc0", "esc1", "esc2", "esc3"] and "vehicle init --from LOG" in about["save"]
     assert [e for e in svc.events.since(0) if e.kind == "vehicle" and e.data["source"] == "provisional"]
     assert loop.estimator.pack_names == ("battery0",) and loop.telemetry.estimator is loop.estimator

@@ -18,7 +18,7 @@ from gcs_pdm.sim.model import VehicleModel, vehicle_config
 from gcs_pdm.sim.record import fly
 from gcs_pdm.sim.routes import mission_from_enu
 from gcs_pdm.vehicle.presets import PRESETS
-from gcs_pdm.vehicle.provisional import observe_tlog
+from gcs_pdm.vehicle.from_log import observe_file
 from gcs_pdm.vehicle.telemetry import frame_mapping
 
 
@@ -31,7 +31,8 @@ def test_quad_flies_its_mission_and_a_faulted_motor_shows_in_its_esc_telemetry(t
     assert [s for s, _ in rec.reached] == [1, 2, 3, 4, 5]
     assert rec.final.pack_soc.shape == (1,) and 0.8 < rec.final.pack_soc[0] < 0.97
     # what a ground station learns from it: a quad, one 4-cell pack, four ESCs
-    derived, _ = observe_tlog(tmp_path / "quad.tlog")
+    # (a recorded flight carries no BATT_CAPACITY and drains too little to measure it: given)
+    derived, _ = observe_file(tmp_path / "quad.tlog", capacities={0: 5000.0})
     assert derived.airframe.type == "multirotor"
     assert [(p.mavlink_battery_id, p.cells_series) for p in derived.packs] == [(0, 4)]
     assert [m.esc_index for m in derived.motors] == [0, 1, 2, 3]
@@ -72,7 +73,7 @@ def test_single_battery_plane_sends_arduplanes_layout(tmp_path):
     mission = tuple(mission_from_enu([(800, 0, 60), (800, 800, 60)], takeoff_alt_m=60))
     rec = fly(vehicle_config(desc, mission=mission, ground_temp_c=25.0), tlog_path=tmp_path / "plane.tlog")
     assert rec.final.landed and not rec.final.failed
-    derived, _ = observe_tlog(tmp_path / "plane.tlog")
+    derived, _ = observe_file(tmp_path / "plane.tlog", capacities={0: 3300.0})
     assert derived.airframe.type == "fixed_wing"
     assert [(p.mavlink_battery_id, p.cells_series, p.reports_temperature) for p in derived.packs] == [(0, 3, False)]
     assert [m.esc_index for m in derived.motors] == [2]
@@ -97,7 +98,7 @@ def test_fault_specs_name_the_vehicles_motors_and_the_cli_takes_a_vehicle(tmp_pa
     assert main(["sim", "--vehicle", "quad-4s", "--mission", str(plan), "--record", str(out),
                  "--fault", "motor:m3:0.4@t:20"]) == 0
     assert "recorded" in capsys.readouterr().out
-    derived, _ = observe_tlog(out)
+    derived, _ = observe_file(out, capacities={0: 5000.0})
     assert len(derived.motors) == 4
     with pytest.raises(SystemExit, match="do not apply"):
         main(["sim", "--vehicle", "quad-4s", "--degrade", "LLF20:capacity=0.5", "--record", str(out)])

@@ -15,7 +15,7 @@ from gcs_pdm.vehicle.description import VehicleError, dumps, from_dict, load, pa
 from gcs_pdm.vehicle.presets import resolve
 from gcs_pdm.vehicle.model_inputs import model_inputs
 from gcs_pdm.vehicle.presets import PRESETS
-from gcs_pdm.vehicle.provisional import derive_provisional, observe_tlog
+from gcs_pdm.vehicle.provisional import CapacityUnknown, derive_provisional, observe_tlog
 
 STOCK_TLOG = Path(__file__).parents[1] / ".." / "shared" / "logs" / "arduplane_sitl_stock.tlog"
 needs_stock_tlog = pytest.mark.skipif(not STOCK_TLOG.exists(), reason=f"{STOCK_TLOG} not found")
@@ -130,7 +130,11 @@ def test_provisional_derivation_is_pure_over_messages():
                                       "temperature": [0, 0, 0, 0], "voltage": [0] * 4, "count": [1, 1, 0, 0]}),
             ("ESC_TELEMETRY_5_TO_8", {"current": [90, 0, 0, 0], "rpm": [4900, 0, 0, 0],
                                       "temperature": [0] * 4, "voltage": [0] * 4, "count": [0] * 4})]
-    desc, notes = derive_provisional(msgs)
+    # pack 1 has no capacity parameter and never discharged: its capacity is unknown, never guessed
+    with pytest.raises(CapacityUnknown, match="pack battery1: capacity unknown: no BATT2_CAPACITY/BAT2_CAPACITY "
+                                              "parameter seen, and battery_remaining has fallen 0 of the 10"):
+        derive_provisional(msgs)
+    desc, notes = derive_provisional(msgs, capacities={1: 8000.0})
     assert desc.provisional and desc.airframe.type == "multirotor"
     assert [(p.mavlink_battery_id, p.cells_series) for p in desc.packs] == [(0, 6), (1, 6)]
     assert desc.packs[0].capacity_mah == pytest.approx(10000)
@@ -138,7 +142,8 @@ def test_provisional_derivation_is_pure_over_messages():
     assert [m.esc_index for m in desc.motors] == [0, 1, 4]
     assert desc.motors[0].readings.current and not desc.motors[0].readings.temperature
     assert desc.feed_kind() == "packs in parallel"
-    assert any("guess" in n for n in notes)          # pack 1 never discharged: capacity guessed
+    assert desc.packs[1].capacity_mah == 8000.0 and any("8000 mAh as given by the user" in n for n in notes)
+    assert any("10000 mAh from the charge drawn" in n for n in notes)
     model_inputs(desc)                               # and it is a usable vehicle
     with pytest.raises(VehicleError, match="HEARTBEAT type 4"):
         derive_provisional([("HEARTBEAT", {"type": 4, "autopilot": 3}), _battery(0, 12000)])

@@ -65,7 +65,7 @@ def test_an_airframe_the_log_does_not_name_is_said_to_be_assumed(stock):
     bare = dataclasses.replace(stock, firmware=None, build=None, texts=[], parameters={})
     mav_type, source = airframe_of_log(bare)
     assert mav_type == 1 and "ASSUMED" in source
-    copter = dataclasses.replace(stock, firmware="ArduCopter V4.6.0", build=2, parameters={"FRAME_CLASS": 2.0})
+    copter = dataclasses.replace(stock, firmware="ArduCopter V4.6.0", build=2, parameters={"FRAME_CLASS": 2.0, "BATT_CAPACITY": 3300.0})
     desc, notes = derive_provisional(log_observations(copter))
     assert desc.airframe.type == "multirotor" and len(desc.motors) == 1  # ESC 2 reports; FRAME_CLASS 2 is a hexa
     assert airframe_of_log(copter)[0] == 13

@@ -3,6 +3,8 @@
     gcs-pdm fit battery --train F… --val F… --test F… --out DIR [--pack LLF20|ULA20|LRF40|URA40|all]
                         [--model extended|paper]
     gcs-pdm fit motor   --train F… --val F… --test F… --out DIR
+    gcs-pdm fit battery|motor --vehicle FILE|PRESET …   (a described vehicle's packs/motors:
+                        DIR/parameters.json of its packs and DIR/vehicle.toml pointing at it)
     gcs-pdm fit synthetic --out DIR [--flights 12] [--seed 1]     (CSV logs with known truth)
 
 Flight files are CSV/Parquet tables (one pack or the motors) or tlogs (all four packs and the
@@ -34,10 +36,15 @@ def register(subparsers) -> None:
         q.add_argument("--val", nargs="+", type=Path, required=True, help="validation flights (select among LM solutions)")
         q.add_argument("--test", nargs="+", type=Path, required=True, help="test flights (errors reported)")
         q.add_argument("--out", type=Path, required=True, help="output directory")
+        q.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
+                       help="fit this vehicle description's packs (docs/vehicles.md): each from its own "
+                            "BATTERY_STATUS id / DataFlash instance, ranges scaled to its cells and capacity "
+                            "(motor: its motors' ESC indices); writes DIR/parameters.json and DIR/vehicle.toml "
+                            "pointing at it")
         if what == "battery":
-            q.add_argument("--pack", default=None, choices=PACK_NAMES + ("all",),
+            q.add_argument("--pack", default=None,
                            help="pack to fit: tlogs hold all four (default all); tables hold one (its fixed values "
-                                "and reference come from this pack, default LLF20)")
+                                "and reference come from this pack, default LLF20); with --vehicle one of its packs")
         if what == "battery":
             q.add_argument("--model", default=DEFAULT_MODEL, choices=("extended", "paper"),
                            help="battery model variant (docs/model.md): extended (default) or paper (eqs. 1-7)")
@@ -138,9 +145,61 @@ def _summary(res) -> dict:
         t = e[which]["test"]["overall"]
         if "voltage" in t:
             out[f"{which}_test_voltage_rmse_v"] = round(t["voltage"]["rmse"], 4)
-        if t.get("temperature", {}).get("rmse_f") is not None:
+        rmse_f = t.get("temperature", {}).get("rmse_f")
+        if rmse_f is not None and rmse_f == rmse_f:  # a log without pack temperature has none (NaN)
             out[f"{which}_test_temperature_rmse_f"] = round(t["temperature"]["rmse_f"], 3)
     return out
+
+
+def run_vehicle(args: argparse.Namespace, settings) -> int:
+    """``fit battery --vehicle X``: each of the description's packs (or ``--pack``), a parameter set of
+    its packs and the description pointing at it (gcs_pdm/vehicle/fit.py)."""
+    from gcs_pdm.fitting.logs import read_flights, write_outputs
+    from gcs_pdm.fitting.tables import BATTERY, MOTOR, FlightDataError
+    from gcs_pdm.vehicle.description import VehicleError
+    from gcs_pdm.vehicle.fit import fit_motors, fit_packs, start_soc_warnings, write_fitted
+    from gcs_pdm.vehicle.presets import resolve
+
+    try:
+        desc = resolve(args.vehicle)
+    except VehicleError as exc:
+        print(f"fit: {exc}", file=sys.stderr)
+        return 2
+    pack_arg = getattr(args, "pack", None)
+    packs = desc.pack_names if pack_arg in (None, "all") else (pack_arg,)
+    if any(p not in desc.pack_names for p in packs):
+        print(f"fit: --pack {pack_arg}: vehicle {desc.name} has packs {', '.join(desc.pack_names)}", file=sys.stderr)
+        return 2
+    splits = {"train": args.train, "validation": args.val, "test": args.test}
+
+    def read(paths, pack):
+        kind = BATTERY if args.fit_what == "battery" else MOTOR
+        return [f for path in paths for f in read_flights(path, kind, pack=pack or "all", vehicle=desc)]
+
+    try:
+        if args.fit_what == "battery":
+            merged, results = fit_packs(desc, read, splits, settings, packs,
+                                        progress=lambda name: _ProgressLine(f"fit battery {name}: ", args.quiet))
+        else:
+            merged, results = fit_motors(desc, read, splits, settings, _ProgressLine("fit motor: ", args.quiet))
+    except (FlightDataError, VehicleError, ValueError) as exc:
+        print(f"fit: {exc}", file=sys.stderr)
+        return 2
+    for name, res in results.items():
+        write_outputs(res, args.out / name if len(results) > 1 else args.out, plots=not args.no_plots)
+        warnings = (start_soc_warnings(res, next(p for p in desc.packs if p.name == name))
+                    if args.fit_what == "battery" and settings.model == "paper" else [])
+        for w in warnings:
+            print(f"fit: warning: {name}: {w}", file=sys.stderr)
+        print(json.dumps({**_summary(res), "vehicle": desc.name, **({"warnings": warnings} if warnings else {})}))
+    set_path, desc_path = write_fitted(desc, merged, tuple(results) if args.fit_what == "battery" else (),
+                                       args.out, motors=args.fit_what == "motor")
+    if settings.model == "extended" and args.fit_what == "battery":
+        print("fit: note: the service's estimator, planner and simulated vehicle read the paper variant; for them "
+              "these packs keep their starting circuit (fit with --model paper for a circuit they use)", file=sys.stderr)
+    print(f"fit: results in {args.out}; parameter set {set_path}; description {desc_path} "
+          f"(gcs-pdm vehicle check {desc_path})", file=sys.stderr)
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -156,9 +215,15 @@ def run(args: argparse.Namespace) -> int:
     except (KeyError, TypeError, ValueError) as exc:
         print(f"fit: {exc}", file=sys.stderr)
         return 2
+    if getattr(args, "vehicle", None) is not None:
+        return run_vehicle(args, settings)
+    pack_arg = getattr(args, "pack", None)
+    if pack_arg not in (None, "all") + PACK_NAMES and args.train[0].suffix.lower() not in AUTOPILOT_LOG_SUFFIXES:
+        print(f"fit: --pack {pack_arg}: expected one of {', '.join(PACK_NAMES)} or all (another vehicle's packs: "
+              "--vehicle FILE|PRESET)", file=sys.stderr)
+        return 2
     any_tlog = any(p.suffix.lower() == ".tlog" for p in args.train + args.val + args.test)
     autopilot_log = args.train[0].suffix.lower() in AUTOPILOT_LOG_SUFFIXES
-    pack_arg = getattr(args, "pack", None)
     if kind == "battery" and autopilot_log and pack_arg in (None, "all"):
         try:  # an autopilot's log has its own batteries (instance i = pack i): fit those it has
             packs = log_packs(args.train[0])

@@ -23,6 +23,7 @@ from gcs_pdm.models.params import PACK_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
     from gcs_pdm.fitting.procedure import FitResult
+    from gcs_pdm.vehicle.description import VehicleDescription
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +58,8 @@ def read_table(path: str | Path, kind: str, name: str | None = None) -> Flight:
 class _FrameCollector:
     """Collects pack, motor and ambient frames from a tlog replay."""
 
-    def __init__(self) -> None:
-        self.packs: dict[str, list[tuple]] = {p: [] for p in PACK_NAMES}
+    def __init__(self, packs: tuple[str, ...] = PACK_NAMES) -> None:
+        self.packs: dict[str, list[tuple]] = {p: [] for p in packs}
         self.motors: dict[str, list[tuple]] = {}
         self.ambient: list[tuple] = []
         self.battery_status_messages = 0  # all BATTERY_STATUS packets, to explain a pack with no frames
@@ -85,7 +86,7 @@ def _interp(t: np.ndarray, ts: np.ndarray, xs: np.ndarray) -> np.ndarray:
     return np.interp(t, ts[ok][order], xs[ok][order])
 
 
-def _collect_tlog(path: Path, col: "_FrameCollector") -> None:
+def _collect_tlog(path: Path, col: "_FrameCollector", mapping: dict | None = None) -> None:
     """Feed every packet of a tlog to the MAVLink engineer's frame mapping; stamp each frame with
     its tlog record time.
 
@@ -102,7 +103,7 @@ def _collect_tlog(path: Path, col: "_FrameCollector") -> None:
 
     battery_status = MESSAGE_IDS_BY_NAME["BATTERY_STATUS"]
 
-    mapper = FrameMapper()
+    mapper = FrameMapper(mapping) if mapping is not None else FrameMapper()
     stats = ScanStats()
     recv = 0.0
     first_us = None
@@ -124,13 +125,23 @@ def _collect_tlog(path: Path, col: "_FrameCollector") -> None:
                     stats.bad_crc, stats.garbage_bytes, stats.truncated_tail_bytes)
 
 
-def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES) -> list[Flight]:
-    """Battery flights (one per pack in ``packs``) or the motor flight of one tlog."""
+def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES,
+              vehicle: "VehicleDescription | None" = None) -> list[Flight]:
+    """Battery flights (one per pack in ``packs``) or the motor flight of one tlog. With a
+    ``vehicle`` description its packs (by BATTERY_STATUS id) and motors (by ESC index) are read,
+    named as it names them; else the paper's four packs at ids 0-3."""
     path = Path(path)
     if not path.is_file():
         raise FlightDataError(f"{path}: no such file")
-    col = _FrameCollector()
-    _collect_tlog(path, col)
+    ids = {p: i for i, p in enumerate(PACK_NAMES)}
+    mapping = None
+    if vehicle is not None:
+        from gcs_pdm.vehicle.telemetry import frame_mapping
+
+        ids = {p.name: p.mavlink_battery_id for p in vehicle.packs}
+        mapping = frame_mapping(vehicle)
+    col = _FrameCollector(tuple(ids))
+    _collect_tlog(path, col, mapping)
     if not col.ambient:
         raise FlightDataError(f"{path}: no ambient temperature frames in the tlog")
     amb = np.array(col.ambient, dtype=np.float64)
@@ -140,7 +151,7 @@ def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES) 
             rows = np.array(col.packs[p], dtype=np.float64).reshape(-1, 4)
             if rows.shape[0] == 0:
                 raise FlightDataError(
-                    f"{path}: no frames for pack {p} (BATTERY_STATUS id {PACK_NAMES.index(p)} from the vehicle; "
+                    f"{path}: no frames for pack {p} (BATTERY_STATUS id {ids[p]} from the vehicle; "
                     f"the log holds {col.battery_status_messages} BATTERY_STATUS messages in all; "
                     "a per-pack fit needs per-pack battery telemetry)")
             t = rows[:, 0]
@@ -163,19 +174,23 @@ def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES) 
     return out
 
 
-def read_flights(path: str | Path, kind: str, pack: str = "all") -> list[Flight]:
+def read_flights(path: str | Path, kind: str, pack: str = "all",
+                 vehicle: "VehicleDescription | None" = None) -> list[Flight]:
     """Flights of one file: a table gives one; a tlog gives one per pack (``pack="all"``) or the
-    named pack, or the motor flight."""
+    named pack, or the motor flight. With a ``vehicle`` description, packs are its packs: a tlog's
+    by BATTERY_STATUS id, an autopilot log's by DataFlash/battery instance."""
     if kind not in KINDS:
         raise FlightDataError(f"kind must be one of {KINDS}, got {kind!r}")
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix in TLOG_SUFFIXES:
-        packs = PACK_NAMES if pack == "all" else (pack,)
-        bad = [p for p in packs if p not in PACK_NAMES]
+    names = vehicle.pack_names if vehicle is not None else PACK_NAMES
+    packs = names if pack == "all" else (pack,)
+    if suffix in TLOG_SUFFIXES or (vehicle is not None and suffix in AUTOPILOT_LOG_SUFFIXES):
+        bad = [p for p in packs if p not in names]
         if bad:
-            raise FlightDataError(f"unknown pack {bad[0]!r}; expected one of {', '.join(PACK_NAMES)} or all")
-        return read_tlog(path, kind, packs)
+            raise FlightDataError(f"unknown pack {bad[0]!r}; expected one of {', '.join(names)} or all")
+    if suffix in TLOG_SUFFIXES:
+        return read_tlog(path, kind, packs, vehicle)
     if suffix in AUTOPILOT_LOG_SUFFIXES:
         from gcs_pdm.logs.reader import read_log
         from gcs_pdm.logs.series import battery_flights, motor_flight
@@ -183,11 +198,31 @@ def read_flights(path: str | Path, kind: str, pack: str = "all") -> list[Flight]
         if not path.is_file():
             raise FlightDataError(f"{path}: no such file")
         series = read_log(path)
-        return battery_flights(series, pack) if kind == BATTERY else [motor_flight(series)]
+        if kind != BATTERY:
+            return [motor_flight(series)]
+        if vehicle is None:
+            return battery_flights(series, pack)
+        return [_described_pack_flight(series, spec) for spec in vehicle.packs if spec.name in packs]
     if suffix in TABLE_SUFFIXES:
         return [read_table(path, kind)]
     raise FlightDataError(f"{path}: unknown flight file type {path.suffix!r} "
                           "(use .csv, .parquet, .tlog, .bin or .ulg)")
+
+
+def _described_pack_flight(series, spec) -> Flight:
+    """A description's pack from an autopilot log: its DataFlash instance (default: its MAVLink id)."""
+    import dataclasses
+
+    from gcs_pdm.logs.series import battery_flights
+
+    instance = spec.dataflash_instance if spec.dataflash_instance is not None else spec.mavlink_battery_id
+    if instance not in series.batteries:
+        have = ", ".join(str(i) for i in sorted(series.batteries)) or "none"
+        raise FlightDataError(f"{series.path}: no battery instance {instance} for pack {spec.name} in the "
+                              f"{series.autopilot} log; it has instances {have}")
+    flight = battery_flights(series, series.pack_name(instance))[0]
+    return dataclasses.replace(flight, name=f"{series.path.stem}_{spec.name}",
+                               source={**flight.source, "pack": spec.name})
 
 
 def log_packs(path: str | Path) -> tuple[str, ...]:

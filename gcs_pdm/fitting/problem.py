@@ -18,6 +18,9 @@ mean current, with both R–C pairs settled (bisection on the model's own
 voltage–SoC curve, vectorised over the batch). Because it is recomputed for every vector, the
 initial SoC is profiled out of the search instead of traded off against C_b.
 
+Bounds are written for the paper's 5S 7.8 Ah pack; ``battery_bounds(model, PackFormat(...))`` carries
+them to any pack (cells in series, capacity) with ``models.pack_scaling``.
+
 Pure: numpy in, numpy out. Parallelism is injected (``mapper``: a ``map``-like callable, e.g. a
 thread pool's ``map``; the kernel releases the GIL).
 """
@@ -30,7 +33,8 @@ import numpy as np
 
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight
 from gcs_pdm.models import kernel
-from gcs_pdm.models.params import PACK_CAPACITY_C, PACK_FULL_VOLTAGE
+from gcs_pdm.models.pack_scaling import value_scale
+from gcs_pdm.models.params import CELLS_PER_PACK, PACK_CAPACITY_C
 
 Mapper = Callable[[Callable, Iterable], Iterable]
 
@@ -102,6 +106,55 @@ MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
     # R_w (data sheet) stays fixed and anchors the heat scale; the constant core loss is learned
     Bound("P_iron", 1.0, 60.0, "W", "core loss heating the motor: 0.05-3 % of a 2 kW out-runner's power"),
 )
+
+
+@dataclass(frozen=True)
+class PackFormat:
+    """The pack a fit is for: cells in series and rated capacity. The bounds above are written for
+    the paper's 5S 7.8 Ah pack (``PAPER_PACK``); ``battery_bounds`` carries them to any pack with the
+    scaling of ``models.pack_scaling`` (resistances × S/Q, capacitances × Q/S, voltages × S, …)."""
+
+    cells: int = CELLS_PER_PACK
+    capacity_c: float = PACK_CAPACITY_C
+    #: resting voltage of a full cell, V (the reference pack is carried to it)
+    full_cell_voltage: float = 4.2
+
+    def scale(self, name: str) -> float:
+        return value_scale(name, CELLS_PER_PACK, PACK_CAPACITY_C, self.cells, self.capacity_c)
+
+
+PAPER_PACK = PackFormat()
+
+
+def scaled_bounds(bounds: Sequence[Bound], fmt: PackFormat = PAPER_PACK) -> tuple[Bound, ...]:
+    """``bounds`` (written for the 5S 7.8 Ah pack) carried to the pack ``fmt``; a value that does
+    not scale with the pack (time constants, exponents) keeps its range."""
+    if fmt == PAPER_PACK:
+        return tuple(bounds)
+    out = []
+    for b in bounds:
+        k = fmt.scale(b.name)
+        out.append(b if k == 1.0 else Bound(b.name, b.lo * k, b.hi * k, b.unit,
+                                             f"{b.why} (5S 7.8 Ah range x {k:.3g} for {fmt.cells}S "
+                                             f"{fmt.capacity_c / 3.6:.0f} mAh)"))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class BatteryBounds:
+    electrical: tuple[Bound, ...]
+    thermal: tuple[Bound, ...]
+    #: the parameters the annealing searches (the extended variant leaves the OCV knots to LM)
+    annealing: tuple[Bound, ...]
+
+
+def battery_bounds(model: str = "paper", fmt: PackFormat = PAPER_PACK) -> BatteryBounds:
+    """The search ranges of a battery fit of variant ``model`` for the pack ``fmt``."""
+    if model == "extended":
+        return BatteryBounds(scaled_bounds(EXTENDED_ELECTRICAL_BOUNDS, fmt), scaled_bounds(EXTENDED_THERMAL_BOUNDS, fmt),
+                             scaled_bounds(EXTENDED_RC_BOUNDS, fmt))
+    electrical = scaled_bounds(BATTERY_ELECTRICAL_BOUNDS, fmt)
+    return BatteryBounds(electrical, scaled_bounds(BATTERY_THERMAL_BOUNDS, fmt), electrical)
 
 
 class ParameterSpace:
@@ -195,21 +248,24 @@ def prepare(flight: Flight, target: str, init_samples: int = 10) -> Prepared:
 
 def pack_vectors_with(base: np.ndarray, names: Sequence[str], values: np.ndarray) -> np.ndarray:
     """(N, 12) pack vectors: ``base`` with ``names`` set to ``values`` (N, len(names)); q_max tracks C_b
-    (a full pack at 4.2 V/cell) and C_max stays the pack's 7.8 Ah unless q_max is smaller."""
+    (full at the base's full voltage q_max / C_b) and C_max stays the base's rated capacity unless
+    q_max is smaller."""
     values = np.atleast_2d(values)
-    P = np.tile(np.asarray(base, dtype=np.float64), (values.shape[0], 1))
+    base = np.asarray(base, dtype=np.float64)
+    P = np.tile(base, (values.shape[0], 1))
     for j, name in enumerate(names):
         P[:, kernel.PACK_PARAMS.index(name)] = values[:, j]
     if "C_b" in names:
-        P[:, kernel.I_QMAX] = P[:, kernel.I_CB] * PACK_FULL_VOLTAGE
-        P[:, kernel.I_CMAX] = np.minimum(PACK_CAPACITY_C, P[:, kernel.I_QMAX])
+        P[:, kernel.I_QMAX] = P[:, kernel.I_CB] * (base[kernel.I_QMAX] / base[kernel.I_CB])
+        P[:, kernel.I_CMAX] = np.minimum(base[kernel.I_CMAX], P[:, kernel.I_QMAX])
     return P
 
 
 def initial_soc(P: np.ndarray, voltage: float, current: float, iterations: int = 40) -> np.ndarray:
     """SoC (N,) at which each pack vector, settled at ``current``, shows terminal ``voltage``.
 
-    V = V_b(SoC) - i_b (R_s + R_cp(SoC)), i_b = i + V / R_p; monotone in SoC, so bisection on
+    The model's own settled terminal voltage (``kernel.initial_pack_state`` at the bulk current
+    i_b = i + V / R_p, read by ``kernel.terminal_voltage``) is monotone in SoC, so bisection on
     [-0.3, 1.3] (outside [0, 1] the model is extrapolated, and the fit sees the misfit).
     """
     P = np.atleast_2d(P)
@@ -218,10 +274,9 @@ def initial_soc(P: np.ndarray, voltage: float, current: float, iterations: int =
     hi = np.full(P.shape[0], 1.3)
     for _ in range(iterations):
         mid = 0.5 * (lo + hi)
-        v_b = (P[:, kernel.I_QMAX] - (1.0 - mid) * P[:, kernel.I_CMAX]) / P[:, kernel.I_CB]
-        with np.errstate(over="ignore"):
-            r = P[:, kernel.I_RS] + P[:, kernel.I_RCP0] + P[:, kernel.I_RCP1] * np.exp(P[:, kernel.I_RCP2] * (1.0 - mid))
-        above = v_b - i_b * r > voltage
+        with np.errstate(over="ignore", invalid="ignore"):
+            v = kernel.terminal_voltage(P, kernel.initial_pack_state(P, mid, 0.0, i_b))
+        above = v > voltage
         hi = np.where(above, mid, hi)
         lo = np.where(above, lo, mid)
     return 0.5 * (lo + hi)
@@ -427,3 +482,17 @@ class MotorProblem(_Problem):
     def simulate(self, values: np.ndarray, f: Prepared, extra: np.ndarray | None = None) -> np.ndarray:
         M = self.motor_vectors(values)
         return kernel.simulate_motor_thermal(M, np.full(M.shape[0], f.init_temperature), f.dt, f.current, f.ambient)
+
+
+def reference_vector(reference_set, pack: str, fmt: PackFormat = PAPER_PACK) -> np.ndarray:
+    """(12,) paper-variant vector of a reference set's pack for errors reported beside a fit: the
+    set's pack of that name (else its first), carried to the pack ``fmt`` when that is not the
+    5S 7.8 Ah pack the built-in sets describe."""
+    from gcs_pdm.models.pack_scaling import scale_pack_vector
+    from gcs_pdm.models.params import pack_vector
+
+    ref = reference_set.packs.get(pack) or next(iter(reference_set.packs.values()))
+    v = pack_vector(ref)
+    if fmt == PAPER_PACK:
+        return v
+    return scale_pack_vector(v, CELLS_PER_PACK, PACK_CAPACITY_C, fmt.cells, fmt.capacity_c, fmt.full_cell_voltage)

@@ -33,7 +33,7 @@ from gcs_pdm.fitting.search import FitCancelled, SearchSettings, anneal, levenbe
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import (PACK_NAMES, MotorParams, PackParams, ParameterSet, builtin, extended_default,
-                                   motor_from_vector, pack_from_vector)
+                                   motor_from_vector, pack_from_vector, pack_vector)
 
 log = logging.getLogger(__name__)
 
@@ -378,20 +378,22 @@ def _pack_traces(vec: np.ndarray, flights: Sequence[Flight], init_samples: int, 
 def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
                 settings: FitSettings = FitSettings(), *, pack: str | None = None,
                 progress: Progress | None = None, should_stop: ShouldStop | None = None,
-                base_set: ParameterSet | None = None) -> FitResult:
+                base_set: ParameterSet | None = None, pack_format: pb.PackFormat | None = None) -> FitResult:
     """Learn one pack's circuit and thermal parameters from its flights (the paper's procedure).
 
-    The values not learned come from ``base_set`` if given (any set, e.g. a user's), else from the
-    built-in ``settings.base``."""
+    The values not learned come from ``base_set`` if given (any set, e.g. a user's or a vehicle's,
+    whose packs may have any names), else from the built-in ``settings.base``. ``pack_format`` (a
+    pack other than the paper's 5S 7.8 Ah) scales the search ranges and the reference pack to it."""
     t_start = time.perf_counter()
     stepper = _Stepper(progress, should_stop)
     stepper.report(0.0, "cleaning")
     splits, reports, rejected = _clean_splits({"train": train, "validation": val, "test": test}, BATTERY, settings.cleaning)
     base_set = base_set if base_set is not None else builtin(settings.base)
     ref_set = builtin(settings.reference)
-    pack_name = pack if pack in PACK_NAMES else PACK_NAMES[0]
+    pack_name = pack if pack in base_set.packs else next(iter(base_set.packs))
     base_pack = base_set.packs[pack_name]
-    ref_vec = ref_set.pack_matrix()[PACK_NAMES.index(pack_name)]
+    fmt = pack_format or pb.PAPER_PACK
+    ref_vec = pb.reference_vector(ref_set, pack_name, fmt)
     s = settings
     if s.model not in kernel.MODEL_VARIANTS:
         raise ValueError(f"model: expected one of {', '.join(kernel.MODEL_VARIANTS)}, got {s.model!r}")
@@ -399,10 +401,12 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     if extended:
         base_vec = (base_pack.extended_vector() if base_pack.extended is not None
                     else np.array(list(extended_default(s.chemistry).values())))
-        problem_cls, el_bounds, th_bounds = pb.ExtendedPackProblem, pb.EXTENDED_ELECTRICAL_BOUNDS, pb.EXTENDED_THERMAL_BOUNDS
+        problem_cls = pb.ExtendedPackProblem
     else:
-        base_vec = base_set.pack_matrix()[PACK_NAMES.index(pack_name)]
-        problem_cls, el_bounds, th_bounds = pb.PackProblem, pb.BATTERY_ELECTRICAL_BOUNDS, pb.BATTERY_THERMAL_BOUNDS
+        base_vec = pack_vector(base_pack)
+        problem_cls = pb.PackProblem
+    bounds = pb.battery_bounds(s.model, fmt)
+    el_bounds, th_bounds = bounds.electrical, bounds.thermal
     # a pack without temperature samples in training or validation still gets its circuit learned
     no_temp = [f.name for sp in ("train", "validation") for f in splits[sp] if not np.isfinite(f.temperature_c).any()]
     thermal = {"fitted": not no_temp,
@@ -416,7 +420,7 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
                                soc_offset_range=s.soc_offset_range if training else 0.0)
 
         def make_el_sa(flights, workers):
-            return problem_cls(flights, base_vec, pb.EXTENDED_RC_BOUNDS, "voltage", init_samples=s.init_samples,
+            return problem_cls(flights, base_vec, bounds.annealing, "voltage", init_samples=s.init_samples,
                                mapper=pool.map, workers=workers)
         u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"],
                                           s.search_for("electrical"), pool,
@@ -513,8 +517,8 @@ def merge_results(base: ParameterSet, batteries: Mapping[str, FitResult], motor:
     ps = base
     prov: dict[str, Any] = {"base": base.name, "packs": {}, **(provenance or {})}
     for pack, res in batteries.items():
-        if pack not in PACK_NAMES:
-            raise ValueError(f"unknown pack {pack!r}; expected one of {PACK_NAMES}")
+        if pack not in base.packs:
+            raise ValueError(f"unknown pack {pack!r}; expected one of {', '.join(base.packs)}")
         if res.component != BATTERY:
             raise ValueError(f"{pack}: not a battery fit")
         ps = ps.with_pack(pack, res.pack_params)

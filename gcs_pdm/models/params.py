@@ -147,7 +147,12 @@ class ParameterSet:
 
     # -- vectors for the kernel -------------------------------------------------------------
     def pack_matrix(self) -> np.ndarray:
-        """(4, PACK_PARAM_COUNT) in PACK_NAMES order."""
+        """(4, PACK_PARAM_COUNT) in PACK_NAMES order: the paper's four-pack layout (a vehicle's set,
+        whose packs are a description's, has no such matrix: read its packs by name)."""
+        missing = [n for n in PACK_NAMES if n not in self.packs]
+        if missing:
+            raise ParameterError(f"packs: missing {', '.join(missing)} (the paper's four-pack layout); this set's "
+                                 f"packs are {', '.join(self.packs)}")
         return np.stack([pack_vector(self.packs[n]) for n in PACK_NAMES])
 
     def motor_vector(self) -> np.ndarray:
@@ -172,9 +177,8 @@ class ParameterSet:
     def from_dict(cls, data: Mapping[str, Any]) -> "ParameterSet":
         try:
             packs_in = data["packs"]
-            missing = [n for n in PACK_NAMES if n not in packs_in]
-            if missing:
-                raise ParameterError(f"packs: missing {', '.join(missing)}")
+            # the paper's four packs, or any packs of a vehicle's set (gcs-pdm fit --vehicle)
+            names = PACK_NAMES if all(n in packs_in for n in PACK_NAMES) else tuple(packs_in)
             packs = {
                 n: PackParams(
                     battery=_build(BatteryParams, packs_in[n]["battery"], f"packs.{n}.battery"),
@@ -183,7 +187,7 @@ class ParameterSet:
                     extended=(_build_extended(packs_in[n]["extended"], f"packs.{n}.extended")
                               if packs_in[n].get("extended") is not None else None),
                 )
-                for n in PACK_NAMES
+                for n in names
             }
             motor = _build(MotorParams, data["motor"], "motor")
         except KeyError as exc:
@@ -309,10 +313,9 @@ def _check_variant(p: PackParams, where: str) -> None:
 
 
 def validate(ps: ParameterSet) -> None:
-    missing = [n for n in PACK_NAMES if n not in ps.packs]
-    if missing:
-        raise ParameterError(f"packs: missing {', '.join(missing)}")
-    for n in PACK_NAMES:
+    if not ps.packs:
+        raise ParameterError("packs: a parameter set needs at least one pack")
+    for n in ps.packs:
         _check_record(ps.packs[n].battery, f"packs.{n}.battery")
         _check_record(ps.packs[n].thermal, f"packs.{n}.thermal")
         _check_variant(ps.packs[n], f"packs.{n}")

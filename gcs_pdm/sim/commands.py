@@ -1,5 +1,6 @@
 """COMMAND_LONG / SET_MODE handling of the simulated vehicle: arm, mission start, modes, RTL,
-set current item, message intervals, message requests (AUTOPILOT_VERSION and the telemetry messages). Every COMMAND_LONG gets a COMMAND_ACK (MAV_RESULT_UNSUPPORTED
+set current item, message intervals, message requests (AUTOPILOT_VERSION and the telemetry messages), and
+PARAM_REQUEST_READ of the battery capacity parameters. Every COMMAND_LONG gets a COMMAND_ACK (MAV_RESULT_UNSUPPORTED
 for the commands this vehicle does not know)."""
 from __future__ import annotations
 
@@ -33,6 +34,8 @@ class CommandHandler:
                 if name is not None:
                     self.model.set_mode(name)
             return []
+        if mtype == "PARAM_REQUEST_READ":
+            return self._param_value(msg)
         if mtype != "COMMAND_LONG":
             return []
         if msg.target_system not in (0, self.system_id) or msg.target_component not in (0, self.component_id):
@@ -43,6 +46,22 @@ class CommandHandler:
         if text:
             out.append(self.mav.statustext_encode(mavlink2.MAV_SEVERITY_WARNING, text.encode()[:50]))
         return out + self._reply
+
+    def _param_value(self, msg) -> list:
+        """PARAM_REQUEST_READ by name: ArduPilot's battery capacity parameters (BATT_CAPACITY for the
+        first monitor, BATTn_CAPACITY for the n-th), as a GCS reads them; other names go unanswered,
+        as an autopilot leaves a name it does not have."""
+        if msg.target_system not in (0, self.system_id):
+            return []
+        name = msg.param_id.decode(errors="replace") if isinstance(msg.param_id, bytes) else str(msg.param_id)
+        name = name.rstrip("\x00")
+        monitor = 1 if name == "BATT_CAPACITY" else (int(name[4]) if len(name) == 14 and name.startswith("BATT")
+                                                       and name[4].isdigit() and name.endswith("_CAPACITY") else 0)
+        capacities = self.model.battery_capacities_mah()
+        if monitor < 1 or monitor - 1 not in capacities:
+            return []
+        return [self.mav.param_value_encode(name.encode(), capacities[monitor - 1], mavlink2.MAV_PARAM_TYPE_INT32,
+                                            len(capacities), monitor - 1)]
 
     def autopilot_version(self):
         """What MAVSDK and QGroundControl ask first: MAVLink 2 and the INT mission protocol."""

@@ -738,6 +738,13 @@ class VehicleModel:
             motor_current_a=self.motor_current.copy(), motor_temp_c=self.motor_temp.copy(),
             motor_voltage_v=motor_v, fault=self.fault.copy(), energy_j=self.energy_j, distance_m=self.distance_m, **layout)
 
+    def battery_capacities_mah(self) -> dict[int, float]:
+        """The capacity the autopilot is configured with, per BATTERY_STATUS id (its BATTn_CAPACITY):
+        the description's rated capacity, else the pack's usable capacity."""
+        if self.config.vehicle is not None:
+            return {p.mavlink_battery_id: float(p.capacity_mah) for p in self.config.vehicle.packs}
+        return {i: float(self._pack_matrix[i, kernel.I_CMAX]) / 3.6 for i in range(len(self.pack_names))}
+
     def _layout(self, v: np.ndarray, rho: float) -> dict:
         """A described vehicle's telemetry layout and per-motor bus voltage for ``TruthState``."""
         from gcs_pdm.vehicle.model_inputs import mav_type

@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--from", dest="log", default=None, metavar="LOG",
                      help="derive a provisional description from a tlog (HEARTBEAT, BATTERY_STATUS, ESC telemetry, "
                           "PARAM_VALUE), an ArduPilot DataFlash .bin or a PX4 ULog .ulg")
+    init.add_argument("--capacity-mah", action="append", default=[], metavar="[ID=]MAH",
+                      help="a pack's rated capacity (mAh; ID = its BATTERY_STATUS id, default 0) when the log "
+                           "gives none (no BATT_CAPACITY/BATn_CAPACITY parameter, too little discharge); repeatable")
     init.add_argument("--out", required=True, help="file to write (.toml or .json)")
     init.add_argument("--force", action="store_true", help="overwrite an existing file")
     init.set_defaults(func=_init)
@@ -60,6 +63,20 @@ def _check(args) -> int:
     return 0
 
 
+def _capacities(items: list[str]) -> dict[int, float]:
+    """``--capacity-mah [ID=]MAH`` values by battery id."""
+    out = {}
+    for item in items:
+        pack, _, value = item.rpartition("=")
+        try:
+            out[int(pack or 0)] = float(value)
+        except ValueError:
+            raise VehicleError(f"--capacity-mah {item}: expected [ID=]MAH, e.g. 0=3300") from None
+        if not out[int(pack or 0)] > 0:
+            raise VehicleError(f"--capacity-mah {item}: the capacity must be > 0 mAh")
+    return out
+
+
 def _init(args) -> int:
     out = Path(args.out)
     if out.exists() and not args.force:
@@ -69,7 +86,7 @@ def _init(args) -> int:
         if args.log:
             from gcs_pdm.vehicle.from_log import observe_file
 
-            desc, notes = observe_file(args.log)
+            desc, notes = observe_file(args.log, capacities=_capacities(args.capacity_mah))
             for n in notes:
                 print(f"note: {n}", file=sys.stderr)
         else:

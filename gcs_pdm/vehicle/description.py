@@ -42,8 +42,9 @@ class ParameterRef(_Strict):
     ``set`` is a built-in parameter set name (``paper_si``), a fitted set's JSON file (what
     ``gcs-pdm fit`` writes), or ``"chemistry-default"``: the paper's 5S 7.8 Ah LiPo pack scaled
     to this pack's cells and capacity (docs/vehicles.md gives the scaling). ``pack`` picks the pack
-    inside a set (one of LLF20, ULA20, LRF40, URA40); ``scale_to_pack`` scales that fitted pack to
-    this pack's cells and capacity instead of taking it as it is.
+    inside a set (LLF20, ULA20, LRF40, URA40 in the paper's sets; a vehicle's fitted set holds that
+    vehicle's packs by name); ``scale_to_pack`` scales that pack to this pack's cells and capacity
+    (from the set's own pack format) instead of taking it as it is.
     """
 
     set: str = "chemistry-default"

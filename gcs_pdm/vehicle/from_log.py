@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Mapping
 
 import numpy as np
 
@@ -103,8 +103,10 @@ def log_observations(series) -> Iterable[tuple[str, dict]]:
             yield name, fields
 
 
-def observe_log(path: str | Path, name: str | None = None) -> tuple[VehicleDescription, list[str]]:
-    """The provisional description of the vehicle that wrote ``path`` (``.bin`` or ``.ulg``)."""
+def observe_log(path: str | Path, name: str | None = None, capacities: Mapping[int, float] | None = None,
+                ) -> tuple[VehicleDescription, list[str]]:
+    """The provisional description of the vehicle that wrote ``path`` (``.bin`` or ``.ulg``);
+    ``capacities`` (mAh by battery id) for packs whose capacity the log does not give."""
     from gcs_pdm.fitting.tables import FlightDataError
     from gcs_pdm.logs.reader import read_log
 
@@ -116,14 +118,15 @@ def observe_log(path: str | Path, name: str | None = None) -> tuple[VehicleDescr
     obs.airframe_source = airframe_of_log(series)[1]
     for msg_name, fields in log_observations(series):
         obs.observe(msg_name, fields)
-    return obs.derive(name or f"provisional-{Path(path).stem}")
+    return obs.derive(name or f"provisional-{Path(path).stem}", capacities)
 
 
-def observe_file(path: str | Path, name: str | None = None) -> tuple[VehicleDescription, list[str]]:
+def observe_file(path: str | Path, name: str | None = None, capacities: Mapping[int, float] | None = None,
+                 ) -> tuple[VehicleDescription, list[str]]:
     """A tlog, DataFlash or ULog file, by its extension."""
     from gcs_pdm.logs.reader import LOG_SUFFIXES
-    from gcs_pdm.vehicle.provisional import observe_tlog
+    from gcs_pdm.vehicle.provisional import derive_provisional, tlog_messages
 
     if Path(path).suffix.lower() in LOG_SUFFIXES:
-        return observe_log(path, name)
-    return observe_tlog(path, name)
+        return observe_log(path, name, capacities)
+    return derive_provisional(tlog_messages(path), name or f"provisional-{Path(path).stem}", capacities)

@@ -93,8 +93,12 @@ def pack_parameters(spec: PackSpec, where: str = "pack") -> np.ndarray:
     v = pack_vector(ps.packs[pack_name])
     if not scale:
         return v
-    # fitted sets hold the paper's 5S 7.8 Ah packs
-    return scale_pack_vector(v, CELLS_PER_PACK, PACK_CAPACITY_C, spec.cells_series, spec.capacity_c, full_cell)
+    # a vehicle's fitted set (gcs-pdm fit --vehicle) says each pack's format; the built-in and
+    # paper-layout sets hold the paper's 5S 7.8 Ah packs
+    fmt = (ps.provenance.get("pack_formats") or {}).get(pack_name)
+    ref_cells, ref_capacity = ((int(fmt["cells_series"]), float(fmt["capacity_mah"]) * 3.6) if fmt
+                               else (CELLS_PER_PACK, PACK_CAPACITY_C))
+    return scale_pack_vector(v, ref_cells, ref_capacity, spec.cells_series, spec.capacity_c, full_cell)
 
 
 def model_inputs(desc: VehicleDescription) -> ModelInputs:

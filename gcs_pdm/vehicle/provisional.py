@@ -11,7 +11,10 @@ name and a field dict, as ``msg.to_dict()`` gives them, or as the link layer dec
   a 3S one between 2.9 and 4.35);
   capacity from the autopilot's capacity parameter when a PARAM_VALUE gave it (ArduPilot
   ``BATT_CAPACITY``/``BATTn_CAPACITY``, PX4 ``BATn_CAPACITY``), else from the charge drawn against
-  the reported remaining percentage when it fell by 10 % or more, otherwise a guess said in the notes;
+  the reported remaining percentage when it fell by 10 % or more, otherwise *unknown*: no number is
+  made up; ``waiting_for`` and ``derive`` say why (the pack model — SoC by coulomb counting, time to
+  cut-off, planning — needs it);
+- a pack resting at boot above a LiPo's full cell: that rest voltage as its full-cell voltage;
 - motors from the ESC_TELEMETRY_* indices that carried any non-zero value, with the readings
   that were non-zero (current, rpm, temperature);
 - the airframe's aerodynamic figures and the mass from the matching preset (said in the notes).
@@ -28,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from gcs_pdm.vehicle.description import VehicleDescription, VehicleError, from_dict
+from gcs_pdm.vehicle.description import CHEMISTRY_CELL_VOLTAGE, VehicleDescription, VehicleError, from_dict
 
 #: MAV_TYPE -> rotor count, for the multirotor types
 MULTIROTOR_ROTORS = {2: 4, 3: 2, 13: 6, 14: 8, 15: 3}
@@ -44,6 +47,22 @@ _UINT16_MAX = 65535
 _INT16_MAX = 32767
 _ESC_MESSAGES = {"ESC_TELEMETRY_1_TO_4": 0, "ESC_TELEMETRY_5_TO_8": 4, "ESC_TELEMETRY_9_TO_12": 8,
                  "ESC_TELEMETRY_13_TO_16": 12}
+
+
+#: the fall of battery_remaining (percentage points) over which charge drawn measures the capacity
+CAPACITY_MIN_FALL_PCT = 10
+
+
+class CapacityUnknown(VehicleError):
+    """A pack's capacity has no evidence yet (no autopilot parameter, not enough discharge)."""
+
+
+@dataclass(frozen=True)
+class Capacity:
+    """A pack's capacity and where it came from; ``mah`` None: unknown, ``source`` says why."""
+
+    mah: float | None
+    source: str
 
 
 #: readings whose median is the pack's voltage at boot (robust to one noisy sample)
@@ -66,6 +85,8 @@ class _PackSeen:
     first_remaining: int | None = None
     first_consumed_mah: float | None = None
     capacity_estimate_mah: float | None = None
+    #: how far battery_remaining has fallen so far, percentage points (-1: never reported)
+    remaining_fall: int = -1
     frames: int = 0
     #: (voltage V, current A, the autopilot's remaining fraction) under load
     loaded: list = field(default_factory=list)
@@ -107,13 +128,39 @@ class ProvisionalObserver:
 
     def capacity_parameter(self, pack_id: int) -> tuple[str, float] | None:
         """The pack's capacity (mAh) as the autopilot is configured: (parameter, value), or None."""
-        names = ([("BATT_CAPACITY" if pack_id == 0 else f"BATT{pack_id + 1}_CAPACITY")]  # ArduPilot
-                 + [f"BAT{pack_id + 1}_CAPACITY"] + (["BAT_CAPACITY"] if pack_id == 0 else []))  # PX4
-        for n in names:
+        for n, _ in self._capacity_names(pack_id):
             v = self.parameters.get(n)
             if v is not None and math.isfinite(v) and v > 0:  # 0 / -1: not configured
                 return n, v
         return None
+
+    def capacity(self, pack_id: int) -> Capacity:
+        """The pack's capacity from evidence: the autopilot's parameter, else the charge drawn against
+        the fall of battery_remaining, else unknown with the reason."""
+        configured = self.capacity_parameter(pack_id)
+        if configured:
+            return Capacity(configured[1], f"from the autopilot's {configured[0]} parameter")
+        seen = self.packs.get(pack_id, _PackSeen())
+        if seen.capacity_estimate_mah:
+            return Capacity(round(seen.capacity_estimate_mah, -1),
+                            "from the charge drawn (current_consumed) against the fall of battery_remaining")
+        names = "/".join(n for n, _ in self._capacity_names(pack_id)[:2])
+        if seen.remaining_fall < 0:
+            discharge = "the pack does not report battery_remaining and current_consumed"
+        else:
+            discharge = (f"battery_remaining has fallen {seen.remaining_fall} of the {CAPACITY_MIN_FALL_PCT} "
+                         f"percentage points needed to measure it from the charge drawn")
+        return Capacity(None, f"unknown: no {names} parameter seen, and {discharge}")
+
+    @staticmethod
+    def _capacity_names(pack_id: int) -> list[tuple[str, str]]:
+        ardupilot = "BATT_CAPACITY" if pack_id == 0 else f"BATT{pack_id + 1}_CAPACITY"
+        return ([(ardupilot, "ArduPilot"), (f"BAT{pack_id + 1}_CAPACITY", "PX4")]
+                + ([("BAT_CAPACITY", "PX4")] if pack_id == 0 else []))
+
+    def capacity_parameter_names(self) -> list[str]:
+        """The parameters a GCS may ask the autopilot for, to learn the capacities of the packs seen."""
+        return [n for i in sorted(self.packs) for n, _ in self._capacity_names(i)]
 
     def _battery(self, f: Mapping[str, Any]) -> None:
         seen = self.packs.setdefault(int(f["id"]), _PackSeen())
@@ -136,7 +183,8 @@ class ProvisionalObserver:
             return
         if seen.first_remaining is None:
             seen.first_remaining, seen.first_consumed_mah = int(remaining), float(consumed)
-        elif seen.first_remaining - remaining >= 10:
+        seen.remaining_fall = max(seen.remaining_fall, seen.first_remaining - int(remaining))
+        if seen.first_remaining - remaining >= CAPACITY_MIN_FALL_PCT:
             drawn = float(consumed) - seen.first_consumed_mah
             if drawn > 0:
                 seen.capacity_estimate_mah = drawn / ((seen.first_remaining - remaining) / 100.0)
@@ -163,11 +211,18 @@ class ProvisionalObserver:
             return "a BATTERY_STATUS with a voltage"
         short = [f"battery{i} ({len(p.first_voltages)} of {FIRST_READINGS} readings)"
                  for i, p in packs.items() if len(p.first_voltages) < FIRST_READINGS]
-        return "the first voltage readings of " + ", ".join(short) if short else None
+        if short:
+            return "the first voltage readings of " + ", ".join(short)
+        unknown = [f"battery{i} ({c.source}; SoC, time to cut-off and planning need it)"
+                   for i in packs if (c := self.capacity(i)).mah is None]
+        return "the capacity of " + ", ".join(unknown) if unknown else None
 
     # ---- the description ----------------------------------------------------------------------
-    def derive(self, name: str = "provisional") -> tuple[VehicleDescription, list[str]]:
-        """The provisional description and the notes on what was guessed (raise if nothing to go on)."""
+    def derive(self, name: str = "provisional", capacities: Mapping[int, float] | None = None,
+               ) -> tuple[VehicleDescription, list[str]]:
+        """The provisional description and the notes on what was guessed (raise if nothing to go on;
+        ``CapacityUnknown`` if a pack's capacity has no evidence and ``capacities`` — the user's,
+        by BATTERY_STATUS id, in mAh — does not give it)."""
         from gcs_pdm.vehicle.presets import PRESETS
 
         notes: list[str] = []
@@ -196,16 +251,23 @@ class ProvisionalObserver:
             cells = max(1, math.ceil(boot_v / MAX_CELL_VOLTAGE - CELL_COUNT_SLACK))
             pack = {"name": f"battery{i}", "mavlink_battery_id": i, "cells_series": cells,
                     "reports_temperature": seen.temperature_reported}
-            configured = self.capacity_parameter(i)
-            if configured:
-                pack["capacity_mah"] = configured[1]
-                how = f"from the autopilot's {configured[0]} parameter"
-            elif seen.capacity_estimate_mah:
-                pack["capacity_mah"] = round(seen.capacity_estimate_mah, -1)
-                how = "from the charge drawn against the remaining percentage reported"
-            else:
-                pack["capacity_mah"] = 5000.0
-                how = "a guess (the pack did not report enough discharge)"
+            capacity = (Capacity(float(capacities[i]), "as given by the user") if capacities and i in capacities
+                        else self.capacity(i))
+            if capacity.mah is None:
+                raise CapacityUnknown(f"pack battery{i}: capacity {capacity.source}; the pack model (SoC by "
+                                      f"coulomb counting, time to cut-off, planning) needs it: give it (e.g. "
+                                      f"`gcs-pdm vehicle init --from LOG --capacity-mah {i}=MAH`, or capacity_mah "
+                                      f"in a description) or set the autopilot's capacity parameter")
+            pack["capacity_mah"] = capacity.mah
+            how = capacity.source
+            rest_cell_v = boot_v / cells
+            if rest_cell_v > CHEMISTRY_CELL_VOLTAGE["lipo"][0] + STIFFNESS_GAP_CELL_V:
+                # a pack cannot rest above its full voltage: a LiPo model full at 4.2 V/cell would read
+                # this pack above full (a SoC over 1, withheld by the estimator) from the first reading
+                pack["full_cell_voltage"] = min(4.5, round(rest_cell_v + 0.005, 2))
+                notes.append(f"pack battery{i}: rests at {rest_cell_v:.3f} V/cell at boot, above a LiPo's full "
+                             f"{CHEMISTRY_CELL_VOLTAGE['lipo'][0]} V: full-cell voltage set to "
+                             f"{pack['full_cell_voltage']:.2f} V")
             notes.append(f"pack battery{i}: {cells} cells from {boot_v:.2f} V at boot, "
                          f"capacity {pack['capacity_mah']:.0f} mAh {how}, chemistry-default parameters"
                          + ("" if seen.temperature_reported else "; temperature not reported (estimated)"))
@@ -261,13 +323,13 @@ def _raise_full_cell_voltage(data: dict, loaded: list[list], notes: list[str]) -
                      f"to {pack['full_cell_voltage']:.2f} V; fit the pack for a real model (docs/vehicles.md)")
 
 
-def derive_provisional(messages: Iterable[tuple[str, Mapping[str, Any]]], name: str = "provisional"
-                       ) -> tuple[VehicleDescription, list[str]]:
-    """Pure: (message name, fields) pairs -> (description, notes)."""
+def derive_provisional(messages: Iterable[tuple[str, Mapping[str, Any]]], name: str = "provisional",
+                       capacities: Mapping[int, float] | None = None) -> tuple[VehicleDescription, list[str]]:
+    """Pure: (message name, fields) pairs -> (description, notes); ``capacities`` as in ``derive``."""
     obs = ProvisionalObserver()
     for msg_name, fields in messages:
         obs.observe(msg_name, fields)
-    return obs.derive(name)
+    return obs.derive(name, capacities)
 
 
 _WANTED = ["HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", *_ESC_MESSAGES]
