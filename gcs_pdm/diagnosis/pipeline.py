@@ -201,7 +201,5 @@ class DiagnosisPipeline:
             "motor_power": {"samples": self.motor_power.samples, "low_power_skipped": self.motor_power.low_power_skipped},
             "readiness": self.readiness(),
             "pack_health": {n: e.__dict__ for n, e in self.pack_health.latest.items()},
-            "prognosis": {"skipped_no_mission": self.prognosis.skipped_no_mission,
-                          "latest": None if self.prognosis.latest_prediction is None
-                          else self.prognosis.latest_prediction.to_dict()},
+            "prognosis": self.prognosis.status(self.estimator.time_s),
         }
