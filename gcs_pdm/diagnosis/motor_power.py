@@ -127,8 +127,9 @@ class MotorPowerLossDetector:
         self._window.append(m)
         if len(self._window) < self._window.maxlen:
             return []
-        med, sd = _median_sd(self._window)
-        spread = sd / math.sqrt(len(self._window)) + 1e-3
+        window = sorted(self._window)
+        med = float(median_of_sorted(window))
+        spread = math.nan   # the confidence's, computed once a motor is active (rare)
         events = []
         for q, name in enumerate(MOTOR_NAMES):
             mq = med if q == 0 else -med
@@ -142,6 +143,8 @@ class MotorPowerLossDetector:
                 self._active_sum[name] += mq
             n_active = self._active_n[name]
             mag = self._active_sum[name] / n_active if n_active else mq
+            if deb.active and math.isnan(spread):
+                spread = _sd(window) / math.sqrt(len(window)) + 1e-3
             conf = _phi((mq - self.config.clear_threshold) / spread) if deb.active else 0.0
             reading = (med, n_active, p0, p1, i_fwd, i_aft, rpm, v_fwd if med > 0 else v_aft)
             if ev == "raise":
@@ -189,13 +192,11 @@ def median_of_sorted(v: list[float]) -> float:
     return v[n // 2] if n % 2 else (v[n // 2 - 1] + v[n // 2]) / 2.0
 
 
-def _median_sd(window) -> tuple[float, float]:
-    """Median and population standard deviation of a short window (np.median/np.std without the
-    array round trip: this runs at every paired sample)."""
-    v = sorted(window)
+def _sd(v: list[float]) -> float:
+    """Population standard deviation of a short sorted window (np.std without the array round trip)."""
     n = len(v)
     mean = sum(v) / n
-    return float(median_of_sorted(v)), math.sqrt(sum((x - mean) ** 2 for x in v) / n)
+    return math.sqrt(sum((x - mean) ** 2 for x in v) / n)
 
 
 def _phi(z: float) -> float:
