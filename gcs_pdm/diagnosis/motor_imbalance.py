@@ -168,9 +168,11 @@ class EscImbalanceDetector:
 
 def _floats(x, n: int | None = None) -> list[float]:
     """A reading as a list of Python floats (a scalar bus voltage repeated ``n`` times)."""
-    if np.ndim(x) == 0:
-        return [float(x)] * (1 if n is None else n)
-    return [float(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.astype(np.float64).tolist() if x.ndim else [float(x)] * (1 if n is None else n)
+    if isinstance(x, (list, tuple)):
+        return [float(v) for v in x]
+    return [float(x)] * (1 if n is None else n)
 
 
 def _evidence(med: float, q: int, currents: list[float]) -> dict:

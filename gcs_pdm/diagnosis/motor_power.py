@@ -88,6 +88,8 @@ class MotorPowerLossDetector:
 
     def __init__(self, motor_params: np.ndarray, config: MotorPowerConfig = MotorPowerConfig()):
         self.motor = np.asarray(motor_params, dtype=np.float64)
+        # the same numbers as Python floats: numpy scalar arithmetic costs several times more per sample
+        self._motor = self.motor.tolist()
         self.config = config
         self._window: deque = deque(maxlen=config.window)
         self._debounce = {name: Debouncer(config.debounce) for name in MOTOR_NAMES}
@@ -115,11 +117,11 @@ class MotorPowerLossDetector:
         """One paired observation; returns the (event, fault) pairs it caused ('raise'/'update'/'clear')."""
         # the power question first, on the fault-free reading (it differs from the faulted one by
         # at most the no-load loss, ~60 W): near idle the share carries no information
-        healthy_total = (delivered_power(i_fwd, v_fwd, self.motor, 0.0) + delivered_power(i_aft, v_aft, self.motor, 0.0))
+        healthy_total = (delivered_power(i_fwd, v_fwd, self._motor, 0.0) + delivered_power(i_aft, v_aft, self._motor, 0.0))
         if not healthy_total >= self.config.min_power_w:
             self.low_power_skipped += 1
             return []
-        m, p0, p1 = fault_magnitude(i_fwd, i_aft, v_fwd, v_aft, self.motor)
+        m, p0, p1 = fault_magnitude(i_fwd, i_aft, v_fwd, v_aft, self._motor)
         if not math.isfinite(m) or p0 + p1 < self.config.min_power_w:
             self.low_power_skipped += 1
             return []
