@@ -107,18 +107,25 @@ def test_changed_faults_mission_parameters_or_age_re_run_it(est):
     assert (m.runs, m.last_run_reason) == (5, "age")
 
 
-def test_a_reused_limit_prediction_counts_its_times_to_failure_from_now(est):
-    # a load the packs cannot carry: the limit fault is raised on predictions being re-used
+def test_a_pending_limit_fault_gets_a_fresh_prediction_at_each_check_then_one_is_reused(est):
+    # a load the packs cannot carry: P(fail) >= 0.5 from the first check
     m = PrognosisMonitor(config=PrognosisConfig(warmup_s=0.0, n_samples=40), seed=3)
     t0 = est.time_s
     m.set_mission(FutureLoad.constant(6000.0, 1800.0, 2.0), t0)
-    events = [e for t in np.arange(t0, t0 + 121.0, 30.0) for e in m.check(float(t), est, NO_FAULT)]
-    assert m.runs == 1, m.last_run_reason
-    limit = [f for ev, f in events if ev == "raise" and f.type == "predicted_limit_violation"]
-    assert limit, [f.to_dict() for _, f in events]
+    times = [t0 + 30.0 * k for k in range(6)]
+    runs, events = [], []
+    for t in times:
+        events += m.check(t, est, NO_FAULT)
+        runs.append(m.runs)
+    # debounced over 60 s: three checks, each on its own prediction; raised at the third
+    limit = [(ev, f) for ev, f in events if f.type == "predicted_limit_violation"]
+    assert [ev for ev, _ in limit] == ["raise"] and limit[0][1].time_s == pytest.approx(times[2])
+    assert runs == [1, 2, 3, 3, 3, 3], runs
+    assert m.last_run_reason == "limit pending"
+    # once raised (and still holding) the prediction is re-used: its times to failure count from now
     f = m.faults[("predicted_limit_violation", "vehicle")]
-    age = f.updated_s - t0
-    assert f.evidence["prediction_age_s"] == pytest.approx(age, abs=0.1)
+    age = times[-1] - times[2]
+    assert f.updated_s == pytest.approx(times[-1]) and f.evidence["prediction_age_s"] == pytest.approx(age, abs=0.1)
     ttf = m.latest_prediction.time_to_failure_s
     assert math.isfinite(ttf[1])
     assert f.evidence["time_to_failure_s_median"] == pytest.approx(max(ttf[1] - age, 0.0), abs=0.1)

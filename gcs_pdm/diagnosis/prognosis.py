@@ -26,7 +26,9 @@ A check does not re-simulate what has not changed: the Monte Carlo is re-run onl
   has moved off the change its median trajectory predicted by more than ``band_sds`` of the
   estimate's sds at the time of the prediction (the samples' initial 5-95 % spread), and at least
   ``band_soc`` or ``band_temp_c``;
-- the prediction is ``max_age_s`` old, or the elapsed time passed its trajectories' end.
+- the prediction is ``max_age_s`` old, or the elapsed time passed its trajectories' end;
+- the limit fault is pending (its raise or clear condition holds but has not lasted long enough):
+  the debouncer's "three checks in a row" then means three independent predictions, as before.
 Otherwise the check re-uses the latest prediction: the debouncers see its p_failure, and the limit
 fault's evidence gives its times to failure from now (less its age) and ``prediction_age_s``.
 ``status()`` says how old the prediction is (``predicted_at_s``, ``age_s``), how many checks ran
@@ -176,6 +178,10 @@ class PrognosisMonitor:
         cfg = self.config
         if self._stale is not None or self.latest_prediction is None or self._made_with is None:
             return self._stale or "first"
+        if not math.isnan(self._limit.pending_since):
+            # a limit fault waiting to be raised or cleared: its debouncer wants independent
+            # predictions at each check, not the same one counted again
+            return "limit pending"
         faults0, state0, sd0, _ = self._made_with
         if faults0.shape != fault_vector.shape or np.any(np.abs(fault_vector - faults0) > cfg.rerun_fault_change):
             return "faults"
