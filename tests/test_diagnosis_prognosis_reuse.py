@@ -8,6 +8,7 @@ or the parameters — or waiting ``max_age_s`` — makes the next check run the 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -129,3 +130,13 @@ def test_a_pending_limit_fault_gets_a_fresh_prediction_at_each_check_then_one_is
     ttf = m.latest_prediction.time_to_failure_s
     assert math.isfinite(ttf[1])
     assert f.evidence["time_to_failure_s_median"] == pytest.approx(max(ttf[1] - age, 0.0), abs=0.1)
+
+
+def test_an_undecided_p_failure_gets_fresh_draws_at_each_check(est):
+    m, t0 = monitor(est)
+    checks(m, est, [t0, t0 + 30.0])
+    assert m.runs == 1 and m.latest_prediction.p_failure < m.config.p_clear
+    # as if the prediction had said 0.3: between p_clear and p_raise the Monte Carlo's noise decides
+    m.latest_prediction = replace(m.latest_prediction, p_failure=0.3)
+    checks(m, est, [t0 + 60.0])
+    assert (m.runs, m.last_run_reason) == (2, "p_failure undecided")

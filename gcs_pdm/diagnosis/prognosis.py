@@ -28,7 +28,9 @@ A check does not re-simulate what has not changed: the Monte Carlo is re-run onl
   ``band_soc`` or ``band_temp_c``;
 - the prediction is ``max_age_s`` old, or the elapsed time passed its trajectories' end;
 - the limit fault is pending (its raise or clear condition holds but has not lasted long enough):
-  the debouncer's "three checks in a row" then means three independent predictions, as before.
+  the debouncer's "three checks in a row" then means three independent predictions, as before;
+  or the latest p_failure is undecided (between ``p_clear`` and ``p_raise``), where the Monte
+  Carlo's own sampling noise decides, so each check takes fresh draws as before.
 Otherwise the check re-uses the latest prediction: the debouncers see its p_failure, and the limit
 fault's evidence gives its times to failure from now (less its age) and ``prediction_age_s``.
 ``status()`` says how old the prediction is (``predicted_at_s``, ``age_s``), how many checks ran
@@ -182,6 +184,9 @@ class PrognosisMonitor:
             # a limit fault waiting to be raised or cleared: its debouncer wants independent
             # predictions at each check, not the same one counted again
             return "limit pending"
+        if cfg.p_clear <= self.latest_prediction.p_failure < cfg.p_raise:
+            # undecided: near the thresholds the Monte Carlo's own noise matters, take fresh draws
+            return "p_failure undecided"
         faults0, state0, sd0, _ = self._made_with
         if faults0.shape != fault_vector.shape or np.any(np.abs(fault_vector - faults0) > cfg.rerun_fault_change):
             return "faults"
