@@ -125,7 +125,7 @@ class DiagnosisPipeline:
                     if v_filter is None:
                         v_filter = est.packs.voltage()[0].tolist()
                     total += v_filter[b]
-            bus.append(total / len(packs) if parallel else total)
+            bus.append(total if not parallel else total / len(packs) if packs else math.nan)
         bus_of_motor = [bus[k] for k in self._bus_of_motor]
         currents = est.motor_current.tolist()
         if not all(math.isfinite(x) for x in bus_of_motor):
