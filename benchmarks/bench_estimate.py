@@ -12,7 +12,10 @@ average when measured — on a shared machine CPU time is the figure to trust.
   health fits every 60 s and the prognosis' Monte Carlo every 30 s of message time, amortised)
   — floor 60 µs;
 - ``pipeline_per_frame_no_mission_us``: the same without a mission, so without the Monte Carlo
-  (what a replay of a tlog costs per frame);
+  (what a replay of a tlog costs per frame) — floor 60 µs too;
+- ``pipeline_breakdown``: one run with a mission split into the pack-health fits, the prognosis
+  and the rest (estimator and per-frame detectors), µs per frame, and how many prognosis checks ran
+  the Monte Carlo or re-used the latest prediction (``diagnosis/prognosis.py``);
 - ``mc_100_30min_ms``: a 100-sample Monte Carlo prediction 30 minutes ahead at 1 s steps (without
   the median trajectories; ``mc_100_30min_with_trajectories_ms`` with them) — floor 15 ms;
 - progpy (if installed): ``progpy_pf_update_100_us`` — ParticleFilter over BatteryCircuit (one
@@ -90,7 +93,8 @@ def main() -> dict:
             p.consume(fr)
 
     # without a mission the prognosis' Monte Carlo does not run: what is left is the per-frame work
-    figures["pipeline_per_frame_no_mission_us"] = figure(timed(pipeline_no_mission, 2, 1), 1e6 / n, None, "µs")
+    figures["pipeline_per_frame_no_mission_us"] = figure(timed(pipeline_no_mission, 2, 1), 1e6 / n, 60, "µs")
+    figures["pipeline_breakdown"] = pipeline_breakdown(ps, flight)
 
     load = FutureLoad.constant(1000.0, 1800.0, 1.0)
     rng = np.random.default_rng(0)
@@ -100,11 +104,46 @@ def main() -> dict:
         est, load, rng=rng, n_samples=100, trajectories=True), 3, 2), 1e3, None, "ms")
     figures.update(progpy_reference())
     for name, f in figures.items():
-        if isinstance(f, dict):
+        if isinstance(f, dict) and "cpu" in f:
             print(f"{name:<36} wall {f['wall']:>9} cpu {f['cpu']:>9} {f['unit']:<3} floor {f['floor']}  "
                   f"(load {f['loadavg_1min']})")
     return {"benchmark": "bench_estimate", "frames_per_flight": n, "flight_duration_s": round(flight.duration_s, 1),
             "figures": figures}
+
+
+def pipeline_breakdown(ps, flight) -> dict:
+    """Where ``pipeline_per_frame_us`` goes, per frame (CPU µs, one run with a mission): the pack
+    health fits (every 60 s of message time), the prognosis (its Monte Carlo runs and re-uses), and
+    the rest (estimator and per-frame detectors); with how often the prognosis ran its Monte Carlo."""
+    import time
+
+    p = DiagnosisPipeline(ps)
+    p.set_mission(FutureLoad(np.diff(flight.time_s, prepend=flight.time_s[0]), flight.shaft_power_w, 20.0),
+                  flight.time_s[0])
+    spent = {"pack_health_fits": 0.0, "prognosis": 0.0}
+
+    def timing(name, fn):
+        def wrapped(*args):
+            c0 = time.process_time()
+            try:
+                return fn(*args)
+            finally:
+                spent[name] += time.process_time() - c0
+        return wrapped
+
+    p.pack_health.check = timing("pack_health_fits", p.pack_health.check)
+    p.prognosis.check = timing("prognosis", p.prognosis.check)
+    c0 = time.process_time()
+    for fr in flight.frames:
+        p.consume(fr)
+    total = time.process_time() - c0
+    n = len(flight.frames)
+    out = {k: round(v * 1e6 / n, 1) for k, v in spent.items()}
+    out["estimator_and_detectors"] = round((total - sum(spent.values())) * 1e6 / n, 1)
+    status = p.prognosis.status(p.estimator.time_s)
+    out.update(unit="µs per frame", prognosis_monte_carlo_runs=status["runs"],
+               prognosis_checks_reusing=status["reused"])
+    return out
 
 
 def progpy_reference() -> dict:

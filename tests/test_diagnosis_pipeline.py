@@ -7,6 +7,7 @@ import pytest
 from gcs_pdm.diagnosis.faults import (DEGRADATION_RATE_DEVIATION, MOTOR_POWER_LOSS, PACK_CAPACITY_LOSS,
                                       PACK_RESISTANCE_RISE, PREDICTED_LIMIT_VIOLATION)
 from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
+from gcs_pdm.diagnosis.prognosis import PrognosisConfig
 from gcs_pdm.estimation.prediction import FutureLoad
 from gcs_pdm.estimation.synthetic import PackDegradation, fly_synthetic
 from gcs_pdm.models.params import default_set
@@ -80,6 +81,13 @@ def test_infeasible_mission_after_a_fault_is_predicted_and_the_rate_deviation_fi
     assert flight.info["failed_at_s"] is not None and limit[0].time_s < flight.info["failed_at_s"] - 120
     assert raised(p, DEGRADATION_RATE_DEVIATION)
     assert raised(p, MOTOR_POWER_LOSS)[0].component == "fwd"
+    # most checks re-used a prediction that still held; the report says how old the latest is
+    prog = json.loads(json.dumps(p.report()))["prognosis"]
+    assert 1 <= prog["runs"] < prog["reused"], prog
+    assert prog["age_s"] == pytest.approx(p.estimator.time_s - prog["predicted_at_s"], abs=1e-3)
+    cfg = PrognosisConfig()
+    assert 0.0 <= prog["age_s"] <= cfg.max_age_s + cfg.check_every_s and prog["latest"]["p_failure"] > 0.5
+    assert "prediction_age_s" in limit[0].evidence
 
 
 def test_recorded_fault_flight_replays_to_its_fault():

@@ -25,7 +25,7 @@ import numpy as np
 
 from gcs_pdm.diagnosis.debounce import Debouncer
 from gcs_pdm.diagnosis.faults import MOTOR_POWER_LOSS, Fault
-from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, delivered_power
+from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, median_of_sorted
 from gcs_pdm.models import kernel
 
 
@@ -51,7 +51,11 @@ SMALL_VEHICLE_CONFIG = MotorPowerConfig(min_power_w=20.0)
 
 
 class EscImbalanceDetector:
-    """Per-motor power loss from M ESC currents (M >= 2) and their bus voltages."""
+    """Per-motor power loss from M ESC currents (M >= 2) and their bus voltages.
+
+    It runs at every set of ESC readings, so the per-sample work is plain Python on M floats (numpy
+    pays microseconds per call on arrays this small): the medians from sorted lists, the active
+    mean from a running sum, and a fault's latest evidence built only when ``faults`` is read."""
 
     def __init__(self, motor_names: tuple[str, ...], motor_matrix: np.ndarray,
                  config: MotorPowerConfig = SMALL_VEHICLE_CONFIG):
@@ -60,79 +64,120 @@ class EscImbalanceDetector:
         self.names = tuple(motor_names)
         self.motors = np.asarray(motor_matrix, dtype=np.float64)
         self.config = config
+        self._rw = [float(r) for r in self.motors[:, kernel.M_RW]]
+        self._i0 = [float(r) for r in self.motors[:, kernel.M_I0]]
         self._window: dict[str, deque] = {n: deque(maxlen=config.window) for n in self.names}
         self._debounce = {n: Debouncer(config.debounce) for n in self.names}
-        self._active: dict[str, list[float]] = {n: [] for n in self.names}
-        self.faults: dict[str, Fault] = {}
+        # the medians while active: their count and running sum (the reported magnitude is their mean)
+        self._active_n: dict[str, int] = {n: 0 for n in self.names}
+        self._active_sum: dict[str, float] = {n: 0.0 for n in self.names}
+        self._faults: dict[str, Fault] = {}
+        #: an active fault's latest (time, magnitude, median, currents) not yet folded into ``faults``
+        self._latest: dict[str, tuple] = {}
         self.samples = 0
         self.low_power_skipped = 0
 
-    def magnitudes(self, currents: np.ndarray, bus_v: np.ndarray) -> np.ndarray:
+    @property
+    def faults(self) -> dict[str, Fault]:
+        """Every motor's fault in its latest state (the per-sample refinements folded in on reading)."""
+        for name, (time_s, mag, med, q, currents) in self._latest.items():
+            self._faults[name] = self._faults[name].with_(magnitude=mag, updated_s=time_s,
+                                                          evidence=_evidence(med, q, currents))
+        self._latest.clear()
+        return self._faults
+
+    def _powers(self, currents: list[float], bus_v: list[float]) -> list[float]:
+        """Each motor's delivered power on the fault-free reading (``motor_power.delivered_power``)."""
+        return [v * i - rw * i * i - 1.0 * i0 * v for i, v, rw, i0 in zip(currents, bus_v, self._rw, self._i0)]
+
+    def magnitudes(self, currents, bus_v) -> np.ndarray:
         """Per-motor f from one set of readings (NaN where no power is delivered)."""
+        currents, bus_v = _floats(currents), _floats(bus_v, len(self.names))
+        return np.array(self._magnitudes(self._powers(currents, bus_v), bus_v))
+
+    def _magnitudes(self, power: list[float], bus_v: list[float]) -> list[float]:
         m = len(self.names)
         k = 1.0 / (m - 1)
-        power = np.array([delivered_power(float(currents[q]), float(bus_v[q]), self.motors[q], 0.0)
-                          for q in range(m)])
-        out = np.full(m, np.nan)
+        order = sorted(range(m), key=power.__getitem__)
+        out = [math.nan] * m
         for q in range(m):
-            p_o = float(np.median(np.delete(power, q)))
+            p_o = median_of_sorted([power[i] for i in order if i != q])
             if not p_o > 0.0:
                 continue
             # the suspect's own no-load term is (1 - f) I_0 V: with A = V i - R_w i², c = I_0 V,
             # r = (A - (1 - f) c) / P_o in f = (1 - r)/(1 + k r) gives
             # c k f² + ((A - c) k + c + P_o) f + (A - c - P_o) = 0
-            c = self.motors[q, kernel.M_I0] * float(bus_v[q])
+            c = self._i0[q] * bus_v[q]
             a_q = power[q] + c
             a2, a1, a0 = c * k, (a_q - c) * k + c + p_o, a_q - c - p_o
             if a2 > 0.0:
                 disc = a1 * a1 - 4.0 * a2 * a0
                 f = (-a1 + math.sqrt(disc)) / (2.0 * a2) if disc >= 0.0 else math.nan
             else:
-                f = -a0 / a1
+                f = -a0 / a1 if a1 != 0.0 else math.nan   # (numpy's ±inf/NaN: never appended either)
             out[q] = f
         return out
 
-    def update(self, time_s: float, currents: np.ndarray, bus_v: np.ndarray) -> list[tuple[str, Fault]]:
-        currents = np.asarray(currents, dtype=np.float64)
-        bus_v = np.broadcast_to(np.asarray(bus_v, dtype=np.float64), currents.shape)
-        total = sum(delivered_power(float(i), float(v), self.motors[q], 0.0)
-                    for q, (i, v) in enumerate(zip(currents, bus_v)))
-        if not (np.all(np.isfinite(currents)) and total >= self.config.min_power_w):
+    def update(self, time_s: float, currents, bus_v) -> list[tuple[str, Fault]]:
+        currents, bus_v = _floats(currents), _floats(bus_v, len(currents))
+        power = self._powers(currents, bus_v)
+        if not (all(math.isfinite(i) for i in currents) and sum(power) >= self.config.min_power_w):
             self.low_power_skipped += 1
             return []
         self.samples += 1
         events = []
-        for q, (name, f) in enumerate(zip(self.names, self.magnitudes(currents, bus_v))):
+        cfg = self.config
+        for q, (name, f) in enumerate(zip(self.names, self._magnitudes(power, bus_v))):
             win = self._window[name]
             if math.isfinite(f):
                 win.append(f)
             if len(win) < win.maxlen:
                 continue
-            med = float(np.median(win))
+            med = median_of_sorted(sorted(win))
             deb = self._debounce[name]
-            ev = deb.update(time_s, med >= self.config.raise_threshold, med < self.config.clear_threshold)
+            ev = deb.update(time_s, med >= cfg.raise_threshold, med < cfg.clear_threshold)
             if deb.active:
-                self._active[name].append(med)
-            mag = min(max(float(np.mean(self._active[name])) if self._active[name] else med, 0.0), 1.0)
-            evidence = {"median_f": round(med, 4), "current_a": round(float(currents[q]), 2),
-                        "other_currents_a": [round(float(c), 2) for k, c in enumerate(currents) if k != q]}
+                self._active_n[name] += 1
+                self._active_sum[name] += med
+            if ev is None and not deb.active:
+                continue
+            n_active = self._active_n[name]
+            mag = min(max(self._active_sum[name] / n_active if n_active else med, 0.0), 1.0)
             if ev == "raise":
                 spread = float(np.std(win)) / math.sqrt(len(win)) + 1e-3
-                conf = 0.5 * (1.0 + math.erf((med - self.config.clear_threshold) / spread / math.sqrt(2.0)))
-                self.faults[name] = Fault(MOTOR_POWER_LOSS, name, mag, time_s, conf, evidence, updated_s=time_s)
-                events.append(("raise", self.faults[name]))
+                conf = 0.5 * (1.0 + math.erf((med - cfg.clear_threshold) / spread / math.sqrt(2.0)))
+                self._faults[name] = Fault(MOTOR_POWER_LOSS, name, mag, time_s, conf, _evidence(med, q, currents),
+                                           updated_s=time_s)
+                self._latest.pop(name, None)
+                events.append(("raise", self._faults[name]))
             elif ev == "clear":
-                self.faults[name] = self.faults[name].with_(active=False, cleared_s=time_s, confidence=0.0,
-                                                            updated_s=time_s, evidence=evidence)
-                self._active[name] = []
-                events.append(("clear", self.faults[name]))
-            elif deb.active:
-                self.faults[name] = self.faults[name].with_(magnitude=mag, updated_s=time_s, evidence=evidence)
+                # from its latest refinement (``faults`` folds it in)
+                self._faults[name] = self.faults[name].with_(active=False, cleared_s=time_s, confidence=0.0,
+                                                              updated_s=time_s, evidence=_evidence(med, q, currents))
+                self._active_n[name], self._active_sum[name] = 0, 0.0
+                events.append(("clear", self._faults[name]))
+            else:
+                self._latest[name] = (time_s, mag, med, q, currents)
         return events
 
     def fault_vector(self) -> np.ndarray:
-        return np.array([self.faults[n].magnitude if n in self.faults and self.faults[n].active else 0.0
-                         for n in self.names])
+        faults = self._faults  # magnitudes only change on update: no need to fold in the evidence
+        return np.array([(self._latest[n][1] if n in self._latest else faults[n].magnitude)
+                         if n in faults and faults[n].active else 0.0 for n in self.names])
+
+
+def _floats(x, n: int | None = None) -> list[float]:
+    """A reading as a list of Python floats (a scalar bus voltage repeated ``n`` times)."""
+    if isinstance(x, np.ndarray):
+        return x.astype(np.float64).tolist() if x.ndim else [float(x)] * (1 if n is None else n)
+    if isinstance(x, (list, tuple)):
+        return [float(v) for v in x]
+    return [float(x)] * (1 if n is None else n)
+
+
+def _evidence(med: float, q: int, currents: list[float]) -> dict:
+    return {"median_f": round(med, 4), "current_a": round(currents[q], 2),
+            "other_currents_a": [round(c, 2) for k, c in enumerate(currents) if k != q]}
 
 
 class NoMotorDiagnosis:

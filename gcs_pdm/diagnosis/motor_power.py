@@ -83,28 +83,45 @@ def fault_magnitude(i_fwd: float, i_aft: float, v_fwd: float, v_aft: float, moto
 
 
 class MotorPowerLossDetector:
+    """Runs at every paired sample, so the per-sample work is plain Python floats; an active fault's
+    evidence (and its rpm check) is built only when ``faults`` is read."""
+
     def __init__(self, motor_params: np.ndarray, config: MotorPowerConfig = MotorPowerConfig()):
         self.motor = np.asarray(motor_params, dtype=np.float64)
+        # the same numbers as Python floats: numpy scalar arithmetic costs several times more per sample
+        self._motor = self.motor.tolist()
         self.config = config
         self._window: deque = deque(maxlen=config.window)
         self._debounce = {name: Debouncer(config.debounce) for name in MOTOR_NAMES}
-        self._active_samples: dict[str, list[float]] = {name: [] for name in MOTOR_NAMES}
-        # their running sum: the reported magnitude is their mean, asked for at every sample
+        # the medians while active: their count and running sum (the reported magnitude is their
+        # mean, asked for at every sample)
+        self._active_n: dict[str, int] = {name: 0 for name in MOTOR_NAMES}
         self._active_sum: dict[str, float] = {name: 0.0 for name in MOTOR_NAMES}
-        self.faults: dict[str, Fault] = {}
+        self._faults: dict[str, Fault] = {}
+        #: an active fault's latest refinement (magnitude, confidence, evidence inputs) not yet in ``faults``
+        self._latest: dict[str, tuple] = {}
         self.samples = 0
         self.low_power_skipped = 0
+
+    @property
+    def faults(self) -> dict[str, Fault]:
+        """Both motors' faults in their latest state (the per-sample refinements folded in on reading)."""
+        for name, (mag, conf, time_s, reading) in self._latest.items():
+            self._faults[name] = self._faults[name].with_(magnitude=mag, confidence=conf, updated_s=time_s,
+                                                          evidence=self._evidence(*reading))
+        self._latest.clear()
+        return self._faults
 
     def update(self, time_s: float, i_fwd: float, i_aft: float, v_fwd: float, v_aft: float,
                rpm: float = math.nan) -> list[tuple[str, Fault]]:
         """One paired observation; returns the (event, fault) pairs it caused ('raise'/'update'/'clear')."""
         # the power question first, on the fault-free reading (it differs from the faulted one by
         # at most the no-load loss, ~60 W): near idle the share carries no information
-        healthy_total = (delivered_power(i_fwd, v_fwd, self.motor, 0.0) + delivered_power(i_aft, v_aft, self.motor, 0.0))
+        healthy_total = (delivered_power(i_fwd, v_fwd, self._motor, 0.0) + delivered_power(i_aft, v_aft, self._motor, 0.0))
         if not healthy_total >= self.config.min_power_w:
             self.low_power_skipped += 1
             return []
-        m, p0, p1 = fault_magnitude(i_fwd, i_aft, v_fwd, v_aft, self.motor)
+        m, p0, p1 = fault_magnitude(i_fwd, i_aft, v_fwd, v_aft, self._motor)
         if not math.isfinite(m) or p0 + p1 < self.config.min_power_w:
             self.low_power_skipped += 1
             return []
@@ -112,65 +129,76 @@ class MotorPowerLossDetector:
         self._window.append(m)
         if len(self._window) < self._window.maxlen:
             return []
-        med, sd = _median_sd(self._window)
-        spread = sd / math.sqrt(len(self._window)) + 1e-3
+        window = sorted(self._window)
+        med = float(median_of_sorted(window))
+        spread = math.nan   # the confidence's, computed once a motor is active (rare)
         events = []
         for q, name in enumerate(MOTOR_NAMES):
             mq = med if q == 0 else -med
             deb = self._debounce[name]
             ev = deb.update(time_s, mq >= self.config.raise_threshold, mq < self.config.clear_threshold)
-            if deb.active or ev == "clear":
-                if deb.active:
-                    self._active_samples[name].append(mq)
-                    self._active_sum[name] += mq
-                n_active = len(self._active_samples[name])
-                mag = self._active_sum[name] / n_active if n_active else mq
-                conf = _phi((mq - self.config.clear_threshold) / spread) if deb.active else 0.0
-                # the propeller gets what the motors deliver less the faulted rotor's drag (kernel:
-                # fault_drag = 0.1 of its share) and its unpowered no-load loss
-                v_f = v_fwd if med > 0 else v_aft
-                p_prop = (p0 + p1 - abs(med) * self.motor[kernel.M_I0] * v_f) / (1.0 + 0.05 * abs(med))
-                rpm_expected = float(shaft_rpm(max(p_prop, 0.0)))
-                evidence = {"median_m": round(med, 4), "n_samples": len(self._active_samples[name]),
-                            "power_fwd_w": round(p0, 1), "power_aft_w": round(p1, 1),
-                            "current_fwd_a": round(i_fwd, 2), "current_aft_a": round(i_aft, 2),
-                            "rpm_measured": None if not math.isfinite(rpm) else round(rpm, 0),
-                            "rpm_expected_sea_level": round(rpm_expected, 0)}
-                if ev == "raise":
-                    f = Fault(MOTOR_POWER_LOSS, name, min(max(mag, 0.0), 1.0), time_s, conf, evidence,
-                              updated_s=time_s)
-                    self.faults[name] = f
-                    events.append(("raise", f))
-                elif ev == "clear":
-                    f = self.faults[name].with_(active=False, cleared_s=time_s, confidence=0.0, updated_s=time_s,
-                                                evidence=evidence)
-                    self.faults[name] = f
-                    self._active_samples[name] = []
-                    self._active_sum[name] = 0.0
-                    events.append(("clear", f))
-                else:
-                    f = self.faults[name].with_(magnitude=min(max(mag, 0.0), 1.0), confidence=conf,
-                                                updated_s=time_s, evidence=evidence)
-                    self.faults[name] = f
-            elif not deb.active:
-                self._active_samples[name] = []
-                self._active_sum[name] = 0.0
+            if not (deb.active or ev == "clear"):
+                self._active_n[name], self._active_sum[name] = 0, 0.0
+                continue
+            if deb.active:
+                self._active_n[name] += 1
+                self._active_sum[name] += mq
+            n_active = self._active_n[name]
+            mag = self._active_sum[name] / n_active if n_active else mq
+            if deb.active and math.isnan(spread):
+                spread = _sd(window) / math.sqrt(len(window)) + 1e-3
+            conf = _phi((mq - self.config.clear_threshold) / spread) if deb.active else 0.0
+            reading = (med, n_active, p0, p1, i_fwd, i_aft, rpm, v_fwd if med > 0 else v_aft)
+            if ev == "raise":
+                f = Fault(MOTOR_POWER_LOSS, name, min(max(mag, 0.0), 1.0), time_s, conf,
+                          self._evidence(*reading), updated_s=time_s)
+                self._faults[name] = f
+                events.append(("raise", f))
+            elif ev == "clear":
+                f = self.faults[name].with_(active=False, cleared_s=time_s, confidence=0.0, updated_s=time_s,
+                                             evidence=self._evidence(*reading))
+                self._faults[name] = f
+                self._active_n[name], self._active_sum[name] = 0, 0.0
+                events.append(("clear", f))
+            else:
+                self._latest[name] = (min(max(mag, 0.0), 1.0), conf, time_s, reading)
+                continue
+            self._latest.pop(name, None)
         return events
+
+    def _evidence(self, med: float, n_active: int, p0: float, p1: float, i_fwd: float, i_aft: float, rpm: float,
+                  v_f: float) -> dict:
+        # the propeller gets what the motors deliver less the faulted rotor's drag (kernel:
+        # fault_drag = 0.1 of its share) and its unpowered no-load loss
+        p_prop = (p0 + p1 - abs(med) * self.motor[kernel.M_I0] * v_f) / (1.0 + 0.05 * abs(med))
+        rpm_expected = float(shaft_rpm(max(p_prop, 0.0)))
+        return {"median_m": round(med, 4), "n_samples": n_active,
+                "power_fwd_w": round(p0, 1), "power_aft_w": round(p1, 1),
+                "current_fwd_a": round(i_fwd, 2), "current_aft_a": round(i_aft, 2),
+                "rpm_measured": None if not math.isfinite(rpm) else round(rpm, 0),
+                "rpm_expected_sea_level": round(rpm_expected, 0)}
 
     def fault_vector(self) -> np.ndarray:
         """Active magnitudes (fwd, aft) for the kernel."""
-        return np.array([self.faults[n].magnitude if n in self.faults and self.faults[n].active else 0.0
-                         for n in MOTOR_NAMES])
+        faults = self._faults
+        return np.array([(self._latest[n][0] if n in self._latest else faults[n].magnitude)
+                         if n in faults and faults[n].active else 0.0 for n in MOTOR_NAMES])
 
 
-def _median_sd(window) -> tuple[float, float]:
-    """Median and population standard deviation of a short window (np.median/np.std without the
-    array round trip: this runs at every paired sample)."""
-    v = sorted(window)
+def median_of_sorted(v: list[float]) -> float:
+    """np.median of a short sorted list of floats, without the array round trip (it runs per
+    sample); NaN when empty."""
     n = len(v)
-    med = v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+    if n == 0:
+        return math.nan
+    return v[n // 2] if n % 2 else (v[n // 2 - 1] + v[n // 2]) / 2.0
+
+
+def _sd(v: list[float]) -> float:
+    """Population standard deviation of a short sorted window (np.std without the array round trip)."""
+    n = len(v)
     mean = sum(v) / n
-    return float(med), math.sqrt(sum((x - mean) ** 2 for x in v) / n)
+    return math.sqrt(sum((x - mean) ** 2 for x in v) / n)
 
 
 def _phi(z: float) -> float:

@@ -51,8 +51,21 @@ class DiagnosisPipeline:
         self.prognosis = PrognosisMonitor(limits, prognosis_config, seed=seed)
         self.pair_within_s = pair_within_s
         self.voltage_fresh_s = voltage_fresh_s
-        self._pack_v = np.full(len(est.pack_names), np.nan)
-        self._pack_v_time = np.full(len(est.pack_names), -math.inf)
+        # the latest measured voltage of each pack and its message time (Python floats: read per frame)
+        self._pack_v = [math.nan] * len(est.pack_names)
+        self._pack_v_time = [-math.inf] * len(est.pack_names)
+        self._pack_index = {name: b for b, name in enumerate(est.pack_names)}
+        self._motor_set_of = set(est.motor_names)
+        if vehicle is None:
+            self._packs_of_bus = [[b for b in range(4) if MOTOR_OF_PACK[b] == q] for q in range(2)]
+            self._bus_parallel = [False, False]
+            self._bus_of_motor = [0, 1]
+        else:
+            inputs = est.inputs
+            self._packs_of_bus = [[int(b) for b in np.flatnonzero(inputs.bus_of_pack == k)]
+                                  for k in range(len(inputs.bus_parallel))]
+            self._bus_parallel = [bool(x) for x in inputs.bus_parallel]
+            self._bus_of_motor = [int(k) for k in inputs.bus_of_motor]
         self._faults: list[Fault] = []
         self._index: dict[tuple[str, str], int] = {}
         self.events: list[dict] = []
@@ -70,17 +83,14 @@ class DiagnosisPipeline:
         est.consume(frame)
         t = float(getattr(frame, "time_s", math.nan))
         if isinstance(frame, PackFrame):
-            b = est.pack_names.index(frame.pack) if frame.pack in est.pack_names else -1
+            b = self._pack_index.get(frame.pack, -1)
             if b >= 0:
                 if frame.voltage_v is not None and math.isfinite(frame.voltage_v):
                     self._pack_v[b], self._pack_v_time[b] = frame.voltage_v, t
                 if est.packs.initialised[b] and frame.voltage_v is not None:
                     self.pack_health.add(b, t, float(est.pack_current[b]), float(frame.voltage_v), est.ambient_c)
-        elif isinstance(frame, MotorFrame) and frame.motor in est.motor_names:
-            if self.vehicle is None:
-                self._motor_pair(t)
-            else:
-                self._motor_set(t)
+        elif isinstance(frame, MotorFrame) and frame.motor in self._motor_set_of:
+            self._motors(t)
         else:
             return
         pack_events = self.pack_health.check(t)
@@ -94,59 +104,38 @@ class DiagnosisPipeline:
     def __call__(self, frame) -> None:
         self.consume(frame)
 
-    def _motor_pair(self, t: float) -> None:
+    def _motors(self, t: float) -> None:
+        """Once per set of ESC readings, on its last frame with every current fresh: each motor's
+        current against its bus voltage (the string of packs feeding it; the mean of a parallel bus).
+        Plain Python floats: this runs at every motor frame and the vectors are two to eight long."""
         est = self.estimator
-        tc = est.motor_current_time
-        # evaluate once per pair, on its later frame, with both currents fresh
-        if abs(tc[0] - tc[1]) > self.pair_within_s or t < max(tc[0], tc[1]):
+        if self.vehicle is not None and not isinstance(self.motor_power, EscImbalanceDetector):
             return
-        v_string = np.empty(2)
+        tc = est.motor_current_time.tolist()
+        if max(tc) - min(tc) > self.pair_within_s or t < max(tc):
+            return
+        bus = []
         v_filter = None  # the filter's voltages only if a reading is stale (rare: spare the einsum)
-        for q in range(2):
+        for packs, parallel in zip(self._packs_of_bus, self._bus_parallel):
             total = 0.0
-            for b in range(4):
-                if MOTOR_OF_PACK[b] != q:
-                    continue
+            for b in packs:
                 if t - self._pack_v_time[b] <= self.voltage_fresh_s:
                     total += self._pack_v[b]
                 else:
                     if v_filter is None:
-                        v_filter, _ = est.packs.voltage()
+                        v_filter = est.packs.voltage()[0].tolist()
                     total += v_filter[b]
-            v_string[q] = total
-        if not np.all(np.isfinite(v_string)):
+            bus.append(total if not parallel else total / len(packs) if packs else math.nan)
+        bus_of_motor = [bus[k] for k in self._bus_of_motor]
+        currents = est.motor_current.tolist()
+        if not all(math.isfinite(x) for x in bus_of_motor):
             return
-        heard = [r for r in est.motor_rpm.tolist() if math.isfinite(r)]  # np.nanmean, without its warning machinery
-        rpm = sum(heard) / len(heard) if heard else math.nan
-        self._record(self.motor_power.update(t, float(est.motor_current[0]), float(est.motor_current[1]),
-                                             float(v_string[0]), float(v_string[1]), rpm))
-        # keep stored faults' latest state in step with the detector's (magnitude refines while active)
-        for f in self.motor_power.faults.values():
-            if f.key in self._index:
-                self._faults[self._index[f.key]] = f
-
-    def _motor_set(self, t: float) -> None:
-        """A described vehicle: every motor's current, fresh together, against its bus voltage."""
-        est = self.estimator
-        if not isinstance(self.motor_power, EscImbalanceDetector):
-            return
-        tc = est.motor_current_time
-        if tc.max() - tc.min() > self.pair_within_s or t < tc.max():
-            return
-        inputs = est.inputs
-        v_filter, _ = est.packs.voltage()
-        fresh = t - self._pack_v_time <= self.voltage_fresh_s
-        v = np.where(fresh, self._pack_v, v_filter)
-        bus = np.zeros(len(inputs.bus_parallel))
-        np.add.at(bus, inputs.bus_of_pack, v)
-        bus = np.where(inputs.bus_parallel, bus / np.bincount(inputs.bus_of_pack, minlength=len(bus)), bus)
-        bus_of_motor = bus[inputs.bus_of_motor]
-        if not (np.all(np.isfinite(bus_of_motor)) and np.all(np.isfinite(est.motor_current))):
-            return
-        self._record(self.motor_power.update(t, est.motor_current.copy(), bus_of_motor))
-        for f in self.motor_power.faults.values():
-            if f.key in self._index:
-                self._faults[self._index[f.key]] = f
+        if self.vehicle is None:
+            heard = [r for r in est.motor_rpm.tolist() if math.isfinite(r)]  # np.nanmean, without its warnings
+            rpm = sum(heard) / len(heard) if heard else math.nan
+            self._record(self.motor_power.update(t, currents[0], currents[1], bus_of_motor[0], bus_of_motor[1], rpm))
+        elif all(math.isfinite(i) for i in currents):
+            self._record(self.motor_power.update(t, currents, bus_of_motor))
 
     def readiness(self) -> dict[str, str]:
         """What the pipeline can do now and why not: the estimator's readiness plus motor diagnosis."""
@@ -212,7 +201,5 @@ class DiagnosisPipeline:
             "motor_power": {"samples": self.motor_power.samples, "low_power_skipped": self.motor_power.low_power_skipped},
             "readiness": self.readiness(),
             "pack_health": {n: e.__dict__ for n, e in self.pack_health.latest.items()},
-            "prognosis": {"skipped_no_mission": self.prognosis.skipped_no_mission,
-                          "latest": None if self.prognosis.latest_prediction is None
-                          else self.prognosis.latest_prediction.to_dict()},
+            "prognosis": self.prognosis.status(self.estimator.time_s),
         }

@@ -1,0 +1,99 @@
+"""The diagnoser's per-frame speed work (issue 18) must not change its faults: today's outputs,
+recorded by ``tests/reference/make_diagnosis_reference.py`` before the change, against the code.
+
+Tolerances:
+- motor and pack faults: the same types, components, raise/clear/update times and events exactly;
+  magnitudes and confidences within 1e-6 (the mean of the medians is a running sum now, not
+  numpy's pairwise one: round-off), evidence equal after its own rounding;
+- the detectors' sample counters equal;
+- the prognosis' faults (predicted limit violation, rate deviation): the same types and components
+  raised, each within ``PROGNOSIS_TIME_TOL_S`` of today's (a prediction that still holds is not
+  re-run, so the checks see the earlier prediction's p_failure, and the Monte Carlo's random
+  draws differ from then on), and the latest p_failure within ``P_FAILURE_TOL``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REF = Path(__file__).resolve().parent / "reference"
+sys.path.insert(0, str(REF))  # the reference generator; tests/ is not a package
+import make_diagnosis_reference as mdr  # noqa: E402
+
+WANT = json.loads((REF / "diagnosis_pipeline.json").read_text())
+PROGNOSIS_TYPES = ("predicted_limit_violation", "degradation_rate_deviation")
+#: two prognosis checks (every 30 s of message time)
+PROGNOSIS_TIME_TOL_S = 60.0
+P_FAILURE_TOL = 0.15
+
+
+def _split(faults):
+    return ([f for f in faults if f["type"] not in PROGNOSIS_TYPES],
+            [f for f in faults if f["type"] in PROGNOSIS_TYPES])
+
+
+def _same_detector_faults(got: list[dict], want: list[dict]) -> None:
+    assert [(f["type"], f["component"], f["time_s"], f["active"], f["updated_s"], f["cleared_s"]) for f in got] == \
+           [(f["type"], f["component"], f["time_s"], f["active"], f["updated_s"], f["cleared_s"]) for f in want]
+    for g, w in zip(got, want):
+        assert g["magnitude"] == pytest.approx(w["magnitude"], abs=1e-6)
+        assert g["confidence"] == pytest.approx(w["confidence"], abs=1e-6)
+        assert g["evidence"] == w["evidence"]
+
+
+def _same_outputs(got: dict, want: dict) -> None:
+    got_det, got_prog = _split(got["faults"])
+    want_det, want_prog = _split(want["faults"])
+    _same_detector_faults(got_det, want_det)
+    det_events = [(e["event"], e["time_s"], e["type"], e["component"]) for e in got["events"]
+                  if e["type"] not in PROGNOSIS_TYPES]
+    assert det_events == [(e["event"], e["time_s"], e["type"], e["component"]) for e in want["events"]
+                          if e["type"] not in PROGNOSIS_TYPES]
+    assert got["motor_power"] == want["motor_power"]
+    assert [(f["type"], f["component"]) for f in got_prog] == [(f["type"], f["component"]) for f in want_prog]
+    for g, w in zip(got_prog, want_prog):
+        assert abs(g["time_s"] - w["time_s"]) <= PROGNOSIS_TIME_TOL_S, (g, w)
+    assert (got["p_failure"] is None) == (want["p_failure"] is None)
+    if want["p_failure"] is not None:
+        assert got["p_failure"] == pytest.approx(want["p_failure"], abs=P_FAILURE_TOL)
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    logging.disable(logging.WARNING)
+    yield
+    logging.disable(logging.NOTSET)
+
+
+@pytest.mark.parametrize("case", mdr.SYNTHETIC, ids=[c[0] for c in mdr.SYNTHETIC])
+def test_paper_pipeline_on_synthetic_flights_gives_todays_faults(case):
+    name, *args = case
+    _same_outputs(mdr.run_synthetic(name, *args), WANT["synthetic"][name])
+
+
+@pytest.mark.parametrize("flight", mdr.DESCRIBED_FLIGHTS)
+def test_described_pipeline_on_fixture_tlogs_gives_todays_faults(flight):
+    _same_outputs(mdr.run_described(flight), WANT["described"][flight])
+
+
+@pytest.mark.parametrize("case", mdr.DESCRIBED_SYNTHETIC, ids=[c[0] for c in mdr.DESCRIBED_SYNTHETIC])
+def test_described_pipeline_on_synthetic_flights_gives_todays_faults(case):
+    name, *args = case
+    _same_outputs(mdr.run_described_synthetic(*args), WANT["described"][name])
+
+
+@pytest.mark.parametrize("key", sorted(WANT["imbalance"]))
+def test_imbalance_detector_on_multirotors_gives_todays_events(key):
+    preset, faulted, magnitude = key.rsplit("_", 2)
+    got = mdr.run_imbalance(preset, int(faulted), float(magnitude))
+    want = WANT["imbalance"][key]
+    assert [ev for ev, _ in got["events"]] == [ev for ev, _ in want["events"]]
+    _same_detector_faults([f for _, f in got["events"]], [f for _, f in want["events"]])
+    _same_detector_faults(list(got["faults"].values()), list(want["faults"].values()))
+    np.testing.assert_allclose(got["fault_vector"], want["fault_vector"], atol=1e-6)
+    assert (got["samples"], got["low_power_skipped"]) == (want["samples"], want["low_power_skipped"])
