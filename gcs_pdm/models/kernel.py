@@ -68,37 +68,57 @@ def _terminal_voltage(p, x):
     return x[S_QB] / p[I_CB] - x[S_QCP] / p[I_CCP] - x[S_QS] / p[I_CS]
 
 
-@njit(**_JIT)
-def _pack_advance(p, x, current, ambient, dt, max_dt):
-    """Advance one pack state ``x`` (in place) by ``dt`` seconds at constant terminal current."""
-    if dt <= 0.0:
-        return
+@njit(inline="always", **_JIT)
+def _substeps(dt, max_dt):
+    """Sub-steps of an interval ``dt`` > 0 and their length."""
     n_sub = 1
     if dt > max_dt:
         # capped: work bounded by samples, not by the time span (a 49.7-day log gap cost 0.25 s).
         # The R–C and thermal steps are exact at any length; only the frozen R_cp and parasitic
         # terms want short steps, and past MAX_SUBSTEPS · max_dt the held input is a guess anyway
         n_sub = min(int(math.ceil(dt / max_dt)), MAX_SUBSTEPS)
-    h = dt / n_sub
+    return n_sub, dt / n_sub
+
+
+@njit(inline="always", **_JIT)
+def _fixed_decays(p, h, tau_s):
+    """The R_s–C_s and thermal decay factors of a step of length ``h``: they depend on the
+    parameters and ``h`` only, so a driver whose steps repeat one length computes them once."""
+    return math.exp(-h / tau_s), math.exp(-h * p[I_H] / p[I_CT])
+
+
+@njit(inline="always", **_JIT)
+def _pack_step(p, x, current, ambient, h, tau_s, decay_s, decay_t, v):
+    """One exact exponential step of length ``h`` of pack state ``x`` (in place) at constant
+    terminal current; ``v`` = ``_terminal_voltage(p, x)`` at the step's start (drivers carry it
+    from the previous step's output instead of dividing again)."""
+    # parasitic branch across the terminals (eq. 5): i_b = i + V_p / R_p
+    i_b = current + v / p[I_RP]
+    # R_cp at the step's mid-point charge: q_b is exactly linear over the step, so this makes
+    # the frozen-coefficient step second-order accurate near the knee at no extra cost
+    r_cp = _r_cp(p, _soc(p, x[S_QB] - 0.5 * i_b * h))
+    tau_cp = r_cp * p[I_CCP]
+    decay_cp = math.exp(-h / tau_cp)
+    # exact R–C steps towards their steady charges i_b * tau
+    x[S_QS] = i_b * tau_s + (x[S_QS] - i_b * tau_s) * decay_s
+    x[S_QCP] = i_b * tau_cp + (x[S_QCP] - i_b * tau_cp) * decay_cp
+    x[S_QB] -= i_b * h
+    # eq. 7 with the pack's resistance from the circuit: exact step towards T_inf
+    heat = (p[I_RS] + r_cp) * current * current
+    t_inf = ambient + heat / p[I_H]
+    x[S_T] = t_inf + (x[S_T] - t_inf) * decay_t
+
+
+@njit(**_JIT)
+def _pack_advance(p, x, current, ambient, dt, max_dt):
+    """Advance one pack state ``x`` (in place) by ``dt`` seconds at constant terminal current."""
+    if dt <= 0.0:
+        return
+    n_sub, h = _substeps(dt, max_dt)
     tau_s = p[I_RS] * p[I_CS]
-    decay_s = math.exp(-h / tau_s)
-    decay_t = math.exp(-h * p[I_H] / p[I_CT])
+    decay_s, decay_t = _fixed_decays(p, h, tau_s)
     for _ in range(n_sub):
-        # parasitic branch across the terminals (eq. 5): i_b = i + V_p / R_p
-        i_b = current + _terminal_voltage(p, x) / p[I_RP]
-        # R_cp at the step's mid-point charge: q_b is exactly linear over the step, so this makes
-        # the frozen-coefficient step second-order accurate near the knee at no extra cost
-        r_cp = _r_cp(p, _soc(p, x[S_QB] - 0.5 * i_b * h))
-        tau_cp = r_cp * p[I_CCP]
-        decay_cp = math.exp(-h / tau_cp)
-        # exact R–C steps towards their steady charges i_b * tau
-        x[S_QS] = i_b * tau_s + (x[S_QS] - i_b * tau_s) * decay_s
-        x[S_QCP] = i_b * tau_cp + (x[S_QCP] - i_b * tau_cp) * decay_cp
-        x[S_QB] -= i_b * h
-        # eq. 7 with the pack's resistance from the circuit: exact step towards T_inf
-        heat = (p[I_RS] + r_cp) * current * current
-        t_inf = ambient + heat / p[I_H]
-        x[S_T] = t_inf + (x[S_T] - t_inf) * decay_t
+        _pack_step(p, x, current, ambient, h, tau_s, decay_s, decay_t, _terminal_voltage(p, x))
 
 
 @njit(inline="always", **_JIT)
@@ -118,46 +138,135 @@ def _thermal_advance(m, temperature, current, ambient, dt):
 
 # ---- current-driven packs (fitting, estimation) --------------------------------------------------
 
+#: vectors a driver advances together, time loop outside (see ``_simulate_pack_block``)
+LANES = 16
+
+
 @njit(inline="always", **_JIT)
-def _simulate_one_pack(j, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
-                       record_states, final):
+def _simulate_pack_block(j0, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                         record_states, final):
+    """Vectors j0 … j0 + LANES - 1 (those that exist) over the whole profile, one sample at a time.
+
+    One vector's step is a chain of dependent divisions and exponentials. Here the block's
+    vectors take each step together, stage by stage over lanes: each stage's lanes are independent,
+    so the arithmetic ones compile to SIMD instructions and the two exponentials of the lanes
+    overlap in the processor instead of waiting on each other. Per vector the operations are
+    ``_pack_step``'s, in its order, on the same values (the same numbers, bit for bit): the terminal
+    voltage is carried from the previous output, and the decay factors that depend on the interval
+    only are recomputed when the interval changes. A step where some lane does not simply advance
+    once (no time passes, or the interval is cut into sub-steps) goes lane by lane through
+    ``_pack_step`` as ``_pack_advance`` would."""
     n = current.shape[1]
-    x = np.empty(N_PACK_STATE)
-    p = params[j]
-    ci = j if current.shape[0] > 1 else 0
-    ai = j if ambient.shape[0] > 1 else 0
-    di = j if dt.shape[0] > 1 else 0
-    for s in range(N_PACK_STATE):
-        x[s] = x0[j, s]
+    nl = min(LANES, params.shape[0] - j0)
+    pt = np.empty((N_PACK_PARAMS, LANES))  # parameters, one lane vector per parameter
+    xs = np.empty((N_PACK_STATE, LANES))   # states likewise
+    for lane in range(nl):
+        for i in range(N_PACK_PARAMS):
+            pt[i, lane] = params[j0 + lane, i]
+        for s in range(N_PACK_STATE):
+            xs[s, lane] = x0[j0 + lane, s]
+    v = np.empty(LANES)
+    tau_s = np.empty(LANES)
+    for lane in range(nl):
+        v[lane] = xs[S_QB, lane] / pt[I_CB, lane] - xs[S_QCP, lane] / pt[I_CCP, lane] - xs[S_QS, lane] / pt[I_CS, lane]
+        tau_s[lane] = pt[I_RS, lane] * pt[I_CS, lane]
+    last_dt = np.full(LANES, -1.0)  # dt is never negative: the first interval sets the factors
+    n_sub = np.ones(LANES, dtype=np.int64)
+    h = np.empty(LANES)
+    decay_s = np.empty(LANES)
+    decay_t = np.empty(LANES)
+    cur = np.empty(LANES)
+    amb = np.empty(LANES)
+    i_b = np.empty(LANES)
+    r_cp = np.empty(LANES)
+    e = np.empty(LANES)
+    xl = np.empty(N_PACK_STATE)
+    shared_cur = current.shape[0] == 1
+    shared_amb = ambient.shape[0] == 1
+    shared_dt = dt.shape[0] == 1
     for k in range(n):
-        _pack_advance(p, x, current[ci, k], ambient[ai, k], dt[di, k], max_dt)
-        voltage[j, k] = _terminal_voltage(p, x)
-        temperature[j, k] = x[S_T]
-        soc[j, k] = _soc(p, x[S_QB])
-        if record_states:
-            for s in range(N_PACK_STATE):
-                states[j, k, s] = x[s]
-    for s in range(N_PACK_STATE):
-        final[j, s] = x[s]
+        n_moving = 0
+        n_single = 0
+        for lane in range(nl):
+            d = dt[0 if shared_dt else j0 + lane, k]
+            cur[lane] = current[0 if shared_cur else j0 + lane, k]
+            amb[lane] = ambient[0 if shared_amb else j0 + lane, k]
+            if not d <= 0.0:  # as _pack_advance: a NaN interval steps (to NaN)
+                n_moving += 1
+                if d != last_dt[lane]:
+                    p = params[j0 + lane]
+                    n_sub[lane], h[lane] = _substeps(d, max_dt)
+                    decay_s[lane], decay_t[lane] = _fixed_decays(p, h[lane], tau_s[lane])
+                    last_dt[lane] = d
+                if n_sub[lane] == 1:
+                    n_single += 1
+        if n_single == nl:
+            # every lane one step: _pack_step over the lanes, stage by stage
+            for lane in range(nl):
+                i_b[lane] = cur[lane] + v[lane] / pt[I_RP, lane]
+                soc_mid = 1.0 - (pt[I_QMAX, lane] - (xs[S_QB, lane] - 0.5 * i_b[lane] * h[lane])) / pt[I_CMAX, lane]
+                e[lane] = pt[I_RCP2, lane] * (1.0 - soc_mid)
+            for lane in range(nl):
+                e[lane] = math.exp(e[lane])
+            for lane in range(nl):
+                r_cp[lane] = pt[I_RCP0, lane] + pt[I_RCP1, lane] * e[lane]
+                e[lane] = -h[lane] / (r_cp[lane] * pt[I_CCP, lane])
+            for lane in range(nl):
+                e[lane] = math.exp(e[lane])
+            for lane in range(nl):
+                ib = i_b[lane]
+                tau_cp = r_cp[lane] * pt[I_CCP, lane]
+                xs[S_QS, lane] = ib * tau_s[lane] + (xs[S_QS, lane] - ib * tau_s[lane]) * decay_s[lane]
+                xs[S_QCP, lane] = ib * tau_cp + (xs[S_QCP, lane] - ib * tau_cp) * e[lane]
+                xs[S_QB, lane] -= ib * h[lane]
+                heat = (pt[I_RS, lane] + r_cp[lane]) * cur[lane] * cur[lane]
+                t_inf = amb[lane] + heat / pt[I_H, lane]
+                xs[S_T, lane] = t_inf + (xs[S_T, lane] - t_inf) * decay_t[lane]
+                v[lane] = (xs[S_QB, lane] / pt[I_CB, lane] - xs[S_QCP, lane] / pt[I_CCP, lane]
+                           - xs[S_QS, lane] / pt[I_CS, lane])
+        elif n_moving > 0:
+            for lane in range(nl):
+                if dt[0 if shared_dt else j0 + lane, k] <= 0.0:
+                    continue
+                p = params[j0 + lane]
+                for s in range(N_PACK_STATE):
+                    xl[s] = xs[s, lane]
+                _pack_step(p, xl, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane], decay_t[lane], v[lane])
+                for _ in range(1, n_sub[lane]):
+                    _pack_step(p, xl, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane], decay_t[lane],
+                               _terminal_voltage(p, xl))
+                for s in range(N_PACK_STATE):
+                    xs[s, lane] = xl[s]
+                v[lane] = _terminal_voltage(p, xl)
+        for lane in range(nl):
+            j = j0 + lane
+            voltage[j, k] = v[lane]
+            temperature[j, k] = xs[S_T, lane]
+            soc[j, k] = 1.0 - (pt[I_QMAX, lane] - xs[S_QB, lane]) / pt[I_CMAX, lane]
+            if record_states:
+                for s in range(N_PACK_STATE):
+                    states[j, k, s] = xs[s, lane]
+    for lane in range(nl):
+        for s in range(N_PACK_STATE):
+            final[j0 + lane, s] = xs[s, lane]
 
 
 @njit(**_JIT)
 def _simulate_packs(params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
                     record_states, final):
-    for j in range(params.shape[0]):
-        _simulate_one_pack(j, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
-                           record_states, final)
+    for j0 in range(0, params.shape[0], LANES):
+        _simulate_pack_block(j0, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                             record_states, final)
 
 
 @njit(parallel=True, **_JIT)
 def _simulate_packs_parallel(params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
                              record_states, final):
-    # the same loop spread over the cores; only for callers on one thread (numba's default
+    # the same blocks spread over the cores; only for callers on one thread (numba's default
     # threading layer does not take parallel launches from several Python threads at once)
-    for j in prange(params.shape[0]):
-        # signed index: prange's unsigned one would not unify with 0 in the shared-row choice
-        _simulate_one_pack(np.int64(j), params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
-                           record_states, final)
+    for block in prange((params.shape[0] + LANES - 1) // LANES):
+        _simulate_pack_block(np.int64(block) * LANES, params, x0, dt, current, ambient, max_dt, voltage,
+                             temperature, soc, states, record_states, final)
 
 
 @njit(**_JIT)
