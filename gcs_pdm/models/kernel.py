@@ -129,11 +129,57 @@ def _motor_heat(m, current):
 
 
 @njit(inline="always", **_JIT)
+def _motor_decay(m, dt):
+    return math.exp(-dt * m[M_H] / m[M_CT])
+
+
+@njit(inline="always", **_JIT)
+def _thermal_step(m, temperature, current, ambient, decay):
+    """Motor temperature after a step whose decay factor is ``decay`` (``_motor_decay``)."""
+    t_inf = ambient + _motor_heat(m, current) / m[M_H]
+    return t_inf + (temperature - t_inf) * decay
+
+
+@njit(inline="always", **_JIT)
 def _thermal_advance(m, temperature, current, ambient, dt):
     if dt <= 0.0:
         return temperature
-    t_inf = ambient + _motor_heat(m, current) / m[M_H]
-    return t_inf + (temperature - t_inf) * math.exp(-dt * m[M_H] / m[M_CT])
+    return _thermal_step(m, temperature, current, ambient, _motor_decay(m, dt))
+
+
+# A driver that steps the same pack (or motor) over and over keeps, per pack, its last interval
+# and what depends on that interval only, in a small float array ("step cache"), so a profile of
+# equal steps computes those exponentials once instead of at every step.
+(C_DT, C_NSUB, C_H, C_TAU_S, C_DECAY_S, C_DECAY_T) = range(6)
+N_STEP_CACHE = 6
+
+
+@njit(inline="always", **_JIT)
+def _reset_step_cache(p, cache):
+    """For pack parameters ``p``: no interval seen yet (dt is never negative)."""
+    cache[C_DT] = -1.0
+    cache[C_TAU_S] = p[I_RS] * p[I_CS]
+
+
+@njit(inline="always", **_JIT)
+def _pack_advance_cached(p, x, current, ambient, dt, max_dt, v, cache):
+    """``_pack_advance`` for a driver that knows the terminal voltage ``v`` at the start and keeps
+    the pack's step cache (``_reset_step_cache``): the same operations, so the same numbers.
+    Returns the terminal voltage at the end."""
+    if dt <= 0.0:
+        return v
+    if dt != cache[C_DT]:
+        n_sub, h = _substeps(dt, max_dt)
+        cache[C_NSUB] = n_sub
+        cache[C_H] = h
+        cache[C_DECAY_S], cache[C_DECAY_T] = _fixed_decays(p, h, cache[C_TAU_S])
+        cache[C_DT] = dt
+    h = cache[C_H]
+    _pack_step(p, x, current, ambient, h, cache[C_TAU_S], cache[C_DECAY_S], cache[C_DECAY_T], v)
+    for _ in range(1, int(cache[C_NSUB])):
+        _pack_step(p, x, current, ambient, h, cache[C_TAU_S], cache[C_DECAY_S], cache[C_DECAY_T],
+                   _terminal_voltage(p, x))
+    return _terminal_voltage(p, x)
 
 
 # ---- current-driven packs (fitting, estimation) --------------------------------------------------
@@ -742,6 +788,17 @@ class PowertrainRun:
     pack_soc: np.ndarray | None = None       # (N, n, 4)
     motor_current: np.ndarray | None = None  # (N, n, 2)
     motor_temp: np.ndarray | None = None     # (N, n, 2)
+    #: with ``record_at``: the recorded samples' indices (the per-step arrays' second axis)
+    recorded_steps: np.ndarray | None = None
+    #: (N, P) first sample at which the pack is below its cut-off voltage or empty, -1 if none
+    pack_end_step: np.ndarray | None = None
+    #: (N, P) energy the pack delivered at its terminals (Σ V I dt) up to and including that
+    #: sample, or over the whole run if it never ended, J
+    pack_end_energy_j: np.ndarray | None = None
+    #: (N, P) and (N, M): highest temperature over the samples up to and including the first
+    #: failure (past it the numbers are not physical), -inf before any sample is flown
+    peak_pack_temp_to_failure: np.ndarray | None = None
+    peak_motor_temp_to_failure: np.ndarray | None = None
 
     @property
     def failed(self) -> np.ndarray:
