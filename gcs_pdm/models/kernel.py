@@ -53,19 +53,24 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 # ---- the step --------------------------------------------------------------------------------------
 
-@njit(inline="always", **_JIT)
-def _soc(p, q_b):
-    return 1.0 - (p[I_QMAX] - q_b) / p[I_CMAX]
-
-
-@njit(inline="always", **_JIT)
-def _r_cp(p, soc):
-    return p[I_RCP0] + p[I_RCP1] * math.exp(p[I_RCP2] * (1.0 - soc))
-
+# The step functions index a parameter table ``p`` (rows of PACK_PARAMS or MOTOR_PARAMS) and a
+# state table ``x`` (rows of PACK_STATE) by row instead of taking row views: in numba a view
+# costs two atomic reference-count updates, which in a driver's inner loop cost more than the
+# arithmetic. ``_pack_advance``/``_thermal_advance`` keep the one-row form for single callers.
 
 @njit(inline="always", **_JIT)
-def _terminal_voltage(p, x):
-    return x[S_QB] / p[I_CB] - x[S_QCP] / p[I_CCP] - x[S_QS] / p[I_CS]
+def _soc(p, i, q_b):
+    return 1.0 - (p[i, I_QMAX] - q_b) / p[i, I_CMAX]
+
+
+@njit(inline="always", **_JIT)
+def _r_cp(p, i, soc):
+    return p[i, I_RCP0] + p[i, I_RCP1] * math.exp(p[i, I_RCP2] * (1.0 - soc))
+
+
+@njit(inline="always", **_JIT)
+def _terminal_voltage(p, i, x, r):
+    return x[r, S_QB] / p[i, I_CB] - x[r, S_QCP] / p[i, I_CCP] - x[r, S_QS] / p[i, I_CS]
 
 
 @njit(inline="always", **_JIT)
@@ -81,108 +86,114 @@ def _substeps(dt, max_dt):
 
 
 @njit(inline="always", **_JIT)
-def _fixed_decays(p, h, tau_s):
+def _fixed_decays(p, i, h, tau_s):
     """The R_s–C_s and thermal decay factors of a step of length ``h``: they depend on the
     parameters and ``h`` only, so a driver whose steps repeat one length computes them once."""
-    return math.exp(-h / tau_s), math.exp(-h * p[I_H] / p[I_CT])
+    return math.exp(-h / tau_s), math.exp(-h * p[i, I_H] / p[i, I_CT])
 
 
 @njit(inline="always", **_JIT)
-def _pack_step(p, x, current, ambient, h, tau_s, decay_s, decay_t, v):
-    """One exact exponential step of length ``h`` of pack state ``x`` (in place) at constant
-    terminal current; ``v`` = ``_terminal_voltage(p, x)`` at the step's start (drivers carry it
-    from the previous step's output instead of dividing again)."""
+def _pack_step(p, i, x, r, current, ambient, h, tau_s, decay_s, decay_t, v):
+    """One exact exponential step of length ``h`` of pack state row ``x[r]`` (in place), parameters
+    ``p[i]``, at constant terminal current; ``v`` = ``_terminal_voltage(p, i, x, r)`` at the step's
+    start (drivers carry it from the previous step's output instead of dividing again)."""
     # parasitic branch across the terminals (eq. 5): i_b = i + V_p / R_p
-    i_b = current + v / p[I_RP]
+    i_b = current + v / p[i, I_RP]
     # R_cp at the step's mid-point charge: q_b is exactly linear over the step, so this makes
     # the frozen-coefficient step second-order accurate near the knee at no extra cost
-    r_cp = _r_cp(p, _soc(p, x[S_QB] - 0.5 * i_b * h))
-    tau_cp = r_cp * p[I_CCP]
+    r_cp = _r_cp(p, i, _soc(p, i, x[r, S_QB] - 0.5 * i_b * h))
+    tau_cp = r_cp * p[i, I_CCP]
     decay_cp = math.exp(-h / tau_cp)
     # exact R–C steps towards their steady charges i_b * tau
-    x[S_QS] = i_b * tau_s + (x[S_QS] - i_b * tau_s) * decay_s
-    x[S_QCP] = i_b * tau_cp + (x[S_QCP] - i_b * tau_cp) * decay_cp
-    x[S_QB] -= i_b * h
+    x[r, S_QS] = i_b * tau_s + (x[r, S_QS] - i_b * tau_s) * decay_s
+    x[r, S_QCP] = i_b * tau_cp + (x[r, S_QCP] - i_b * tau_cp) * decay_cp
+    x[r, S_QB] -= i_b * h
     # eq. 7 with the pack's resistance from the circuit: exact step towards T_inf
-    heat = (p[I_RS] + r_cp) * current * current
-    t_inf = ambient + heat / p[I_H]
-    x[S_T] = t_inf + (x[S_T] - t_inf) * decay_t
+    heat = (p[i, I_RS] + r_cp) * current * current
+    t_inf = ambient + heat / p[i, I_H]
+    x[r, S_T] = t_inf + (x[r, S_T] - t_inf) * decay_t
 
 
 @njit(**_JIT)
 def _pack_advance(p, x, current, ambient, dt, max_dt):
-    """Advance one pack state ``x`` (in place) by ``dt`` seconds at constant terminal current."""
+    """Advance one pack state ``x`` (in place; parameters ``p``, both one row) by ``dt`` seconds
+    at constant terminal current."""
     if dt <= 0.0:
         return
+    p2 = p.reshape((1, p.shape[0]))
+    x2 = x.reshape((1, x.shape[0]))
     n_sub, h = _substeps(dt, max_dt)
     tau_s = p[I_RS] * p[I_CS]
-    decay_s, decay_t = _fixed_decays(p, h, tau_s)
+    decay_s, decay_t = _fixed_decays(p2, 0, h, tau_s)
     for _ in range(n_sub):
-        _pack_step(p, x, current, ambient, h, tau_s, decay_s, decay_t, _terminal_voltage(p, x))
+        _pack_step(p2, 0, x2, 0, current, ambient, h, tau_s, decay_s, decay_t, _terminal_voltage(p2, 0, x2, 0))
 
 
 @njit(inline="always", **_JIT)
-def _motor_heat(m, current):
+def _motor_heat(m, q, current):
     # core loss scales in with the motor's load until it spins at its no-load current
-    load = min(1.0, abs(current) / m[M_I0]) if m[M_I0] > 0.0 else 1.0
-    return m[M_RW] * current * current + m[M_PIRON] * load
+    load = min(1.0, abs(current) / m[q, M_I0]) if m[q, M_I0] > 0.0 else 1.0
+    return m[q, M_RW] * current * current + m[q, M_PIRON] * load
 
 
 @njit(inline="always", **_JIT)
-def _motor_decay(m, dt):
-    return math.exp(-dt * m[M_H] / m[M_CT])
+def _motor_decay(m, q, dt):
+    return math.exp(-dt * m[q, M_H] / m[q, M_CT])
 
 
 @njit(inline="always", **_JIT)
-def _thermal_step(m, temperature, current, ambient, decay):
-    """Motor temperature after a step whose decay factor is ``decay`` (``_motor_decay``)."""
-    t_inf = ambient + _motor_heat(m, current) / m[M_H]
+def _thermal_step(m, q, temperature, current, ambient, decay):
+    """Motor ``m[q]``'s temperature after a step whose decay factor is ``decay`` (``_motor_decay``)."""
+    t_inf = ambient + _motor_heat(m, q, current) / m[q, M_H]
     return t_inf + (temperature - t_inf) * decay
 
 
 @njit(inline="always", **_JIT)
 def _thermal_advance(m, temperature, current, ambient, dt):
+    """One motor (parameters ``m``, one row) over ``dt`` seconds."""
     if dt <= 0.0:
         return temperature
-    return _thermal_step(m, temperature, current, ambient, _motor_decay(m, dt))
+    m2 = m.reshape((1, m.shape[0]))
+    return _thermal_step(m2, 0, temperature, current, ambient, _motor_decay(m2, 0, dt))
 
 
 # A driver that steps the same pack (or motor) over and over keeps, per pack, its last interval
-# and what depends on that interval only, in a small float array ("step cache"), so a profile of
-# equal steps computes those exponentials once instead of at every step.
+# and what depends on that interval only, in a row of a small table ("step cache"), so a profile
+# of equal steps computes those exponentials once instead of at every step.
 (C_DT, C_NSUB, C_H, C_TAU_S, C_DECAY_S, C_DECAY_T) = range(6)
 N_STEP_CACHE = 6
 
 
 @njit(inline="always", **_JIT)
-def _reset_step_cache(p, cache):
-    """For pack parameters ``p``: no interval seen yet (dt is never negative)."""
-    cache[C_DT] = -1.0
-    cache[C_TAU_S] = p[I_RS] * p[I_CS]
+def _reset_step_cache(p, i, cache, r):
+    """Row ``r`` of a step cache for pack parameters ``p[i]``: no interval seen yet."""
+    cache[r, C_DT] = -1.0  # dt is never negative
+    cache[r, C_TAU_S] = p[i, I_RS] * p[i, I_CS]
 
 
 @njit(inline="always", **_JIT)
-def _pack_advance_cached(p, x, current, ambient, dt, max_dt, v, cache):
-    """``_pack_advance`` for a driver that knows the terminal voltage ``v`` at the start and keeps
-    the pack's step cache (``_reset_step_cache``): the same operations, so the same numbers.
-    Returns the terminal voltage at the end."""
+def _pack_advance_cached(p, i, x, r, current, ambient, dt, max_dt, v, cache):
+    """``_pack_advance`` of state row ``x[r]`` (parameters ``p[i]``) for a driver that knows the
+    terminal voltage ``v`` at the start and keeps the pack's step cache in ``cache[r]``
+    (``_reset_step_cache``): the same operations, so the same numbers. Returns the terminal
+    voltage at the end."""
     if dt <= 0.0:
         return v
-    if dt != cache[C_DT]:
+    if dt != cache[r, C_DT]:
         n_sub, h = _substeps(dt, max_dt)
-        cache[C_NSUB] = n_sub
-        cache[C_H] = h
-        cache[C_DECAY_S], cache[C_DECAY_T] = _fixed_decays(p, h, cache[C_TAU_S])
-        cache[C_DT] = dt
-    h = cache[C_H]
-    _pack_step(p, x, current, ambient, h, cache[C_TAU_S], cache[C_DECAY_S], cache[C_DECAY_T], v)
-    for _ in range(1, int(cache[C_NSUB])):
-        _pack_step(p, x, current, ambient, h, cache[C_TAU_S], cache[C_DECAY_S], cache[C_DECAY_T],
-                   _terminal_voltage(p, x))
-    return _terminal_voltage(p, x)
+        cache[r, C_NSUB] = n_sub
+        cache[r, C_H] = h
+        cache[r, C_DECAY_S], cache[r, C_DECAY_T] = _fixed_decays(p, i, h, cache[r, C_TAU_S])
+        cache[r, C_DT] = dt
+    h = cache[r, C_H]
+    tau_s = cache[r, C_TAU_S]
+    decay_s = cache[r, C_DECAY_S]
+    decay_t = cache[r, C_DECAY_T]
+    _pack_step(p, i, x, r, current, ambient, h, tau_s, decay_s, decay_t, v)
+    for _ in range(1, int(cache[r, C_NSUB])):
+        _pack_step(p, i, x, r, current, ambient, h, tau_s, decay_s, decay_t, _terminal_voltage(p, i, x, r))
+    return _terminal_voltage(p, i, x, r)
 
-
-# ---- current-driven packs (fitting, estimation) --------------------------------------------------
 
 #: vectors a driver advances together, time loop outside (see ``_simulate_pack_block``)
 LANES = 16
@@ -226,7 +237,7 @@ def _simulate_pack_block(j0, params, x0, dt, current, ambient, max_dt, voltage, 
     i_b = np.empty(LANES)
     r_cp = np.empty(LANES)
     e = np.empty(LANES)
-    xl = np.empty(N_PACK_STATE)
+    xl = np.empty((1, N_PACK_STATE))
     shared_cur = current.shape[0] == 1
     shared_amb = ambient.shape[0] == 1
     shared_dt = dt.shape[0] == 1
@@ -240,9 +251,8 @@ def _simulate_pack_block(j0, params, x0, dt, current, ambient, max_dt, voltage, 
             if not d <= 0.0:  # as _pack_advance: a NaN interval steps (to NaN)
                 n_moving += 1
                 if d != last_dt[lane]:
-                    p = params[j0 + lane]
                     n_sub[lane], h[lane] = _substeps(d, max_dt)
-                    decay_s[lane], decay_t[lane] = _fixed_decays(p, h[lane], tau_s[lane])
+                    decay_s[lane], decay_t[lane] = _fixed_decays(params, j0 + lane, h[lane], tau_s[lane])
                     last_dt[lane] = d
                 if n_sub[lane] == 1:
                     n_single += 1
@@ -274,16 +284,17 @@ def _simulate_pack_block(j0, params, x0, dt, current, ambient, max_dt, voltage, 
             for lane in range(nl):
                 if dt[0 if shared_dt else j0 + lane, k] <= 0.0:
                     continue
-                p = params[j0 + lane]
+                j = j0 + lane
                 for s in range(N_PACK_STATE):
-                    xl[s] = xs[s, lane]
-                _pack_step(p, xl, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane], decay_t[lane], v[lane])
+                    xl[0, s] = xs[s, lane]
+                _pack_step(params, j, xl, 0, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane], decay_t[lane],
+                           v[lane])
                 for _ in range(1, n_sub[lane]):
-                    _pack_step(p, xl, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane], decay_t[lane],
-                               _terminal_voltage(p, xl))
+                    _pack_step(params, j, xl, 0, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane],
+                               decay_t[lane], _terminal_voltage(params, j, xl, 0))
                 for s in range(N_PACK_STATE):
-                    xs[s, lane] = xl[s]
-                v[lane] = _terminal_voltage(p, xl)
+                    xs[s, lane] = xl[0, s]
+                v[lane] = _terminal_voltage(params, j, xl, 0)
         for lane in range(nl):
             j = j0 + lane
             voltage[j, k] = v[lane]
@@ -320,13 +331,20 @@ def _simulate_motor_thermal(params, temp0, dt, current, ambient, out):
     n_vec = out.shape[0]
     n = current.shape[1]
     for j in range(n_vec):
-        m = params[j if params.shape[0] > 1 else 0]
+        q = j if params.shape[0] > 1 else 0
         ci = j if current.shape[0] > 1 else 0
         ai = j if ambient.shape[0] > 1 else 0
         di = j if dt.shape[0] > 1 else 0
         temp = temp0[j]
+        last_dt = -1.0  # dt is never negative: the first interval sets the decay
+        decay = 0.0
         for k in range(n):
-            temp = _thermal_advance(m, temp, current[ci, k], ambient[ai, k], dt[di, k])
+            h = dt[di, k]
+            if not h <= 0.0:  # as _thermal_advance
+                if h != last_dt:
+                    decay = _motor_decay(params, q, h)
+                    last_dt = h
+                temp = _thermal_step(params, q, temp, current[ci, k], ambient[ai, k], decay)
             out[j, k] = temp
 
 
@@ -752,17 +770,17 @@ FAILURE_NAMES = {
 
 
 @njit(inline="always", **_JIT)
-def _motor_current(m, bus_voltage, shaft_power, capability):
-    """Input current of a motor delivering ``shaft_power`` from ``bus_voltage``.
+def _motor_current(m, q, bus_voltage, shaft_power, capability):
+    """Input current of motor ``m[q]`` delivering ``shaft_power`` from ``bus_voltage``.
 
     V I = P + R_w I^2 + I_0' V, the smaller root; I_0' = capability * I_0 (a dead motor draws no
     no-load current). Returns -1 when no current can deliver the power (past the motor's peak).
     """
-    i0 = m[M_I0] * capability
+    i0 = m[q, M_I0] * capability
     if shaft_power <= 0.0:
         return i0
     c = shaft_power + i0 * bus_voltage
-    disc = bus_voltage * bus_voltage - 4.0 * m[M_RW] * c
+    disc = bus_voltage * bus_voltage - 4.0 * m[q, M_RW] * c
     if disc < 0.0:
         return -1.0
     return 2.0 * c / (bus_voltage + math.sqrt(disc))

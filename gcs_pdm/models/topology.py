@@ -99,8 +99,8 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
         for b in range(n_packs):
             for s in range(N_PACK_STATE):
                 x[b, s] = x0[j, b, s]
-            v[b] = _terminal_voltage(pp[b], x[b])
-            kernel._reset_step_cache(pp[b], step_cache[b])
+            v[b] = _terminal_voltage(pp, b, x, b)
+            kernel._reset_step_cache(pp, b, step_cache, b)
             min_v[j, b] = v[b]
             max_tp[j, b] = x[b, S_T]
             charge[j, b] = 0.0
@@ -172,7 +172,7 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
                         share[q] += shortfall / n_least
             for q in range(n_motors):
                 u = bus_of_motor[q]
-                i_q = _motor_current(mp[q], vbus[u], share[q], cap[q])
+                i_q = _motor_current(mp, q, vbus[u], share[q], cap[q])
                 if i_q < 0.0:
                     cause = FAIL_POWER
                     i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
@@ -182,13 +182,13 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
             for b in range(n_packs):
                 u = bus_of_pack[b]
                 i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
-                v[b] = kernel._pack_advance_cached(pp[b], x[b], i_b, ambient[ai, k], h, max_dt, v[b], step_cache[b])
+                v[b] = kernel._pack_advance_cached(pp, b, x, b, i_b, ambient[ai, k], h, max_dt, v[b], step_cache)
                 charge[j, b] += i_b * h
                 if v[b] < min_v[j, b]:
                     min_v[j, b] = v[b]
                 if x[b, S_T] > max_tp[j, b]:
                     max_tp[j, b] = x[b, S_T]
-                soc_b = _soc(pp[b], x[b, S_QB])
+                soc_b = _soc(pp, b, x[b, S_QB])
                 if end_k[j, b] < 0:
                     w = v[b] * i_b
                     end_energy[j, b] += (w if math.isfinite(w) else 0.0) * h
@@ -211,9 +211,9 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
             for q in range(n_motors):
                 if not h <= 0.0:
                     if h != motor_dt[q]:
-                        motor_decay[q] = kernel._motor_decay(mp[q], h)
+                        motor_decay[q] = kernel._motor_decay(mp, q, h)
                         motor_dt[q] = h
-                    tm[q] = kernel._thermal_step(mp[q], tm[q], imot[q], ambient[ai, k], motor_decay[q])
+                    tm[q] = kernel._thermal_step(mp, q, tm[q], imot[q], ambient[ai, k], motor_decay[q])
                 if tm[q] > max_tm[j, q]:
                     max_tm[j, q] = tm[q]
                 if flying and tm[q] > peak_tm[j, q]:
