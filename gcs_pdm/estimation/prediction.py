@@ -13,10 +13,10 @@ route into exactly such a profile, so a route can be predicted by passing its pr
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
@@ -260,13 +260,39 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         **({} if vehicle is None else {"pack_names": vehicle.pack_names, "motor_names": vehicle.motor_names}),
     )
     if trajectories:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns after every sample stopped
-            pred = Prediction(**{**pred.__dict__, "time_s": t_end[traj_k],
-                                 "soc_median": np.nanmedian(run["soc"], axis=0),
-                                 "pack_temp_median": np.nanmedian(run["pack_temp"], axis=0),
-                                 "motor_temp_median": np.nanmedian(run["motor_temp"], axis=0)})
+        pred = Prediction(**{**pred.__dict__, "time_s": t_end[traj_k],
+                             "soc_median": _median_over_samples(run["soc"]),
+                             "pack_temp_median": _median_over_samples(run["pack_temp"]),
+                             "motor_temp_median": _median_over_samples(run["motor_temp"])})
     return pred
+
+
+@njit(cache=True, nogil=True)
+def _median_compiled(a, out):
+    n_vec, m, c = a.shape
+    col = np.empty(n_vec)
+    for k in range(m):
+        for i in range(c):
+            n = 0
+            for j in range(n_vec):
+                if not math.isnan(a[j, k, i]):
+                    col[n] = a[j, k, i]
+                    n += 1
+            if n == 0:
+                out[k, i] = np.nan
+                continue
+            s = np.sort(col[:n])
+            out[k, i] = s[n // 2] if n % 2 else (s[n // 2 - 1] + s[n // 2]) / 2.0
+
+
+def _median_over_samples(a: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(a, axis=0)`` of (samples, steps, parts), the same numbers: NaN (a sample that
+    stopped) left out, the mean of the middle two for an even count, NaN where every sample stopped.
+    numpy's version loops over the (steps × parts) columns through masked arrays: tens of ms."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    out = np.empty(a.shape[1:])
+    _median_compiled(a, out)
+    return out
 
 
 #: samples per thread below which one thread flies them all (a thread costs more than it saves)
