@@ -54,9 +54,9 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # ---- the step --------------------------------------------------------------------------------------
 
 # The step functions index a parameter table ``p`` (rows of PACK_PARAMS or MOTOR_PARAMS) and a
-# state table ``x`` (rows of PACK_STATE) by row instead of taking row views: in numba a view
-# costs two atomic reference-count updates, which in a driver's inner loop cost more than the
-# arithmetic. ``_pack_advance``/``_thermal_advance`` keep the one-row form for single callers.
+# state table ``x`` (rows of PACK_STATE) by row instead of taking row views: in numba a view puts
+# two atomic reference-count calls into a driver's compiled inner loop.
+# ``_pack_advance``/``_thermal_advance`` keep the one-row form for single callers (the estimator).
 
 @njit(inline="always", **_JIT)
 def _soc(p, i, q_b):
