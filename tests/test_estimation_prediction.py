@@ -99,3 +99,23 @@ def test_load_for_route_follows_the_planner_and_predicts_its_outcome():
                                      sim._fault, limits=scenario.limits.kernel_limits().as_tuple(), stop_on_failure=True)
     assert pred.p_failure == float(ref.failed[0])
     assert pred.peak_motor_temp_c[:, 1] == pytest.approx(ref.max_motor_temp[0], abs=1e-6)
+
+
+def test_median_over_samples_is_numpys_nanmedian():
+    """The compiled median of the trajectories equals ``np.nanmedian(axis=0)`` bit for bit: stopped
+    samples (NaN) left out, even counts averaged, NaN where every sample stopped."""
+    import warnings
+
+    from gcs_pdm.estimation.prediction import _median_over_samples
+    rng = np.random.default_rng(2)
+    a = rng.normal(20.0, 3.0, (40, 30, 4))
+    a[rng.random(a.shape) < 0.3] = np.nan
+    a[:, 4] = np.nan
+    a[:20, 6, 1] = np.nan          # an even count left
+    a[:5, 7, 2] = np.inf
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        want = np.nanmedian(a, axis=0)
+    got = _median_over_samples(a)
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got[4]).all() and np.isfinite(got[6]).all()

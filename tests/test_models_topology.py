@@ -67,3 +67,48 @@ def test_parallel_packs_share_the_current():
                            record=True)
     np.testing.assert_allclose(run.pack_current[0, :, 0], run.pack_current[0, :, 1])
     np.testing.assert_allclose(2 * run.pack_current[0, :, 0], run.motor_current[0].sum(axis=1))
+
+
+@pytest.mark.parametrize("stop_on_failure", [False, True])
+def test_pack_ends_peaks_and_sparse_record_match_the_full_record(stop_on_failure):
+    """What the Monte Carlo reads without a full record: each pack's end (first sample below its
+    cut-off or empty) and the energy it delivered up to it, the peaks up to the first failure, and
+    ``record_at``'s samples — all equal to what the full per-step record gives."""
+    ps = default_set()
+    rng = np.random.default_rng(8)
+    n_vec = 6
+    x0 = np.stack([kernel.initial_pack_state(ps.pack_matrix(), s, 25.0) for s in rng.uniform(0.15, 0.6, n_vec)])
+    tm0 = np.full((n_vec, 2), 30.0)
+    n = 1500
+    dt = np.ones(n)
+    dt[0] = 0.0
+    power = 1200.0 + 400.0 * np.sin(np.arange(n) / 50.0)
+    limits = (19.5, 60.0, 200.0)
+    kw = dict(limits=limits, stop_on_failure=stop_on_failure)
+    full = topology.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], x0, tm0, dt, power, 20.0,
+                                        record=True, **kw)
+    steps = np.arange(0, n, 7)
+    sparse = topology.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], x0, tm0, dt, power, 20.0,
+                                          record_at=steps, **kw)
+    assert full.failed.all() and (full.pack_end_step >= 0).any()
+    assert (full.pack_end_step < 0).any() == stop_on_failure  # flown on, every pack reaches its end
+    np.testing.assert_array_equal(sparse.recorded_steps, steps)
+    for name in ("pack_voltage", "pack_soc", "pack_temp", "motor_temp"):
+        np.testing.assert_array_equal(getattr(sparse, name), getattr(full, name)[:, steps], err_msg=name)
+    for name in ("pack_end_step", "pack_end_energy_j", "peak_pack_temp_to_failure", "peak_motor_temp_to_failure",
+                 "fail_step", "final_pack_state"):
+        np.testing.assert_array_equal(getattr(sparse, name), getattr(full, name), err_msg=name)
+    ended = (full.pack_voltage < limits[0]) | (full.pack_soc <= 0.0)
+    power_w = np.nan_to_num(full.pack_voltage * full.pack_current) * dt[None, :, None]
+    for j in range(n_vec):
+        last = full.fail_step[j]
+        for b in range(4):
+            k_end = int(np.argmax(ended[j, :, b])) if ended[j, :, b].any() else -1
+            assert full.pack_end_step[j, b] == k_end
+            upto = k_end if k_end >= 0 else n - 1
+            assert full.pack_end_energy_j[j, b] == pytest.approx(power_w[j, :upto + 1, b].sum(), rel=1e-12)
+            assert full.peak_pack_temp_to_failure[j, b] == full.pack_temp[j, :last + 1, b].max()
+        assert np.array_equal(full.peak_motor_temp_to_failure[j], full.motor_temp[j, :last + 1].max(axis=0))
+    with pytest.raises(ValueError, match="record_at"):
+        topology.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], x0, tm0, dt, power, 20.0,
+                                     record_at=[5, 3], **kw)

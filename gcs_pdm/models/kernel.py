@@ -53,111 +53,277 @@ _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 
 # ---- the step --------------------------------------------------------------------------------------
 
-@njit(inline="always", **_JIT)
-def _soc(p, q_b):
-    return 1.0 - (p[I_QMAX] - q_b) / p[I_CMAX]
-
-
-@njit(inline="always", **_JIT)
-def _r_cp(p, soc):
-    return p[I_RCP0] + p[I_RCP1] * math.exp(p[I_RCP2] * (1.0 - soc))
-
+# The step functions index a parameter table ``p`` (rows of PACK_PARAMS or MOTOR_PARAMS) and a
+# state table ``x`` (rows of PACK_STATE) by row instead of taking row views: in numba a view puts
+# two atomic reference-count calls into a driver's compiled inner loop.
+# ``_pack_advance``/``_thermal_advance`` keep the one-row form for single callers (the estimator).
 
 @njit(inline="always", **_JIT)
-def _terminal_voltage(p, x):
-    return x[S_QB] / p[I_CB] - x[S_QCP] / p[I_CCP] - x[S_QS] / p[I_CS]
+def _soc(p, i, q_b):
+    return 1.0 - (p[i, I_QMAX] - q_b) / p[i, I_CMAX]
 
 
-@njit(**_JIT)
-def _pack_advance(p, x, current, ambient, dt, max_dt):
-    """Advance one pack state ``x`` (in place) by ``dt`` seconds at constant terminal current."""
-    if dt <= 0.0:
-        return
+@njit(inline="always", **_JIT)
+def _r_cp(p, i, soc):
+    return p[i, I_RCP0] + p[i, I_RCP1] * math.exp(p[i, I_RCP2] * (1.0 - soc))
+
+
+@njit(inline="always", **_JIT)
+def _terminal_voltage(p, i, x, r):
+    return x[r, S_QB] / p[i, I_CB] - x[r, S_QCP] / p[i, I_CCP] - x[r, S_QS] / p[i, I_CS]
+
+
+@njit(inline="always", **_JIT)
+def _substeps(dt, max_dt):
+    """Sub-steps of an interval ``dt`` > 0 and their length."""
     n_sub = 1
     if dt > max_dt:
         # capped: work bounded by samples, not by the time span (a 49.7-day log gap cost 0.25 s).
         # The R–C and thermal steps are exact at any length; only the frozen R_cp and parasitic
         # terms want short steps, and past MAX_SUBSTEPS · max_dt the held input is a guess anyway
         n_sub = min(int(math.ceil(dt / max_dt)), MAX_SUBSTEPS)
-    h = dt / n_sub
-    tau_s = p[I_RS] * p[I_CS]
-    decay_s = math.exp(-h / tau_s)
-    decay_t = math.exp(-h * p[I_H] / p[I_CT])
-    for _ in range(n_sub):
-        # parasitic branch across the terminals (eq. 5): i_b = i + V_p / R_p
-        i_b = current + _terminal_voltage(p, x) / p[I_RP]
-        # R_cp at the step's mid-point charge: q_b is exactly linear over the step, so this makes
-        # the frozen-coefficient step second-order accurate near the knee at no extra cost
-        r_cp = _r_cp(p, _soc(p, x[S_QB] - 0.5 * i_b * h))
-        tau_cp = r_cp * p[I_CCP]
-        decay_cp = math.exp(-h / tau_cp)
-        # exact R–C steps towards their steady charges i_b * tau
-        x[S_QS] = i_b * tau_s + (x[S_QS] - i_b * tau_s) * decay_s
-        x[S_QCP] = i_b * tau_cp + (x[S_QCP] - i_b * tau_cp) * decay_cp
-        x[S_QB] -= i_b * h
-        # eq. 7 with the pack's resistance from the circuit: exact step towards T_inf
-        heat = (p[I_RS] + r_cp) * current * current
-        t_inf = ambient + heat / p[I_H]
-        x[S_T] = t_inf + (x[S_T] - t_inf) * decay_t
+    return n_sub, dt / n_sub
 
 
 @njit(inline="always", **_JIT)
-def _motor_heat(m, current):
+def _fixed_decays(p, i, h, tau_s):
+    """The R_s–C_s and thermal decay factors of a step of length ``h``: they depend on the
+    parameters and ``h`` only, so a driver whose steps repeat one length computes them once."""
+    return math.exp(-h / tau_s), math.exp(-h * p[i, I_H] / p[i, I_CT])
+
+
+@njit(inline="always", **_JIT)
+def _pack_step(p, i, x, r, current, ambient, h, tau_s, decay_s, decay_t, v):
+    """One exact exponential step of length ``h`` of pack state row ``x[r]`` (in place), parameters
+    ``p[i]``, at constant terminal current; ``v`` = ``_terminal_voltage(p, i, x, r)`` at the step's
+    start (drivers carry it from the previous step's output instead of dividing again)."""
+    # parasitic branch across the terminals (eq. 5): i_b = i + V_p / R_p
+    i_b = current + v / p[i, I_RP]
+    # R_cp at the step's mid-point charge: q_b is exactly linear over the step, so this makes
+    # the frozen-coefficient step second-order accurate near the knee at no extra cost
+    r_cp = _r_cp(p, i, _soc(p, i, x[r, S_QB] - 0.5 * i_b * h))
+    tau_cp = r_cp * p[i, I_CCP]
+    decay_cp = math.exp(-h / tau_cp)
+    # exact R–C steps towards their steady charges i_b * tau
+    x[r, S_QS] = i_b * tau_s + (x[r, S_QS] - i_b * tau_s) * decay_s
+    x[r, S_QCP] = i_b * tau_cp + (x[r, S_QCP] - i_b * tau_cp) * decay_cp
+    x[r, S_QB] -= i_b * h
+    # eq. 7 with the pack's resistance from the circuit: exact step towards T_inf
+    heat = (p[i, I_RS] + r_cp) * current * current
+    t_inf = ambient + heat / p[i, I_H]
+    x[r, S_T] = t_inf + (x[r, S_T] - t_inf) * decay_t
+
+
+@njit(**_JIT)
+def _pack_advance(p, x, current, ambient, dt, max_dt):
+    """Advance one pack state ``x`` (in place; parameters ``p``, both one row) by ``dt`` seconds
+    at constant terminal current."""
+    if dt <= 0.0:
+        return
+    p2 = p.reshape((1, p.shape[0]))
+    x2 = x.reshape((1, x.shape[0]))
+    n_sub, h = _substeps(dt, max_dt)
+    tau_s = p[I_RS] * p[I_CS]
+    decay_s, decay_t = _fixed_decays(p2, 0, h, tau_s)
+    for _ in range(n_sub):
+        _pack_step(p2, 0, x2, 0, current, ambient, h, tau_s, decay_s, decay_t, _terminal_voltage(p2, 0, x2, 0))
+
+
+@njit(inline="always", **_JIT)
+def _motor_heat(m, q, current):
     # core loss scales in with the motor's load until it spins at its no-load current
-    load = min(1.0, abs(current) / m[M_I0]) if m[M_I0] > 0.0 else 1.0
-    return m[M_RW] * current * current + m[M_PIRON] * load
+    load = min(1.0, abs(current) / m[q, M_I0]) if m[q, M_I0] > 0.0 else 1.0
+    return m[q, M_RW] * current * current + m[q, M_PIRON] * load
+
+
+@njit(inline="always", **_JIT)
+def _motor_decay(m, q, dt):
+    return math.exp(-dt * m[q, M_H] / m[q, M_CT])
+
+
+@njit(inline="always", **_JIT)
+def _thermal_step(m, q, temperature, current, ambient, decay):
+    """Motor ``m[q]``'s temperature after a step whose decay factor is ``decay`` (``_motor_decay``)."""
+    t_inf = ambient + _motor_heat(m, q, current) / m[q, M_H]
+    return t_inf + (temperature - t_inf) * decay
 
 
 @njit(inline="always", **_JIT)
 def _thermal_advance(m, temperature, current, ambient, dt):
+    """One motor (parameters ``m``, one row) over ``dt`` seconds."""
     if dt <= 0.0:
         return temperature
-    t_inf = ambient + _motor_heat(m, current) / m[M_H]
-    return t_inf + (temperature - t_inf) * math.exp(-dt * m[M_H] / m[M_CT])
+    m2 = m.reshape((1, m.shape[0]))
+    return _thermal_step(m2, 0, temperature, current, ambient, _motor_decay(m2, 0, dt))
 
 
-# ---- current-driven packs (fitting, estimation) --------------------------------------------------
+# A driver that steps the same pack (or motor) over and over keeps, per pack, its last interval
+# and what depends on that interval only, in a row of a small table ("step cache"), so a profile
+# of equal steps computes those exponentials once instead of at every step.
+(C_DT, C_NSUB, C_H, C_TAU_S, C_DECAY_S, C_DECAY_T) = range(6)
+N_STEP_CACHE = 6
+
 
 @njit(inline="always", **_JIT)
-def _simulate_one_pack(j, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
-                       record_states, final):
+def _reset_step_cache(p, i, cache, r):
+    """Row ``r`` of a step cache for pack parameters ``p[i]``: no interval seen yet."""
+    cache[r, C_DT] = -1.0  # dt is never negative
+    cache[r, C_TAU_S] = p[i, I_RS] * p[i, I_CS]
+
+
+@njit(inline="always", **_JIT)
+def _pack_advance_cached(p, i, x, r, current, ambient, dt, max_dt, v, cache):
+    """``_pack_advance`` of state row ``x[r]`` (parameters ``p[i]``) for a driver that knows the
+    terminal voltage ``v`` at the start and keeps the pack's step cache in ``cache[r]``
+    (``_reset_step_cache``): the same operations, so the same numbers. Returns the terminal
+    voltage at the end."""
+    if dt <= 0.0:
+        return v
+    if dt != cache[r, C_DT]:
+        n_sub, h = _substeps(dt, max_dt)
+        cache[r, C_NSUB] = n_sub
+        cache[r, C_H] = h
+        cache[r, C_DECAY_S], cache[r, C_DECAY_T] = _fixed_decays(p, i, h, cache[r, C_TAU_S])
+        cache[r, C_DT] = dt
+    h = cache[r, C_H]
+    tau_s = cache[r, C_TAU_S]
+    decay_s = cache[r, C_DECAY_S]
+    decay_t = cache[r, C_DECAY_T]
+    _pack_step(p, i, x, r, current, ambient, h, tau_s, decay_s, decay_t, v)
+    for _ in range(1, int(cache[r, C_NSUB])):
+        _pack_step(p, i, x, r, current, ambient, h, tau_s, decay_s, decay_t, _terminal_voltage(p, i, x, r))
+    return _terminal_voltage(p, i, x, r)
+
+
+#: vectors a driver advances together, time loop outside (see ``_simulate_pack_block``)
+LANES = 16
+
+
+@njit(inline="always", **_JIT)
+def _simulate_pack_block(j0, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                         record_states, final):
+    """Vectors j0 … j0 + LANES - 1 (those that exist) over the whole profile, one sample at a time.
+
+    One vector's step is a chain of dependent divisions and exponentials. Here the block's
+    vectors take each step together, stage by stage over lanes: each stage's lanes are independent,
+    so the arithmetic ones compile to SIMD instructions and the two exponentials of the lanes
+    overlap in the processor instead of waiting on each other. Per vector the operations are
+    ``_pack_step``'s, in its order, on the same values (the same numbers, bit for bit): the terminal
+    voltage is carried from the previous output, and the decay factors that depend on the interval
+    only are recomputed when the interval changes. A step where some lane does not simply advance
+    once (no time passes, or the interval is cut into sub-steps) goes lane by lane through
+    ``_pack_step`` as ``_pack_advance`` would."""
     n = current.shape[1]
-    x = np.empty(N_PACK_STATE)
-    p = params[j]
-    ci = j if current.shape[0] > 1 else 0
-    ai = j if ambient.shape[0] > 1 else 0
-    di = j if dt.shape[0] > 1 else 0
-    for s in range(N_PACK_STATE):
-        x[s] = x0[j, s]
+    nl = min(LANES, params.shape[0] - j0)
+    pt = np.empty((N_PACK_PARAMS, LANES))  # parameters, one lane vector per parameter
+    xs = np.empty((N_PACK_STATE, LANES))   # states likewise
+    for lane in range(nl):
+        for i in range(N_PACK_PARAMS):
+            pt[i, lane] = params[j0 + lane, i]
+        for s in range(N_PACK_STATE):
+            xs[s, lane] = x0[j0 + lane, s]
+    v = np.empty(LANES)
+    tau_s = np.empty(LANES)
+    for lane in range(nl):
+        v[lane] = xs[S_QB, lane] / pt[I_CB, lane] - xs[S_QCP, lane] / pt[I_CCP, lane] - xs[S_QS, lane] / pt[I_CS, lane]
+        tau_s[lane] = pt[I_RS, lane] * pt[I_CS, lane]
+    last_dt = np.full(LANES, -1.0)  # dt is never negative: the first interval sets the factors
+    n_sub = np.ones(LANES, dtype=np.int64)
+    h = np.empty(LANES)
+    decay_s = np.empty(LANES)
+    decay_t = np.empty(LANES)
+    cur = np.empty(LANES)
+    amb = np.empty(LANES)
+    i_b = np.empty(LANES)
+    r_cp = np.empty(LANES)
+    e = np.empty(LANES)
+    xl = np.empty((1, N_PACK_STATE))
+    shared_cur = current.shape[0] == 1
+    shared_amb = ambient.shape[0] == 1
+    shared_dt = dt.shape[0] == 1
     for k in range(n):
-        _pack_advance(p, x, current[ci, k], ambient[ai, k], dt[di, k], max_dt)
-        voltage[j, k] = _terminal_voltage(p, x)
-        temperature[j, k] = x[S_T]
-        soc[j, k] = _soc(p, x[S_QB])
-        if record_states:
-            for s in range(N_PACK_STATE):
-                states[j, k, s] = x[s]
-    for s in range(N_PACK_STATE):
-        final[j, s] = x[s]
+        n_moving = 0
+        n_single = 0
+        for lane in range(nl):
+            d = dt[0 if shared_dt else j0 + lane, k]
+            cur[lane] = current[0 if shared_cur else j0 + lane, k]
+            amb[lane] = ambient[0 if shared_amb else j0 + lane, k]
+            if not d <= 0.0:  # as _pack_advance: a NaN interval steps (to NaN)
+                n_moving += 1
+                if d != last_dt[lane]:
+                    n_sub[lane], h[lane] = _substeps(d, max_dt)
+                    decay_s[lane], decay_t[lane] = _fixed_decays(params, j0 + lane, h[lane], tau_s[lane])
+                    last_dt[lane] = d
+                if n_sub[lane] == 1:
+                    n_single += 1
+        if n_single == nl:
+            # every lane one step: _pack_step over the lanes, stage by stage
+            for lane in range(nl):
+                i_b[lane] = cur[lane] + v[lane] / pt[I_RP, lane]
+                soc_mid = 1.0 - (pt[I_QMAX, lane] - (xs[S_QB, lane] - 0.5 * i_b[lane] * h[lane])) / pt[I_CMAX, lane]
+                e[lane] = pt[I_RCP2, lane] * (1.0 - soc_mid)
+            for lane in range(nl):
+                e[lane] = math.exp(e[lane])
+            for lane in range(nl):
+                r_cp[lane] = pt[I_RCP0, lane] + pt[I_RCP1, lane] * e[lane]
+                e[lane] = -h[lane] / (r_cp[lane] * pt[I_CCP, lane])
+            for lane in range(nl):
+                e[lane] = math.exp(e[lane])
+            for lane in range(nl):
+                ib = i_b[lane]
+                tau_cp = r_cp[lane] * pt[I_CCP, lane]
+                xs[S_QS, lane] = ib * tau_s[lane] + (xs[S_QS, lane] - ib * tau_s[lane]) * decay_s[lane]
+                xs[S_QCP, lane] = ib * tau_cp + (xs[S_QCP, lane] - ib * tau_cp) * e[lane]
+                xs[S_QB, lane] -= ib * h[lane]
+                heat = (pt[I_RS, lane] + r_cp[lane]) * cur[lane] * cur[lane]
+                t_inf = amb[lane] + heat / pt[I_H, lane]
+                xs[S_T, lane] = t_inf + (xs[S_T, lane] - t_inf) * decay_t[lane]
+                v[lane] = (xs[S_QB, lane] / pt[I_CB, lane] - xs[S_QCP, lane] / pt[I_CCP, lane]
+                           - xs[S_QS, lane] / pt[I_CS, lane])
+        elif n_moving > 0:
+            for lane in range(nl):
+                if dt[0 if shared_dt else j0 + lane, k] <= 0.0:
+                    continue
+                j = j0 + lane
+                for s in range(N_PACK_STATE):
+                    xl[0, s] = xs[s, lane]
+                _pack_step(params, j, xl, 0, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane], decay_t[lane],
+                           v[lane])
+                for _ in range(1, n_sub[lane]):
+                    _pack_step(params, j, xl, 0, cur[lane], amb[lane], h[lane], tau_s[lane], decay_s[lane],
+                               decay_t[lane], _terminal_voltage(params, j, xl, 0))
+                for s in range(N_PACK_STATE):
+                    xs[s, lane] = xl[0, s]
+                v[lane] = _terminal_voltage(params, j, xl, 0)
+        for lane in range(nl):
+            j = j0 + lane
+            voltage[j, k] = v[lane]
+            temperature[j, k] = xs[S_T, lane]
+            soc[j, k] = 1.0 - (pt[I_QMAX, lane] - xs[S_QB, lane]) / pt[I_CMAX, lane]
+            if record_states:
+                for s in range(N_PACK_STATE):
+                    states[j, k, s] = xs[s, lane]
+    for lane in range(nl):
+        for s in range(N_PACK_STATE):
+            final[j0 + lane, s] = xs[s, lane]
 
 
 @njit(**_JIT)
 def _simulate_packs(params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
                     record_states, final):
-    for j in range(params.shape[0]):
-        _simulate_one_pack(j, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
-                           record_states, final)
+    for j0 in range(0, params.shape[0], LANES):
+        _simulate_pack_block(j0, params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
+                             record_states, final)
 
 
 @njit(parallel=True, **_JIT)
 def _simulate_packs_parallel(params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
                              record_states, final):
-    # the same loop spread over the cores; only for callers on one thread (numba's default
+    # the same blocks spread over the cores; only for callers on one thread (numba's default
     # threading layer does not take parallel launches from several Python threads at once)
-    for j in prange(params.shape[0]):
-        # signed index: prange's unsigned one would not unify with 0 in the shared-row choice
-        _simulate_one_pack(np.int64(j), params, x0, dt, current, ambient, max_dt, voltage, temperature, soc, states,
-                           record_states, final)
+    for block in prange((params.shape[0] + LANES - 1) // LANES):
+        _simulate_pack_block(np.int64(block) * LANES, params, x0, dt, current, ambient, max_dt, voltage,
+                             temperature, soc, states, record_states, final)
 
 
 @njit(**_JIT)
@@ -165,13 +331,20 @@ def _simulate_motor_thermal(params, temp0, dt, current, ambient, out):
     n_vec = out.shape[0]
     n = current.shape[1]
     for j in range(n_vec):
-        m = params[j if params.shape[0] > 1 else 0]
+        q = j if params.shape[0] > 1 else 0
         ci = j if current.shape[0] > 1 else 0
         ai = j if ambient.shape[0] > 1 else 0
         di = j if dt.shape[0] > 1 else 0
         temp = temp0[j]
+        last_dt = -1.0  # dt is never negative: the first interval sets the decay
+        decay = 0.0
         for k in range(n):
-            temp = _thermal_advance(m, temp, current[ci, k], ambient[ai, k], dt[di, k])
+            h = dt[di, k]
+            if not h <= 0.0:  # as _thermal_advance
+                if h != last_dt:
+                    decay = _motor_decay(params, q, h)
+                    last_dt = h
+                temp = _thermal_step(params, q, temp, current[ci, k], ambient[ai, k], decay)
             out[j, k] = temp
 
 
@@ -597,17 +770,17 @@ FAILURE_NAMES = {
 
 
 @njit(inline="always", **_JIT)
-def _motor_current(m, bus_voltage, shaft_power, capability):
-    """Input current of a motor delivering ``shaft_power`` from ``bus_voltage``.
+def _motor_current(m, q, bus_voltage, shaft_power, capability):
+    """Input current of motor ``m[q]`` delivering ``shaft_power`` from ``bus_voltage``.
 
     V I = P + R_w I^2 + I_0' V, the smaller root; I_0' = capability * I_0 (a dead motor draws no
     no-load current). Returns -1 when no current can deliver the power (past the motor's peak).
     """
-    i0 = m[M_I0] * capability
+    i0 = m[q, M_I0] * capability
     if shaft_power <= 0.0:
         return i0
     c = shaft_power + i0 * bus_voltage
-    disc = bus_voltage * bus_voltage - 4.0 * m[M_RW] * c
+    disc = bus_voltage * bus_voltage - 4.0 * m[q, M_RW] * c
     if disc < 0.0:
         return -1.0
     return 2.0 * c / (bus_voltage + math.sqrt(disc))
@@ -633,6 +806,17 @@ class PowertrainRun:
     pack_soc: np.ndarray | None = None       # (N, n, 4)
     motor_current: np.ndarray | None = None  # (N, n, 2)
     motor_temp: np.ndarray | None = None     # (N, n, 2)
+    #: with ``record_at``: the recorded samples' indices (the per-step arrays' second axis)
+    recorded_steps: np.ndarray | None = None
+    #: (N, P) first sample at which the pack is below its cut-off voltage or empty, -1 if none
+    pack_end_step: np.ndarray | None = None
+    #: (N, P) energy the pack delivered at its terminals (Σ V I dt) up to and including that
+    #: sample, or over the whole run if it never ended, J
+    pack_end_energy_j: np.ndarray | None = None
+    #: (N, P) and (N, M): highest temperature over the samples up to and including the first
+    #: failure (past it the numbers are not physical), -inf before any sample is flown
+    peak_pack_temp_to_failure: np.ndarray | None = None
+    peak_motor_temp_to_failure: np.ndarray | None = None
 
     @property
     def failed(self) -> np.ndarray:

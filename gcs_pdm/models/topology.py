@@ -1,7 +1,7 @@
 """The power-driven powertrain for any vehicle description: P packs on B buses driving M motors.
 
-The kernel's own compiled steps (``_pack_advance``, ``_terminal_voltage``, ``_motor_current``,
-``_thermal_advance``; nothing is re-derived here) over a topology given as data (``Topology``,
+The kernel's own compiled steps (``_pack_advance_cached``, ``_terminal_voltage``, ``_motor_current``,
+``_thermal_step``; nothing is re-derived here) over a topology given as data (``Topology``,
 from a description's ``gcs_pdm.vehicle.model_inputs.ModelInputs``):
 
 * a bus joins its packs in series (bus voltage = sum, every pack carries the bus current) or in
@@ -17,6 +17,7 @@ model inputs give exactly the same numbers (tests/test_models_topology.py).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -25,8 +26,8 @@ from numba import njit
 from gcs_pdm.models import kernel
 from gcs_pdm.models.kernel import (_JIT, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAIL_NONE, FAIL_PACK_OVERTEMP,
                                    FAIL_POWER, FAIL_UNDERVOLTAGE, M_I0, M_RW, N_MOTOR_PARAMS, N_PACK_PARAMS,
-                                   N_PACK_STATE, S_QB, S_T, PowertrainRun, _motor_current, _pack_advance, _rows,
-                                   _soc, _terminal_voltage, _thermal_advance)
+                                   N_PACK_STATE, S_QB, S_T, PowertrainRun, _motor_current, _rows, _soc,
+                                   _terminal_voltage)
 
 
 @dataclass(frozen=True)
@@ -63,16 +64,21 @@ PAPER_TOPOLOGY = Topology(bus_of_pack=kernel.STRING_OF_PACK.copy(), bus_of_motor
 
 @njit(**_JIT)
 def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambient, bus_of_pack, bus_of_motor,
-              bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag, max_dt, stop_on_failure, record,
+              bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag, max_dt, stop_on_failure, slot_of_step,
               rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt,
-              final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed):
+              final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed,
+              end_k, end_energy, peak_tp, peak_tm):
     n_vec = x0.shape[0]
     n = shaft_power.shape[1]
     n_packs = x0.shape[1]
     n_motors = tm0.shape[1]
     n_bus = bus_parallel.shape[0]
+    record = slot_of_step.shape[0] == n
     x = np.empty((n_packs, N_PACK_STATE))
+    step_cache = np.empty((n_packs, kernel.N_STEP_CACHE))
     tm = np.empty(n_motors)
+    motor_dt = np.empty(n_motors)
+    motor_decay = np.empty(n_motors)
     v = np.empty(n_packs)
     vbus = np.empty(n_bus)
     ibus = np.empty(n_bus)
@@ -93,16 +99,22 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
         for b in range(n_packs):
             for s in range(N_PACK_STATE):
                 x[b, s] = x0[j, b, s]
-            v[b] = _terminal_voltage(pp[b], x[b])
+            v[b] = _terminal_voltage(pp, b, x, b)
+            kernel._reset_step_cache(pp, b, step_cache, b)
             min_v[j, b] = v[b]
             max_tp[j, b] = x[b, S_T]
             charge[j, b] = 0.0
+            end_k[j, b] = -1
+            end_energy[j, b] = 0.0
+            peak_tp[j, b] = -np.inf
         f_min = 1.0
         cap_total = 0.0
         fault_sum = 0.0
         for q in range(n_motors):
             tm[q] = tm0[j, q]
+            motor_dt[q] = -1.0  # no interval seen yet
             max_tm[j, q] = tm[q]
+            peak_tm[j, q] = -np.inf
             cap[q] = 1.0 - f[q]
             cap_total += cap[q]
             fault_sum += f[q]
@@ -119,6 +131,9 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
         for k in range(n):
             h = dt[di, k]
             p_dem = shaft_power[si, k]
+            # a sample up to and including the first failure still counts for the peaks
+            flying = fail_k[j] < 0
+            slot = slot_of_step[k] if record else -1
             for u in range(n_bus):
                 vbus[u] = 0.0
                 ibus[u] = 0.0
@@ -157,7 +172,7 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
                         share[q] += shortfall / n_least
             for q in range(n_motors):
                 u = bus_of_motor[q]
-                i_q = _motor_current(mp[q], vbus[u], share[q], cap[q])
+                i_q = _motor_current(mp, q, vbus[u], share[q], cap[q])
                 if i_q < 0.0:
                     cause = FAIL_POWER
                     i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
@@ -167,34 +182,47 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
             for b in range(n_packs):
                 u = bus_of_pack[b]
                 i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
-                _pack_advance(pp[b], x[b], i_b, ambient[ai, k], h, max_dt)
-                v[b] = _terminal_voltage(pp[b], x[b])
+                v[b] = kernel._pack_advance_cached(pp, b, x, b, i_b, ambient[ai, k], h, max_dt, v[b], step_cache)
                 charge[j, b] += i_b * h
                 if v[b] < min_v[j, b]:
                     min_v[j, b] = v[b]
                 if x[b, S_T] > max_tp[j, b]:
                     max_tp[j, b] = x[b, S_T]
+                soc_b = _soc(pp, b, x[b, S_QB])
+                if end_k[j, b] < 0:
+                    w = v[b] * i_b
+                    end_energy[j, b] += (w if math.isfinite(w) else 0.0) * h
+                    if v[b] < cutoff_v[b] or soc_b <= 0.0:
+                        end_k[j, b] = k
+                if flying and x[b, S_T] > peak_tp[j, b]:
+                    peak_tp[j, b] = x[b, S_T]
                 if cause == FAIL_NONE:
-                    if _soc(pp[b], x[b, S_QB]) <= 0.0:
+                    if soc_b <= 0.0:
                         cause = FAIL_DEPLETED
                     elif v[b] < cutoff_v[b]:
                         cause = FAIL_UNDERVOLTAGE
                     elif x[b, S_T] > pack_max_t[b]:
                         cause = FAIL_PACK_OVERTEMP
-                if record:
-                    rec_v[j, k, b] = v[b]
-                    rec_i[j, k, b] = i_b
-                    rec_t[j, k, b] = x[b, S_T]
-                    rec_soc[j, k, b] = _soc(pp[b], x[b, S_QB])
+                if slot >= 0:
+                    rec_v[j, slot, b] = v[b]
+                    rec_i[j, slot, b] = i_b
+                    rec_t[j, slot, b] = x[b, S_T]
+                    rec_soc[j, slot, b] = soc_b
             for q in range(n_motors):
-                tm[q] = _thermal_advance(mp[q], tm[q], imot[q], ambient[ai, k], h)
+                if not h <= 0.0:
+                    if h != motor_dt[q]:
+                        motor_decay[q] = kernel._motor_decay(mp, q, h)
+                        motor_dt[q] = h
+                    tm[q] = kernel._thermal_step(mp, q, tm[q], imot[q], ambient[ai, k], motor_decay[q])
                 if tm[q] > max_tm[j, q]:
                     max_tm[j, q] = tm[q]
+                if flying and tm[q] > peak_tm[j, q]:
+                    peak_tm[j, q] = tm[q]
                 if cause == FAIL_NONE and tm[q] > motor_max_t[q]:
                     cause = FAIL_MOTOR_OVERTEMP
-                if record:
-                    rec_mi[j, k, q] = imot[q]
-                    rec_mt[j, k, q] = tm[q]
+                if slot >= 0:
+                    rec_mi[j, slot, q] = imot[q]
+                    rec_mt[j, slot, q] = tm[q]
             t += h
             if cause != FAIL_NONE and fail_k[j] < 0:
                 fail_k[j] = k
@@ -202,14 +230,17 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
                 if stop_on_failure:
                     if record:
                         for kk in range(k + 1, n):
+                            slot = slot_of_step[kk]
+                            if slot < 0:
+                                continue
                             for b in range(n_packs):
-                                rec_v[j, kk, b] = np.nan
-                                rec_i[j, kk, b] = np.nan
-                                rec_t[j, kk, b] = np.nan
-                                rec_soc[j, kk, b] = np.nan
+                                rec_v[j, slot, b] = np.nan
+                                rec_i[j, slot, b] = np.nan
+                                rec_t[j, slot, b] = np.nan
+                                rec_soc[j, slot, b] = np.nan
                             for q in range(n_motors):
-                                rec_mi[j, kk, q] = np.nan
-                                rec_mt[j, kk, q] = np.nan
+                                rec_mi[j, slot, q] = np.nan
+                                rec_mt[j, slot, q] = np.nan
                     break
         for b in range(n_packs):
             for s in range(N_PACK_STATE):
@@ -223,12 +254,14 @@ def simulate_vehicle(inputs: "Topology | ModelInputs", pack_params: np.ndarray |
                      motor_temp0: np.ndarray, dt: np.ndarray, shaft_power: np.ndarray, ambient: np.ndarray | float,
                      fault: np.ndarray | None = None, *, fault_drag: float = 0.1,
                      max_dt: float = kernel.DEFAULT_MAX_DT, stop_on_failure: bool = False,
-                     record: bool = False) -> PowertrainRun:
+                     record: bool = False, record_at: np.ndarray | None = None) -> PowertrainRun:
     """Fly N samples of the vehicle ``inputs`` (``ModelInputs``) through shaft-power profiles.
 
     pack_params (N or 1, P, 12) and motor_params (N or 1, M, 5) default to the inputs' own; x0
     (N, P, 4); motor_temp0 (N, M); dt, shaft_power [W], ambient [°C] (n,) or (N, n); fault (N or
     1, M) power-loss magnitudes in [0, 1]. Limits are the inputs' per pack and per motor.
+    ``record`` keeps every sample's per-step values; ``record_at`` (increasing sample indices)
+    keeps only those samples' (``recorded_steps``), which is all a coarse trajectory needs.
     """
     topo = inputs if isinstance(inputs, Topology) else inputs.topology
     n_packs, n_motors = topo.n_packs, topo.n_motors
@@ -257,24 +290,46 @@ def simulate_vehicle(inputs: "Topology | ModelInputs", pack_params: np.ndarray |
     if f.shape[1] != n_motors or f.shape[0] not in (1, n_vec) or np.any((f < 0) | (f > 1)):
         raise ValueError(f"fault: expected magnitudes in [0, 1] shaped (N or 1, {n_motors}), got {f!r}")
     f = np.ascontiguousarray(f)
-    shape_rec = (n_vec, n) if record else (1, 1)
+    slot_of_step, recorded_steps = _record_slots(n, record, record_at)
+    shape_rec = (n_vec, len(recorded_steps)) if recorded_steps is not None else (1, 1)
     rec = [np.empty(shape_rec + (n_packs,)) for _ in range(4)] + [np.empty(shape_rec + (n_motors,)) for _ in range(2)]
     out = dict(final_x=np.empty((n_vec, n_packs, N_PACK_STATE)), final_tm=np.empty((n_vec, n_motors)),
                min_v=np.empty((n_vec, n_packs)), max_tp=np.empty((n_vec, n_packs)),
                max_tm=np.empty((n_vec, n_motors)), charge=np.empty((n_vec, n_packs)), energy=np.empty(n_vec),
                fail_k=np.empty(n_vec, dtype=np.int64), fail_cause=np.empty(n_vec, dtype=np.int64),
-               elapsed=np.empty(n_vec))
+               elapsed=np.empty(n_vec), end_k=np.empty((n_vec, n_packs), dtype=np.int64),
+               end_energy=np.empty((n_vec, n_packs)), peak_tp=np.empty((n_vec, n_packs)),
+               peak_tm=np.empty((n_vec, n_motors)))
     _simulate(pp, mp, x0, tm0, dt_, sp, f, amb, np.ascontiguousarray(topo.bus_of_pack, dtype=np.int64),
               np.ascontiguousarray(topo.bus_of_motor, dtype=np.int64),
               np.ascontiguousarray(topo.bus_parallel, dtype=np.bool_),
               np.ascontiguousarray(topo.pack_cutoff_v, dtype=np.float64),
               np.ascontiguousarray(topo.pack_max_temp_c, dtype=np.float64),
               np.ascontiguousarray(topo.motor_max_temp_c, dtype=np.float64),
-              float(fault_drag), float(max_dt), bool(stop_on_failure), bool(record), *rec, *out.values())
+              float(fault_drag), float(max_dt), bool(stop_on_failure), slot_of_step, *rec, *out.values())
     recorded = dict(zip(("pack_voltage", "pack_current", "pack_temp", "pack_soc", "motor_current", "motor_temp"),
-                        rec)) if record else {}
+                        rec)) if recorded_steps is not None else {}
+    if record_at is not None:
+        recorded["recorded_steps"] = recorded_steps
     return PowertrainRun(out["final_x"], out["final_tm"], out["min_v"], out["max_tp"], out["max_tm"], out["charge"],
-                         out["energy"], out["fail_k"], out["fail_cause"], out["elapsed"], **recorded)
+                         out["energy"], out["fail_k"], out["fail_cause"], out["elapsed"], **recorded,
+                         pack_end_step=out["end_k"], pack_end_energy_j=out["end_energy"],
+                         peak_pack_temp_to_failure=out["peak_tp"], peak_motor_temp_to_failure=out["peak_tm"])
+
+
+def _record_slots(n: int, record: bool, record_at: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per sample its slot in the recorded arrays (-1: not kept), and the kept samples; an
+    empty slot table (and None) when nothing is recorded."""
+    if record_at is not None:
+        steps = np.asarray(record_at, dtype=np.int64).reshape(-1)
+        if steps.size and (steps[0] < 0 or steps[-1] >= n or np.any(np.diff(steps) <= 0)):
+            raise ValueError(f"record_at: expected increasing sample indices in [0, {n}), got {record_at!r}")
+        slots = np.full(n, -1, dtype=np.int64)
+        slots[steps] = np.arange(steps.size)
+        return slots, steps
+    if record:
+        return np.arange(n, dtype=np.int64), np.arange(n, dtype=np.int64)
+    return np.empty(0, dtype=np.int64), None
 
 
 def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: np.ndarray,
@@ -282,7 +337,8 @@ def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: n
                         ambient: np.ndarray | float, fault: np.ndarray | None = None, *,
                         limits: tuple[float, float, float] = (-np.inf, np.inf, np.inf),
                         fault_drag: float = 0.1, max_dt: float = kernel.DEFAULT_MAX_DT,
-                        stop_on_failure: bool = False, record: bool = False) -> PowertrainRun:
+                        stop_on_failure: bool = False, record: bool = False,
+                        record_at: np.ndarray | None = None) -> PowertrainRun:
     """Fly N vehicles (routes, particles, parameter vectors) through shaft-power profiles.
 
     pack_params (N or 1, 4, 12); motor_params (N or 1, 5); x0 (N, 4, 4) pack states; motor_temp0
@@ -298,4 +354,4 @@ def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: n
     mp = np.repeat(mp[:, None, :], kernel.N_MOTORS, axis=1)
     return simulate_vehicle(PAPER_TOPOLOGY.with_limits(*limits), pp, mp, x0, motor_temp0, dt, shaft_power, ambient,
                             fault, fault_drag=fault_drag, max_dt=max_dt, stop_on_failure=stop_on_failure,
-                            record=record)
+                            record=record, record_at=record_at)
