@@ -45,6 +45,8 @@ def test_upload_fly_download_progress_and_energy_agree_with_the_truth(tmp_path):
             client.upload(SQUARE)
             final = vehicle.wait_finished(60)
             downloaded = client.download()
+        # the vehicle flies on (simulated time) while the download runs, until the block stops it
+        stopped_at_s = vehicle.state.time_s
         assert vehicle.error is None
     assert final.landed and not final.failed
     assert same_items(_no_current(downloaded), _no_current(SQUARE))
@@ -60,8 +62,11 @@ def test_upload_fly_download_progress_and_energy_agree_with_the_truth(tmp_path):
         p = np.array([f.voltage_v * f.current_a for f in pf])
         energy += float(np.sum(p[1:] * np.diff(t)))
     assert energy == pytest.approx(final.energy_j, rel=0.03)
-    # message times are simulated time: the last frames sit at the flight's end, not at wall seconds
-    assert max(f.time_s for f in frames) == pytest.approx(final.time_s, abs=2.0)
+    # message times are simulated time: the last frames sit between the flight's end and the moment
+    # the vehicle was stopped (it keeps sending, at SPEEDUP x wall time, while the download runs;
+    # on a loaded machine that is several simulated seconds), not at wall seconds
+    last_frame_s = max(f.time_s for f in frames)
+    assert final.time_s - 2.0 <= last_frame_s <= stopped_at_s + 0.5
 
 
 def test_independent_pymavlink_listener_decodes_everything_and_voltages_match_the_kernel():
