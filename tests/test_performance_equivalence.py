@@ -87,3 +87,69 @@ def test_estimates_over_a_synthetic_flight_are_todays():
 def test_monte_carlo_quantiles_with_a_fixed_seed_are_todays():
     want = json.loads((REF / "mc_quantiles.json").read_text())
     _close_tree(make_reference.mc_quantiles(), want, 1e-6, 1e-9)
+
+
+# ---- `gcs-pdm replay FILE --json` as users see it (issue 18's whole-process figure) -----------------
+# Recorded before the replay's speed work (tests/reference/replay_cli/, one file per tlog, the run's
+# own timing and path left out). The 100,000-message tlog of benchmarks/bench_replay.py is compared
+# too when that benchmark has cached it (it takes ~40 s to generate).
+# Tolerances: every string, count and flag exactly; fault and event times, frame times, trace
+# times exactly (1e-9); other numbers within 2e-4 absolute (the trace and estimate are printed to
+# 4 decimals: one rounding step) or 1e-6 relative; pack-health fits and their evidence 1e-3 relative.
+
+import tempfile  # noqa: E402
+
+from gcs_pdm.cli import main as cli_main  # noqa: E402
+
+REPLAY_CLI = REF / "replay_cli"
+BENCH_TLOG = Path(tempfile.gettempdir()) / "gcs_pdm_bench_typical_100k_v1.tlog"
+_VOLATILE = ("path", "elapsed_s", "messages_per_s")
+_LOOSE = ("pack_health", "evidence", "magnitude", "confidence")
+
+
+def _cli_tlogs() -> dict[str, Path]:
+    out = {p.stem: p for p in sorted((REF.parents[1] / "fixtures" / "flights").glob("*.tlog"))}
+    out["arduplane_sitl_stock"] = REF.parents[2] / "shared" / "logs" / "arduplane_sitl_stock.tlog"
+    if BENCH_TLOG.exists():
+        out[BENCH_TLOG.stem] = BENCH_TLOG
+    return out
+
+
+def _same(got, want, path: str = "", loose: bool = False) -> None:
+    if isinstance(want, dict):
+        assert sorted(got) == sorted(want), path
+        for k in want:
+            _same(got[k], want[k], f"{path}.{k}", loose or k in _LOOSE)
+    elif isinstance(want, list):
+        assert len(got) == len(want), path
+        for i, (g, w) in enumerate(zip(got, want)):
+            _same(g, w, f"{path}[{i}]", loose)
+    elif isinstance(want, float) and isinstance(got, (int, float)) and not isinstance(got, bool):
+        if path.endswith(("time_s", "_s]", "cleared_s", "updated_s")) and "time_to_cutoff" not in path:
+            assert got == pytest.approx(want, rel=0, abs=1e-9), path
+        elif loose:
+            assert got == pytest.approx(want, rel=1e-3, abs=1e-6), path
+        else:
+            assert got == pytest.approx(want, rel=1e-6, abs=2e-4), path
+    else:
+        assert got == want, path
+
+
+@pytest.mark.parametrize("name", sorted(_cli_tlogs()))
+def test_replay_command_json_is_todays(name, capsys):
+    path = _cli_tlogs()[name]
+    want = json.loads((REPLAY_CLI / f"{name}.json").read_text())
+    logging.disable(logging.WARNING)
+    try:
+        status = cli_main(["replay", str(path), "--json"])
+    finally:
+        logging.disable(logging.NOTSET)
+    got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert status in (0, 1)
+    for k in _VOLATILE:
+        got.pop(k)
+    about_got, about_want = (got.get("consumer") or {}).get("vehicle", {}), (want.get("consumer") or {}).get("vehicle", {})
+    if "save" in about_want:  # names the path the replay was given
+        assert about_got.pop("save") == f"gcs-pdm vehicle init --from {path} --out vehicle.toml"
+        about_want.pop("save")
+    _same(got, want)
