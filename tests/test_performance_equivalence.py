@@ -153,3 +153,59 @@ def test_replay_command_json_is_todays(name, capsys):
         assert about_got.pop("save") == f"gcs-pdm vehicle init --from {path} --out vehicle.toml"
         about_want.pop("save")
     _same(got, want)
+
+
+def test_pack_health_record_keeps_the_newest_samples_in_order():
+    from gcs_pdm.diagnosis.pack_health import _Record
+
+    rec = _Record(5)
+    rows = [(float(k), 1.0 + k, 20.0 - k, 15.0) for k in range(23)]  # wraps the double room twice
+    for k, row in enumerate(rows):
+        rec.append(row)
+        want = rows[max(0, k - 4):k + 1]
+        assert len(rec) == len(want) and list(rec) == want and rec[0] == want[0] and rec[-1] == want[-1]
+        assert rec.array().tolist() == [list(r) for r in want] and rec.last_time == row[0]
+    rec.clear()
+    assert len(rec) == 0 and rec.last_time is None and rec.array().shape == (0, 4)
+
+
+def test_pack_cutoff_monte_carlo_in_chunks_is_the_whole_horizon_run():
+    """predict_packs_at_current stops each row at its cut-off (chunks of the horizon): the times
+    and peaks are those of one kernel call over the whole horizon with the same random draws."""
+    from gcs_pdm.estimation.estimator import StateEstimator
+    from gcs_pdm.estimation.prediction import (QUANTILES, predict_packs_at_current, restate,
+                                               sample_parameters)
+    from gcs_pdm.estimation.synthetic import fly_synthetic
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.params import default_set
+    from gcs_pdm.sim.truth import true_parameters
+
+    flight = fly_synthetic(true_parameters(), np.random.default_rng(7), duration_s=300.0)
+    est = StateEstimator(default_set())
+    for fr in flight.frames:
+        est.consume(fr)
+    cutoff = np.array([19.5, 19.0, 20.5, 18.0])
+    current = np.array([30.0, 18.0, 45.0, 6.0])  # cut-offs early, mid-horizon, at once, never
+    got = predict_packs_at_current(est, cutoff, current_a=current, rng=np.random.default_rng(3), n_samples=40)
+
+    rng = np.random.default_rng(3)  # the same draws, then one run over the whole horizon
+    base, n = est.packs.params, 40
+    cov = est.packs.cov.copy()
+    soc = kernel.state_of_charge(base, est.packs.mean)
+    cov[:, kernel.S_QB, kernel.S_QB] += (est.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0)
+                                          * base[:, kernel.I_CMAX]) ** 2
+    pp, _ = sample_parameters((base, est.motors.params[0]), n, rng, 0.08)
+    chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
+    x0 = restate(base, est.packs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n, 4, 4))), pp)
+    dt = np.full(720, 5.0)
+    run = kernel.simulate_packs(pp.reshape(-1, 12), x0.reshape(-1, 4), dt,
+                                np.repeat(np.tile(current, n)[:, None], 720, axis=1), est.ambient_c)
+    v = run.voltage.reshape(n, 4, 720)
+    ended = (v < cutoff[None, :, None]) | (run.soc.reshape(v.shape) <= 0.0)
+    reached = ended.any(axis=2)
+    ttc = np.where(reached, np.cumsum(dt)[ended.argmax(axis=2)], np.inf)
+    k_cut = np.where(reached, ended.argmax(axis=2), 719)
+    peak = np.max(np.where(np.arange(720) <= k_cut[..., None], run.temperature.reshape(v.shape), -np.inf), axis=2)
+    assert reached.any() and not reached.all()
+    np.testing.assert_array_equal(got.time_to_cutoff_s, np.quantile(ttc, QUANTILES, axis=0, method="nearest").T)
+    np.testing.assert_array_equal(got.peak_temp_c, np.quantile(peak, QUANTILES, axis=0, method="nearest").T)
