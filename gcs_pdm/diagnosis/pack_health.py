@@ -134,8 +134,8 @@ def fit_pack_residual(params: np.ndarray, t: np.ndarray, current: np.ndarray, vo
                       ambient: np.ndarray, min_soc: float = 0.2, iterations: int = 10,
                       fit_capacity: bool = True) -> tuple | None:
     """Gauss–Newton fit of theta = (resistance scale, capacity scale, initial SoC) to a pack's
-    voltage record, through the kernel (Jacobian by forward differences: the base and three
-    perturbed vectors in ONE ``simulate_packs`` call per iteration). Spikes are cut with a MAD rule.
+    voltage record, through the kernel (Jacobian by forward differences: the base and one
+    perturbed vector per free unknown in ONE ``simulate_packs`` call per iteration). Spikes are cut with a MAD rule.
 
     Returns (theta, standard errors, residual rms, samples used) or None if the record cannot
     separate the parameters (too short, or a current that never changes). With ``fit_capacity``
@@ -168,14 +168,19 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     max_step = np.array([0.5, 0.15, 0.1])
     eps = np.array([0.02, 0.005, 0.005])
     keep = np.ones(t.size, dtype=bool)
+    # perturbed vectors for the free unknowns only: a held capacity needs no column of its own
+    # (its column stays zero, and its step is zero)
+    perturbed = np.flatnonzero(free)
     for _ in range(iterations):
-        th = np.repeat(theta[None], 4, axis=0)
-        th[1:, :] += np.diag(eps)
+        th = np.repeat(theta[None], 1 + perturbed.size, axis=0)
+        th[1 + np.arange(perturbed.size), perturbed] += eps[perturbed]
         p = _scaled(params, th)
         x0 = kernel.initial_pack_state(p, th[:, 2], float(ambient[0]), float(current[0]))
         run = kernel.simulate_packs(p, x0, dt, current, ambient)
         r = voltage - run.voltage[0]
-        jac = ((run.voltage[1:] - run.voltage[0]) / eps[:, None]).T     # (n, 3)
+        columns = np.zeros((3, t.size))
+        columns[perturbed] = (run.voltage[1:] - run.voltage[0]) / eps[perturbed][:, None]
+        jac = columns.T     # (n, 3)
         use = keep & np.isfinite(r) & (run.soc[0] >= min_soc)
         if use.sum() < 20:
             return None
