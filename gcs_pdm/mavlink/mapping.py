@@ -160,6 +160,8 @@ def _field_source(spec: dict, lay, element: int | None, src: _Source) -> str:
     """The expression (over the unpacked payload tuple ``v``) of one frame field value."""
     scale = float(spec.get("scale", 1.0))
     offset = float(spec.get("offset", 0.0))
+    if not (math.isfinite(scale) and math.isfinite(offset)):
+        raise MappingError(f"{lay.name}: scale and offset must be finite numbers, got {scale!r}, {offset!r}")
     missing = frozenset(spec.get("missing", ()))
     if "transform" in spec:
         try:
