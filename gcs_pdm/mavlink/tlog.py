@@ -8,6 +8,9 @@ skipped and counted, never fatal:
 * a packet whose CRC fails, or whose message id is not in the dialect, is skipped whole when a
   plausible record follows it, else byte by byte until one does (``garbage_bytes``);
 * a record cut off by the end of the file is counted in ``truncated_tail_bytes``.
+
+``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field dicts
+(what the provisional vehicle description reads).
 """
 from __future__ import annotations
 
