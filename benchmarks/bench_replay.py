@@ -8,7 +8,8 @@ measures a generated tlog in which every message becomes a frame (the service's 
 100,000-message tlog of the simulated vehicle (four packs, ESC telemetry, typical rates; generated
 once, ~40 s, cached in the temp directory) replayed with diagnosis: the whole process (start-up
 included, floor 60,000 msg/s) and in-process, beside pymavlink's ``recv_msg`` loop over the same
-file. Every figure has wall and CPU time (the child's ``getrusage``) and the load average.
+file, with the CPU time of each stage of that replay (``replay_stages``). Every figure has wall
+and CPU time (the child's ``getrusage``) and the load average.
 Runs pinned to one CPU. Prints a line per measurement and, last, one JSON object.
 """
 from __future__ import annotations
@@ -28,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from measure import rate, timed, timed_process  # noqa: E402
+from measure import loadavg, rate, timed, timed_process  # noqa: E402
 
 from gcs_pdm.mavlink.dialect import mavutil  # noqa: E402
 from gcs_pdm.mavlink.mapping import FrameMapper  # noqa: E402
@@ -76,6 +77,51 @@ def ours_diagnosed(paths) -> int:
     from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 
     return sum(replay_tlog(p, mapper=FrameMapper(), frame_consumer=DiagnosisPipeline()).messages for p in paths)
+
+
+def replay_stages(path: Path) -> dict:
+    """CPU seconds of each stage of ``gcs-pdm replay FILE --json`` in this process (after the
+    imports): the provisional description (a pass over the log), the replay through the frame
+    mapping and the diagnosis, and within the latter the pack-health checks and the trace's
+    cut-off Monte Carlo (wrapped timers; the pack-health fits run on the calling thread here)."""
+    import gcs_pdm.diagnosis.pack_health as pack_health
+    import gcs_pdm.estimation.prediction as prediction
+    from gcs_pdm.vehicle.replay import TracedPipeline, replay_vehicle
+    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+
+    spent = {"pack_health_check": 0.0, "trace_monte_carlo": 0.0}
+
+    def timing(fn, key):
+        def wrapped(*args, **kwargs):
+            c0 = time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[key] += time.process_time() - c0
+        return wrapped
+
+    check, predict, threads = (pack_health.PackHealthMonitor.check, prediction.predict_packs_at_current,
+                               pack_health.thread_map)
+    pack_health.PackHealthMonitor.check = timing(check, "pack_health_check")
+    prediction.predict_packs_at_current = timing(predict, "trace_monte_carlo")
+    pack_health.thread_map = lambda fn, items: [fn(i) for i in items]
+    try:
+        c0 = time.process_time()
+        desc, about = replay_vehicle(path, None)
+        c1 = time.process_time()
+        replay_tlog(path, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)))
+        c2 = time.process_time()
+        consumer = TracedPipeline(desc, about)
+        replay_tlog(path, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)), frame_consumer=consumer)
+        json.dumps(consumer.report())
+        c3 = time.process_time()
+    finally:
+        pack_health.PackHealthMonitor.check, prediction.predict_packs_at_current = check, predict
+        pack_health.thread_map = threads
+    out = {"provisional_description_cpu_s": c1 - c0, "scan_and_mapping_cpu_s": c2 - c1,
+           "replay_diagnosed_cpu_s": c3 - c2, **{f"{k}_cpu_s": v for k, v in spent.items()}}
+    out["pipeline_rest_cpu_s"] = out["replay_diagnosed_cpu_s"] - out["scan_and_mapping_cpu_s"] - sum(spent.values())
+    return {k: round(v, 3) for k, v in out.items()} | {"loadavg_1min": loadavg()}
 
 
 def whole_process_replay(path: Path, repeat: int) -> dict:
@@ -169,6 +215,8 @@ def main() -> int:
     whole = whole_process_replay(typical, args.repeat)
     print(f"{'gcs_pdm_replay_json_whole_process':<30} {whole['messages']:>7} messages: "
           f"cpu {whole['cpu_per_s']:>8,} msg/s, wall {whole['wall_per_s']:>8,} msg/s (load {whole['loadavg_1min']})")
+    stages = replay_stages(typical)
+    print("stages (CPU s, in-process): " + ", ".join(f"{k.removesuffix('_cpu_s')} {v}" for k, v in stages.items()))
     for name, fn in [("gcs_pdm_replay_diagnosed_in_process", lambda: ours_diagnosed([typical])),
                      ("pymavlink_recv_msg_typical", lambda: pymavlink_loop([typical], match=False))]:
         count = fn()
@@ -189,6 +237,7 @@ def main() -> int:
     summary = {
         "replay_json_whole_process": {**{k: v for k, v in whole.items()}, "floor_messages_per_s": 60_000,
                                       "reached_cpu": whole["cpu_per_s"] >= 60_000},
+        "replay_stages": stages,
         "benchmark": "bench_replay",
         "files": [Path(p).name for p in paths],
         "bytes": size,

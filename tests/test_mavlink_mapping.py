@@ -81,6 +81,8 @@ def test_mapping_is_configuration():
     ({"BATTERY_STATUS": [{"frame": "pack", "fields": {"voltage_v": {"field": "volts"}}}]}, "no field 'volts'"),
     ({"VFR_HUD": [{"frame": "airplane"}]}, "unknown frame kind"),
     ({"VFR_HUD": [{"frame": "airdata", "fields": {"mach": {"field": "airspeed"}}}]}, "no field 'mach'"),
+    ({"VFR_HUD": [{"frame": "airdata", "fields": {"airspeed": {"field": "airspeed", "scale": "inf"}}}]},
+     "must be finite"),
 ])
 def test_bad_mapping_names_the_problem(broken, message):
     with pytest.raises(MappingError, match=message):

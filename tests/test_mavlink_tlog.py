@@ -12,7 +12,7 @@ import pytest
 
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES, mavutil
 from gcs_pdm.mavlink.replay import replay_tlog
-from gcs_pdm.mavlink.tlog import ScanStats, TlogWriter, scan_tlog, scan_tlog_bytes
+from gcs_pdm.mavlink.tlog import ScanStats, TlogWriter, scan_tlog, scan_tlog_bytes, tlog_message_dicts
 
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from mavlink_builders import PacketFactory, tlog_record  # noqa: E402
@@ -93,6 +93,32 @@ def test_counts_match_pymavlink():
         assert ours == theirs, path.name
         if path.name in EXPECTED:
             assert bad == EXPECTED[path.name][1]
+
+
+def _pymavlink_dicts(path: Path, names: list[str]) -> list[tuple[str, dict]]:
+    conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
+    out = []
+    while (msg := conn.recv_match(type=names, blocking=False)) is not None:
+        fields = msg.to_dict()
+        fields.pop("mavpackettype")
+        out.append((msg.get_type(), fields))
+    conn.close()
+    return out
+
+
+@pytest.mark.parametrize("path", [REPO / "fixtures" / "flights" / "fault_01.tlog",
+                                  REPO.parent / "shared" / "logs" / "arduplane_sitl_stock.tlog"],
+                         ids=lambda p: p.name)
+def test_message_dicts_are_pymavlinks(path):
+    """The fast decoder of the messages the provisional description reads gives pymavlink's
+    ``to_dict()`` field for field (arrays as lists, text up to its NUL), message for message."""
+    names = ["HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", "ESC_TELEMETRY_1_TO_4", "SYS_STATUS",
+             "STATUSTEXT", "GLOBAL_POSITION_INT"]
+    ours = list(tlog_message_dicts(path, names))
+    theirs = _pymavlink_dicts(path, names)
+    assert len(ours) == len(theirs) > 100
+    assert {n for n, _ in ours} >= {"HEARTBEAT", "BATTERY_STATUS", "STATUSTEXT"}
+    assert repr(ours) == repr(theirs)  # repr: NaN fields compare equal
 
 
 @needs_corpus

@@ -87,3 +87,125 @@ def test_estimates_over_a_synthetic_flight_are_todays():
 def test_monte_carlo_quantiles_with_a_fixed_seed_are_todays():
     want = json.loads((REF / "mc_quantiles.json").read_text())
     _close_tree(make_reference.mc_quantiles(), want, 1e-6, 1e-9)
+
+
+# ---- `gcs-pdm replay FILE --json` as users see it (issue 18's whole-process figure) -----------------
+# Recorded before the replay's speed work (tests/reference/replay_cli/, one file per tlog, the run's
+# own timing and path left out). The 100,000-message tlog of benchmarks/bench_replay.py is compared
+# too when that benchmark has cached it (it takes ~40 s to generate).
+# Tolerances: every string, count and flag exactly; fault and event times, frame times, trace
+# times exactly (1e-9); other numbers within 2e-4 absolute (the trace and estimate are printed to
+# 4 decimals: one rounding step) or 1e-6 relative; pack-health fits and their evidence 1e-3 relative.
+
+import tempfile  # noqa: E402
+
+from gcs_pdm.cli import main as cli_main  # noqa: E402
+
+REPLAY_CLI = REF / "replay_cli"
+BENCH_TLOG = Path(tempfile.gettempdir()) / "gcs_pdm_bench_typical_100k_v1.tlog"
+_VOLATILE = ("path", "elapsed_s", "messages_per_s")
+_LOOSE = ("pack_health", "evidence", "magnitude", "confidence")
+
+
+def _cli_tlogs() -> dict[str, Path]:
+    out = {p.stem: p for p in sorted((REF.parents[1] / "fixtures" / "flights").glob("*.tlog"))}
+    out["arduplane_sitl_stock"] = REF.parents[2] / "shared" / "logs" / "arduplane_sitl_stock.tlog"
+    if BENCH_TLOG.exists():
+        out[BENCH_TLOG.stem] = BENCH_TLOG
+    return out
+
+
+def _same(got, want, path: str = "", loose: bool = False) -> None:
+    if isinstance(want, dict):
+        assert sorted(got) == sorted(want), path
+        for k in want:
+            _same(got[k], want[k], f"{path}.{k}", loose or k in _LOOSE)
+    elif isinstance(want, list):
+        assert len(got) == len(want), path
+        for i, (g, w) in enumerate(zip(got, want)):
+            _same(g, w, f"{path}[{i}]", loose)
+    elif isinstance(want, float) and isinstance(got, (int, float)) and not isinstance(got, bool):
+        if path.endswith(("time_s", "_s]", "cleared_s", "updated_s")) and "time_to_cutoff" not in path:
+            assert got == pytest.approx(want, rel=0, abs=1e-9), path
+        elif loose:
+            assert got == pytest.approx(want, rel=1e-3, abs=1e-6), path
+        else:
+            assert got == pytest.approx(want, rel=1e-6, abs=2e-4), path
+    else:
+        assert got == want, path
+
+
+@pytest.mark.parametrize("name", sorted(_cli_tlogs()))
+def test_replay_command_json_is_todays(name, capsys):
+    path = _cli_tlogs()[name]
+    want = json.loads((REPLAY_CLI / f"{name}.json").read_text())
+    logging.disable(logging.WARNING)
+    try:
+        status = cli_main(["replay", str(path), "--json"])
+    finally:
+        logging.disable(logging.NOTSET)
+    got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert status in (0, 1)
+    for k in _VOLATILE:
+        got.pop(k)
+    about_got, about_want = (got.get("consumer") or {}).get("vehicle", {}), (want.get("consumer") or {}).get("vehicle", {})
+    if "save" in about_want:  # names the path the replay was given
+        assert about_got.pop("save") == f"gcs-pdm vehicle init --from {path} --out vehicle.toml"
+        about_want.pop("save")
+    _same(got, want)
+
+
+def test_pack_health_record_keeps_the_newest_samples_in_order():
+    from gcs_pdm.diagnosis.pack_health import _Record
+
+    rec = _Record(5)
+    rows = [(float(k), 1.0 + k, 20.0 - k, 15.0) for k in range(23)]  # wraps the double room twice
+    for k, row in enumerate(rows):
+        rec.append(row)
+        want = rows[max(0, k - 4):k + 1]
+        assert len(rec) == len(want) and list(rec) == want and rec[0] == want[0] and rec[-1] == want[-1]
+        assert rec.array().tolist() == [list(r) for r in want] and rec.last_time == row[0]
+    rec.clear()
+    assert len(rec) == 0 and rec.last_time is None and rec.array().shape == (0, 4)
+
+
+def test_pack_cutoff_monte_carlo_in_chunks_is_the_whole_horizon_run():
+    """predict_packs_at_current stops each row at its cut-off (chunks of the horizon): the times
+    and peaks are those of one kernel call over the whole horizon with the same random draws."""
+    from gcs_pdm.estimation.estimator import StateEstimator
+    from gcs_pdm.estimation.prediction import (QUANTILES, predict_packs_at_current, restate,
+                                               sample_parameters)
+    from gcs_pdm.estimation.synthetic import fly_synthetic
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.params import default_set
+    from gcs_pdm.sim.truth import true_parameters
+
+    flight = fly_synthetic(true_parameters(), np.random.default_rng(7), duration_s=300.0)
+    est = StateEstimator(default_set())
+    for fr in flight.frames:
+        est.consume(fr)
+    cutoff = np.array([19.5, 19.0, 20.5, 18.0])
+    current = np.array([30.0, 18.0, 45.0, 6.0])  # cut-offs early, mid-horizon, at once, never
+    got = predict_packs_at_current(est, cutoff, current_a=current, rng=np.random.default_rng(3), n_samples=40)
+
+    rng = np.random.default_rng(3)  # the same draws, then one run over the whole horizon
+    base, n = est.packs.params, 40
+    cov = est.packs.cov.copy()
+    soc = kernel.state_of_charge(base, est.packs.mean)
+    cov[:, kernel.S_QB, kernel.S_QB] += (est.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0)
+                                          * base[:, kernel.I_CMAX]) ** 2
+    pp, _ = sample_parameters((base, est.motors.params[0]), n, rng, 0.08)
+    chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
+    x0 = restate(base, est.packs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n, 4, 4))), pp)
+    dt = np.full(720, 5.0)
+    run = kernel.simulate_packs(pp.reshape(-1, 12), x0.reshape(-1, 4), dt,
+                                np.repeat(np.tile(current, n)[:, None], 720, axis=1), est.ambient_c)
+    v = run.voltage.reshape(n, 4, 720)
+    ended = (v < cutoff[None, :, None]) | (run.soc.reshape(v.shape) <= 0.0)
+    reached = ended.any(axis=2)
+    ttc = np.where(reached, np.cumsum(dt)[ended.argmax(axis=2)], np.inf)
+    k_cut = np.where(reached, ended.argmax(axis=2), 719)
+    peak = np.max(np.where(np.arange(720) <= k_cut[..., None], run.temperature.reshape(v.shape), -np.inf), axis=2)
+    assert reached.any() and not reached.all()
+    np.testing.assert_array_equal(got.time_to_cutoff_s, np.quantile(ttc, QUANTILES, axis=0, method="nearest").T)
+    np.testing.assert_array_equal(got.peak_temp_c, np.quantile(peak, QUANTILES, axis=0, method="nearest").T)

@@ -18,7 +18,6 @@ the simulated vehicle); after the fitter has learned the real pack they can be t
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +66,60 @@ class PackHealthEstimate:
     residual_rms_v: float
 
 
+def _median(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D finite array, the same number without its generic machinery (the
+    fit takes two per iteration, thousands per flight)."""
+    k = x.size // 2
+    if x.size % 2:
+        return np.partition(x, k)[k]
+    part = np.partition(x, (k - 1, k))
+    return (part[k - 1] + part[k]) / 2.0
+
+
+class _Record:
+    """The newest ``capacity`` samples (time, current, voltage, ambient) of one pack, kept as one
+    float array so a check reads them without converting thousands of tuples: rows are appended
+    into twice the room and moved back to the front when it is full."""
+
+    def __init__(self, capacity: int):
+        self.capacity = capacity
+        self._rows = np.empty((2 * capacity, 4))
+        self._start = self._end = 0
+        #: the newest sample's time (None: empty)
+        self.last_time: float | None = None
+
+    def __len__(self) -> int:
+        return self._end - self._start
+
+    def __getitem__(self, i: int) -> tuple:
+        n = len(self)
+        if not -n <= i < n:
+            raise IndexError(i)
+        return tuple(self._rows[self._start + (i % n)].tolist())
+
+    def __iter__(self):
+        return iter(map(tuple, self.array().tolist()))
+
+    def clear(self) -> None:
+        self._start = self._end = 0
+        self.last_time = None
+
+    def append(self, row: tuple) -> None:
+        if self._end == self._rows.shape[0]:
+            keep = self.capacity - 1
+            self._rows[:keep] = self._rows[self._end - keep:self._end]
+            self._start, self._end = 0, keep
+        self._rows[self._end] = row
+        self.last_time = row[0]
+        self._end += 1
+        if self._end - self._start > self.capacity:
+            self._start += 1
+
+    def array(self) -> np.ndarray:
+        """(n, 4) rows, oldest first (a view: valid until the next append)."""
+        return self._rows[self._start:self._end]
+
+
 def _scaled(params: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """Pack parameter rows for theta = (resistance scale, capacity scale, initial SoC) rows."""
     p = np.repeat(params[None], theta.shape[0], axis=0)
@@ -81,8 +134,8 @@ def fit_pack_residual(params: np.ndarray, t: np.ndarray, current: np.ndarray, vo
                       ambient: np.ndarray, min_soc: float = 0.2, iterations: int = 10,
                       fit_capacity: bool = True) -> tuple | None:
     """Gauss–Newton fit of theta = (resistance scale, capacity scale, initial SoC) to a pack's
-    voltage record, through the kernel (Jacobian by forward differences: the base and three
-    perturbed vectors in ONE ``simulate_packs`` call per iteration). Spikes are cut with a MAD rule.
+    voltage record, through the kernel (Jacobian by forward differences: the base and one
+    perturbed vector per free unknown in ONE ``simulate_packs`` call per iteration). Spikes are cut with a MAD rule.
 
     Returns (theta, standard errors, residual rms, samples used) or None if the record cannot
     separate the parameters (too short, or a current that never changes). With ``fit_capacity``
@@ -115,20 +168,26 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     max_step = np.array([0.5, 0.15, 0.1])
     eps = np.array([0.02, 0.005, 0.005])
     keep = np.ones(t.size, dtype=bool)
+    # perturbed vectors for the free unknowns only: a held capacity needs no column of its own
+    # (its column stays zero, and its step is zero)
+    perturbed = np.flatnonzero(free)
     for _ in range(iterations):
-        th = np.repeat(theta[None], 4, axis=0)
-        th[1:, :] += np.diag(eps)
+        th = np.repeat(theta[None], 1 + perturbed.size, axis=0)
+        th[1 + np.arange(perturbed.size), perturbed] += eps[perturbed]
         p = _scaled(params, th)
         x0 = kernel.initial_pack_state(p, th[:, 2], float(ambient[0]), float(current[0]))
         run = kernel.simulate_packs(p, x0, dt, current, ambient)
         r = voltage - run.voltage[0]
-        jac = ((run.voltage[1:] - run.voltage[0]) / eps[:, None]).T     # (n, 3)
+        columns = np.zeros((3, t.size))
+        columns[perturbed] = (run.voltage[1:] - run.voltage[0]) / eps[perturbed][:, None]
+        jac = columns.T     # (n, 3)
         use = keep & np.isfinite(r) & (run.soc[0] >= min_soc)
         if use.sum() < 20:
             return None
         res = r[use]
-        mad = 1.4826 * np.median(np.abs(res - np.median(res))) + 1e-6
-        keep = keep & ~(np.abs(r - np.median(res)) > 5.0 * mad)
+        centre = _median(res)
+        mad = 1.4826 * _median(np.abs(res - centre)) + 1e-6
+        keep = keep & ~(np.abs(r - centre) > 5.0 * mad)
         use = use & keep
         step = np.zeros(3)
         step[free], *_ = np.linalg.lstsq(jac[use][:, free], r[use], rcond=None)
@@ -161,8 +220,7 @@ class PackHealthMonitor:
         self.config = config
         #: the packs' names, in the rows' order (a vehicle description's, or the paper's)
         self.names = tuple(names)
-        self._buf: list[deque[tuple[float, float, float, float]]] = [deque(maxlen=config.max_samples)
-                                                                    for _ in self.names]
+        self._buf: list[_Record] = [_Record(config.max_samples) for _ in self.names]
         self._last_check = -math.inf
         self._debounce = {(ty, n): Debouncer(config.debounce) for n in self.names
                           for ty in (PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE)}
@@ -173,11 +231,13 @@ class PackHealthMonitor:
             ) -> None:
         if not (math.isfinite(current_a) and math.isfinite(voltage_v) and math.isfinite(time_s)):
             return
-        if self._buf[b] and time_s < self._buf[b][-1][0]:
+        buf = self._buf[b]
+        last = buf.last_time
+        if last is not None and time_s < last:
             return  # out of order: the estimator drops (and counts) it too
-        if self._buf[b] and time_s - self._buf[b][-1][0] > self.config.max_gap_s:
-            self._buf[b].clear()
-        self._buf[b].append((time_s, current_a, voltage_v, ambient_c))
+        if last is not None and time_s - last > self.config.max_gap_s:
+            buf.clear()
+        buf.append((time_s, current_a, voltage_v, ambient_c))
 
     def check(self, time_s: float) -> list[tuple[str, Fault]]:
         if time_s - self._last_check < self.config.check_every_s:
@@ -189,7 +249,7 @@ class PackHealthMonitor:
             buf = self._buf[b]
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
                 return None
-            arr = np.asarray(buf)
+            arr = buf.array().copy()  # the fits run on threads: a copy, whatever is appended meanwhile
             p = self.params[b]
             drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
             return drawn, fit_pack_residual(p, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc,

@@ -373,6 +373,10 @@ class PackCutoffPrediction:
                           for i, n in enumerate(self.pack_names)}}
 
 
+#: steps a row of ``predict_packs_at_current`` is simulated before it is checked for its cut-off
+_CUTOFF_CHUNK_STEPS = 60
+
+
 def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.ndarray | None = None,
                              horizon_s: float = 3600.0, step_s: float = 5.0, rng: np.random.Generator,
                              n_samples: int = 100, param_rel_sigma: float = 0.08) -> PackCutoffPrediction:
@@ -393,17 +397,33 @@ def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.n
     x0 = restate(base, x0, pp)
     n_steps = max(1, int(math.ceil(horizon_s / step_s)))
     dt = np.full(n_steps, horizon_s / n_steps)
-    run = kernel.simulate_packs(pp.reshape(-1, kernel.N_PACK_PARAMS), x0.reshape(-1, kernel.N_PACK_STATE), dt,
-                                np.repeat(np.tile(cur, n_samples)[:, None], n_steps, axis=1), estimator.ambient_c)
-    v = run.voltage.reshape(n_samples, n_packs, n_steps)
-    ended = (v < np.asarray(cutoff_v, dtype=np.float64)[None, :, None]) | (run.soc.reshape(v.shape) <= 0.0)
-    reached = ended.any(axis=2)
+    rows = pp.reshape(-1, kernel.N_PACK_PARAMS)
+    state = x0.reshape(-1, kernel.N_PACK_STATE)
+    row_current = np.tile(cur, n_samples)
+    row_cutoff = np.tile(np.broadcast_to(np.asarray(cutoff_v, dtype=np.float64), (n_packs,)), n_samples)
+    # in chunks, each row only until its cut-off: past it nothing is read (the time is the first
+    # step below, the peak is up to it), so a row that ends early stops costing. A chunk continues
+    # from the previous one's final state: the same numbers as one call over the whole horizon.
+    end_step = np.full(rows.shape[0], -1)
+    peak = np.full(rows.shape[0], -np.inf)
+    active = np.arange(rows.shape[0])
+    k0 = 0
+    while active.size and k0 < n_steps:
+        m = min(_CUTOFF_CHUNK_STEPS, n_steps - k0)
+        run = kernel.simulate_packs(rows[active], state[active], dt[k0:k0 + m],
+                                    np.repeat(row_current[active, None], m, axis=1), estimator.ambient_c)
+        ended = (run.voltage < row_cutoff[active, None]) | (run.soc <= 0.0)
+        hit = ended.any(axis=1)
+        last = np.where(hit, ended.argmax(axis=1), m - 1)
+        flown = np.arange(m)[None, :] <= last[:, None]
+        peak[active] = np.maximum(peak[active], np.max(np.where(flown, run.temperature, -np.inf), axis=1))
+        end_step[active[hit]] = k0 + last[hit]
+        state[active] = run.final_state
+        active = active[~hit]
+        k0 += m
     t_end = np.cumsum(dt)
-    ttc = np.where(reached, t_end[ended.argmax(axis=2)], np.inf)
-    # peaks up to the cut-off only: past it the pack is not flown and the model leaves its range
-    k_cut = np.where(reached, ended.argmax(axis=2), n_steps - 1)
-    flown = np.arange(n_steps)[None, None, :] <= k_cut[..., None]
-    peak = np.max(np.where(flown, run.temperature.reshape(v.shape), -np.inf), axis=2)
+    ttc = np.where(end_step >= 0, t_end[end_step], np.inf).reshape(n_samples, n_packs)
+    peak = peak.reshape(n_samples, n_packs)
     return PackCutoffPrediction(
         pack_names=tuple(estimator.pack_names), current_a=cur, horizon_s=float(t_end[-1]), n_samples=n_samples,
         time_to_cutoff_s=np.quantile(ttc, QUANTILES, axis=0, method="nearest").T,

@@ -133,48 +133,54 @@ TRANSFORMS: dict[str, tuple[tuple[str, ...], Callable[[dict[str, Any]], Any]]] =
 
 # --- compilation ---------------------------------------------------------------------------
 
-def _scaler(scale: float, offset: float) -> Callable[[float], float]:
-    """value -> value * scale + offset; a scale of 1/N divides by N, so 85455938 * 1e-7 gives
+def _conversion_source(x: str, scale: float, offset: float) -> str:
+    """Source of ``x * scale + offset``; a scale of 1/N divides by N, so 85455938 * 1e-7 gives
     8.5455938 exactly as printed rather than 8.545593799999999."""
     if scale == 1.0 and offset == 0.0:
-        return lambda v: v
+        return x
     divisor = round(1.0 / scale) if scale else 0
     if divisor > 1 and abs(divisor * scale - 1.0) < 1e-12:
-        return lambda v: v / divisor + offset
-    return lambda v: v * scale + offset
+        return f"{x} / {divisor!r} + {offset!r}"
+    return f"{x} * {scale!r} + {offset!r}"
 
 
-def _clean(value, convert: Callable, missing: frozenset):
-    if value in missing:
-        return None
-    if isinstance(value, float) and math.isnan(value):
-        return None
-    return convert(value)
+class _Source:
+    """The pieces of one generated frame builder: the expressions, and the names they use."""
+
+    def __init__(self):
+        self.names: dict[str, Any] = {}
+
+    def bind(self, value) -> str:
+        name = f"_b{len(self.names)}"
+        self.names[name] = value
+        return name
 
 
-def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], Any]:
-    """Extractor from an unpacked payload tuple to one frame field value."""
+def _field_source(spec: dict, lay, element: int | None, src: _Source) -> str:
+    """The expression (over the unpacked payload tuple ``v``) of one frame field value."""
     scale = float(spec.get("scale", 1.0))
     offset = float(spec.get("offset", 0.0))
+    if not (math.isfinite(scale) and math.isfinite(offset)):
+        raise MappingError(f"{lay.name}: scale and offset must be finite numbers, got {scale!r}, {offset!r}")
     missing = frozenset(spec.get("missing", ()))
-    convert = _scaler(scale, offset)
     if "transform" in spec:
         try:
             needed, fn = TRANSFORMS[spec["transform"]]
         except KeyError:
             raise MappingError(f"{lay.name}: unknown transform {spec['transform']!r}; known: {sorted(TRANSFORMS)}")
-        positions = []
+        items = []
         for name in needed:
             if name not in lay.index:
                 raise MappingError(f"{lay.name}: transform {spec['transform']!r} needs field {name!r}")
-            positions.append((name, lay.index[name]))
-        return lambda vals: fn({name: vals[pos] for name, pos in positions})
+            items.append(f"{name!r}: v[{lay.index[name]}]")
+        return f"{src.bind(fn)}({{{', '.join(items)}}})"
     if "sum" in spec:
         spans = []
         for name in spec["sum"]:
             if name not in lay.index:
                 raise MappingError(f"{lay.name} has no field {name!r}")
             spans.append((lay.index[name], lay.index[name] + lay.count[name]))
+        convert = eval(f"lambda x: {_conversion_source('x', scale, offset)}")  # noqa: S307 - our own source
 
         def summed(vals):
             total, seen = 0, False
@@ -184,7 +190,7 @@ def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], An
                         total += v
                         seen = True
             return convert(total) if seen else None
-        return summed
+        return f"{src.bind(summed)}(v)"
     name = spec.get("field")
     if name not in lay.index:
         raise MappingError(f"{lay.name} has no field {name!r}; fields: {sorted(lay.index)}")
@@ -196,17 +202,35 @@ def _compile_field(spec: dict, lay, element: int | None) -> Callable[[tuple], An
     elif "index" in spec:
         pos += int(spec["index"])
     if spec.get("text"):
-        return lambda vals: vals[pos].split(b"\0", 1)[0].decode("utf-8", "replace")
-    return lambda vals: _clean(vals[pos], convert, missing)
+        return f'v[{pos}].split(b"\\0", 1)[0].decode("utf-8", "replace")'
+    x = f"_x{len(src.names)}"
+    src.names[x] = None  # reserves the name (a local of the generated function)
+    # raw values in ``missing``, and NaN (x != x), are "not available"
+    assign = f"({x} := v[{pos}])"
+    absent = f"{assign} in {src.bind(missing)} or {x} != {x}" if missing else f"{assign} != {x}"
+    return f"(None if {absent} else {_conversion_source(x, scale, offset)})"
+
+
+def _builder(lay, exprs: list[str], src: _Source) -> Callable[[tuple], tuple]:
+    """One function from the unpacked payload to a frame's field values (after time_s), compiled
+    from source so a message costs one call, not one closure per field."""
+    code = f"def build(v):\n    return ({', '.join(exprs)},)\n"
+    namespace = {k: v for k, v in src.names.items() if not k.startswith("_x")}
+    exec(compile(code, f"<mapping {lay.name}>", "exec"), namespace)  # noqa: S102 - our own source
+    return namespace["build"]
 
 
 @dataclass(slots=True)
 class _CompiledRule:
     frame_cls: type
-    # (raw key value or None, frame key or None, element index or None, extractors in frame field order)
-    instances: list[tuple[Any, str | None, int | None, tuple]]
+    # (raw key value or None, frame key or None, element index or None, builder of the frame's
+    # field values after time_s from the unpacked payload)
+    instances: list[tuple[Any, str | None, int | None, Callable[[tuple], tuple]]]
     key_position: int | None
     match: tuple[tuple[int, Any], ...]
+    kind: str = ""
+    #: the raw key values mapped (a keyed rule counts the others in ``unmapped_keys``)
+    keys: frozenset = frozenset()
 
 
 def _compile_rule(message: str, rule: dict) -> _CompiledRule:
@@ -227,16 +251,17 @@ def _compile_rule(message: str, rule: dict) -> _CompiledRule:
         if name not in frame_fields:
             raise MappingError(f"{message}: {cls.__name__} has no field {name!r}")
 
-    def extractors(element: int | None, key_value: str | None) -> tuple:
-        out = []
+    def extractors(element: int | None, key_value: str | None) -> Callable[[tuple], tuple]:
+        src = _Source()
+        exprs = []
         for name in frame_fields:
             if name == key_target:
-                out.append(lambda vals, k=key_value: k)
+                exprs.append(src.bind(key_value))
             elif name in specs:
-                out.append(_compile_field(specs[name], lay, element))
+                exprs.append(_field_source(specs[name], lay, element, src))
             else:
-                out.append(lambda vals: None)
-        return tuple(out)
+                exprs.append("None")
+        return _builder(lay, exprs, src)
 
     instances: list[tuple[Any, str | None, int | None, tuple]] = []
     key_position = None
@@ -259,7 +284,8 @@ def _compile_rule(message: str, rule: dict) -> _CompiledRule:
         if isinstance(wanted, str):
             wanted = wanted.encode()
         match.append((lay.index[fname], wanted))
-    return _CompiledRule(cls, instances, key_position, tuple(match))
+    return _CompiledRule(cls, instances, key_position, tuple(match), kind,
+                         frozenset(k for k, *_ in instances if k is not None))
 
 
 def _compile_mapping(mapping: dict) -> dict[int, list[_CompiledRule]]:
@@ -403,7 +429,9 @@ class FrameMapper:
         time_offset = TIME_BOOT_MS_OFFSET.get(msgid)
         boot_s = None
         if time_offset is not None:
-            raw = bytes(payload[time_offset:time_offset + 4]).ljust(4, b"\0")
+            raw = payload[time_offset:time_offset + 4]
+            if len(raw) < 4:  # MAVLink 2 truncates trailing zero bytes
+                raw = bytes(raw).ljust(4, b"\0")
             boot_s = int.from_bytes(raw, "little") / 1000.0
             t = clock.on_time_boot(boot_s, recv_s, msgid)
             if t is Verdict.REJECTED:
@@ -424,30 +452,32 @@ class FrameMapper:
         rules = self.rules.get(msgid)
         if rules is None:
             return released or _EMPTY
+        lay = layout(msgid)
         try:
-            vals = layout(msgid).unpack(payload)
+            vals = lay.unpack(payload)
         except Exception:  # noqa: BLE001 - a bad payload is counted, never fatal
             self.stats.undecodable += 1
             return released or _EMPTY
         out: list = []
+        counts = self.stats.frames_by_kind
         for rule in rules:
             if rule.match and not all(_matches(vals[pos], wanted) for pos, wanted in rule.match):
                 continue
-            for raw_key, _name, _element, extract in rule.instances:
-                if raw_key is not None and vals[rule.key_position] != raw_key:
+            cls = rule.frame_cls
+            key_position = rule.key_position
+            for raw_key, _name, _element, build in rule.instances:
+                if raw_key is not None and vals[key_position] != raw_key:
                     continue
-                args = tuple(fn(vals) for fn in extract)
                 if t is None:
-                    self._pending.append((recv_s, boot_s, rule.frame_cls, args))
+                    self._pending.append((recv_s, boot_s, cls, build(vals)))
                 else:
-                    out.append(rule.frame_cls(t, *args))
-            if rule.key_position is not None and not any(vals[rule.key_position] == k for k, *_ in rule.instances):
-                self.stats.unmapped_keys[(layout(msgid).name, vals[rule.key_position])] += 1
-        counts = self.stats.frames_by_kind
-        for frame in out:
-            counts[FRAME_KIND_OF[type(frame)]] += 1
-        if self.gate is not None:
-            out = self._gated(out)
+                    out.append(cls(t, *build(vals)))
+                    counts[rule.kind] += 1
+            if key_position is not None and vals[key_position] not in rule.keys:
+                self.stats.unmapped_keys[(lay.name, vals[key_position])] += 1
+        if self.gate is not None and out:
+            gate = self.gate
+            out = [gate(f) for f in out]
         return released + out if released else out
 
     def _gated(self, frames: list) -> list:

@@ -8,6 +8,9 @@ skipped and counted, never fatal:
 * a packet whose CRC fails, or whose message id is not in the dialect, is skipped whole when a
   plausible record follows it, else byte by byte until one does (``garbage_bytes``);
 * a record cut off by the end of the file is counted in ``truncated_tail_bytes``.
+
+``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field dicts
+(what the provisional vehicle description reads).
 """
 from __future__ import annotations
 
@@ -21,7 +24,7 @@ from typing import BinaryIO, Iterator
 
 from fastcrc.crc16 import mcrf4xx
 
-from gcs_pdm.mavlink.wire import CRC_EXTRA_BYTES, MAVLINK_IFLAG_SIGNED, SIGNATURE_LEN
+from gcs_pdm.mavlink.wire import CRC_EXTRA_BYTES, MAVLINK_IFLAG_SIGNED, SIGNATURE_LEN, layout
 
 log = logging.getLogger(__name__)
 
@@ -225,3 +228,21 @@ def scan_tlog(path: str | Path, stats: ScanStats | None = None) -> Iterator[tupl
     """:func:`scan_tlog_bytes` over a file (read whole: tlogs of a flight are megabytes)."""
     data = Path(path).read_bytes()
     yield from scan_tlog_bytes(data, stats)
+
+
+def tlog_message_dicts(path: str | Path, names, *, system: int | None = None) -> Iterator[tuple[str, dict]]:
+    """``(message name, fields)`` of the CRC-valid packets of the named messages, fields as
+    pymavlink's ``msg.to_dict()`` gives them; only those messages are decoded (``system``: only
+    from that system). Packets whose payload cannot be unpacked are skipped."""
+    from gcs_pdm.mavlink.dialect import MESSAGE_IDS_BY_NAME
+
+    wanted = {MESSAGE_IDS_BY_NAME[n]: layout(MESSAGE_IDS_BY_NAME[n]) for n in names}
+    for _ts, msgid, sysid, _compid, payload, _start, _end in scan_tlog(path):
+        lay = wanted.get(msgid)
+        if lay is None or (system is not None and sysid != system):
+            continue
+        try:
+            fields = lay.as_dict(payload)
+        except Exception:  # noqa: BLE001 - a CRC-valid packet that still does not unpack: skip it
+            continue
+        yield lay.name, fields

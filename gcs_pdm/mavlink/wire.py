@@ -70,7 +70,7 @@ class PayloadLayout:
     so :meth:`unpack` pads short payloads with zeros (which is what the dropped bytes were).
     """
 
-    __slots__ = ("msgid", "name", "struct", "size", "index", "count")
+    __slots__ = ("msgid", "name", "struct", "size", "index", "count", "_fields")
 
     def __init__(self, msgid: int):
         cls = MESSAGE_CLASSES[msgid]
@@ -87,11 +87,28 @@ class PayloadLayout:
             self.index[name] = position
             self.count[name] = n
             position += n
+        # (name, position, count, is text) in the message's field order, for :meth:`as_dict`
+        text = {name for name, (_r, code) in zip(cls.ordered_fieldnames, tokens) if code == "s"}
+        self._fields = tuple((name, self.index[name], self.count[name], name in text) for name in cls.fieldnames)
 
     def unpack(self, payload: bytes | memoryview) -> tuple:
         if len(payload) != self.size:
             payload = bytes(payload)[: self.size].ljust(self.size, b"\0")
         return self.struct.unpack(payload)
+
+    def as_dict(self, payload: bytes | memoryview) -> dict:
+        """The fields by name as pymavlink's ``msg.to_dict()`` gives them (arrays as lists, text
+        decoded up to its NUL padding), without building a pymavlink message."""
+        vals = self.unpack(payload)
+        out = {}
+        for name, pos, count, text in self._fields:
+            if text:
+                out[name] = vals[pos].split(b"\0", 1)[0].decode(errors="backslashreplace")
+            elif count == 1:
+                out[name] = vals[pos]
+            else:
+                out[name] = list(vals[pos:pos + count])
+        return out
 
 
 _LAYOUTS: dict[int, PayloadLayout] = {}

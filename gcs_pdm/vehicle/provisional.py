@@ -336,23 +336,15 @@ _WANTED = ["HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", *_ESC_MESSAGES]
 
 
 def tlog_messages(path: str | Path, *, system: int | None = None) -> Iterable[tuple[str, dict]]:
-    """The messages ``ProvisionalObserver`` uses from a tlog (I/O shell; pymavlink decodes)."""
-    from pymavlink import mavutil
+    """The messages ``ProvisionalObserver`` uses from a tlog (I/O shell): the project's own tlog
+    scanner decodes only these, with the fields pymavlink's ``to_dict()`` gives (≈ 6 µs a message
+    where pymavlink's parser took ≈ 70 µs; a replay reads the log twice, once for this)."""
+    from gcs_pdm.mavlink.tlog import tlog_message_dicts
 
     path = Path(path)
     if not path.exists():
         raise VehicleError(f"{path}: no such file")
-    conn = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
-    try:
-        while True:
-            msg = conn.recv_match(type=_WANTED, blocking=False)
-            if msg is None:
-                return
-            if system is not None and msg.get_srcSystem() != system:
-                continue
-            yield msg.get_type(), msg.to_dict()
-    finally:
-        conn.close()
+    return tlog_message_dicts(path, _WANTED, system=system)
 
 
 def observe_tlog(path: str | Path, name: str | None = None) -> tuple[VehicleDescription, list[str]]:
