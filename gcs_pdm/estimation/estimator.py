@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
-from gcs_pdm.estimation.pack_filter import PackFilterBank, PackFilterConfig
+from gcs_pdm.estimation.pack_filter import CHANNELS, PackFilterBank, PackFilterConfig
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -91,6 +91,8 @@ class Estimate:
     mismatch: tuple[str, ...] = ()
     motor_current_a: np.ndarray | None = None
     motor_rpm: np.ndarray | None = None
+    #: per pack name: the model-consistency test and its evidence (``StateEstimator.model_check``)
+    model_mismatch: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         def r(a, nd=4):
@@ -101,7 +103,8 @@ class Estimate:
             "packs": {n: {"soc": r([self.soc[i]])[0], "soc_sd": r([self.soc_sd[i]])[0],
                           "temperature_c": r([self.pack_temp_c[i]], 2)[0], "temperature_sd": r([self.pack_temp_sd[i]], 2)[0],
                           "voltage_v": r([self.pack_voltage_v[i]], 3)[0],
-                          **({"temperature_source": "model"} if n in self.modelled_temperature else {})}
+                          **({"temperature_source": "model"} if n in self.modelled_temperature else {}),
+                          **({"model_mismatch": self.model_mismatch[n]} if n in self.model_mismatch else {})}
                       for i, n in enumerate(self.pack_names)},
             "motors": {n: {"temperature_c": r([self.motor_temp_c[i]], 2)[0],
                            "temperature_sd": r([self.motor_temp_sd[i]], 2)[0],
@@ -178,6 +181,10 @@ class StateEstimator:
         # per sensor channel: last message time it carried a value
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
+        # model-consistency test per pack (pack_filter.ConsistencyWindow): whether it is raised and
+        # the message time it was raised or cleared
+        self._mismatch_active = np.zeros(n_packs, dtype=bool)
+        self._mismatch_since = np.full(n_packs, np.nan)
 
     # ---- frames ----------------------------------------------------------------------------------
     def consume(self, frame) -> None:
@@ -194,8 +201,12 @@ class StateEstimator:
         if frame.time_s > self.time_s:
             self.time_s = float(frame.time_s)
 
-    def _reference_current(self, b: int, t: float) -> float:
-        """What the rest of pack b's series string says its current is (NaN if nobody recent)."""
+    def _reference_current(self, b: int, t: float, own: float = math.nan) -> float:
+        """What the rest of pack b's series string says its current is (NaN if nobody recent).
+
+        With two or more references the pack's ``own`` reading votes too: the median of three
+        survives a spike in any one of them, where the references' own median (the mean of two)
+        let one spiked reference replace a good reading."""
         refs = []
         for mate in self._mates[b]:
             if t - self.pack_current_time[mate] <= self.config.corroborate_within_s:
@@ -207,7 +218,11 @@ class StateEstimator:
             if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
                 refs.append(self.motor_current[q])
         refs = [r for r in refs if math.isfinite(r)]
-        return _median(refs) if len(refs) >= self._min_references else math.nan
+        if len(refs) < self._min_references:
+            return math.nan
+        if len(refs) >= 2 and math.isfinite(own):
+            refs.append(own)
+        return _median(refs)
 
     def _pack(self, f: PackFrame) -> None:
         b = self._pack_index.get(f.pack)
@@ -219,7 +234,7 @@ class StateEstimator:
             self._skip("out_of_order", f"pack {f.pack}: frame at {t} s older than the last ({self.pack_time[b]} s) skipped")
             return
         cur = _num(f.current_a)
-        ref = self._reference_current(b, t)
+        ref = self._reference_current(b, t, cur)
         if math.isfinite(cur):
             self.seen[f"{f.pack}.current"] = t
             if math.isfinite(ref) and abs(cur - ref) > max(self.config.current_spike_a, 0.5 * abs(ref)):
@@ -260,6 +275,20 @@ class StateEstimator:
         self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
         self.charge_c[b] += i_used * dt
         self.pack_time[b] = t
+        active = self.packs.consistency.active[b]
+        if bool(active[0] or active[1]) != self._mismatch_active[b]:
+            self._mismatch_changed(b, t)
+
+    def _mismatch_changed(self, b: int, t: float) -> None:
+        now = not self._mismatch_active[b]
+        self._mismatch_active[b] = now
+        self._mismatch_since[b] = t
+        self.counters["model_mismatch_raised" if now else "model_mismatch_cleared"] += 1
+        ev = self.model_check(b)
+        if now:
+            log.warning("pack %s does not match its model at t=%.1f s: %s", self.pack_names[b], t, ev["reason"])
+        else:
+            log.info("pack %s matches its model again at t=%.1f s", self.pack_names[b], t)
 
     def _motor(self, f: MotorFrame) -> None:
         q = self._motor_index.get(f.motor)
@@ -317,6 +346,64 @@ class StateEstimator:
         self.packs.set_params(b, row)
         self.counters["parameter_updates"] += 1
 
+    # ---- model consistency -------------------------------------------------------------------------
+    def model_check(self, b: int) -> dict:
+        """Pack ``b``'s model-consistency test with its evidence, JSON-ready: ``active`` (the pack
+        does not behave like its model), the window (updates), per channel the statistic (mean
+        squared normalised innovation, clipped; ≈ 0.3-0.5 on a pack that matches) against its bound,
+        the mean residual (measured − predicted, mV and K), the message time of the last raise or
+        clear, the factor applied to the prediction's state spread, and what to do about it."""
+        w = self.packs.consistency
+        stat, res = w.statistic()[b], w.mean_residual()[b]
+        name = self.pack_names[b]
+        active = bool(self._mismatch_active[b])
+
+        def num(x, nd):
+            return None if not math.isfinite(float(x)) else round(float(x), nd)
+
+        out = {"active": active, "window_updates": w.size, "updates": int(w.count[b, 0]),
+               "statistic": num(stat[0], 3), "bound": round(w.raise_at, 3), "clear_below": round(w.clear_at, 3),
+               "false_alarm_per_window": w.false_alarm,
+               "voltage_residual_mv": num(1000.0 * res[0], 1),
+               "temperature_statistic": num(stat[1], 3), "temperature_residual_k": num(res[1], 2),
+               "channels": [c for c, on in zip(CHANNELS, w.active[b]) if on],
+               "since_s": num(self._mismatch_since[b], 3),
+               "prediction_inflation": round(float(self.prediction_inflation()[b]), 3)}
+        if not self.packs.initialised[b] or not math.isfinite(stat[0]):
+            out["state"] = "unknown"
+            out["reason"] = (f"not judged yet: {int(w.count[b, 0])} of {w.size} voltage updates since the pack's "
+                             f"filter started")
+        elif active:
+            out["state"] = "mismatch"
+            parts = [f"{c} innovations {stat[k]:.2f}× their expected variance (bound {w.raise_at:.2f}, "
+                     f"mean residual {1000 * res[k]:+.0f} mV)" if k == 0 else
+                     f"{c} innovations {stat[k]:.2f}× their expected variance (bound {w.raise_at:.2f}, "
+                     f"mean residual {res[k]:+.2f} K)" for k, c in enumerate(CHANNELS) if w.active[b, k]]
+            out["reason"] = (f"pack {name} does not behave like its model over the last {w.size} updates: "
+                             + "; ".join(parts))
+            out["suggestion"] = refit_suggestion(name)
+        else:
+            out["state"] = "matches"
+        return out
+
+    @property
+    def model_mismatch_active(self) -> np.ndarray:
+        """(packs,) bool: the pack fails its model-consistency test now (read-only view)."""
+        return self._mismatch_active
+
+    def model_mismatch(self) -> dict[str, dict]:
+        """``model_check`` of every pack, by name."""
+        return {n: self.model_check(b) for b, n in enumerate(self.pack_names)}
+
+    def prediction_inflation(self) -> np.ndarray:
+        """(packs,) factor on the state covariance a prediction starts from: 1 while a pack matches
+        its model; while it does not, its channel statistic (≥ 1) — the innovations are that many
+        times more variable than the filter believes, so its state is that much less certain
+        (covariance matching). ``prediction.predict_from_estimator`` applies it."""
+        stat = self.packs.consistency.statistic()
+        worst = np.nanmax(np.where(self.packs.consistency.active, stat, 1.0), axis=1)
+        return np.where(self._mismatch_active, np.maximum(worst, 1.0), 1.0)
+
     def _restart(self, kind: str, name: str, gap_s: float) -> None:
         self.counters["restarts"] += 1
         log.warning("%s %s: %.0f s without telemetry; its filter restarts from the next reading", kind, name, gap_s)
@@ -355,7 +442,8 @@ class StateEstimator:
                          if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
         return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c, self.missing(), counters,
                         pack_names=self.pack_names, motor_names=self.motor_names, modelled_temperature=modelled,
-                        mismatch=mismatch, motor_current_a=self.motor_current.copy(), motor_rpm=self.motor_rpm.copy())
+                        mismatch=mismatch, motor_current_a=self.motor_current.copy(), motor_rpm=self.motor_rpm.copy(),
+                        model_mismatch=self.model_mismatch())
 
     def _range_guard(self, soc, soc_sd, tp, tp_sd, v) -> tuple[str, ...]:
         """Clip a SoC that is in [0, 1] within its noise; withhold (NaN) and report a pack whose
@@ -415,6 +503,14 @@ class StateEstimator:
         tm = self.motors.mean[:, 0]
         return PowertrainState(pack_state=self.packs.mean.copy(),
                                motor_temp_c=np.where(np.isfinite(tm), tm, self.ambient_c))
+
+
+def refit_suggestion(pack: str) -> str:
+    """What the operator can do about a pack that no longer matches its model."""
+    which = f"--pack {pack} " if pack in PACK_NAMES else ""
+    logs = "LOG" if pack in PACK_NAMES else "TABLE"
+    return (f"fit this pack on recent logs: gcs-pdm fit battery {which}--train {logs} [{logs} ...] --val {logs} "
+            f"--test {logs} --out DIR (docs/fitting.md), then activate the new parameter set")
 
 
 def _median(values: list[float]) -> float:

@@ -13,12 +13,25 @@ rejected and counted); a channel rejected ``relock_after`` times in a row is tak
 change the model missed, so the covariance is inflated and the filter re-locks instead of
 ignoring the sensor for ever. A missing channel (``NaN``) is skipped; the filter keeps
 predicting and its uncertainty grows.
+
+Model consistency (``ConsistencyWindow``): gating judges one sample; whether the pack still
+behaves like its model is a question about many. Each channel keeps the mean of its last N squared
+normalised innovations ν², each clipped at c² (c = 3: one spike moves the mean by at most 9/N, a
+telemetry stream's 0.3 % of spikes would otherwise raise it on their own). If the model is right
+and the filter consistent, the normalised innovations are independent N(0, 1), so the window's sum
+is a sum of N clipped χ²₁ values, whose mean and variance are exact (``clipped_chi2_moments``); it
+is approximated by a scaled χ² with those two moments (Satterthwaite). Above its 1 − α quantile (per
+N) is a model mismatch with false-alarm probability ≈ α per full window; it clears only below the
+median (hysteresis). The window also keeps the mean raw innovation — the residual, V or °C — as
+evidence. The filter's noise is set conservatively (``voltage_sigma_v`` carries model error), so
+on a pack that matches its model the statistic sits well below 1 (0.3-0.5 on synthetic flights).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from gcs_pdm.estimation import ukf
 from gcs_pdm.models import kernel
@@ -38,6 +51,83 @@ class PackFilterConfig:
     gate: float = 5.0                   # normalised-innovation gate, σ
     relock_after: int = 5               # consecutive rejections before re-locking
     relock_inflation: float = 25.0
+    #: model-consistency test (module docstring): updates per window, the false-alarm probability
+    #: per full window if the model were right, and the χ² quantile the statistic must fall below
+    #: to clear. 120 voltage updates are 1-4 minutes of BATTERY_STATUS
+    mismatch_window: int = 120
+    mismatch_false_alarm: float = 1e-4
+    mismatch_clear_quantile: float = 0.5
+    mismatch_clip: float = 3.0          # normalised innovations enter the test clipped at ±this
+    #: after a telemetry gap longer than this (s) the next updates are not judged: the current held
+    #: over the gap was a guess, and the innovations show that for a few R_cp-C_cp time constants
+    mismatch_gap_s: float = 6.0
+    mismatch_settle_updates: int = 20
+
+
+def clipped_chi2_moments(clip: float) -> tuple[float, float]:
+    """Mean and variance of min(Z², c²) for Z ~ N(0, 1)."""
+    from scipy.stats import norm
+
+    inside = 1.0 - 2.0 * norm.sf(clip)
+    pdf = norm.pdf(clip)
+    tail = 1.0 - inside
+    m1 = inside - 2.0 * clip * pdf + clip ** 2 * tail
+    m2 = 3.0 * inside - 2.0 * pdf * (clip ** 3 + 3.0 * clip) + clip ** 4 * tail
+    return m1, m2 - m1 ** 2
+
+
+def clipped_mean_quantile(q: float, n: int, clip: float) -> float:
+    """The ``q`` quantile of the mean of ``n`` independent min(Z², c²): a scaled χ² with the same
+    mean and variance (Satterthwaite)."""
+    m1, var = clipped_chi2_moments(clip)
+    scale, dof = var / (2.0 * m1), 2.0 * n * m1 ** 2 / var
+    return float(scale * chi2.ppf(q, dof) / n)
+
+
+#: model-consistency channels (the window's second index)
+CHANNELS = ("voltage", "temperature")
+
+
+class ConsistencyWindow:
+    """Per pack and channel: the last N clipped squared normalised innovations and raw innovations
+    (ring buffers with running sums), and the hysteresis state. Updated inside the compiled step
+    (``ukf._window_push``); ``arrays`` is what it is handed."""
+
+    def __init__(self, n_rows: int, config: PackFilterConfig):
+        n = int(config.mismatch_window)
+        if n < 2:
+            raise ValueError(f"mismatch_window: need at least 2 updates, got {n}")
+        if not 0.0 < config.mismatch_false_alarm < config.mismatch_clear_quantile < 1.0:
+            raise ValueError("mismatch_false_alarm must be in (0, mismatch_clear_quantile), the quantile in (0, 1)")
+        self.size = n
+        self.clip = float(config.mismatch_clip)
+        self.raise_at = clipped_mean_quantile(1.0 - config.mismatch_false_alarm, n, self.clip)
+        self.clear_at = clipped_mean_quantile(config.mismatch_clear_quantile, n, self.clip)
+        self.false_alarm = float(config.mismatch_false_alarm)
+        self.sq = np.zeros((n_rows, 2, n))
+        self.res = np.zeros((n_rows, 2, n))
+        self.pos = np.zeros((n_rows, 2), dtype=np.int64)
+        self.count = np.zeros((n_rows, 2), dtype=np.int64)
+        self.sums = np.zeros((n_rows, 2, 2))
+        self.active = np.zeros((n_rows, 2), dtype=np.bool_)
+        self.levels = np.array([[self.raise_at, self.clear_at, self.clip ** 2, config.mismatch_gap_s,
+                                 config.mismatch_settle_updates]] * 2)
+        self.quiet = np.zeros((n_rows, 2), dtype=np.int64)
+        self.arrays = (self.sq, self.res, self.pos, self.count, self.sums, self.active, self.levels, self.quiet)
+
+    def reset(self, rows) -> None:
+        """Forget rows ``rows`` (a filter restarting from a fresh reading)."""
+        for a in (self.sq, self.res, self.pos, self.count, self.sums, self.active, self.quiet):
+            a[rows] = 0
+
+    def statistic(self) -> np.ndarray:
+        """(rows, 2) mean squared normalised innovation over the window (NaN until it is full)."""
+        full = self.count >= self.size
+        return np.where(full, self.sums[..., 0] / np.maximum(self.count, 1), np.nan)
+
+    def mean_residual(self) -> np.ndarray:
+        """(rows, 2) mean innovation (V, °C) over the updates in the window (NaN before any)."""
+        return np.where(self.count > 0, self.sums[..., 1] / np.maximum(self.count, 1), np.nan)
 
 
 class PackFilterBank:
@@ -56,6 +146,7 @@ class PackFilterBank:
         self.rejected_total = np.zeros((n_packs, 2), dtype=np.int64)
         self.relocks = np.zeros(n_packs, dtype=np.int64)
         self.last_innovation = np.full((n_packs, 2), np.nan)
+        self.consistency = ConsistencyWindow(n_packs, config)
         self._q = np.diag(np.square(np.asarray(config.process_sigma, dtype=np.float64)))
         # observation rows: V = q_b/C_b - q_cp/C_cp - q_s/C_s ; T = T
         p = self.params
@@ -89,6 +180,7 @@ class PackFilterBank:
                                 c.initial_temp_sigma_c)], axis=1)
         self.cov[idx] = sd[:, :, None] * np.eye(N_STATE) * sd[:, None, :]
         self.initialised[idx] = True
+        self.consistency.reset(idx)
 
     # ---- one step ----------------------------------------------------------------------------------
     def step(self, idx: np.ndarray, dt: np.ndarray, current: np.ndarray, ambient: float | np.ndarray,
@@ -102,7 +194,7 @@ class PackFilterBank:
                            ukf.as_rows(ambient, shape), ukf.as_rows(voltage, shape), ukf.as_rows(temperature, shape), self._q,
                            self._h_v, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
                            c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
-                           self.rejected_in_row, self.relocks)
+                           self.rejected_in_row, self.relocks, self.consistency.arrays)
 
     def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> None:
         """``step`` for one pack and plain floats (a telemetry frame), without the array set-up."""
@@ -111,7 +203,7 @@ class PackFilterBank:
                            np.array([ambient]), np.array([voltage]), np.array([temperature]), self._q,
                            self._h_v, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
                            c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
-                           self.rejected_in_row, self.relocks)
+                           self.rejected_in_row, self.relocks, self.consistency.arrays)
 
     def set_params(self, b: int, row: np.ndarray) -> None:
         """Adopt new parameters for pack ``b`` (e.g. a diagnosed capacity loss), keeping what the

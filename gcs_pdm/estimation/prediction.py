@@ -327,7 +327,9 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
 
     The samples' SoC spread is the estimate's full one: the filter's covariance plus the capacity
     mismatch the estimator adds to ``Estimate.soc_sd`` (``EstimatorConfig.capacity_rel_sigma``),
-    which the filter cannot see but which biases its SoC just the same."""
+    which the filter cannot see but which biases its SoC just the same; while a pack fails the
+    estimator's model-consistency test, its covariance is scaled up by the test's statistic
+    (``StateEstimator.prediction_inflation``)."""
     tm, tm_sd = estimator.motors.temperature()
     tm = np.where(np.isfinite(tm), tm, estimator.ambient_c)
     tm_sd = np.where(np.isfinite(tm_sd), tm_sd, 2.0)
@@ -336,6 +338,7 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     soc = kernel.state_of_charge(packs.params, packs.mean)
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * packs.params[:, kernel.I_CMAX]
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    cov *= estimator.prediction_inflation()[:, None, None]  # wider while a pack does not match its model
     inputs = getattr(estimator, "inputs", None)
     if inputs is not None:
         return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
@@ -380,6 +383,7 @@ def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.n
     soc = kernel.state_of_charge(base, packs.mean)
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * base[:, kernel.I_CMAX]
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    cov *= estimator.prediction_inflation()[:, None, None]  # wider while a pack does not match its model
     pp, _ = sample_parameters((base, estimator.motors.params[0]), n_samples, rng, param_rel_sigma)
     chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
     x0 = packs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n_samples, n_packs, kernel.N_PACK_STATE)))

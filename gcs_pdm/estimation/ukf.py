@@ -151,7 +151,8 @@ def _scalar_update_row(mean, cov, h, z, r, gate):
 @njit(**_JIT)
 def _observe(mean, cov, h, z, r, gate, relock_after, relock_inflation, ch, b, last_innovation,
              rejected_total, rejected_in_row, relocks):
-    """One gated channel of one row, with the filters' re-lock rule (see pack_filter's docstring)."""
+    """One gated channel of one row, with the filters' re-lock rule (see pack_filter's docstring).
+    Returns the innovation and its normalised value (before any re-lock)."""
     nu, norm = _scalar_update_row(mean, cov, h, z, r, gate)
     last_innovation[b, ch] = nu
     if abs(norm) > gate:
@@ -166,22 +167,63 @@ def _observe(mean, cov, h, z, r, gate, relock_after, relock_inflation, ch, b, la
         _scalar_update_row(mean, cov, h, z, r, np.inf)
         relocks[b] += 1
         rejected_in_row[b, ch] = 0
+    return nu, norm
+
+
+@njit(**_JIT)
+def _window_push(b, ch, nu, norm, window):
+    """Add one update's innovation to row ``b``'s model-consistency window on channel ``ch``.
+
+    ``window`` is a ``ConsistencyWindow``'s arrays (see ``pack_filter``); ``levels[ch]`` holds the
+    raise level, the clear level and the clip. The squared normalised innovation enters clipped:
+    an outlier then moves the window mean by at most clip/N, while a model that misses every sample
+    still fills it. Raise above the raise level once the window is full, clear below the clear
+    level (hysteresis). Rows still settling after a gap (``quiet``) are not judged."""
+    sq_buf, res_buf, pos, count, sums, active, levels, quiet = window
+    if quiet[b, ch] > 0:
+        quiet[b, ch] -= 1
+        return
+    n = sq_buf.shape[2]
+    sq = min(norm * norm, levels[ch, 2])
+    k = pos[b, ch]
+    if count[b, ch] >= n:
+        sums[b, ch, 0] -= sq_buf[b, ch, k]
+        sums[b, ch, 1] -= res_buf[b, ch, k]
+    else:
+        count[b, ch] += 1
+    sq_buf[b, ch, k] = sq
+    res_buf[b, ch, k] = nu
+    sums[b, ch, 0] += sq
+    sums[b, ch, 1] += nu
+    pos[b, ch] = (k + 1) % n
+    if count[b, ch] >= n:
+        stat = sums[b, ch, 0] / n
+        if not active[b, ch] and stat > levels[ch, 0]:
+            active[b, ch] = True
+        elif active[b, ch] and stat < levels[ch, 1]:
+            active[b, ch] = False
 
 
 @njit(**_JIT)
 def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temperature, q, h_v,
                    r_v, r_t, gate, relock_after, relock_inflation, max_dt,
-                   last_innovation, rejected_total, rejected_in_row, relocks):
-    """``PackFilterBank.step`` for rows ``idx``, in place on the bank's arrays."""
+                   last_innovation, rejected_total, rejected_in_row, relocks, window):
+    """``PackFilterBank.step`` for rows ``idx``, in place on the bank's arrays (``window``: the
+    bank's model-consistency window, a tuple of arrays, see ``_window_push``)."""
     n = _N
     chol = np.empty((n, n))
     pts = np.empty((2 * n, n))
     x = np.empty(n)
     h_t = np.zeros(n)
     h_t[n - 1] = 1.0
+    quiet, gap_s, settle = window[7], window[6][0, 3], int(window[6][0, 4])
     for k in range(idx.shape[0]):
         b = idx[k]
         m, c, p = mean[b], cov[b], params[b]
+        if dt[k] > gap_s:
+            # the current over a gap is a held guess: the next innovations judge that, not the model
+            quiet[b, 0] = settle
+            quiet[b, 1] = settle
         if dt[k] > 0.0:
             _sigma_factor(c, chol)
             for s in range(2 * n):
@@ -203,12 +245,24 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
                     for s in range(2 * n):
                         acc += (pts[s, i] - m[i]) * (pts[s, j] - m[j])
                     c[i, j] = acc / (2 * n) + q[i, j] * dt[k]
+        # The consistency window takes one update per channel per advance of time: frames sharing
+        # one message-time stamp (a link that stamps untimed messages with the last timed one) were
+        # measured over the interval before it, so their innovations are not independent draws.
+        # A gated sample after an accepted one may be a lone spike and is left out too; the second
+        # and later of a run are a model the data leave behind.
+        judged = dt[k] > 0.0
         if math.isfinite(voltage[k]):
-            _observe(m, c, h_v[b], voltage[k], r_v, gate, relock_after, relock_inflation, 0, b,
-                     last_innovation, rejected_total, rejected_in_row, relocks)
+            run = rejected_in_row[b, 0]
+            nu, norm = _observe(m, c, h_v[b], voltage[k], r_v, gate, relock_after, relock_inflation, 0, b,
+                                last_innovation, rejected_total, rejected_in_row, relocks)
+            if judged and (abs(norm) <= gate or run > 0):
+                _window_push(b, 0, nu, norm, window)
         if math.isfinite(temperature[k]):
-            _observe(m, c, h_t, temperature[k], r_t, gate, relock_after, relock_inflation, 1, b,
-                     last_innovation, rejected_total, rejected_in_row, relocks)
+            run = rejected_in_row[b, 1]
+            nu, norm = _observe(m, c, h_t, temperature[k], r_t, gate, relock_after, relock_inflation, 1, b,
+                                last_innovation, rejected_total, rejected_in_row, relocks)
+            if judged and (abs(norm) <= gate or run > 0):
+                _window_push(b, 1, nu, norm, window)
 
 
 @njit(**_JIT)
