@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.diagnosis.faults import (DEGRADATION_RATE_DEVIATION, MOTOR_POWER_LOSS, PACK_CAPACITY_LOSS,
-                                      PACK_RESISTANCE_RISE, PREDICTED_LIMIT_VIOLATION)
+from gcs_pdm.diagnosis.faults import (DEGRADATION_RATE_DEVIATION, MODEL_MISMATCH, MOTOR_POWER_LOSS,
+                                      PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, PREDICTED_LIMIT_VIOLATION)
 from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 from gcs_pdm.estimation.prediction import FutureLoad
 from gcs_pdm.estimation.synthetic import PackDegradation, fly_synthetic
@@ -101,6 +101,8 @@ def score(flight, p):
                          "lead_s": (flight.info["failed_at_s"] - f.time_s) if ty == PREDICTED_LIMIT_VIOLATION else None})
         elif f.type == PREDICTED_LIMIT_VIOLATION and flight.info.get("failed_at_s") is None:
             false_alarms.append(f.to_dict())  # the vehicle did finish: the warning was wrong
+        elif f.type == MODEL_MISMATCH and f.component in {d.pack for d in flight.degradation}:
+            continue  # a degraded pack no longer matches the set's model: right, but not the fault scored
         elif f.type in CONSEQUENCES and first_onset is not None and f.time_s >= first_onset:
             continue
         elif f.type in CONSEQUENCES and any(e[2] is None for e in exp):

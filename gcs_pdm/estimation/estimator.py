@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
-from gcs_pdm.estimation.pack_filter import CHANNELS, PackFilterBank, PackFilterConfig
+from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -129,6 +129,7 @@ class StateEstimator:
                  vehicle=None):
         self.params = params
         self.config = config
+        ext_rows: dict[int, str] = {}
         if vehicle is not None:
             from gcs_pdm.vehicle.model_inputs import model_inputs
 
@@ -147,6 +148,7 @@ class StateEstimator:
         else:
             if params is None:
                 raise ValueError("StateEstimator: give a parameter set or a vehicle description")
+            ext_rows = {b: n for b, n in enumerate(PACK_NAMES) if params.packs[n].model == "extended"}
             #: the description's model inputs (None: the paper's aircraft)
             self.inputs = None
             self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
@@ -160,6 +162,13 @@ class StateEstimator:
         self._base_pack_matrix = np.array(pack_matrix, copy=True)
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
+        # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper
+        # filter keeps running on their paper values for the users of the paper layout (the
+        # diagnoser's pack-health fit, the planner's state)
+        self.ext_row = {b: r for r, b in enumerate(sorted(ext_rows))}
+        self.ext = (ExtendedPackFilterBank(np.stack([params.packs[ext_rows[b]].extended_vector() for b in sorted(ext_rows)]),
+                                           config.pack) if ext_rows else None)
+        self._base_ext_matrix = None if self.ext is None else self.ext.params.copy()
         self.motors = MotorThermalFilter(motor_matrix, n_motors, config.motor)
         self.ambient_c = config.default_ambient_c
         self.time_s = -math.inf
@@ -168,6 +177,8 @@ class StateEstimator:
         self.pack_time = np.full(n_packs, -math.inf)
         self.pack_current = np.full(n_packs, np.nan)
         self.pack_current_time = np.full(n_packs, -math.inf)
+        self._reading = np.full(n_packs, np.nan)           # the latest measured current, as measured
+        self._reading_time = np.full(n_packs, -math.inf)
         self.motor_time = np.full(n_motors, -math.inf)
         self.motor_current = np.full(n_motors, np.nan)
         self.motor_current_time = np.full(n_motors, -math.inf)
@@ -209,8 +220,11 @@ class StateEstimator:
         let one spiked reference replace a good reading."""
         refs = []
         for mate in self._mates[b]:
-            if t - self.pack_current_time[mate] <= self.config.corroborate_within_s:
-                refs.append(self.pack_current[mate])
+            # the mate's own reading, not what it was cleaned to: when the whole string's current
+            # steps (a throttle chop), a mate cleaned to its pre-step reference would hold every
+            # pack of the string at the old current, frame after frame
+            if t - self._reading_time[mate] <= self.config.corroborate_within_s:
+                refs.append(self._reading[mate])
         # a motor's current is its pack's only when the pack feeds that motor alone
         motors = self._motors_of_pack[b]
         if len(motors) == 1 and len(self._packs_of_motor[motors[0]]) == 1 + len(self._mates[b]):
@@ -237,6 +251,7 @@ class StateEstimator:
         ref = self._reference_current(b, t, cur)
         if math.isfinite(cur):
             self.seen[f"{f.pack}.current"] = t
+            self._reading[b], self._reading_time[b] = cur, t
             if math.isfinite(ref) and abs(cur - ref) > max(self.config.current_spike_a, 0.5 * abs(ref)):
                 self.counters["current_spikes"] += 1
                 cur = ref
@@ -254,11 +269,16 @@ class StateEstimator:
         if self.packs.initialised[b] and t - self.pack_time[b] > self.config.restart_after_s:
             self._restart("pack", f.pack, t - self.pack_time[b])
             self.packs.initialised[b] = False
+            if b in self.ext_row:
+                self.ext.initialised[self.ext_row[b]] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
         if not self.packs.initialised[b]:
             if not math.isfinite(v):
                 return  # nothing to start from yet
             self.packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]), self.ambient_c)
+            if b in self.ext_row:
+                self.ext.initialise(np.array([self.ext_row[b]]), np.array([v]), np.array([cur]), np.array([temp]),
+                                    self.ambient_c)
             self.pack_time[b] = t
             return
         dt = t - self.pack_time[b]
@@ -273,9 +293,12 @@ class StateEstimator:
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
         self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
+        if b in self.ext_row:
+            self.ext.step_one(self.ext_row[b], dt, i_used, self.ambient_c, v, temp)
         self.charge_c[b] += i_used * dt
         self.pack_time[b] = t
-        active = self.packs.consistency.active[b]
+        window, row = self._window_of(b)
+        active = window.active[row]
         if bool(active[0] or active[1]) != self._mismatch_active[b]:
             self._mismatch_changed(b, t)
 
@@ -344,41 +367,54 @@ class StateEstimator:
         row[[kernel.I_RS, kernel.I_RCP0]] *= float(resistance_scale)
         row[[kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX]] *= float(capacity_scale)
         self.packs.set_params(b, row)
+        if b in self.ext_row:
+            r = self.ext_row[b]
+            ext = self._base_ext_matrix[r].copy()
+            ext[[kernel.E_R0, kernel.E_R1, kernel.E_R2]] *= float(resistance_scale)
+            ext[kernel.E_CMAX] *= float(capacity_scale)
+            self.ext.set_params(r, ext)
         self.counters["parameter_updates"] += 1
 
     # ---- model consistency -------------------------------------------------------------------------
+    def _window_of(self, b: int):
+        """Pack ``b``'s consistency window and its row there: its own variant's filter's."""
+        if b in self.ext_row:
+            return self.ext.consistency, self.ext_row[b]
+        return self.packs.consistency, b
+
     def model_check(self, b: int) -> dict:
         """Pack ``b``'s model-consistency test with its evidence, JSON-ready: ``active`` (the pack
         does not behave like its model), the window (updates), per channel the statistic (mean
         squared normalised innovation, clipped; ≈ 0.3-0.5 on a pack that matches) against its bound,
         the mean residual (measured − predicted, mV and K), the message time of the last raise or
         clear, the factor applied to the prediction's state spread, and what to do about it."""
-        w = self.packs.consistency
-        stat, res = w.statistic()[b], w.mean_residual()[b]
+        w, row = self._window_of(b)
+        stat, res = w.statistic()[row], w.mean_residual()[row]
         name = self.pack_names[b]
         active = bool(self._mismatch_active[b])
 
         def num(x, nd):
             return None if not math.isfinite(float(x)) else round(float(x), nd)
 
-        out = {"active": active, "window_updates": w.size, "updates": int(w.count[b, 0]),
+        out = {"active": active, "model": "extended" if b in self.ext_row else "paper",
+               "window_updates": w.size, "updates": int(w.count[row, 0]),
                "statistic": num(stat[0], 3), "bound": round(w.raise_at, 3), "clear_below": round(w.clear_at, 3),
                "false_alarm_per_window": w.false_alarm,
                "voltage_residual_mv": num(1000.0 * res[0], 1),
                "temperature_statistic": num(stat[1], 3), "temperature_residual_k": num(res[1], 2),
-               "channels": [c for c, on in zip(CHANNELS, w.active[b]) if on],
+               "channels": [c for c, on in zip(CHANNELS, w.active[row]) if on],
                "since_s": num(self._mismatch_since[b], 3),
                "prediction_inflation": round(float(self.prediction_inflation()[b]), 3)}
         if not self.packs.initialised[b] or not math.isfinite(stat[0]):
             out["state"] = "unknown"
-            out["reason"] = (f"not judged yet: {int(w.count[b, 0])} of {w.size} voltage updates since the pack's "
+            out["reason"] = (f"not judged yet: {int(w.count[row, 0])} of {w.size} voltage updates since the pack's "
                              f"filter started")
         elif active:
             out["state"] = "mismatch"
             parts = [f"{c} innovations {stat[k]:.2f}× their expected variance (bound {w.raise_at:.2f}, "
                      f"mean residual {1000 * res[k]:+.0f} mV)" if k == 0 else
                      f"{c} innovations {stat[k]:.2f}× their expected variance (bound {w.raise_at:.2f}, "
-                     f"mean residual {res[k]:+.2f} K)" for k, c in enumerate(CHANNELS) if w.active[b, k]]
+                     f"mean residual {res[k]:+.2f} K)" for k, c in enumerate(CHANNELS) if w.active[row, k]]
             out["reason"] = (f"pack {name} does not behave like its model over the last {w.size} updates: "
                              + "; ".join(parts))
             out["suggestion"] = refit_suggestion(name)
@@ -400,9 +436,11 @@ class StateEstimator:
         its model; while it does not, its channel statistic (≥ 1) — the innovations are that many
         times more variable than the filter believes, so its state is that much less certain
         (covariance matching). ``prediction.predict_from_estimator`` applies it."""
-        stat = self.packs.consistency.statistic()
-        worst = np.nanmax(np.where(self.packs.consistency.active, stat, 1.0), axis=1)
-        return np.where(self._mismatch_active, np.maximum(worst, 1.0), 1.0)
+        worst = np.ones(len(self.pack_names))
+        for b in np.flatnonzero(self._mismatch_active):
+            w, row = self._window_of(b)
+            worst[b] = np.nanmax(np.where(w.active[row], w.statistic()[row], 1.0))
+        return np.maximum(worst, 1.0)
 
     def _restart(self, kind: str, name: str, gap_s: float) -> None:
         self.counters["restarts"] += 1
@@ -425,9 +463,16 @@ class StateEstimator:
 
     def estimate(self) -> Estimate:
         soc, soc_sd = self.packs.soc()
-        soc_sd = np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
         tp, tp_sd = self.packs.temperature()
         v, _ = self.packs.voltage()
+        if self.ext is not None:
+            rows = np.array(sorted(self.ext_row))
+            e_soc, e_sd = self.ext.soc()
+            e_t, e_tsd = self.ext.temperature()
+            order = [self.ext_row[b] for b in rows]
+            soc[rows], soc_sd[rows], tp[rows], tp_sd[rows] = e_soc[order], e_sd[order], e_t[order], e_tsd[order]
+            v[rows] = self.ext.voltage(np.nan_to_num(self.pack_current[rows]))[order]
+        soc_sd = np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
         tm, tm_sd = self.motors.temperature()
         none = ~self.packs.initialised
         for a in (soc, soc_sd, tp, tp_sd, v):

@@ -235,3 +235,93 @@ class PackFilterBank:
         v = kernel.terminal_voltage(self.params, self.mean)
         var = np.einsum("ki,kij,kj->k", self._h_v, self.cov, self._h_v)
         return v, np.sqrt(np.maximum(var, 0.0))
+
+
+@dataclass(frozen=True)
+class ExtendedFilterConfig:
+    """Noise of the extended-variant filter (state ``kernel.EXT_PACK_STATE``); the rest (gating,
+    re-lock, the consistency test) is the ``PackFilterConfig``'s."""
+
+    #: process noise densities per √s: SoC (the paper filter's 4 C/√s over 7.8 Ah), v_1, v_2 (V),
+    #: T (°C), s_d (SoC)
+    process_sigma: tuple[float, float, float, float, float] = (1.4e-4, 3e-3, 1e-3, 0.02, 1e-5)
+    initial_soc_sigma: float = 0.05
+
+
+class ExtendedPackFilterBank:
+    """The same filter for packs of the extended variant (docs/model.md): the unscented prediction
+    through the kernel's ``_ext_advance``, the voltage update linearised at the predicted mean
+    (``ukf.ext_pack_step_rows``). Rows are the bank's own; the estimator maps packs onto them."""
+
+    def __init__(self, ext_params: np.ndarray, config: PackFilterConfig = PackFilterConfig(),
+                 ext_config: ExtendedFilterConfig = ExtendedFilterConfig()):
+        self.params = np.ascontiguousarray(np.atleast_2d(np.asarray(ext_params, dtype=np.float64)))
+        if self.params.shape[1] != kernel.N_EXT_PARAMS:
+            raise ValueError(f"ext_params: expected (packs, {kernel.N_EXT_PARAMS}), got {self.params.shape}")
+        self.config, self.ext_config = config, ext_config
+        n = self.params.shape[0]
+        self.mean = np.zeros((n, kernel.N_EXT_STATE))
+        self.cov = np.zeros((n, kernel.N_EXT_STATE, kernel.N_EXT_STATE))
+        self.initialised = np.zeros(n, dtype=bool)
+        self.rejected_in_row = np.zeros((n, 2), dtype=np.int64)
+        self.rejected_total = np.zeros((n, 2), dtype=np.int64)
+        self.relocks = np.zeros(n, dtype=np.int64)
+        self.last_innovation = np.full((n, 2), np.nan)
+        self.consistency = ConsistencyWindow(n, config)
+        self._q = np.diag(np.square(np.asarray(ext_config.process_sigma, dtype=np.float64)))
+        self._knots()
+        self._one_idx = [np.array([b], dtype=np.int64) for b in range(n)]
+
+    def _knots(self) -> None:
+        self._y = np.empty((self.params.shape[0], kernel.N_OCV_KNOTS))
+        self._d = np.empty_like(self._y)
+        for b in range(self.params.shape[0]):
+            kernel._ocv_knots(self.params[b], self._y[b], self._d[b])
+
+    def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray,
+                   ambient_c: float = 20.0) -> None:
+        """Start rows ``idx`` from a voltage reading: the SoC at which the pack, settled at the
+        measured current and temperature, shows it (``kernel.extended_rest_soc``)."""
+        idx = np.atleast_1d(idx)
+        cur = np.nan_to_num(np.asarray(current, dtype=np.float64), nan=0.0)
+        measured = np.asarray(temperature, dtype=np.float64)
+        temp = np.where(np.isfinite(measured), measured, ambient_c)
+        c = self.config
+        for k, b in enumerate(idx):
+            p = self.params[b]
+            soc = float(np.clip(kernel.extended_rest_soc(p, float(voltage[k]), float(cur[k]), float(temp[k]))[0],
+                                0.0, 1.0))
+            x = kernel.initial_extended_state(p, soc, float(temp[k]), float(cur[k]))[0]
+            self.mean[b] = x
+            sd = np.array([self.ext_config.initial_soc_sigma, 0.3 * abs(x[kernel.X_V1]) + 0.02,
+                           0.3 * abs(x[kernel.X_V2]) + 0.02,
+                           c.temperature_sigma_c if np.isfinite(measured[k]) else c.initial_temp_sigma_c,
+                           0.3 * abs(x[kernel.X_SD]) + 0.005])
+            self.cov[b] = np.diag(sd ** 2)
+        self.initialised[idx] = True
+        self.consistency.reset(idx)
+
+    def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> None:
+        c = self.config
+        ukf.ext_pack_step_rows(self.params, self._y, self._d, self.mean, self.cov, self._one_idx[b], np.array([dt]),
+                               np.array([current]), np.array([ambient]), np.array([voltage]),
+                               np.array([temperature]), self._q, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2,
+                               c.gate, c.relock_after, c.relock_inflation, kernel.DEFAULT_MAX_DT,
+                               self.last_innovation, self.rejected_total, self.rejected_in_row, self.relocks,
+                               self.consistency.arrays)
+
+    def set_params(self, b: int, row: np.ndarray) -> None:
+        """New values for row ``b``; the state (SoC fraction, R–C voltages) carries over as it is."""
+        self.params[b] = np.asarray(row, dtype=np.float64)
+        kernel._ocv_knots(self.params[b], self._y[b], self._d[b])
+
+    def soc(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.mean[:, kernel.X_SOC].copy(), np.sqrt(np.maximum(self.cov[:, 0, 0], 0.0))
+
+    def temperature(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.mean[:, kernel.X_T].copy(), np.sqrt(np.maximum(self.cov[:, kernel.X_T, kernel.X_T], 0.0))
+
+    def voltage(self, current: np.ndarray) -> np.ndarray:
+        """Terminal voltage of each row's mean state at ``current`` (A per row)."""
+        return np.array([ukf._ext_voltage(self.params[b], self._y[b], self._d[b], self.mean[b], float(current[b]))
+                         for b in range(self.params.shape[0])])

@@ -205,6 +205,52 @@ def _window_push(b, ch, nu, norm, window):
 
 
 @njit(**_JIT)
+def _observe_channel(m, c, h, z, r, dt, ch, b, gate, relock_after, relock_inflation, last_innovation,
+                     rejected_total, rejected_in_row, relocks, window):
+    """One pack channel (``ch`` 0 voltage, 1 temperature; ``z`` NaN = not measured), gated, and
+    its innovation into the consistency window.
+
+    The window takes one update per channel per advance of time: frames sharing one message-time
+    stamp (a link that stamps untimed messages with the last timed one) were measured over the
+    interval before it, so their innovations are not independent draws. A gated sample after an
+    accepted one may be a lone spike and is left out too; the second and later of a run are a
+    model the data leave behind."""
+    if not math.isfinite(z):
+        return
+    run = rejected_in_row[b, ch]
+    nu, norm = _observe(m, c, h, z, r, gate, relock_after, relock_inflation, ch, b,
+                        last_innovation, rejected_total, rejected_in_row, relocks)
+    if dt > 0.0 and (abs(norm) <= gate or run > 0):
+        _window_push(b, ch, nu, norm, window)
+
+
+@njit(**_JIT)
+def _quiet_after_gap(window, b, dt):
+    """After a gap longer than the window's ``gap_s`` the next updates are not judged: the current
+    held over the gap was a guess, and the innovations show that, not the model."""
+    if dt > window[6][0, 3]:
+        window[7][b, 0] = int(window[6][0, 4])
+        window[7][b, 1] = int(window[6][0, 4])
+
+
+@njit(**_JIT)
+def _moments_into(pts, m, c, q, dt):
+    """Mean and covariance of propagated sigma points ``pts`` (2n, n) into ``m``, ``c``, plus ``q dt``."""
+    two_n, n = pts.shape
+    for i in range(n):
+        acc = 0.0
+        for s in range(two_n):
+            acc += pts[s, i]
+        m[i] = acc / two_n
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for s in range(two_n):
+                acc += (pts[s, i] - m[i]) * (pts[s, j] - m[j])
+            c[i, j] = acc / two_n + q[i, j] * dt
+
+
+@njit(**_JIT)
 def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temperature, q, h_v,
                    r_v, r_t, gate, relock_after, relock_inflation, max_dt,
                    last_innovation, rejected_total, rejected_in_row, relocks, window):
@@ -216,14 +262,10 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
     x = np.empty(n)
     h_t = np.zeros(n)
     h_t[n - 1] = 1.0
-    quiet, gap_s, settle = window[7], window[6][0, 3], int(window[6][0, 4])
     for k in range(idx.shape[0]):
         b = idx[k]
         m, c, p = mean[b], cov[b], params[b]
-        if dt[k] > gap_s:
-            # the current over a gap is a held guess: the next innovations judge that, not the model
-            quiet[b, 0] = settle
-            quiet[b, 1] = settle
+        _quiet_after_gap(window, b, dt[k])
         if dt[k] > 0.0:
             _sigma_factor(c, chol)
             for s in range(2 * n):
@@ -234,35 +276,73 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
                 kernel._pack_advance(p, x, current[k], ambient[k], dt[k], max_dt)
                 for i in range(n):
                     pts[s, i] = x[i]
+            _moments_into(pts, m, c, q, dt[k])
+        _observe_channel(m, c, h_v[b], voltage[k], r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
+                         last_innovation, rejected_total, rejected_in_row, relocks, window)
+        _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
+                         last_innovation, rejected_total, rejected_in_row, relocks, window)
+
+
+_NX = kernel.N_EXT_STATE
+#: finite-difference steps of the extended variant's voltage linearisation: soc, v_1, v_2, T, s_d
+_EXT_FD = np.array([1e-4, 1e-3, 1e-3, 1e-2, 1e-4])
+
+
+@njit(**_JIT)
+def _ext_voltage(p, y, d, x, current):
+    """Terminal voltage of an extended pack state at ``current`` (the kernel's own, zero-length step)."""
+    return kernel._ext_advance(p, y, d, x, current, 0.0, math.nan, 0.0, 1.0)
+
+
+@njit(**_JIT)
+def ext_pack_step_rows(params, knots_y, knots_d, mean, cov, idx, dt, current, ambient, voltage, temperature, q,
+                       r_v, r_t, gate, relock_after, relock_inflation, max_dt,
+                       last_innovation, rejected_total, rejected_in_row, relocks, window):
+    """The extended-variant pack filter (state ``kernel.EXT_PACK_STATE``) for rows ``idx``, in place.
+
+    Prediction: the unscented transform through the kernel's ``_ext_advance`` (the model's own
+    temperature drives its resistances). Update: the terminal voltage is nonlinear in the state
+    (OCV(SoC − s_d), the resistances' f(T, SoC), the Butler–Volmer term), so it is linearised at
+    the predicted mean by central differences of the kernel's own voltage (an EKF update on the
+    UKF's predicted moments): ν = z − V(x̄), H = ∂V/∂x at x̄. Temperature is linear (H = e_T)."""
+    n = _NX
+    chol = np.empty((n, n))
+    pts = np.empty((2 * n, n))
+    x = np.empty(n)
+    h_t = np.zeros(n)
+    h_t[kernel.X_T] = 1.0
+    h_v = np.empty(n)
+    for k in range(idx.shape[0]):
+        b = idx[k]
+        m, c, p, y, d = mean[b], cov[b], params[b], knots_y[b], knots_d[b]
+        _quiet_after_gap(window, b, dt[k])
+        if dt[k] > 0.0:
+            _sigma_factor(c, chol)
+            for s in range(2 * n):
+                sign = 1.0 if s < n else -1.0
+                col = s % n
+                for i in range(n):
+                    x[i] = m[i] + sign * chol[i, col]
+                kernel._ext_advance(p, y, d, x, current[k], ambient[k], math.nan, dt[k], max_dt)
+                for i in range(n):
+                    pts[s, i] = x[i]
+            _moments_into(pts, m, c, q, dt[k])
+        z = voltage[k]
+        if math.isfinite(z):
+            v0 = _ext_voltage(p, y, d, m, current[k])
+            z_lin = z - v0
             for i in range(n):
-                acc = 0.0
-                for s in range(2 * n):
-                    acc += pts[s, i]
-                m[i] = acc / (2 * n)
-            for i in range(n):
-                for j in range(n):
-                    acc = 0.0
-                    for s in range(2 * n):
-                        acc += (pts[s, i] - m[i]) * (pts[s, j] - m[j])
-                    c[i, j] = acc / (2 * n) + q[i, j] * dt[k]
-        # The consistency window takes one update per channel per advance of time: frames sharing
-        # one message-time stamp (a link that stamps untimed messages with the last timed one) were
-        # measured over the interval before it, so their innovations are not independent draws.
-        # A gated sample after an accepted one may be a lone spike and is left out too; the second
-        # and later of a run are a model the data leave behind.
-        judged = dt[k] > 0.0
-        if math.isfinite(voltage[k]):
-            run = rejected_in_row[b, 0]
-            nu, norm = _observe(m, c, h_v[b], voltage[k], r_v, gate, relock_after, relock_inflation, 0, b,
-                                last_innovation, rejected_total, rejected_in_row, relocks)
-            if judged and (abs(norm) <= gate or run > 0):
-                _window_push(b, 0, nu, norm, window)
-        if math.isfinite(temperature[k]):
-            run = rejected_in_row[b, 1]
-            nu, norm = _observe(m, c, h_t, temperature[k], r_t, gate, relock_after, relock_inflation, 1, b,
-                                last_innovation, rejected_total, rejected_in_row, relocks)
-            if judged and (abs(norm) <= gate or run > 0):
-                _window_push(b, 1, nu, norm, window)
+                x[:] = m
+                x[i] = m[i] + _EXT_FD[i]
+                hi = _ext_voltage(p, y, d, x, current[k])
+                x[i] = m[i] - _EXT_FD[i]
+                lo = _ext_voltage(p, y, d, x, current[k])
+                h_v[i] = (hi - lo) / (2.0 * _EXT_FD[i])
+                z_lin += h_v[i] * m[i]
+            _observe_channel(m, c, h_v, z_lin, r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
+                             last_innovation, rejected_total, rejected_in_row, relocks, window)
+        _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
+                         last_innovation, rejected_total, rejected_in_row, relocks, window)
 
 
 @njit(**_JIT)
