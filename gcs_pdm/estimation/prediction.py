@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from gcs_pdm.estimation.extended_prediction import ExtendedPacks
 from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -183,7 +184,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
             motor_temp_sd: np.ndarray, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
             param_rel_sigma: float = 0.08, fault: np.ndarray | None = None, limits: Limits = Limits(),
             trajectories: bool = True, stop_on_failure: bool = True, trajectory_every_s: float = 10.0,
-            vehicle=None) -> Prediction:
+            vehicle=None, extended=None) -> Prediction:
     """Monte Carlo prediction over state and parameter uncertainty (one kernel call).
 
     ``params``: a ParameterSet or a (pack matrix (4, 12), motor vector (5,)) pair.
@@ -195,7 +196,11 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
 
     ``vehicle``: a description's ``ModelInputs``; then ``params`` is a (pack matrix (P, 12), motor
     matrix (M, 5)) pair, ``fault`` is (M,), the limits are the description's per pack and motor, and
-    the samples fly ``models.topology.simulate_vehicle`` instead of the paper's four-pack layout."""
+    the samples fly ``models.topology.simulate_vehicle`` instead of the paper's four-pack layout.
+
+    ``extended``: an ``extended_prediction.ExtendedPacks`` (the paper's aircraft only): those packs
+    are drawn from their extended filter and fly the kernel's extended variant
+    (``topology.simulate_vehicle_extended``)."""
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     pp, mp = sample_parameters(params, n_samples, rng, param_rel_sigma)
@@ -203,6 +208,8 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
                             np.asarray(motor_temp_c, dtype=np.float64), np.asarray(motor_temp_sd, dtype=np.float64),
                             n_samples, rng)
     x0 = restate(base_arrays(params)[0], x0, pp)
+    if extended is not None:
+        x0, ep = extended.sample(x0, n_samples, rng, param_rel_sigma)
     n_motors = 2 if vehicle is None else vehicle.n_motors
     f = np.zeros((1, n_motors)) if fault is None else np.clip(
         np.asarray(fault, dtype=np.float64).reshape(1, n_motors), 0.0, 1.0)
@@ -221,7 +228,12 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
     def fly(rows: slice) -> dict:
         """Samples ``rows`` through the load, reduced to what the prediction reports."""
         f_rows = f if f.shape[0] == 1 else f[rows]
-        if vehicle is None:
+        if extended is not None:
+            run = topology.simulate_vehicle_extended(
+                topology.PAPER_TOPOLOGY.with_limits(*limits.as_tuple()), pp[rows], ep[rows], extended.is_ext,
+                np.repeat(mp[rows][:, None, :], 2, axis=1), x0[rows], tm0[rows], dt, power, amb, f_rows,
+                stop_on_failure=stop_on_failure, record=True)
+        elif vehicle is None:
             run = topology.simulate_powertrain(pp[rows], mp[rows], x0[rows], tm0[rows], dt, power, amb, f_rows,
                                                limits=limits.as_tuple(), stop_on_failure=stop_on_failure, record=True)
         else:
@@ -338,13 +350,14 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     soc = kernel.state_of_charge(packs.params, packs.mean)
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * packs.params[:, kernel.I_CMAX]
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
-    cov *= estimator.prediction_inflation()[:, None, None]  # wider while a pack does not match its model
+    inflation = estimator.prediction_inflation()
+    cov *= inflation[:, None, None]  # wider while a pack does not match its model
     inputs = getattr(estimator, "inputs", None)
     if inputs is not None:
         return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
                        n_samples=n_samples, fault=fault, vehicle=inputs, **kw)
     return predict((packs.params, estimator.motors.params[0]), packs.mean, cov, tm, tm_sd, load, rng=rng,
-                   n_samples=n_samples, fault=fault, **kw)
+                   n_samples=n_samples, fault=fault, extended=ExtendedPacks.of(estimator, inflation), **kw)
 
 
 @dataclass(frozen=True)
@@ -393,14 +406,24 @@ def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.n
     run = kernel.simulate_packs(pp.reshape(-1, kernel.N_PACK_PARAMS), x0.reshape(-1, kernel.N_PACK_STATE), dt,
                                 np.repeat(np.tile(cur, n_samples)[:, None], n_steps, axis=1), estimator.ambient_c)
     v = run.voltage.reshape(n_samples, n_packs, n_steps)
-    ended = (v < np.asarray(cutoff_v, dtype=np.float64)[None, :, None]) | (run.soc.reshape(v.shape) <= 0.0)
+    soc_run, temp_run = run.soc.reshape(v.shape), run.temperature.reshape(v.shape)
+    extended = ExtendedPacks.of(estimator, estimator.prediction_inflation())
+    if extended is not None:  # those packs fly the extended variant (their rows above are replaced)
+        xe, ep = extended.sample(x0, n_samples, rng, param_rel_sigma)
+        e = extended.is_ext
+        er = kernel.simulate_packs(ep[:, e].reshape(-1, kernel.N_EXT_PARAMS), xe[:, e].reshape(-1, kernel.N_EXT_STATE),
+                                   dt, np.repeat(np.tile(cur[e], n_samples)[:, None], n_steps, axis=1),
+                                   estimator.ambient_c, variant="extended")
+        v[:, e], soc_run[:, e], temp_run[:, e] = (a.reshape(n_samples, -1, n_steps)
+                                                  for a in (er.voltage, er.soc, er.temperature))
+    ended = (v < np.asarray(cutoff_v, dtype=np.float64)[None, :, None]) | (soc_run <= 0.0)
     reached = ended.any(axis=2)
     t_end = np.cumsum(dt)
     ttc = np.where(reached, t_end[ended.argmax(axis=2)], np.inf)
     # peaks up to the cut-off only: past it the pack is not flown and the model leaves its range
     k_cut = np.where(reached, ended.argmax(axis=2), n_steps - 1)
     flown = np.arange(n_steps)[None, None, :] <= k_cut[..., None]
-    peak = np.max(np.where(flown, run.temperature.reshape(v.shape), -np.inf), axis=2)
+    peak = np.max(np.where(flown, temp_run, -np.inf), axis=2)
     return PackCutoffPrediction(
         pack_names=tuple(estimator.pack_names), current_a=cur, horizon_s=float(t_end[-1]), n_samples=n_samples,
         time_to_cutoff_s=np.quantile(ttc, QUANTILES, axis=0, method="nearest").T,
