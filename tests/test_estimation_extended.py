@@ -175,3 +175,32 @@ def test_prediction_with_extended_packs_matches_a_direct_extended_simulation(flo
         t_direct = first_below(direct.pack_voltage[0, :, b], t)
         assert np.isfinite(t_direct)
         assert pred.pack_time_to_cutoff_s[b, 1] == pytest.approx(t_direct, rel=0.08)
+
+
+def test_the_service_says_the_planner_flies_paper_values_of_extended_packs(tmp_path):
+    """Activating a set with an extended pack: the answer and /status name the pack whose paper
+    values the planner still flies; a paper-only set has no such note."""
+    from fastapi.testclient import TestClient
+
+    from gcs_pdm.service.api import create_app
+    from gcs_pdm.service.config import load_config
+    from gcs_pdm.service.runtime import Service
+
+    token = "extended-test-token-0123456789"
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=token, policy="advise"))
+    try:
+        client = TestClient(create_app(svc))
+        auth = {"Authorization": f"Bearer {token}"}
+        assert client.get("/status").json()["model_variants"]["notes"] == []
+        body = extended_set(packs=("URA40",)).to_dict()
+        r = client.post("/parameter-sets", json={"parameter_set": body, "name": "ext_ura40"}, headers=auth)
+        assert r.status_code == 201, r.json()
+        r = client.post("/parameter-sets/ext_ura40/activate", headers=auth)
+        assert r.status_code == 200
+        variants = r.json()["model_variants"]
+        assert variants["packs"]["URA40"] == "extended" and variants["packs"]["LLF20"] == "paper"
+        assert variants["notes"] == [n for n in variants["notes"] if "URA40" in n] and len(variants["notes"]) == 1
+        assert "planner uses the paper-variant values of pack URA40" in variants["notes"][0]
+        assert client.get("/status").json()["model_variants"] == variants
+    finally:
+        svc.close()

@@ -47,6 +47,21 @@ def model_mismatch_summary(model_checks: dict[str, dict]) -> dict | None:
     return {"packs": sorted(bad), "reason": reason, "since_s": {n: c.get("since_s") for n, c in bad.items()}}
 
 
+#: what each user of a parameter set does with a pack of the extended variant (docs/model.md)
+PLANNER_PAPER_NOTE = ("planner uses the paper-variant values of pack {pack}: its vehicle simulator flies the paper "
+                      "circuit only; the estimator, its model check and the Monte Carlo predictions use the pack's "
+                      "extended values")
+
+
+def model_variant_report(params) -> dict:
+    """Which model variant each pack of ``params`` (a ``ParameterSet``) runs on, and where a user
+    still flies an extended pack's paper values (said, never silent): for ``/status`` and the
+    parameter-set activation answer."""
+    packs = {n: p.model for n, p in params.packs.items()}
+    return {"packs": packs,
+            "notes": [PLANNER_PAPER_NOTE.format(pack=n) for n, model in packs.items() if model == "extended"]}
+
+
 def foreign_system_ids(service) -> list[int]:
     """Systems other than the tracked vehicle that sent vehicle heartbeats (for ``/health``)."""
     link = _link(service)

@@ -406,6 +406,9 @@ function computeBanners() {
     for (const [k, why] of Object.entries(st.readiness || {}))
       if (k !== "replan" && why !== "ready" && (k !== "motor_diagnosis" || String(why).startsWith("not diagnosable")))
         out.push({id: "readiness-" + k, level: "warning", title: `${k.replace(/_/g, " ")}: not ready`, why: String(why)});
+    // an extended pack the planner still flies on its paper values (said, never silent)
+    for (const [i, note] of (((st.model_variants || {}).notes) || []).entries())
+      out.push({id: "variant-" + i, level: "warning", title: "Planner uses paper-variant values", why: String(note)});
     if (st.model_mismatch) out.push({id: "mismatch", level: "warning", title: "Model mismatch", why: typeof st.model_mismatch === "string" ? st.model_mismatch : (st.model_mismatch.reason || JSON.stringify(st.model_mismatch))});
     for (const [i, w] of (st.warnings || st.banners || []).entries()) {
       const o = typeof w === "string" ? {text: w} : w;
