@@ -130,24 +130,30 @@ class ConsistencyWindow:
         return np.where(self.count > 0, self.sums[..., 1] / np.maximum(self.count, 1), np.nan)
 
 
+def _allocate(bank, params, n_params: int, n_state: int, config: PackFilterConfig, process_sigma, name: str) -> None:
+    """A filter bank's parameter rows, state, covariance, counters and consistency window."""
+    bank.params = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    if bank.params.shape[1] != n_params:
+        raise ValueError(f"{name}: expected (packs, {n_params}), got {bank.params.shape}")
+    bank.config = config
+    n = bank.params.shape[0]
+    bank.mean = np.zeros((n, n_state))
+    bank.cov = np.zeros((n, n_state, n_state))
+    bank.initialised = np.zeros(n, dtype=bool)
+    bank.rejected_in_row = np.zeros((n, 2), dtype=np.int64)
+    bank.rejected_total = np.zeros((n, 2), dtype=np.int64)
+    bank.relocks = np.zeros(n, dtype=np.int64)
+    bank.last_innovation = np.full((n, 2), np.nan)
+    bank.consistency = ConsistencyWindow(n, config)
+    bank._q = np.diag(np.square(np.asarray(process_sigma, dtype=np.float64)))
+
+
 class PackFilterBank:
     """UKF over ``n_packs`` packs sharing nothing but the kernel call."""
 
     def __init__(self, pack_params: np.ndarray, config: PackFilterConfig = PackFilterConfig()):
-        self.params = np.ascontiguousarray(np.atleast_2d(np.asarray(pack_params, dtype=np.float64)))
-        if self.params.shape[1] != kernel.N_PACK_PARAMS:
-            raise ValueError(f"pack_params: expected (packs, {kernel.N_PACK_PARAMS}), got {self.params.shape}")
-        self.config = config
+        _allocate(self, pack_params, kernel.N_PACK_PARAMS, N_STATE, config, config.process_sigma, "pack_params")
         n_packs = self.params.shape[0]
-        self.mean = np.zeros((n_packs, N_STATE))
-        self.cov = np.zeros((n_packs, N_STATE, N_STATE))
-        self.initialised = np.zeros(n_packs, dtype=bool)
-        self.rejected_in_row = np.zeros((n_packs, 2), dtype=np.int64)
-        self.rejected_total = np.zeros((n_packs, 2), dtype=np.int64)
-        self.relocks = np.zeros(n_packs, dtype=np.int64)
-        self.last_innovation = np.full((n_packs, 2), np.nan)
-        self.consistency = ConsistencyWindow(n_packs, config)
-        self._q = np.diag(np.square(np.asarray(config.process_sigma, dtype=np.float64)))
         # observation rows: V = q_b/C_b - q_cp/C_cp - q_s/C_s ; T = T
         p = self.params
         self._h_v = np.stack([1.0 / p[:, kernel.I_CB], -1.0 / p[:, kernel.I_CCP], -1.0 / p[:, kernel.I_CS],
@@ -255,20 +261,10 @@ class ExtendedPackFilterBank:
 
     def __init__(self, ext_params: np.ndarray, config: PackFilterConfig = PackFilterConfig(),
                  ext_config: ExtendedFilterConfig = ExtendedFilterConfig()):
-        self.params = np.ascontiguousarray(np.atleast_2d(np.asarray(ext_params, dtype=np.float64)))
-        if self.params.shape[1] != kernel.N_EXT_PARAMS:
-            raise ValueError(f"ext_params: expected (packs, {kernel.N_EXT_PARAMS}), got {self.params.shape}")
-        self.config, self.ext_config = config, ext_config
+        _allocate(self, ext_params, kernel.N_EXT_PARAMS, kernel.N_EXT_STATE, config, ext_config.process_sigma,
+                  "ext_params")
+        self.ext_config = ext_config
         n = self.params.shape[0]
-        self.mean = np.zeros((n, kernel.N_EXT_STATE))
-        self.cov = np.zeros((n, kernel.N_EXT_STATE, kernel.N_EXT_STATE))
-        self.initialised = np.zeros(n, dtype=bool)
-        self.rejected_in_row = np.zeros((n, 2), dtype=np.int64)
-        self.rejected_total = np.zeros((n, 2), dtype=np.int64)
-        self.relocks = np.zeros(n, dtype=np.int64)
-        self.last_innovation = np.full((n, 2), np.nan)
-        self.consistency = ConsistencyWindow(n, config)
-        self._q = np.diag(np.square(np.asarray(ext_config.process_sigma, dtype=np.float64)))
         self._knots()
         self._one_idx = [np.array([b], dtype=np.int64) for b in range(n)]
 

@@ -233,6 +233,16 @@ def _quiet_after_gap(window, b, dt):
         window[7][b, 1] = int(window[6][0, 4])
 
 
+@njit(inline="always", **_JIT)
+def _sigma_point(m, chol, s, x):
+    """Sigma point ``s`` of the symmetric set (m ± the columns of the factor of n·cov) into ``x``."""
+    n = m.shape[0]
+    sign = 1.0 if s < n else -1.0
+    col = s % n
+    for i in range(n):
+        x[i] = m[i] + sign * chol[i, col]
+
+
 @njit(**_JIT)
 def _moments_into(pts, m, c, q, dt):
     """Mean and covariance of propagated sigma points ``pts`` (2n, n) into ``m``, ``c``, plus ``q dt``."""
@@ -269,10 +279,7 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
         if dt[k] > 0.0:
             _sigma_factor(c, chol)
             for s in range(2 * n):
-                sign = 1.0 if s < n else -1.0
-                col = s % n
-                for i in range(n):
-                    x[i] = m[i] + sign * chol[i, col]
+                _sigma_point(m, chol, s, x)
                 kernel._pack_advance(p, x, current[k], ambient[k], dt[k], max_dt)
                 for i in range(n):
                     pts[s, i] = x[i]
@@ -319,10 +326,7 @@ def ext_pack_step_rows(params, knots_y, knots_d, mean, cov, idx, dt, current, am
         if dt[k] > 0.0:
             _sigma_factor(c, chol)
             for s in range(2 * n):
-                sign = 1.0 if s < n else -1.0
-                col = s % n
-                for i in range(n):
-                    x[i] = m[i] + sign * chol[i, col]
+                _sigma_point(m, chol, s, x)
                 kernel._ext_advance(p, y, d, x, current[k], ambient[k], math.nan, dt[k], max_dt)
                 for i in range(n):
                     pts[s, i] = x[i]
