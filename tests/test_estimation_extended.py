@@ -95,6 +95,11 @@ def test_a_mixed_set_runs_each_pack_on_its_own_variant():
     assert e.soc[1] == pytest.approx(0.8, abs=0.03)
     assert e.soc[0] < 0.6
     assert e.model_mismatch["ULA20"]["model"] == "extended" and e.model_mismatch["LLF20"]["model"] == "paper"
+    # the capacity the prognosis counts SoC against is each pack's own variant's
+    small = dict(ps.packs["ULA20"].extended, C_max=0.8 * ps.packs["ULA20"].extended["C_max"])
+    est = StateEstimator(ps.with_pack("ULA20", dataclasses.replace(ps.packs["ULA20"], extended=small)))
+    cap = est.capacity_c()
+    assert cap[1] == pytest.approx(small["C_max"]) and cap[0] == pytest.approx(ps.packs["LLF20"].battery.C_max)
 
 
 def test_extended_block_flies_the_kernel_extended_step():

@@ -375,6 +375,14 @@ class StateEstimator:
             self.ext.set_params(r, ext)
         self.counters["parameter_updates"] += 1
 
+    def capacity_c(self) -> np.ndarray:
+        """(packs,) usable capacity (C) each pack is run on: its extended C_max for a pack of the
+        extended variant, else the paper C_max (after any adopted degradation)."""
+        cap = self.packs.params[:, kernel.I_CMAX].copy()
+        for b, r in self.ext_row.items():
+            cap[b] = self.ext.params[r, kernel.E_CMAX]
+        return cap
+
     # ---- model consistency -------------------------------------------------------------------------
     def _window_of(self, b: int):
         """Pack ``b``'s consistency window and its row there: its own variant's filter's."""
