@@ -292,18 +292,20 @@ class StateEstimator:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
-        self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
+        # the compiled steps say when a consistency state flipped (nearly never): only then is it read
+        flipped = self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
         if b in self.ext_row:
-            self.ext.step_one(self.ext_row[b], dt, i_used, self.ambient_c, v, temp)
+            flipped = self.ext.step_one(self.ext_row[b], dt, i_used, self.ambient_c, v, temp)
         self.charge_c[b] += i_used * dt
         self.pack_time[b] = t
-        window, row = self._window_of(b)
-        active = window.active[row]
-        if bool(active[0] or active[1]) != self._mismatch_active[b]:
+        if flipped or self._mismatch_active[b]:
             self._mismatch_changed(b, t)
 
     def _mismatch_changed(self, b: int, t: float) -> None:
-        now = not self._mismatch_active[b]
+        window, row = self._window_of(b)
+        now = bool(window.active[row].any())
+        if now == self._mismatch_active[b]:
+            return
         self._mismatch_active[b] = now
         self._mismatch_since[b] = t
         self.counters["model_mismatch_raised" if now else "model_mismatch_cleared"] += 1

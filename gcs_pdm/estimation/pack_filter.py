@@ -104,20 +104,26 @@ class ConsistencyWindow:
         self.raise_at = clipped_mean_quantile(1.0 - config.mismatch_false_alarm, n, self.clip)
         self.clear_at = clipped_mean_quantile(config.mismatch_clear_quantile, n, self.clip)
         self.false_alarm = float(config.mismatch_false_alarm)
-        self.sq = np.zeros((n_rows, 2, n))
-        self.res = np.zeros((n_rows, 2, n))
-        self.pos = np.zeros((n_rows, 2), dtype=np.int64)
-        self.count = np.zeros((n_rows, 2), dtype=np.int64)
+        self.buf = np.zeros((n_rows, 2, 2, n))             # [..., 0, :] ν²/S clipped, [..., 1, :] ν
+        self.ints = np.zeros((n_rows, 2, 4), dtype=np.int64)  # ukf.W_POS, W_COUNT, W_ACTIVE, W_QUIET
         self.sums = np.zeros((n_rows, 2, 2))
-        self.active = np.zeros((n_rows, 2), dtype=np.bool_)
         self.levels = np.array([[self.raise_at, self.clear_at, self.clip ** 2, config.mismatch_gap_s,
                                  config.mismatch_settle_updates]] * 2)
-        self.quiet = np.zeros((n_rows, 2), dtype=np.int64)
-        self.arrays = (self.sq, self.res, self.pos, self.count, self.sums, self.active, self.levels, self.quiet)
+        self.arrays = (self.buf, self.ints, self.sums, self.levels)
+
+    @property
+    def count(self) -> np.ndarray:
+        """(rows, 2) updates in the window."""
+        return self.ints[..., ukf.W_COUNT]
+
+    @property
+    def active(self) -> np.ndarray:
+        """(rows, 2) bool: the channel fails the test now."""
+        return self.ints[..., ukf.W_ACTIVE] != 0
 
     def reset(self, rows) -> None:
         """Forget rows ``rows`` (a filter restarting from a fresh reading)."""
-        for a in (self.sq, self.res, self.pos, self.count, self.sums, self.active, self.quiet):
+        for a in (self.buf, self.ints, self.sums):
             a[rows] = 0
 
     def statistic(self) -> np.ndarray:
@@ -202,10 +208,11 @@ class PackFilterBank:
                            c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
                            self.rejected_in_row, self.relocks, self.consistency.arrays)
 
-    def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> None:
-        """``step`` for one pack and plain floats (a telemetry frame), without the array set-up."""
+    def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> int:
+        """``step`` for one pack and plain floats (a telemetry frame), without the array set-up.
+        Returns how many of its consistency states flipped (0 nearly always)."""
         c = self.config
-        ukf.pack_step_rows(self.params, self.mean, self.cov, self._one_idx[b], np.array([dt]), np.array([current]),
+        return ukf.pack_step_rows(self.params, self.mean, self.cov, self._one_idx[b], np.array([dt]), np.array([current]),
                            np.array([ambient]), np.array([voltage]), np.array([temperature]), self._q,
                            self._h_v, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
                            c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
@@ -297,9 +304,10 @@ class ExtendedPackFilterBank:
         self.initialised[idx] = True
         self.consistency.reset(idx)
 
-    def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> None:
+    def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> int:
+        """One frame of row ``b``; how many of its consistency states flipped."""
         c = self.config
-        ukf.ext_pack_step_rows(self.params, self._y, self._d, self.mean, self.cov, self._one_idx[b], np.array([dt]),
+        return ukf.ext_pack_step_rows(self.params, self._y, self._d, self.mean, self.cov, self._one_idx[b], np.array([dt]),
                                np.array([current]), np.array([ambient]), np.array([voltage]),
                                np.array([temperature]), self._q, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2,
                                c.gate, c.relock_after, c.relock_inflation, kernel.DEFAULT_MAX_DT,

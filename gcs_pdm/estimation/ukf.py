@@ -75,6 +75,8 @@ def as_rows(a, shape) -> np.ndarray:
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 _N = kernel.N_PACK_STATE
+#: columns of a consistency window's integer array (``pack_filter.ConsistencyWindow.ints``)
+(W_POS, W_COUNT, W_ACTIVE, W_QUIET) = range(4)
 
 
 @njit(**_JIT)
@@ -174,34 +176,39 @@ def _observe(mean, cov, h, z, r, gate, relock_after, relock_inflation, ch, b, la
 def _window_push(b, ch, nu, norm, window):
     """Add one update's innovation to row ``b``'s model-consistency window on channel ``ch``.
 
-    ``window`` is a ``ConsistencyWindow``'s arrays (see ``pack_filter``); ``levels[ch]`` holds the
-    raise level, the clear level and the clip. The squared normalised innovation enters clipped:
-    an outlier then moves the window mean by at most clip/N, while a model that misses every sample
-    still fills it. Raise above the raise level once the window is full, clear below the clear
-    level (hysteresis). Rows still settling after a gap (``quiet``) are not judged."""
-    sq_buf, res_buf, pos, count, sums, active, levels, quiet = window
-    if quiet[b, ch] > 0:
-        quiet[b, ch] -= 1
-        return
-    n = sq_buf.shape[2]
+    ``window`` is a ``ConsistencyWindow``'s arrays (``buf``, ``ints``, ``sums``, ``levels``; see
+    ``pack_filter``; four arrays, not eight: each array costs its unboxing on every call);
+    ``levels[ch]`` holds the raise level, the clear level and the clip. The squared normalised
+    innovation enters clipped: an outlier then moves the window mean by at most clip/N, while a
+    model that misses every sample still fills it. Raise above the raise level once the window is
+    full, clear below the clear level (hysteresis). Rows still settling after a gap (``quiet``) are
+    not judged. Returns 1 if the row's state flipped, else 0."""
+    buf, ints, sums, levels = window
+    if ints[b, ch, W_QUIET] > 0:
+        ints[b, ch, W_QUIET] -= 1
+        return 0
+    n = buf.shape[3]
     sq = min(norm * norm, levels[ch, 2])
-    k = pos[b, ch]
-    if count[b, ch] >= n:
-        sums[b, ch, 0] -= sq_buf[b, ch, k]
-        sums[b, ch, 1] -= res_buf[b, ch, k]
+    k = ints[b, ch, W_POS]
+    if ints[b, ch, W_COUNT] >= n:
+        sums[b, ch, 0] -= buf[b, ch, 0, k]
+        sums[b, ch, 1] -= buf[b, ch, 1, k]
     else:
-        count[b, ch] += 1
-    sq_buf[b, ch, k] = sq
-    res_buf[b, ch, k] = nu
+        ints[b, ch, W_COUNT] += 1
+    buf[b, ch, 0, k] = sq
+    buf[b, ch, 1, k] = nu
     sums[b, ch, 0] += sq
     sums[b, ch, 1] += nu
-    pos[b, ch] = (k + 1) % n
-    if count[b, ch] >= n:
+    ints[b, ch, W_POS] = (k + 1) % n
+    if ints[b, ch, W_COUNT] >= n:
         stat = sums[b, ch, 0] / n
-        if not active[b, ch] and stat > levels[ch, 0]:
-            active[b, ch] = True
-        elif active[b, ch] and stat < levels[ch, 1]:
-            active[b, ch] = False
+        if ints[b, ch, W_ACTIVE] == 0 and stat > levels[ch, 0]:
+            ints[b, ch, W_ACTIVE] = 1
+            return 1
+        if ints[b, ch, W_ACTIVE] == 1 and stat < levels[ch, 1]:
+            ints[b, ch, W_ACTIVE] = 0
+            return 1
+    return 0
 
 
 @njit(**_JIT)
@@ -216,21 +223,23 @@ def _observe_channel(m, c, h, z, r, dt, ch, b, gate, relock_after, relock_inflat
     accepted one may be a lone spike and is left out too; the second and later of a run are a
     model the data leave behind."""
     if not math.isfinite(z):
-        return
+        return 0
     run = rejected_in_row[b, ch]
     nu, norm = _observe(m, c, h, z, r, gate, relock_after, relock_inflation, ch, b,
                         last_innovation, rejected_total, rejected_in_row, relocks)
     if dt > 0.0 and (abs(norm) <= gate or run > 0):
-        _window_push(b, ch, nu, norm, window)
+        return _window_push(b, ch, nu, norm, window)
+    return 0
 
 
 @njit(**_JIT)
 def _quiet_after_gap(window, b, dt):
     """After a gap longer than the window's ``gap_s`` the next updates are not judged: the current
     held over the gap was a guess, and the innovations show that, not the model."""
-    if dt > window[6][0, 3]:
-        window[7][b, 0] = int(window[6][0, 4])
-        window[7][b, 1] = int(window[6][0, 4])
+    levels, ints = window[3], window[1]
+    if dt > levels[0, 3]:
+        ints[b, 0, W_QUIET] = int(levels[0, 4])
+        ints[b, 1, W_QUIET] = int(levels[0, 4])
 
 
 @njit(inline="always", **_JIT)
@@ -265,13 +274,15 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
                    r_v, r_t, gate, relock_after, relock_inflation, max_dt,
                    last_innovation, rejected_total, rejected_in_row, relocks, window):
     """``PackFilterBank.step`` for rows ``idx``, in place on the bank's arrays (``window``: the
-    bank's model-consistency window, a tuple of arrays, see ``_window_push``)."""
+    bank's model-consistency window, a tuple of arrays, see ``_window_push``). Returns how many
+    consistency states flipped."""
     n = _N
     chol = np.empty((n, n))
     pts = np.empty((2 * n, n))
     x = np.empty(n)
     h_t = np.zeros(n)
     h_t[n - 1] = 1.0
+    flips = 0
     for k in range(idx.shape[0]):
         b = idx[k]
         m, c, p = mean[b], cov[b], params[b]
@@ -284,10 +295,11 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
                 for i in range(n):
                     pts[s, i] = x[i]
             _moments_into(pts, m, c, q, dt[k])
-        _observe_channel(m, c, h_v[b], voltage[k], r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
-                         last_innovation, rejected_total, rejected_in_row, relocks, window)
-        _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
-                         last_innovation, rejected_total, rejected_in_row, relocks, window)
+        flips += _observe_channel(m, c, h_v[b], voltage[k], r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
+                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
+        flips += _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
+                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
+    return flips
 
 
 _NX = kernel.N_EXT_STATE
@@ -311,7 +323,8 @@ def ext_pack_step_rows(params, knots_y, knots_d, mean, cov, idx, dt, current, am
     temperature drives its resistances). Update: the terminal voltage is nonlinear in the state
     (OCV(SoC − s_d), the resistances' f(T, SoC), the Butler–Volmer term), so it is linearised at
     the predicted mean by central differences of the kernel's own voltage (an EKF update on the
-    UKF's predicted moments): ν = z − V(x̄), H = ∂V/∂x at x̄. Temperature is linear (H = e_T)."""
+    UKF's predicted moments): ν = z − V(x̄), H = ∂V/∂x at x̄. Temperature is linear (H = e_T). Returns
+    how many consistency states flipped."""
     n = _NX
     chol = np.empty((n, n))
     pts = np.empty((2 * n, n))
@@ -319,6 +332,7 @@ def ext_pack_step_rows(params, knots_y, knots_d, mean, cov, idx, dt, current, am
     h_t = np.zeros(n)
     h_t[kernel.X_T] = 1.0
     h_v = np.empty(n)
+    flips = 0
     for k in range(idx.shape[0]):
         b = idx[k]
         m, c, p, y, d = mean[b], cov[b], params[b], knots_y[b], knots_d[b]
@@ -343,10 +357,11 @@ def ext_pack_step_rows(params, knots_y, knots_d, mean, cov, idx, dt, current, am
                 lo = _ext_voltage(p, y, d, x, current[k])
                 h_v[i] = (hi - lo) / (2.0 * _EXT_FD[i])
                 z_lin += h_v[i] * m[i]
-            _observe_channel(m, c, h_v, z_lin, r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
-                             last_innovation, rejected_total, rejected_in_row, relocks, window)
-        _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
-                         last_innovation, rejected_total, rejected_in_row, relocks, window)
+            flips += _observe_channel(m, c, h_v, z_lin, r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
+                                      last_innovation, rejected_total, rejected_in_row, relocks, window)
+        flips += _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
+                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
+    return flips
 
 
 @njit(**_JIT)
