@@ -161,7 +161,7 @@ def test_prediction_with_extended_packs_matches_a_direct_extended_simulation(flo
                                        variant="extended")
         t_direct = first_below(direct.voltage[0], t)
         assert np.isfinite(t_direct)
-        assert pred.time_to_cutoff_s[b, 1] == pytest.approx(t_direct, rel=0.08)
+        assert pred.time_to_cutoff_s[b, 1] == pytest.approx(t_direct, rel=0.02)  # measured: equal
         assert pred.time_to_cutoff_s[b, 0] <= t_direct <= pred.time_to_cutoff_s[b, 2]
     # under a shaft-power load: the same against the extended block flown from the mean state
     load = FutureLoad.constant(800.0, 3600.0, 10.0, ambient_c=est.ambient_c)
@@ -179,7 +179,7 @@ def test_prediction_with_extended_packs_matches_a_direct_extended_simulation(flo
     for b in range(4):
         t_direct = first_below(direct.pack_voltage[0, :, b], t)
         assert np.isfinite(t_direct)
-        assert pred.pack_time_to_cutoff_s[b, 1] == pytest.approx(t_direct, rel=0.08)
+        assert pred.pack_time_to_cutoff_s[b, 1] == pytest.approx(t_direct, rel=0.03)  # measured: 750 vs 740-750 s
 
 
 def test_the_service_says_the_planner_flies_paper_values_of_extended_packs(tmp_path):
