@@ -20,9 +20,13 @@ PACK_CAPACITY_LOSS = "pack_capacity_loss"
 PACK_RESISTANCE_RISE = "pack_resistance_rise"
 PREDICTED_LIMIT_VIOLATION = "predicted_limit_violation"
 DEGRADATION_RATE_DEVIATION = "degradation_rate_deviation"
+#: an advisory, not a fault of the vehicle: a pack no longer behaves like its model (refit it)
+MODEL_MISMATCH = "model_mismatch"
 
 FAULT_TYPES = (MOTOR_POWER_LOSS, PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, PREDICTED_LIMIT_VIOLATION,
-               DEGRADATION_RATE_DEVIATION)
+               DEGRADATION_RATE_DEVIATION, MODEL_MISMATCH)
+#: types that tell the operator something but are no reason to re-plan
+ADVISORY_TYPES = (MODEL_MISMATCH,)
 
 #: what ``magnitude`` means for each type
 MAGNITUDE_MEANING = {
@@ -31,6 +35,8 @@ MAGNITUDE_MEANING = {
     PACK_RESISTANCE_RISE: "relative rise of the pack's series resistance R_s + R_cp0 (0.5 = +50 %)",
     PREDICTED_LIMIT_VIOLATION: "probability that the vehicle fails before the mission ends (0..1)",
     DEGRADATION_RATE_DEVIATION: "relative deviation of the observed rate from the predicted one",
+    MODEL_MISMATCH: "the pack's model-consistency statistic when raised: mean squared normalised innovation "
+                    "(1 = as variable as the filter expects; the raise bound is in the evidence)",
 }
 
 

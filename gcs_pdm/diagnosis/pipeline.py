@@ -14,6 +14,7 @@ import numpy as np
 from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, Fault
 from gcs_pdm.diagnosis.motor_imbalance import EscImbalanceDetector, NoMotorDiagnosis, motor_diagnosis_capability
 from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, MotorPowerLossDetector
+from gcs_pdm.diagnosis.model_fidelity import ModelMismatchMonitor
 from gcs_pdm.diagnosis.pack_health import PackHealthConfig, PackHealthMonitor
 from gcs_pdm.diagnosis.prognosis import PrognosisConfig, PrognosisMonitor
 from gcs_pdm.estimation.estimator import MOTOR_OF_PACK, EstimatorConfig, StateEstimator
@@ -49,6 +50,7 @@ class DiagnosisPipeline:
         est = self.estimator
         self.pack_health = PackHealthMonitor(est.packs.params.copy(), pack_config, names=est.pack_names)
         self.prognosis = PrognosisMonitor(limits, prognosis_config, seed=seed)
+        self.model_fidelity = ModelMismatchMonitor(est.pack_names)
         self.pair_within_s = pair_within_s
         self.voltage_fresh_s = voltage_fresh_s
         # the latest measured voltage of each pack and its message time (Python floats: read per frame)
@@ -89,6 +91,7 @@ class DiagnosisPipeline:
                     self._pack_v[b], self._pack_v_time[b] = frame.voltage_v, t
                 if est.packs.initialised[b] and frame.voltage_v is not None:
                     self.pack_health.add(b, t, float(est.pack_current[b]), float(frame.voltage_v), est.ambient_c)
+                self._record(self.model_fidelity.update(t, est, frame.pack))
         elif isinstance(frame, MotorFrame) and frame.motor in self._motor_set_of:
             self._motors(t)
         else:
@@ -174,7 +177,7 @@ class DiagnosisPipeline:
     # ---- output --------------------------------------------------------------------------------------
     def _refresh(self) -> None:
         for source in (self.motor_power.faults.values(), self.pack_health.faults.values(),
-                       self.prognosis.faults.values()):
+                       self.prognosis.faults.values(), self.model_fidelity.faults.values()):
             for f in source:
                 if f.key in self._index and self._faults[self._index[f.key]].time_s == f.time_s:
                     self._faults[self._index[f.key]] = f

@@ -46,7 +46,6 @@ import numpy as np
 
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import DEGRADATION_RATE_DEVIATION, PREDICTED_LIMIT_VIOLATION, Fault
-from gcs_pdm.models import kernel
 from gcs_pdm.estimation.prediction import FutureLoad, Prediction, predict_from_estimator
 from gcs_pdm.models.powertrain import Limits
 
@@ -241,7 +240,7 @@ class PrognosisMonitor:
         """Observed SoC by counting the measured charge (the filter's SoC also moves when the voltage
         corrects it, which is calibration, not a degradation rate), and filtered temperatures."""
         e = estimator.estimate()
-        soc_counted = 1.0 - estimator.charge_c / estimator.packs.params[:, kernel.I_CMAX]
+        soc_counted = 1.0 - estimator.charge_c / estimator.capacity_c()
         return soc_counted, e.pack_temp_c.copy(), e.motor_temp_c.copy()
 
     def _rate_check(self, time_s: float, pred: Prediction, estimator) -> list:

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
-from gcs_pdm.estimation.pack_filter import PackFilterBank, PackFilterConfig
+from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -91,6 +91,8 @@ class Estimate:
     mismatch: tuple[str, ...] = ()
     motor_current_a: np.ndarray | None = None
     motor_rpm: np.ndarray | None = None
+    #: per pack name: the model-consistency test and its evidence (``StateEstimator.model_check``)
+    model_mismatch: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         def r(a, nd=4):
@@ -101,7 +103,8 @@ class Estimate:
             "packs": {n: {"soc": r([self.soc[i]])[0], "soc_sd": r([self.soc_sd[i]])[0],
                           "temperature_c": r([self.pack_temp_c[i]], 2)[0], "temperature_sd": r([self.pack_temp_sd[i]], 2)[0],
                           "voltage_v": r([self.pack_voltage_v[i]], 3)[0],
-                          **({"temperature_source": "model"} if n in self.modelled_temperature else {})}
+                          **({"temperature_source": "model"} if n in self.modelled_temperature else {}),
+                          **({"model_mismatch": self.model_mismatch[n]} if n in self.model_mismatch else {})}
                       for i, n in enumerate(self.pack_names)},
             "motors": {n: {"temperature_c": r([self.motor_temp_c[i]], 2)[0],
                            "temperature_sd": r([self.motor_temp_sd[i]], 2)[0],
@@ -126,6 +129,7 @@ class StateEstimator:
                  vehicle=None):
         self.params = params
         self.config = config
+        ext_rows: dict[int, str] = {}
         if vehicle is not None:
             from gcs_pdm.vehicle.model_inputs import model_inputs
 
@@ -144,6 +148,7 @@ class StateEstimator:
         else:
             if params is None:
                 raise ValueError("StateEstimator: give a parameter set or a vehicle description")
+            ext_rows = {b: n for b, n in enumerate(PACK_NAMES) if params.packs[n].model == "extended"}
             #: the description's model inputs (None: the paper's aircraft)
             self.inputs = None
             self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
@@ -157,6 +162,13 @@ class StateEstimator:
         self._base_pack_matrix = np.array(pack_matrix, copy=True)
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
+        # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper
+        # filter keeps running on their paper values for the users of the paper layout (the
+        # diagnoser's pack-health fit, the planner's state)
+        self.ext_row = {b: r for r, b in enumerate(sorted(ext_rows))}
+        self.ext = (ExtendedPackFilterBank(np.stack([params.packs[ext_rows[b]].extended_vector() for b in sorted(ext_rows)]),
+                                           config.pack) if ext_rows else None)
+        self._base_ext_matrix = None if self.ext is None else self.ext.params.copy()
         self.motors = MotorThermalFilter(motor_matrix, n_motors, config.motor)
         self.ambient_c = config.default_ambient_c
         self.time_s = -math.inf
@@ -165,6 +177,8 @@ class StateEstimator:
         self.pack_time = np.full(n_packs, -math.inf)
         self.pack_current = np.full(n_packs, np.nan)
         self.pack_current_time = np.full(n_packs, -math.inf)
+        self._reading = np.full(n_packs, np.nan)           # the latest measured current, as measured
+        self._reading_time = np.full(n_packs, -math.inf)
         self.motor_time = np.full(n_motors, -math.inf)
         self.motor_current = np.full(n_motors, np.nan)
         self.motor_current_time = np.full(n_motors, -math.inf)
@@ -178,6 +192,10 @@ class StateEstimator:
         # per sensor channel: last message time it carried a value
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
+        # model-consistency test per pack (pack_filter.ConsistencyWindow): whether it is raised and
+        # the message time it was raised or cleared
+        self._mismatch_active = np.zeros(n_packs, dtype=bool)
+        self._mismatch_since = np.full(n_packs, np.nan)
 
     # ---- frames ----------------------------------------------------------------------------------
     def consume(self, frame) -> None:
@@ -194,12 +212,19 @@ class StateEstimator:
         if frame.time_s > self.time_s:
             self.time_s = float(frame.time_s)
 
-    def _reference_current(self, b: int, t: float) -> float:
-        """What the rest of pack b's series string says its current is (NaN if nobody recent)."""
+    def _reference_current(self, b: int, t: float, own: float = math.nan) -> float:
+        """What the rest of pack b's series string says its current is (NaN if nobody recent).
+
+        With two or more references the pack's ``own`` reading votes too: the median of three
+        survives a spike in any one of them, where the references' own median (the mean of two)
+        let one spiked reference replace a good reading."""
         refs = []
         for mate in self._mates[b]:
-            if t - self.pack_current_time[mate] <= self.config.corroborate_within_s:
-                refs.append(self.pack_current[mate])
+            # the mate's own reading, not what it was cleaned to: when the whole string's current
+            # steps (a throttle chop), a mate cleaned to its pre-step reference would hold every
+            # pack of the string at the old current, frame after frame
+            if t - self._reading_time[mate] <= self.config.corroborate_within_s:
+                refs.append(self._reading[mate])
         # a motor's current is its pack's only when the pack feeds that motor alone
         motors = self._motors_of_pack[b]
         if len(motors) == 1 and len(self._packs_of_motor[motors[0]]) == 1 + len(self._mates[b]):
@@ -207,7 +232,11 @@ class StateEstimator:
             if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
                 refs.append(self.motor_current[q])
         refs = [r for r in refs if math.isfinite(r)]
-        return _median(refs) if len(refs) >= self._min_references else math.nan
+        if len(refs) < self._min_references:
+            return math.nan
+        if len(refs) >= 2 and math.isfinite(own):
+            refs.append(own)
+        return _median(refs)
 
     def _pack(self, f: PackFrame) -> None:
         b = self._pack_index.get(f.pack)
@@ -219,9 +248,10 @@ class StateEstimator:
             self._skip("out_of_order", f"pack {f.pack}: frame at {t} s older than the last ({self.pack_time[b]} s) skipped")
             return
         cur = _num(f.current_a)
-        ref = self._reference_current(b, t)
+        ref = self._reference_current(b, t, cur)
         if math.isfinite(cur):
             self.seen[f"{f.pack}.current"] = t
+            self._reading[b], self._reading_time[b] = cur, t
             if math.isfinite(ref) and abs(cur - ref) > max(self.config.current_spike_a, 0.5 * abs(ref)):
                 self.counters["current_spikes"] += 1
                 cur = ref
@@ -239,11 +269,16 @@ class StateEstimator:
         if self.packs.initialised[b] and t - self.pack_time[b] > self.config.restart_after_s:
             self._restart("pack", f.pack, t - self.pack_time[b])
             self.packs.initialised[b] = False
+            if b in self.ext_row:
+                self.ext.initialised[self.ext_row[b]] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
         if not self.packs.initialised[b]:
             if not math.isfinite(v):
                 return  # nothing to start from yet
             self.packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]), self.ambient_c)
+            if b in self.ext_row:
+                self.ext.initialise(np.array([self.ext_row[b]]), np.array([v]), np.array([cur]), np.array([temp]),
+                                    self.ambient_c)
             self.pack_time[b] = t
             return
         dt = t - self.pack_time[b]
@@ -257,9 +292,28 @@ class StateEstimator:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
-        self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
+        # the compiled steps say when a consistency state flipped (nearly never): only then is it read
+        flipped = self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
+        if b in self.ext_row:
+            flipped = self.ext.step_one(self.ext_row[b], dt, i_used, self.ambient_c, v, temp)
         self.charge_c[b] += i_used * dt
         self.pack_time[b] = t
+        if flipped or self._mismatch_active[b]:
+            self._mismatch_changed(b, t)
+
+    def _mismatch_changed(self, b: int, t: float) -> None:
+        window, row = self._window_of(b)
+        now = bool(window.active[row].any())
+        if now == self._mismatch_active[b]:
+            return
+        self._mismatch_active[b] = now
+        self._mismatch_since[b] = t
+        self.counters["model_mismatch_raised" if now else "model_mismatch_cleared"] += 1
+        ev = self.model_check(b)
+        if now:
+            log.warning("pack %s does not match its model at t=%.1f s: %s", self.pack_names[b], t, ev["reason"])
+        else:
+            log.info("pack %s matches its model again at t=%.1f s", self.pack_names[b], t)
 
     def _motor(self, f: MotorFrame) -> None:
         q = self._motor_index.get(f.motor)
@@ -315,7 +369,88 @@ class StateEstimator:
         row[[kernel.I_RS, kernel.I_RCP0]] *= float(resistance_scale)
         row[[kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX]] *= float(capacity_scale)
         self.packs.set_params(b, row)
+        if b in self.ext_row:
+            r = self.ext_row[b]
+            ext = self._base_ext_matrix[r].copy()
+            ext[[kernel.E_R0, kernel.E_R1, kernel.E_R2]] *= float(resistance_scale)
+            ext[kernel.E_CMAX] *= float(capacity_scale)
+            self.ext.set_params(r, ext)
         self.counters["parameter_updates"] += 1
+
+    def capacity_c(self) -> np.ndarray:
+        """(packs,) usable capacity (C) each pack is run on: its extended C_max for a pack of the
+        extended variant, else the paper C_max (after any adopted degradation)."""
+        cap = self.packs.params[:, kernel.I_CMAX].copy()
+        for b, r in self.ext_row.items():
+            cap[b] = self.ext.params[r, kernel.E_CMAX]
+        return cap
+
+    # ---- model consistency -------------------------------------------------------------------------
+    def _window_of(self, b: int):
+        """Pack ``b``'s consistency window and its row there: its own variant's filter's."""
+        if b in self.ext_row:
+            return self.ext.consistency, self.ext_row[b]
+        return self.packs.consistency, b
+
+    def model_check(self, b: int) -> dict:
+        """Pack ``b``'s model-consistency test with its evidence, JSON-ready: ``active`` (the pack
+        does not behave like its model), the window (updates), per channel the statistic (mean
+        squared normalised innovation, clipped; ≈ 0.3-0.5 on a pack that matches) against its bound,
+        the mean residual (measured − predicted, mV and K), the message time of the last raise or
+        clear, the factor applied to the prediction's state spread, and what to do about it."""
+        w, row = self._window_of(b)
+        stat, res = w.statistic()[row], w.mean_residual()[row]
+        name = self.pack_names[b]
+        active = bool(self._mismatch_active[b])
+
+        def num(x, nd):
+            return None if not math.isfinite(float(x)) else round(float(x), nd)
+
+        out = {"active": active, "model": "extended" if b in self.ext_row else "paper",
+               "window_updates": w.size, "updates": int(w.count[row, 0]),
+               "statistic": num(stat[0], 3), "bound": round(w.raise_at, 3), "clear_below": round(w.clear_at, 3),
+               "false_alarm_per_window": w.false_alarm,
+               "voltage_residual_mv": num(1000.0 * res[0], 1),
+               "temperature_statistic": num(stat[1], 3), "temperature_residual_k": num(res[1], 2),
+               "channels": [c for c, on in zip(CHANNELS, w.active[row]) if on],
+               "since_s": num(self._mismatch_since[b], 3),
+               "prediction_inflation": round(float(self.prediction_inflation()[b]), 3)}
+        if not self.packs.initialised[b] or not math.isfinite(stat[0]):
+            out["state"] = "unknown"
+            out["reason"] = (f"not judged yet: {int(w.count[row, 0])} of {w.size} voltage updates since the pack's "
+                             f"filter started")
+        elif active:
+            out["state"] = "mismatch"
+            parts = [f"{c} innovations {stat[k]:.2f}× their expected variance (bound {w.raise_at:.2f}, "
+                     f"mean residual {1000 * res[k]:+.0f} mV)" if k == 0 else
+                     f"{c} innovations {stat[k]:.2f}× their expected variance (bound {w.raise_at:.2f}, "
+                     f"mean residual {res[k]:+.2f} K)" for k, c in enumerate(CHANNELS) if w.active[row, k]]
+            out["reason"] = (f"pack {name} does not behave like its model over the last {w.size} updates: "
+                             + "; ".join(parts))
+            out["suggestion"] = refit_suggestion(name)
+        else:
+            out["state"] = "matches"
+        return out
+
+    @property
+    def model_mismatch_active(self) -> np.ndarray:
+        """(packs,) bool: the pack fails its model-consistency test now (read-only view)."""
+        return self._mismatch_active
+
+    def model_mismatch(self) -> dict[str, dict]:
+        """``model_check`` of every pack, by name."""
+        return {n: self.model_check(b) for b, n in enumerate(self.pack_names)}
+
+    def prediction_inflation(self) -> np.ndarray:
+        """(packs,) factor on the state covariance a prediction starts from: 1 while a pack matches
+        its model; while it does not, its channel statistic (≥ 1) — the innovations are that many
+        times more variable than the filter believes, so its state is that much less certain
+        (covariance matching). ``prediction.predict_from_estimator`` applies it."""
+        worst = np.ones(len(self.pack_names))
+        for b in np.flatnonzero(self._mismatch_active):
+            w, row = self._window_of(b)
+            worst[b] = np.nanmax(np.where(w.active[row], w.statistic()[row], 1.0))
+        return np.maximum(worst, 1.0)
 
     def _restart(self, kind: str, name: str, gap_s: float) -> None:
         self.counters["restarts"] += 1
@@ -338,9 +473,16 @@ class StateEstimator:
 
     def estimate(self) -> Estimate:
         soc, soc_sd = self.packs.soc()
-        soc_sd = np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
         tp, tp_sd = self.packs.temperature()
         v, _ = self.packs.voltage()
+        if self.ext is not None:
+            rows = np.array(sorted(self.ext_row))
+            e_soc, e_sd = self.ext.soc()
+            e_t, e_tsd = self.ext.temperature()
+            order = [self.ext_row[b] for b in rows]
+            soc[rows], soc_sd[rows], tp[rows], tp_sd[rows] = e_soc[order], e_sd[order], e_t[order], e_tsd[order]
+            v[rows] = self.ext.voltage(np.nan_to_num(self.pack_current[rows]))[order]
+        soc_sd = np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
         tm, tm_sd = self.motors.temperature()
         none = ~self.packs.initialised
         for a in (soc, soc_sd, tp, tp_sd, v):
@@ -355,7 +497,8 @@ class StateEstimator:
                          if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
         return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c, self.missing(), counters,
                         pack_names=self.pack_names, motor_names=self.motor_names, modelled_temperature=modelled,
-                        mismatch=mismatch, motor_current_a=self.motor_current.copy(), motor_rpm=self.motor_rpm.copy())
+                        mismatch=mismatch, motor_current_a=self.motor_current.copy(), motor_rpm=self.motor_rpm.copy(),
+                        model_mismatch=self.model_mismatch())
 
     def _range_guard(self, soc, soc_sd, tp, tp_sd, v) -> tuple[str, ...]:
         """Clip a SoC that is in [0, 1] within its noise; withhold (NaN) and report a pack whose
@@ -415,6 +558,14 @@ class StateEstimator:
         tm = self.motors.mean[:, 0]
         return PowertrainState(pack_state=self.packs.mean.copy(),
                                motor_temp_c=np.where(np.isfinite(tm), tm, self.ambient_c))
+
+
+def refit_suggestion(pack: str) -> str:
+    """What the operator can do about a pack that no longer matches its model."""
+    which = f"--pack {pack} " if pack in PACK_NAMES else ""
+    logs = "LOG" if pack in PACK_NAMES else "TABLE"
+    return (f"fit this pack on recent logs: gcs-pdm fit battery {which}--train {logs} [{logs} ...] --val {logs} "
+            f"--test {logs} --out DIR (docs/fitting.md), then activate the new parameter set")
 
 
 def _median(values: list[float]) -> float:

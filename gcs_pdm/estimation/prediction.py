@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from gcs_pdm.estimation.extended_prediction import ExtendedPacks
 from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -188,7 +189,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
             motor_temp_sd: np.ndarray, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
             param_rel_sigma: float = 0.08, fault: np.ndarray | None = None, limits: Limits = Limits(),
             trajectories: bool = True, stop_on_failure: bool = True, trajectory_every_s: float = 10.0,
-            vehicle=None, per_sample: bool = False) -> Prediction:
+            vehicle=None, per_sample: bool = False, extended=None) -> Prediction:
     """Monte Carlo prediction over state and parameter uncertainty (one kernel call).
 
     ``params``: a ParameterSet or a (pack matrix (4, 12), motor vector (5,)) pair.
@@ -204,7 +205,11 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
 
     ``per_sample``: also report each sample's failure time and cause and its packs' SoC at the end
     of the load (``Prediction.sample_*``), for a caller that needs more than the quantiles (a
-    route's landing SoC over the samples that land)."""
+    route's landing SoC over the samples that land).
+
+    ``extended``: an ``extended_prediction.ExtendedPacks`` (the paper's aircraft only): those packs
+    are drawn from their extended filter and fly the kernel's extended variant
+    (``topology.simulate_vehicle_extended``)."""
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     pp, mp = sample_parameters(params, n_samples, rng, param_rel_sigma)
@@ -212,6 +217,8 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
                             np.asarray(motor_temp_c, dtype=np.float64), np.asarray(motor_temp_sd, dtype=np.float64),
                             n_samples, rng)
     x0 = restate(base_arrays(params)[0], x0, pp)
+    if extended is not None:
+        x0, ep = extended.sample(x0, n_samples, rng, param_rel_sigma)
     n_motors = 2 if vehicle is None else vehicle.n_motors
     f = np.zeros((1, n_motors)) if fault is None else np.clip(
         np.asarray(fault, dtype=np.float64).reshape(1, n_motors), 0.0, 1.0)
@@ -236,7 +243,12 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         keeps each pack's end — cut-off or empty — and the peaks to the first failure as it flies;
         per-step values only on the trajectories' coarse grid)."""
         f_rows = f if f.shape[0] == 1 else f[rows]
-        if vehicle is None:
+        if extended is not None:
+            run = topology.simulate_vehicle_extended(
+                topology.PAPER_TOPOLOGY.with_limits(*limits.as_tuple()), pp[rows], ep[rows], extended.is_ext,
+                np.repeat(mp[rows][:, None, :], 2, axis=1), x0[rows], tm0[rows], dt, power, amb, f_rows,
+                stop_on_failure=stop_on_failure, record_at=rec_k)
+        elif vehicle is None:
             run = topology.simulate_powertrain(pp[rows], mp[rows], x0[rows], tm0[rows], dt, power, amb, f_rows,
                                                limits=limits.as_tuple(), stop_on_failure=stop_on_failure,
                                                record_at=rec_k)
@@ -334,7 +346,9 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
 
     The samples' SoC spread is the estimate's full one: the filter's covariance plus the capacity
     mismatch the estimator adds to ``Estimate.soc_sd`` (``EstimatorConfig.capacity_rel_sigma``),
-    which the filter cannot see but which biases its SoC just the same."""
+    which the filter cannot see but which biases its SoC just the same; while a pack fails the
+    estimator's model-consistency test, its covariance is scaled up by the test's statistic
+    (``StateEstimator.prediction_inflation``)."""
     tm, tm_sd = estimator.motors.temperature()
     tm = np.where(np.isfinite(tm), tm, estimator.ambient_c)
     tm_sd = np.where(np.isfinite(tm_sd), tm_sd, 2.0)
@@ -343,12 +357,14 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     soc = kernel.state_of_charge(packs.params, packs.mean)
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * packs.params[:, kernel.I_CMAX]
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    inflation = estimator.prediction_inflation()
+    cov *= inflation[:, None, None]  # wider while a pack does not match its model
     inputs = getattr(estimator, "inputs", None)
     if inputs is not None:
         return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
                        n_samples=n_samples, fault=fault, vehicle=inputs, **kw)
     return predict((packs.params, estimator.motors.params[0]), packs.mean, cov, tm, tm_sd, load, rng=rng,
-                   n_samples=n_samples, fault=fault, **kw)
+                   n_samples=n_samples, fault=fault, extended=ExtendedPacks.of(estimator, inflation), **kw)
 
 
 @dataclass(frozen=True)
@@ -377,6 +393,34 @@ class PackCutoffPrediction:
 _CUTOFF_CHUNK_STEPS = 60
 
 
+def _held_current_to_cutoff(params: np.ndarray, state: np.ndarray, dt: np.ndarray, current: np.ndarray,
+                            cutoff_v: np.ndarray, ambient_c: float, variant: str) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (packs × samples) at a held current until each one's cut-off: (first step below the
+    cut-off or empty, -1 if none; peak temperature up to it). In chunks, each row only until its
+    cut-off: past it nothing is read, so a row that ends early stops costing. A chunk continues
+    from the previous one's final state: the same numbers as one call over the whole horizon."""
+    n_steps = dt.size
+    state = np.array(state, dtype=np.float64)
+    end_step = np.full(params.shape[0], -1)
+    peak = np.full(params.shape[0], -np.inf)
+    active = np.arange(params.shape[0])
+    k0 = 0
+    while active.size and k0 < n_steps:
+        m = min(_CUTOFF_CHUNK_STEPS, n_steps - k0)
+        run = kernel.simulate_packs(params[active], state[active], dt[k0:k0 + m],
+                                    np.repeat(current[active, None], m, axis=1), ambient_c, variant=variant)
+        ended = (run.voltage < cutoff_v[active, None]) | (run.soc <= 0.0)
+        hit = ended.any(axis=1)
+        last = np.where(hit, ended.argmax(axis=1), m - 1)
+        flown = np.arange(m)[None, :] <= last[:, None]
+        peak[active] = np.maximum(peak[active], np.max(np.where(flown, run.temperature, -np.inf), axis=1))
+        end_step[active[hit]] = k0 + last[hit]
+        state[active] = run.final_state
+        active = active[~hit]
+        k0 += m
+    return end_step, peak
+
+
 def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.ndarray | None = None,
                              horizon_s: float = 3600.0, step_s: float = 5.0, rng: np.random.Generator,
                              n_samples: int = 100, param_rel_sigma: float = 0.08) -> PackCutoffPrediction:
@@ -391,36 +435,31 @@ def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.n
     soc = kernel.state_of_charge(base, packs.mean)
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * base[:, kernel.I_CMAX]
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    cov *= estimator.prediction_inflation()[:, None, None]  # wider while a pack does not match its model
     pp, _ = sample_parameters((base, estimator.motors.params[0]), n_samples, rng, param_rel_sigma)
     chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
     x0 = packs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n_samples, n_packs, kernel.N_PACK_STATE)))
     x0 = restate(base, x0, pp)
     n_steps = max(1, int(math.ceil(horizon_s / step_s)))
     dt = np.full(n_steps, horizon_s / n_steps)
-    rows = pp.reshape(-1, kernel.N_PACK_PARAMS)
-    state = x0.reshape(-1, kernel.N_PACK_STATE)
-    row_current = np.tile(cur, n_samples)
+    rows_cur = np.tile(cur, n_samples)
     row_cutoff = np.tile(np.broadcast_to(np.asarray(cutoff_v, dtype=np.float64), (n_packs,)), n_samples)
-    # in chunks, each row only until its cut-off: past it nothing is read (the time is the first
-    # step below, the peak is up to it), so a row that ends early stops costing. A chunk continues
-    # from the previous one's final state: the same numbers as one call over the whole horizon.
-    end_step = np.full(rows.shape[0], -1)
-    peak = np.full(rows.shape[0], -np.inf)
-    active = np.arange(rows.shape[0])
-    k0 = 0
-    while active.size and k0 < n_steps:
-        m = min(_CUTOFF_CHUNK_STEPS, n_steps - k0)
-        run = kernel.simulate_packs(rows[active], state[active], dt[k0:k0 + m],
-                                    np.repeat(row_current[active, None], m, axis=1), estimator.ambient_c)
-        ended = (run.voltage < row_cutoff[active, None]) | (run.soc <= 0.0)
-        hit = ended.any(axis=1)
-        last = np.where(hit, ended.argmax(axis=1), m - 1)
-        flown = np.arange(m)[None, :] <= last[:, None]
-        peak[active] = np.maximum(peak[active], np.max(np.where(flown, run.temperature, -np.inf), axis=1))
-        end_step[active[hit]] = k0 + last[hit]
-        state[active] = run.final_state
-        active = active[~hit]
-        k0 += m
+    extended = ExtendedPacks.of(estimator, estimator.prediction_inflation())
+    paper_rows = np.ones(n_samples * n_packs, dtype=bool)
+    if extended is not None:  # those packs fly the extended variant from their own filter's draws
+        xe, ep = extended.sample(x0, n_samples, rng, param_rel_sigma)
+        paper_rows = ~np.tile(extended.is_ext, n_samples)
+    end_step = np.full(n_samples * n_packs, -1)
+    peak = np.full(n_samples * n_packs, -np.inf)
+    sel = np.flatnonzero(paper_rows)
+    end_step[sel], peak[sel] = _held_current_to_cutoff(
+        pp.reshape(-1, kernel.N_PACK_PARAMS)[sel], x0.reshape(-1, kernel.N_PACK_STATE)[sel], dt, rows_cur[sel],
+        row_cutoff[sel], estimator.ambient_c, "paper")
+    if extended is not None:
+        sel = np.flatnonzero(~paper_rows)
+        end_step[sel], peak[sel] = _held_current_to_cutoff(
+            ep.reshape(-1, kernel.N_EXT_PARAMS)[sel], xe.reshape(-1, kernel.N_EXT_STATE)[sel], dt, rows_cur[sel],
+            row_cutoff[sel], estimator.ambient_c, "extended")
     t_end = np.cumsum(dt)
     ttc = np.where(end_step >= 0, t_end[end_step], np.inf).reshape(n_samples, n_packs)
     peak = peak.reshape(n_samples, n_packs)

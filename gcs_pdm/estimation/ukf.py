@@ -75,6 +75,8 @@ def as_rows(a, shape) -> np.ndarray:
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 _N = kernel.N_PACK_STATE
+#: columns of a consistency window's integer array (``pack_filter.ConsistencyWindow.ints``)
+(W_POS, W_COUNT, W_ACTIVE, W_QUIET) = range(4)
 
 
 @njit(**_JIT)
@@ -151,7 +153,8 @@ def _scalar_update_row(mean, cov, h, z, r, gate):
 @njit(**_JIT)
 def _observe(mean, cov, h, z, r, gate, relock_after, relock_inflation, ch, b, last_innovation,
              rejected_total, rejected_in_row, relocks):
-    """One gated channel of one row, with the filters' re-lock rule (see pack_filter's docstring)."""
+    """One gated channel of one row, with the filters' re-lock rule (see pack_filter's docstring).
+    Returns the innovation and its normalised value (before any re-lock)."""
     nu, norm = _scalar_update_row(mean, cov, h, z, r, gate)
     last_innovation[b, ch] = nu
     if abs(norm) > gate:
@@ -166,49 +169,199 @@ def _observe(mean, cov, h, z, r, gate, relock_after, relock_inflation, ch, b, la
         _scalar_update_row(mean, cov, h, z, r, np.inf)
         relocks[b] += 1
         rejected_in_row[b, ch] = 0
+    return nu, norm
+
+
+@njit(**_JIT)
+def _window_push(b, ch, nu, norm, window):
+    """Add one update's innovation to row ``b``'s model-consistency window on channel ``ch``.
+
+    ``window`` is a ``ConsistencyWindow``'s arrays (``buf``, ``ints``, ``sums``, ``levels``; see
+    ``pack_filter``; four arrays, not eight: each array costs its unboxing on every call);
+    ``levels[ch]`` holds the raise level, the clear level and the clip. The squared normalised
+    innovation enters clipped: an outlier then moves the window mean by at most clip/N, while a
+    model that misses every sample still fills it. Raise above the raise level once the window is
+    full, clear below the clear level (hysteresis). Rows still settling after a gap (``quiet``) are
+    not judged. Returns 1 if the row's state flipped, else 0."""
+    buf, ints, sums, levels = window
+    if ints[b, ch, W_QUIET] > 0:
+        ints[b, ch, W_QUIET] -= 1
+        return 0
+    n = buf.shape[3]
+    sq = min(norm * norm, levels[ch, 2])
+    k = ints[b, ch, W_POS]
+    if ints[b, ch, W_COUNT] >= n:
+        sums[b, ch, 0] -= buf[b, ch, 0, k]
+        sums[b, ch, 1] -= buf[b, ch, 1, k]
+    else:
+        ints[b, ch, W_COUNT] += 1
+    buf[b, ch, 0, k] = sq
+    buf[b, ch, 1, k] = nu
+    sums[b, ch, 0] += sq
+    sums[b, ch, 1] += nu
+    ints[b, ch, W_POS] = (k + 1) % n
+    if ints[b, ch, W_COUNT] >= n:
+        stat = sums[b, ch, 0] / n
+        if ints[b, ch, W_ACTIVE] == 0 and stat > levels[ch, 0]:
+            ints[b, ch, W_ACTIVE] = 1
+            return 1
+        if ints[b, ch, W_ACTIVE] == 1 and stat < levels[ch, 1]:
+            ints[b, ch, W_ACTIVE] = 0
+            return 1
+    return 0
+
+
+@njit(**_JIT)
+def _observe_channel(m, c, h, z, r, dt, ch, b, gate, relock_after, relock_inflation, last_innovation,
+                     rejected_total, rejected_in_row, relocks, window):
+    """One pack channel (``ch`` 0 voltage, 1 temperature; ``z`` NaN = not measured), gated, and
+    its innovation into the consistency window.
+
+    The window takes one update per channel per advance of time: frames sharing one message-time
+    stamp (a link that stamps untimed messages with the last timed one) were measured over the
+    interval before it, so their innovations are not independent draws. A gated sample after an
+    accepted one may be a lone spike and is left out too; the second and later of a run are a
+    model the data leave behind."""
+    if not math.isfinite(z):
+        return 0
+    run = rejected_in_row[b, ch]
+    nu, norm = _observe(m, c, h, z, r, gate, relock_after, relock_inflation, ch, b,
+                        last_innovation, rejected_total, rejected_in_row, relocks)
+    if dt > 0.0 and (abs(norm) <= gate or run > 0):
+        return _window_push(b, ch, nu, norm, window)
+    return 0
+
+
+@njit(**_JIT)
+def _quiet_after_gap(window, b, dt):
+    """After a gap longer than the window's ``gap_s`` the next updates are not judged: the current
+    held over the gap was a guess, and the innovations show that, not the model."""
+    levels, ints = window[3], window[1]
+    if dt > levels[0, 3]:
+        ints[b, 0, W_QUIET] = int(levels[0, 4])
+        ints[b, 1, W_QUIET] = int(levels[0, 4])
+
+
+@njit(inline="always", **_JIT)
+def _sigma_point(m, chol, s, x):
+    """Sigma point ``s`` of the symmetric set (m ± the columns of the factor of n·cov) into ``x``."""
+    n = m.shape[0]
+    sign = 1.0 if s < n else -1.0
+    col = s % n
+    for i in range(n):
+        x[i] = m[i] + sign * chol[i, col]
+
+
+@njit(**_JIT)
+def _moments_into(pts, m, c, q, dt):
+    """Mean and covariance of propagated sigma points ``pts`` (2n, n) into ``m``, ``c``, plus ``q dt``."""
+    two_n, n = pts.shape
+    for i in range(n):
+        acc = 0.0
+        for s in range(two_n):
+            acc += pts[s, i]
+        m[i] = acc / two_n
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for s in range(two_n):
+                acc += (pts[s, i] - m[i]) * (pts[s, j] - m[j])
+            c[i, j] = acc / two_n + q[i, j] * dt
 
 
 @njit(**_JIT)
 def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temperature, q, h_v,
                    r_v, r_t, gate, relock_after, relock_inflation, max_dt,
-                   last_innovation, rejected_total, rejected_in_row, relocks):
-    """``PackFilterBank.step`` for rows ``idx``, in place on the bank's arrays."""
+                   last_innovation, rejected_total, rejected_in_row, relocks, window):
+    """``PackFilterBank.step`` for rows ``idx``, in place on the bank's arrays (``window``: the
+    bank's model-consistency window, a tuple of arrays, see ``_window_push``). Returns how many
+    consistency states flipped."""
     n = _N
     chol = np.empty((n, n))
     pts = np.empty((2 * n, n))
     x = np.empty(n)
     h_t = np.zeros(n)
     h_t[n - 1] = 1.0
+    flips = 0
     for k in range(idx.shape[0]):
         b = idx[k]
         m, c, p = mean[b], cov[b], params[b]
+        _quiet_after_gap(window, b, dt[k])
         if dt[k] > 0.0:
             _sigma_factor(c, chol)
             for s in range(2 * n):
-                sign = 1.0 if s < n else -1.0
-                col = s % n
-                for i in range(n):
-                    x[i] = m[i] + sign * chol[i, col]
+                _sigma_point(m, chol, s, x)
                 kernel._pack_advance(p, x, current[k], ambient[k], dt[k], max_dt)
                 for i in range(n):
                     pts[s, i] = x[i]
+            _moments_into(pts, m, c, q, dt[k])
+        flips += _observe_channel(m, c, h_v[b], voltage[k], r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
+                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
+        flips += _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
+                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
+    return flips
+
+
+_NX = kernel.N_EXT_STATE
+#: finite-difference steps of the extended variant's voltage linearisation: soc, v_1, v_2, T, s_d
+_EXT_FD = np.array([1e-4, 1e-3, 1e-3, 1e-2, 1e-4])
+
+
+@njit(**_JIT)
+def _ext_voltage(p, y, d, x, current):
+    """Terminal voltage of an extended pack state at ``current`` (the kernel's own, zero-length step)."""
+    return kernel._ext_advance(p, y, d, x, current, 0.0, math.nan, 0.0, 1.0)
+
+
+@njit(**_JIT)
+def ext_pack_step_rows(params, knots_y, knots_d, mean, cov, idx, dt, current, ambient, voltage, temperature, q,
+                       r_v, r_t, gate, relock_after, relock_inflation, max_dt,
+                       last_innovation, rejected_total, rejected_in_row, relocks, window):
+    """The extended-variant pack filter (state ``kernel.EXT_PACK_STATE``) for rows ``idx``, in place.
+
+    Prediction: the unscented transform through the kernel's ``_ext_advance`` (the model's own
+    temperature drives its resistances). Update: the terminal voltage is nonlinear in the state
+    (OCV(SoC − s_d), the resistances' f(T, SoC), the Butler–Volmer term), so it is linearised at
+    the predicted mean by central differences of the kernel's own voltage (an EKF update on the
+    UKF's predicted moments): ν = z − V(x̄), H = ∂V/∂x at x̄. Temperature is linear (H = e_T). Returns
+    how many consistency states flipped."""
+    n = _NX
+    chol = np.empty((n, n))
+    pts = np.empty((2 * n, n))
+    x = np.empty(n)
+    h_t = np.zeros(n)
+    h_t[kernel.X_T] = 1.0
+    h_v = np.empty(n)
+    flips = 0
+    for k in range(idx.shape[0]):
+        b = idx[k]
+        m, c, p, y, d = mean[b], cov[b], params[b], knots_y[b], knots_d[b]
+        _quiet_after_gap(window, b, dt[k])
+        if dt[k] > 0.0:
+            _sigma_factor(c, chol)
+            for s in range(2 * n):
+                _sigma_point(m, chol, s, x)
+                kernel._ext_advance(p, y, d, x, current[k], ambient[k], math.nan, dt[k], max_dt)
+                for i in range(n):
+                    pts[s, i] = x[i]
+            _moments_into(pts, m, c, q, dt[k])
+        z = voltage[k]
+        if math.isfinite(z):
+            v0 = _ext_voltage(p, y, d, m, current[k])
+            z_lin = z - v0
             for i in range(n):
-                acc = 0.0
-                for s in range(2 * n):
-                    acc += pts[s, i]
-                m[i] = acc / (2 * n)
-            for i in range(n):
-                for j in range(n):
-                    acc = 0.0
-                    for s in range(2 * n):
-                        acc += (pts[s, i] - m[i]) * (pts[s, j] - m[j])
-                    c[i, j] = acc / (2 * n) + q[i, j] * dt[k]
-        if math.isfinite(voltage[k]):
-            _observe(m, c, h_v[b], voltage[k], r_v, gate, relock_after, relock_inflation, 0, b,
-                     last_innovation, rejected_total, rejected_in_row, relocks)
-        if math.isfinite(temperature[k]):
-            _observe(m, c, h_t, temperature[k], r_t, gate, relock_after, relock_inflation, 1, b,
-                     last_innovation, rejected_total, rejected_in_row, relocks)
+                x[:] = m
+                x[i] = m[i] + _EXT_FD[i]
+                hi = _ext_voltage(p, y, d, x, current[k])
+                x[i] = m[i] - _EXT_FD[i]
+                lo = _ext_voltage(p, y, d, x, current[k])
+                h_v[i] = (hi - lo) / (2.0 * _EXT_FD[i])
+                z_lin += h_v[i] * m[i]
+            flips += _observe_channel(m, c, h_v, z_lin, r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
+                                      last_innovation, rejected_total, rejected_in_row, relocks, window)
+        flips += _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
+                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
+    return flips
 
 
 @njit(**_JIT)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 
-from gcs_pdm.diagnosis.faults import Fault, motor_faults
+from gcs_pdm.diagnosis.faults import ADVISORY_TYPES, Fault, motor_faults
 from gcs_pdm.models.params import MOTOR_NAMES
 from gcs_pdm.models.powertrain import MotorFault
 from gcs_pdm.service import adapters
@@ -48,7 +48,8 @@ class FaultTracker:
                     store.clear_fault(known[0])
                 fid = store.add_fault(f, "diagnoser")
                 self._stored[key] = (fid, f.magnitude)
-                new_or_grown.append(f)
+                if f.type not in ADVISORY_TYPES:  # an advisory is told, not planned around
+                    new_or_grown.append(f)
                 events.publish("fault", id=fid, time_s=t, kind=f.type, target=f.component, magnitude=f.magnitude,
                                confidence=f.confidence, source="diagnoser")
                 log.info("fault at t=%.1f s: %s %s magnitude %.2f", t, f.type, f.component, f.magnitude)

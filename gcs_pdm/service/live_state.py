@@ -61,6 +61,8 @@ class LiveState:
             "policy": None,
             "parameter_set": None,
             "failed": None,
+            "model_mismatch": None,
+            "model_variants": None,
             # what the service can and cannot do now, and why (the pipeline's readiness)
             "readiness": {"state": "no vehicle link", "prediction": "no vehicle link",
                           "motor_telemetry": "no vehicle link", "motor_diagnosis": "no vehicle link"},

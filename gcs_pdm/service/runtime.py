@@ -14,6 +14,7 @@ from gcs_pdm.service.decision import CatalogueWaypoint
 from gcs_pdm.service.events import EventBus
 from gcs_pdm.service.jobs import JobRunner
 from gcs_pdm.service.live_state import LiveState
+from gcs_pdm.service.status_report import model_variant_report
 from gcs_pdm.service.storage import Conflict, NotFound, Store
 
 log = logging.getLogger(__name__)
@@ -50,7 +51,8 @@ class Service:
         self.limits = None
         self.loop = None
         self.foreign_watch = None  # status_report.ForeignSystemWatcher, once a link is attached
-        self.state.update(policy=self.policy, parameter_set=self.params.name)
+        self.state.update(policy=self.policy, parameter_set=self.params.name,
+                          model_variants=model_variant_report(self.params))
         #: the vehicle description (``vehicle`` in the config); None: the live loop derives a
         #: provisional one from the first telemetry (service/vehicle_discovery.py)
         self.vehicle = None
@@ -212,7 +214,8 @@ class Service:
     def activate_parameter_set(self, name: str) -> ParameterSet:
         ps = self.store.activate_parameter_set(name)
         self.params = ps
-        self.state.update(parameter_set=name)
+        # same keys every time: LiveState's one-level merge replaces it whole
+        self.state.update(parameter_set=name, model_variants=model_variant_report(ps))
         # The live loop's filters keep their state (and the parameters they were built with:
         # rebuilding them mid-flight would throw away the SoC/temperature estimate); its planning
         # reads ``self.params``, so the new set applies from the next replan on. A restart builds

@@ -91,6 +91,13 @@ class VehicleStatus(BaseModel):
     policy: str | None
     parameter_set: str | None
     failed: str | None = None
+    model_variants: dict[str, Any] | None = Field(None, description=(
+        "the active parameter set's model variant per pack and notes where an extended pack's paper values "
+        "are used instead (the planner)"))
+    model_mismatch: dict[str, Any] | None = Field(None, description=(
+        "packs that no longer behave like their model (the estimator's normalised-innovation test; "
+        "each pack's evidence is in packs.<name>.model_mismatch): packs, reason with the refit suggestion, "
+        "since_s; null while every pack matches"))
     link_trust: dict[str, Any] = Field(default_factory=dict, description=(
         "what the link refused to believe (Link.trust_report): foreign_systems [{system, component, heartbeats, "
         "first_seen_s, last_seen_s}], time_rejected, gated values by field, bad_data; available: false without a link"))
@@ -176,6 +183,9 @@ class ParameterSetSummary(BaseModel):
     description: str
     provenance: dict[str, Any]
     created_at: float
+    model_variants: dict[str, Any] | None = Field(None, description=(
+        "on activation: each pack's model variant (paper, extended) and notes naming every user that still "
+        "flies an extended pack's paper values (the planner's vehicle simulator)"))
 
 
 class ParameterSetImport(BaseModel):

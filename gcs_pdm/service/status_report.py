@@ -1,5 +1,6 @@
 """What the link refused to believe, for ``/status`` and ``/health``, and the operator's alert when
-another system sends vehicle heartbeats on our link.
+another system sends vehicle heartbeats on our link; which packs no longer match their model
+(``model_mismatch_summary``).
 
 The link (gcs_pdm.mavlink.connection.Link) already counts everything it gates: foreign systems,
 rejected timestamps, values outside the physical envelope, undecodable packets. This module only
@@ -29,6 +30,36 @@ def link_trust(service) -> dict:
     if link is None or not hasattr(link, "trust_report"):
         return {"available": False, "reason": "no MAVLink link"}
     return {"available": True, **link.trust_report()}
+
+
+def model_mismatch_summary(model_checks: dict[str, dict]) -> dict | None:
+    """``/status``'s top-level ``model_mismatch`` from the estimate's per-pack model checks
+    (``Estimate.model_mismatch``): None while every pack matches its model (or is not judged
+    yet); else the packs, one sentence saying why with the refit suggestion, and that the
+    predictions' spread is widened meanwhile."""
+    bad = {n: c for n, c in model_checks.items() if c.get("active")}
+    if not bad:
+        return None
+    widened = ", ".join(f"{n} ×{c.get('prediction_inflation', 1.0):.2f}" for n, c in bad.items())
+    reason = ("; ".join(c.get("reason", f"pack {n} does not match its model") for n, c in bad.items())
+              + f". Predictions start from a wider state spread meanwhile ({widened}). "
+              + " ".join(f"Pack {n}: {c['suggestion']}." for n, c in bad.items() if c.get("suggestion")))
+    return {"packs": sorted(bad), "reason": reason, "since_s": {n: c.get("since_s") for n, c in bad.items()}}
+
+
+#: what each user of a parameter set does with a pack of the extended variant (docs/model.md)
+PLANNER_PAPER_NOTE = ("planner uses the paper-variant values of pack {pack}: its vehicle simulator flies the paper "
+                      "circuit only; the estimator, its model check and the Monte Carlo predictions use the pack's "
+                      "extended values")
+
+
+def model_variant_report(params) -> dict:
+    """Which model variant each pack of ``params`` (a ``ParameterSet``) runs on, and where a user
+    still flies an extended pack's paper values (said, never silent): for ``/status`` and the
+    parameter-set activation answer."""
+    packs = {n: p.model for n, p in params.packs.items()}
+    return {"packs": packs,
+            "notes": [PLANNER_PAPER_NOTE.format(pack=n) for n, model in packs.items() if model == "extended"]}
 
 
 def foreign_system_ids(service) -> list[int]:

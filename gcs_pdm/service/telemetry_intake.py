@@ -29,6 +29,7 @@ from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
 from gcs_pdm.service import adapters
 from gcs_pdm.service.flight_phase import FlightPhase, flight_phase
 from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
+from gcs_pdm.service.status_report import model_mismatch_summary
 
 log = logging.getLogger(__name__)
 
@@ -186,7 +187,10 @@ class TelemetryIntake:
             est = self.estimator.estimate()
             for i, n in enumerate(self.estimator.pack_names):
                 st.update_nested("packs", n, soc=float(est.soc[i]), soc_sd=float(est.soc_sd[i]),
-                                 temperature_c=float(est.pack_temp_c[i]), temperature_sd=float(est.pack_temp_sd[i]))
+                                 temperature_c=float(est.pack_temp_c[i]), temperature_sd=float(est.pack_temp_sd[i]),
+                                 model_mismatch=est.model_mismatch.get(n))
+            # same keys every time, so LiveState's one-level merge replaces it whole
+            st.update(model_mismatch=model_mismatch_summary(est.model_mismatch))
             for i, n in enumerate(self.estimator.motor_names):
                 st.update_nested("motors", n, temperature_c=float(est.motor_temp_c[i]),
                                  temperature_sd=float(est.motor_temp_sd[i]))

@@ -7,6 +7,7 @@ page, and Swagger UI at /docs, ask nothing of any host but the service.
 """
 from __future__ import annotations
 
+import re
 import time
 
 import pytest
@@ -71,6 +72,10 @@ def test_fault_proposal_approve_confirmed_then_link_loss(service, page):
         status = service.get("/status")
         expect(page.locator("#packs .card")).to_have_count(len(status["packs"]))
         expect(page.locator("#motors .card")).to_have_count(len(status["motors"]))
+        # each pack card says whether the pack behaves like its model (not judged until its window fills)
+        expect(page.locator("#packs .card .row.model")).to_have_count(len(status["packs"]))
+        expect(page.locator("#packs .card .row.model").first).to_contain_text(
+            re.compile("not judged yet|matches|does not match its model"), timeout=30_000)
 
         # the diagnoser's fault becomes a banner
         fault_banner = page.locator('[data-banner^="fault-"]')

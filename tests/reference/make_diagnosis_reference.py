@@ -2,7 +2,9 @@
 
     PYTHONPATH=$PWD python tests/reference/make_diagnosis_reference.py
 
-Writes ``diagnosis_pipeline.json`` next to this file, recorded before the diagnoser was changed:
+Writes ``diagnosis_pipeline.json`` next to this file, first recorded before the diagnoser's speed work
+(which left it unchanged), re-recorded once after the model-mismatch advisory and the pack-current
+guard fix (issue 15: new ``model_mismatch`` advisories, prognosis timing on flights they widen):
 - ``synthetic``: the paper aircraft's pipeline on seeded synthetic flights (motor faults, a fault-free
   flight, an infeasible mission, degraded packs), with and without a mission: every fault and event,
   and the prognosis' latest p_failure;

@@ -289,6 +289,17 @@ function cutoffText(p, st) {
   const hz = st.prediction.horizon_s;
   return `<span class="ok">no cut-off predicted${num(hz) ? ` within ${(hz / 60).toFixed(0)} min` : " within the prediction horizon"}</span>`;
 }
+// the estimator's model-consistency test (docs/estimation.md): matches, not judged yet, or the evidence and what to do
+function modelText(m) {
+  if (!m) return unknown("no model check yet");
+  const f = (v, d) => fmt(v, d) ?? "?";
+  if (m.state === "mismatch")
+    return `<span class="bad">does not match its model</span>: statistic ${f(m.statistic, 2)} &gt; ${f(m.bound, 2)}, `
+      + `mean residual ${f(m.voltage_residual_mv, 0)} mV / ${f(m.temperature_residual_k, 2)} K over ${m.window_updates} updates; `
+      + `prediction spread ×${f(m.prediction_inflation, 2)}. <span class="hint">${esc(m.suggestion || "")}</span>`;
+  if (m.state === "matches") return `<span class="ok">matches</span> (statistic ${f(m.statistic, 2)}, bound ${f(m.bound, 2)})`;
+  return unknown(m.reason || "not judged yet");
+}
 function renderPacks() {
   const st = S.status; if (!st) return;
   const lim = (S.settings && S.settings.limits) || {};
@@ -310,7 +321,8 @@ function renderPacks() {
     card.querySelector(".body").innerHTML =
       `<div class="row"><span>state of charge</span><span class="v">${num(p.soc) ? `${(100 * p.soc).toFixed(1)} %` + (num(p.soc_sd) ? ` ± ${(100 * p.soc_sd).toFixed(1)} %` : "") : unknown(socWhy(st))}</span></div>
        <div class="row"><span>temperature</span><span class="v">${pm(p.temperature_c, p.temperature_sd, 1, " °C", num(p.temperature_raw_c) ? `estimate not ready; sensor says ${p.temperature_raw_c.toFixed(1)} °C` : "no temperature received")}</span></div>
-       <div class="row"><span>time to cut-off</span><span class="v">${cutoffText(p, st)}</span></div>`;
+       <div class="row"><span>time to cut-off</span><span class="v">${cutoffText(p, st)}</span></div>
+       <div class="row model"><span>model</span><span class="v">${modelText(p.model_mismatch)}</span></div>`;
     plot(card.querySelector("canvas.soc"), S.series["pack-soc-" + name], {min: 0, max: 1, fmt: (v) => `${(100 * v).toFixed(0)}%`,
       limits: [{value: lim.landing_reserve_soc || 0, label: "landing reserve"}]});
     plot(card.querySelector("canvas.temp"), S.series["pack-temp-" + name], {fmt: (v) => `${v.toFixed(0)}°`, color: "#c2410c", band: "rgba(194,65,12,.18)",
@@ -394,6 +406,9 @@ function computeBanners() {
     for (const [k, why] of Object.entries(st.readiness || {}))
       if (k !== "replan" && why !== "ready" && (k !== "motor_diagnosis" || String(why).startsWith("not diagnosable")))
         out.push({id: "readiness-" + k, level: "warning", title: `${k.replace(/_/g, " ")}: not ready`, why: String(why)});
+    // an extended pack the planner still flies on its paper values (said, never silent)
+    for (const [i, note] of (((st.model_variants || {}).notes) || []).entries())
+      out.push({id: "variant-" + i, level: "warning", title: "Planner uses paper-variant values", why: String(note)});
     if (st.model_mismatch) out.push({id: "mismatch", level: "warning", title: "Model mismatch", why: typeof st.model_mismatch === "string" ? st.model_mismatch : (st.model_mismatch.reason || JSON.stringify(st.model_mismatch))});
     for (const [i, w] of (st.warnings || st.banners || []).entries()) {
       const o = typeof w === "string" ? {text: w} : w;

@@ -6,6 +6,7 @@ from fastapi import APIRouter
 from gcs_pdm.models.params import ParameterError, ParameterSet
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.routers.deps import AUTH, PathName, ServiceDep, unprocessable
+from gcs_pdm.service.status_report import model_variant_report
 
 router = APIRouter(prefix="/parameter-sets")
 
@@ -42,8 +43,9 @@ def import_parameter_set(body: S.ParameterSetImport, service: ServiceDep):
 @router.post("/{name}/activate", response_model=S.ParameterSetSummary, dependencies=AUTH,
              responses=S.errors(401, 404, 409, 422))
 def activate(name: PathName, service: ServiceDep):
-    service.activate_parameter_set(name)
-    return next(p for p in service.store.parameter_sets() if p["name"] == name)
+    ps = service.activate_parameter_set(name)
+    return {**next(p for p in service.store.parameter_sets() if p["name"] == name),
+            "model_variants": model_variant_report(ps)}
 
 
 def _field_of(message: str) -> str:
