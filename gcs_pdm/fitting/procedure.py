@@ -56,6 +56,10 @@ class FitSettings:
     #: LM also learns a per-training-flight initial-SoC correction of up to this much (0: off); the
     #: first-samples estimate is noisy, and near the knee a 0.005 SoC error is a visible voltage error
     soc_offset_range: float = 0.05
+    #: the same for the extended variant: off. Its initial SoC comes from the rest voltage through the
+    #: learned OCV (a few mV of noise: < 0.001 SoC), and a free correction lets the OCV disagree with
+    #: the rest voltages, which is exactly what a predicted flight starts from (docs/fitting.md)
+    extended_soc_offset_range: float = 0.0
     workers: int = 2
     #: model variant of a battery fit: "extended" or "paper" (eqs. 1-7). New fits from the command
     #: line use "extended" (`gcs-pdm fit battery`, DEFAULT_MODEL); the library default stays "paper"
@@ -82,7 +86,8 @@ class FitSettings:
         return {"search": self.search.to_dict(), "base": self.base, "reference": self.reference,
                 "model": self.model, "chemistry": self.chemistry, "extended_search": self.extended_search.to_dict(),
                 "extended_thermal_generations": self.extended_thermal_generations,
-                "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range, "workers": self.workers,
+                "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range,
+                "extended_soc_offset_range": self.extended_soc_offset_range, "workers": self.workers,
                 "cleaning": {k: v for k, v in self.cleaning.__dict__.items()}}
 
 
@@ -413,7 +418,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         def make_el(flights, workers, training):
             return problem_cls(flights, base_vec, el_bounds, "voltage", init_samples=s.init_samples,
                                mapper=pool.map, workers=workers,
-                               soc_offset_range=s.soc_offset_range if training else 0.0)
+                               soc_offset_range=(s.extended_soc_offset_range if extended else s.soc_offset_range)
+                               if training else 0.0)
 
         def make_el_sa(flights, workers):
             return problem_cls(flights, base_vec, pb.EXTENDED_RC_BOUNDS, "voltage", init_samples=s.init_samples,

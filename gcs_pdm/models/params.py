@@ -67,11 +67,13 @@ class ThermalParams:
 
 
 #: open-circuit voltage per cell (V) at the kernel's knots ``EXT_OCV_SOC`` = 0, 0.03, 0.07, 0.12, 0.2,
-#: 0.3 … 1.0: typical discharge curves at rest (C/20, 25 °C) of a LiPo (LiCoO2/graphite) and a
-#: Li-ion NMC/graphite cell. Starting points and fallbacks; a fit learns the pack's own curve.
+#: 0.25 … 1.0: typical discharge curves at rest (C/20, 25 °C) of a LiPo (LiCoO2/graphite) and a
+#: Li-ion NMC/graphite cell. Starting points and fallbacks; a fit learns the pack's own.
 OCV_PER_CELL: Mapping[str, tuple[float, ...]] = {
-    "lipo": (3.27, 3.45, 3.60, 3.68, 3.73, 3.77, 3.80, 3.84, 3.88, 3.95, 4.02, 4.10, 4.20),
-    "li-ion": (3.00, 3.30, 3.42, 3.50, 3.57, 3.63, 3.68, 3.73, 3.80, 3.88, 3.96, 4.06, 4.18),
+    "lipo": (3.27, 3.45, 3.60, 3.68, 3.73, 3.752, 3.77, 3.785, 3.80, 3.819, 3.84, 3.859, 3.88, 3.913, 3.95, 3.984,
+             4.02, 4.058, 4.10, 4.147, 4.20),
+    "li-ion": (3.00, 3.30, 3.42, 3.50, 3.57, 3.602, 3.63, 3.656, 3.68, 3.704, 3.73, 3.763, 3.80, 3.839, 3.88, 3.919,
+               3.96, 4.007, 4.06, 4.117, 4.18),
 }
 CHEMISTRIES: tuple[str, ...] = tuple(OCV_PER_CELL)
 #: extended-variant values other than the OCV for a 5S 7.8 Ah pack (docs/model.md)
