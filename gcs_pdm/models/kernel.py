@@ -315,15 +315,15 @@ def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
 # open-circuit voltage is a monotone piecewise-cubic (PCHIP, Fritsch–Carlson slopes) through knots
 # at EXT_OCV_SOC, parametrised by the voltage at SoC 0 and positive increments, so any parameter
 # vector inside the bounds is monotone. Every resistance is scaled by
-#     f(T, SoC) = exp(E_r (1/T_K - 1/298.15 K)) * (1 + k_soc exp(-SoC / EXT_SOC_SCALE)),
+#     f(T, SoC) = exp(E_r (1/T_K - 1/298.15 K)) * (1 + k_soc exp(-SoC_surface / soc_knee)),
 # the charge-transfer (Butler–Volmer) overpotential b_ct asinh(I f / i_ct) is linear at small current
-# and logarithmic at high current, heat is I (OCV - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges heat with the
+# and logarithmic at high current, heat is I (OCV(surface) - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges heat with the
 # air as in eq. 7. With f and the OCV slope frozen over a step, the R–C pairs and the temperature have
 # exact exponential steps, as in the paper variant.
 #
 # Solid diffusion: the OCV is read at the particles' *surface* SoC, SoC - s_d, where the depletion
-# s_d relaxes towards I k_d / C_max with the slow time constant tau_2 (a one-state diffusion
-# approximation). On the plateau it acts as one more R–C drop; near empty, where the OCV falls
+# s_d relaxes towards I k_d / C_max with its own time constant tau_d (a one-state diffusion
+# approximation; the particles' R^2/D is longer than the electrolyte's and double layer's R-C times). On the plateau it acts as one more R–C drop; near empty, where the OCV falls
 # steeply, it makes the knee arrive earlier at high current, as it does in real cells.
 
 MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
@@ -331,19 +331,20 @@ MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
 #: above 0.2, fine enough for the steps of a graphite anode's staging plateaus. Every flight starts
 #: from a rest voltage read through this curve, so a feature it cannot draw is an initial-SoC error,
 #: and near the cut-off 0.01 of SoC is hundreds of mV (a 0.1 spacing cost 0.01 on a PyBaMM cell)
-EXT_OCV_SOC = np.concatenate([[0.0, 0.03, 0.07, 0.12], np.round(np.arange(0.2, 1.0 + 1e-9, 0.05), 2)])
+EXT_OCV_SOC = np.round(np.concatenate([[0.0, 0.03, 0.07, 0.12], np.arange(0.2, 0.7 - 1e-9, 0.05),
+                                       np.arange(0.7, 1.0 + 1e-9, 0.025)]), 3)
 N_OCV_KNOTS = len(EXT_OCV_SOC)
-#: SoC scale of the low-charge resistance rise
-EXT_SOC_SCALE = 0.1
 EXT_T_REF_K = 298.15
 EXT_PACK_PARAMS: tuple[str, ...] = (
-    "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "k_soc", "b_ct", "i_ct", "k_d", "C_max", "C_t", "h", "dU_dT",
+    "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "E_ct", "k_soc", "soc_knee", "b_ct", "i_ct", "k_d", "tau_d", "C_max", "C_t", "h",
+    "dU_dT",
     "ocv_0",
 ) + tuple(f"docv_{k}" for k in range(1, N_OCV_KNOTS))
 EXT_PACK_STATE: tuple[str, ...] = ("soc", "v_1", "v_2", "T", "s_d")
 N_EXT_STATE = len(EXT_PACK_STATE)
 N_EXT_PARAMS = len(EXT_PACK_PARAMS)
-(E_R0, E_R1, E_TAU1, E_R2, E_TAU2, E_ER, E_KSOC, E_BCT, E_ICT, E_KD, E_CMAX, E_CT, E_H, E_DUDT, E_OCV0) = range(15)
+(E_R0, E_R1, E_TAU1, E_R2, E_TAU2, E_ER, E_ECT, E_KSOC, E_KNEE, E_BCT, E_ICT, E_KD, E_TAUD, E_CMAX, E_CT,
+ E_H, E_DUDT, E_OCV0) = range(18)
 (X_SOC, X_V1, X_V2, X_T, X_SD) = range(N_EXT_STATE)
 
 
@@ -382,9 +383,13 @@ def _ocv_eval(y, d, soc):
         return y[0] + (soc - xs[0]) * d[0]
     if soc >= xs[last]:
         return y[last] + (soc - xs[last]) * d[last]
-    k = 0
-    while soc > xs[k + 1]:
-        k += 1
+    k, hi = 0, last
+    while hi - k > 1:  # bisection: the knot interval holding soc
+        mid = (k + hi) // 2
+        if soc > xs[mid]:
+            k = mid
+        else:
+            hi = mid
     hk = xs[k + 1] - xs[k]
     t = (soc - xs[k]) / hk
     t2 = t * t
@@ -394,15 +399,31 @@ def _ocv_eval(y, d, soc):
 
 
 @njit(inline="always", **_JIT)
-def _resistance_factor(p, temperature_c, soc):
-    arrhenius = math.exp(p[E_ER] * (1.0 / (temperature_c + 273.15) - 1.0 / EXT_T_REF_K))
-    return arrhenius * (1.0 + p[E_KSOC] * math.exp(-max(soc, 0.0) / EXT_SOC_SCALE))
+def _low_charge(p, soc):
+    """Rise of the resistances and of the exchange current's inverse as the (surface) SoC empties."""
+    return 1.0 + p[E_KSOC] * math.exp(-max(soc, 0.0) / p[E_KNEE])
 
 
 @njit(inline="always", **_JIT)
-def _kinetic(p, current, f):
-    # symmetric Butler–Volmer overpotential; slower kinetics (cold, empty) scale the current up
-    return p[E_BCT] * math.asinh(current * f / p[E_ICT])
+def _resistance_factor(p, temperature_c, soc):
+    arrhenius = math.exp(p[E_ER] * (1.0 / (temperature_c + 273.15) - 1.0 / EXT_T_REF_K))
+    return arrhenius * _low_charge(p, soc)
+
+
+@njit(inline="always", **_JIT)
+def _kinetic_rho(p, current, temperature_c, rho):
+    """Butler–Volmer overpotential b_ct (T/T_ref) asinh(I g / i_ct): the slope is the thermal voltage
+    (∝ T), and the exchange current has its own activation temperature E_ct (charge transfer is
+    activated differently from the electrolyte's and contacts' resistance) and falls as the surface
+    empties (``rho``, the same low-charge factor as the resistances)."""
+    t_k = temperature_c + 273.15
+    g = math.exp(p[E_ECT] * (1.0 / t_k - 1.0 / EXT_T_REF_K)) * rho
+    return p[E_BCT] * (t_k / EXT_T_REF_K) * math.asinh(current * g / p[E_ICT])
+
+
+@njit(inline="always", **_JIT)
+def _kinetic(p, current, temperature_c, soc):
+    return _kinetic_rho(p, current, temperature_c, _low_charge(p, soc))
 
 
 @njit(**_JIT)
@@ -413,11 +434,12 @@ def _ext_advance(p, y, d, x, current, ambient, t_drive, dt, max_dt):
     model's own temperature does. Returns the terminal voltage at the end of the step."""
     if dt <= 0.0:
         t_res = x[X_T] if math.isnan(t_drive) else t_drive
-        f = _resistance_factor(p, t_res, x[X_SOC])
-        return (_ocv_eval(y, d, x[X_SOC] - x[X_SD]) - current * p[E_R0] * f - _kinetic(p, current, f)
+        f = _resistance_factor(p, t_res, x[X_SOC] - x[X_SD])
+        return (_ocv_eval(y, d, x[X_SOC] - x[X_SD]) - current * p[E_R0] * f
+                - _kinetic(p, current, t_res, x[X_SOC] - x[X_SD])
                 - x[X_V1] - x[X_V2])
-    n_sub, h, decay_1, decay_2, decay_t = _ext_decays(p, dt, max_dt)
-    return _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_t)
+    n_sub, h, decay_1, decay_2, decay_d, decay_t = _ext_decays(p, dt, max_dt)
+    return _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_d, decay_t)
 
 
 @njit(inline="always", **_JIT)
@@ -429,18 +451,23 @@ def _ext_decays(p, dt, max_dt):
         # bounded like the paper variant's step: work follows samples, not the span of a log gap
         n_sub = min(int(math.ceil(dt / max_dt)), MAX_SUBSTEPS)
     h = dt / n_sub
-    return n_sub, h, math.exp(-h / p[E_TAU1]), math.exp(-h / p[E_TAU2]), math.exp(-h * p[E_H] / p[E_CT])
+    return (n_sub, h, math.exp(-h / p[E_TAU1]), math.exp(-h / p[E_TAU2]), math.exp(-h / p[E_TAUD]),
+            math.exp(-h * p[E_H] / p[E_CT]))
 
 
 @njit(inline="always", **_JIT)
-def _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_t):
+def _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_d, decay_t):
     d_soc = current * h / p[E_CMAX]
     s_inf = current * p[E_KD] / p[E_CMAX]
     v = 0.0
     for _ in range(n_sub):
         t_res = x[X_T] if math.isnan(t_drive) else t_drive
-        soc_mid = x[X_SOC] - 0.5 * d_soc
-        f = _resistance_factor(p, t_res, soc_mid)
+        s_d = s_inf + (x[X_SD] - s_inf) * decay_d
+        # the low-charge rise follows the particles' surface SoC (the exchange current falls as the
+        # surface empties), so at high current it arrives early and steep, as the knee does
+        surface_mid = x[X_SOC] - 0.5 * d_soc - 0.5 * (x[X_SD] + s_d)
+        rho = _low_charge(p, surface_mid)
+        f = math.exp(p[E_ER] * (1.0 / (t_res + 273.15) - 1.0 / EXT_T_REF_K)) * rho
         i1 = current * p[E_R1] * f
         i2 = current * p[E_R2] * f
         v1 = i1 + (x[X_V1] - i1) * decay_1
@@ -450,8 +477,7 @@ def _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, deca
         # particles' concentration gradient (the heat of mixing, released slowly as it relaxes and
         # neglected, as in the usual cell energy balance). Counting it as heat over-heated the packs
         # by kelvins in the last minutes before the cut-off, where the OCV is steep.
-        eta = current * p[E_R0] * f + _kinetic(p, current, f)
-        s_d = s_inf + (x[X_SD] - s_inf) * decay_2
+        eta = current * p[E_R0] * f + _kinetic_rho(p, current, t_res, rho)
         soc_new = x[X_SOC] - d_soc
         ocv_surface = _ocv_eval(y, d, soc_new - s_d)
         over = eta + 0.5 * (x[X_V1] + v1 + x[X_V2] + v2)
@@ -481,17 +507,17 @@ def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, volta
     for s in range(N_EXT_STATE):
         x[s] = x0[j, s]
     last_dt = -1.0
-    n_sub, h, decay_1, decay_2, decay_t = 1, 0.0, 1.0, 1.0, 1.0
+    n_sub, h, decay_1, decay_2, decay_d, decay_t = 1, 0.0, 1.0, 1.0, 1.0, 1.0
     for k in range(n):
         dtk = dt[di, k]
         if dtk <= 0.0:
             voltage[j, k] = _ext_advance(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], dtk, max_dt)
         else:
             if dtk != last_dt:
-                n_sub, h, decay_1, decay_2, decay_t = _ext_decays(p, dtk, max_dt)
+                n_sub, h, decay_1, decay_2, decay_d, decay_t = _ext_decays(p, dtk, max_dt)
                 last_dt = dtk
             voltage[j, k] = _ext_substeps(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], n_sub, h,
-                                          decay_1, decay_2, decay_t)
+                                          decay_1, decay_2, decay_d, decay_t)
         temperature[j, k] = x[X_T]
         soc[j, k] = x[X_SOC]
     for s in range(N_EXT_STATE):
@@ -553,7 +579,7 @@ def resistance_factor(params: np.ndarray, temperature_c: np.ndarray | float, soc
     t_k = np.asarray(temperature_c, dtype=np.float64) + 273.15
     soc = np.maximum(np.asarray(soc, dtype=np.float64), 0.0)
     return (np.exp(params[:, E_ER] * (1.0 / t_k - 1.0 / EXT_T_REF_K))
-            * (1.0 + params[:, E_KSOC] * np.exp(-soc / EXT_SOC_SCALE)))
+            * (1.0 + params[:, E_KSOC] * np.exp(-soc / params[:, E_KNEE])))
 
 
 def initial_extended_state(params: np.ndarray, soc: np.ndarray | float, temperature: np.ndarray | float,
@@ -563,11 +589,11 @@ def initial_extended_state(params: np.ndarray, soc: np.ndarray | float, temperat
     params = _params2d(params, N_EXT_PARAMS, "params")
     n_vec = params.shape[0]
     soc = np.broadcast_to(np.asarray(soc, dtype=np.float64), (n_vec,))
-    f = resistance_factor(params, temperature, soc)
     current = np.asarray(current, dtype=np.float64)
     x = np.empty((n_vec, N_EXT_STATE))
     x[:, X_SOC] = soc
     x[:, X_SD] = current * params[:, E_KD] / params[:, E_CMAX]
+    f = resistance_factor(params, temperature, soc - x[:, X_SD])
     x[:, X_V1] = current * params[:, E_R1] * f
     x[:, X_V2] = current * params[:, E_R2] * f
     x[:, X_T] = temperature
@@ -599,8 +625,8 @@ def _rest_soc_batch(params, voltage, current, temperature, iterations, out):
         lo, hi = -0.3, 1.3
         for _ in range(iterations):
             mid = 0.5 * (lo + hi)
-            f = _resistance_factor(p, temperature, mid)
-            v = _ocv_eval(y, d, mid - shift) - current * r * f - _kinetic(p, current, f)
+            f = _resistance_factor(p, temperature, mid - shift)
+            v = _ocv_eval(y, d, mid - shift) - current * r * f - _kinetic(p, current, temperature, mid - shift)
             if v > voltage:
                 hi = mid
             else:
