@@ -68,7 +68,7 @@ class FitSettings:
     model: str = DEFAULT_MODEL
     #: open-circuit-voltage default (start of the search) when the base set has no extended values
     chemistry: str = "lipo"
-    #: search of the extended variant: its 35 electrical unknowns make each LM run costlier, and LM
+    #: search of the extended variant: its 41 electrical unknowns make each LM run costlier, and LM
     #: (not the annealing, which only sees the 14 resistance, time-constant, kinetic and capacity values)
     #: does most of the work, so fewer starts with a longer LM; its 3-value thermal stage needs few
     #: generations

@@ -311,26 +311,27 @@ def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
 
 # ---- the extended equivalent circuit (variant "extended") ----------------------------------------
 #
-# docs/model.md gives the equations. States: SoC, the two R–C voltages and the temperature. The
-# open-circuit voltage is a monotone piecewise-cubic (PCHIP, Fritsch–Carlson slopes) through knots
-# at EXT_OCV_SOC, parametrised by the voltage at SoC 0 and positive increments, so any parameter
-# vector inside the bounds is monotone. Every resistance is scaled by
-#     f(T, SoC) = exp(E_r (1/T_K - 1/298.15 K)) * (1 + k_soc exp(-SoC_surface / soc_knee)),
-# the charge-transfer (Butler–Volmer) overpotential b_ct asinh(I f / i_ct) is linear at small current
-# and logarithmic at high current, heat is I (OCV(surface) - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges heat with the
-# air as in eq. 7. With f and the OCV slope frozen over a step, the R–C pairs and the temperature have
-# exact exponential steps, as in the paper variant.
+# docs/model.md gives the equations. States: SoC, the two R–C voltages, the temperature and the
+# surface depletion. The open-circuit voltage is a monotone piecewise-cubic (PCHIP, Fritsch–Carlson
+# slopes) through knots at EXT_OCV_SOC, parametrised by the voltage at SoC 0 and positive increments,
+# so any parameter vector inside the bounds is monotone. Every resistance is scaled by
+#     f(T, s) = exp(E_r (1/T_K - 1/298.15 K)) * (1 + k_soc exp(-s / soc_knee)),   s = SoC - s_d,
+# the charge-transfer (Butler–Volmer) overpotential b_ct (T_K/298.15) asinh(I g / i_ct), with g like f
+# but its own activation temperature E_ct, is linear at small current and logarithmic at high
+# current; heat is I (OCV(s) - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges
+# heat with the air as in eq. 7. With f, g and the OCV slope frozen over a step, the R–C pairs, the
+# depletion and the temperature have exact exponential steps, as in the paper variant.
 #
-# Solid diffusion: the OCV is read at the particles' *surface* SoC, SoC - s_d, where the depletion
-# s_d relaxes towards I k_d / C_max with its own time constant tau_d (a one-state diffusion
-# approximation; the particles' R^2/D is longer than the electrolyte's and double layer's R-C times). On the plateau it acts as one more R–C drop; near empty, where the OCV falls
-# steeply, it makes the knee arrive earlier at high current, as it does in real cells.
+# Solid diffusion: the OCV is read at the particles' *surface* SoC s, where the depletion s_d relaxes
+# towards I k_d / C_max with its own time constant tau_d (a one-state diffusion approximation). On the
+# plateau it acts as one more R–C drop; near empty, where the OCV falls steeply, it makes the knee
+# arrive earlier and steeper at high current, as it does in real cells.
 
 MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
-#: SoC of the open-circuit-voltage knots: denser at the bottom, where the curve bends, and every 0.05
-#: above 0.2, fine enough for the steps of a graphite anode's staging plateaus. Every flight starts
-#: from a rest voltage read through this curve, so a feature it cannot draw is an initial-SoC error,
-#: and near the cut-off 0.01 of SoC is hundreds of mV (a 0.1 spacing cost 0.01 on a PyBaMM cell)
+#: SoC of the open-circuit-voltage knots: denser at the bottom, where the curve bends, every 0.05 above
+#: 0.2 and every 0.025 above 0.7, where flights start. Every flight starts from a rest voltage read
+#: through this curve, so a feature it cannot draw (a graphite staging step) is an initial-SoC error,
+#: and on a flight to the cut-off 0.005 of SoC is 25-50 mV of RMSE (docs/model.md)
 EXT_OCV_SOC = np.round(np.concatenate([[0.0, 0.03, 0.07, 0.12], np.arange(0.2, 0.7 - 1e-9, 0.05),
                                        np.arange(0.7, 1.0 + 1e-9, 0.025)]), 3)
 N_OCV_KNOTS = len(EXT_OCV_SOC)
