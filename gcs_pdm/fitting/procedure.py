@@ -73,10 +73,10 @@ class FitSettings:
     #: does most of the work, so fewer starts with a longer LM; its 3-value thermal stage needs few
     #: generations
     extended_search: SearchSettings = SearchSettings(starts=4, sa_generations=60, lm_max_nfev=40)
-    extended_thermal_generations: int = 20
+    extended_thermal_generations: int = 10
     #: a further LM run of this many evaluations from the chosen electrical candidate (extended
     #: variant; kept if the validation error does not rise): the short runs screen the starts
-    extended_polish_nfev: int = 60
+    extended_polish_nfev: int = 45
 
     def search_for(self, stage: str) -> SearchSettings:
         """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
