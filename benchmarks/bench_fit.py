@@ -64,7 +64,7 @@ def _compare(train, base) -> dict:
             "dual_annealing_nfev": int(res.nfev)}
 
 
-FLOOR_S = 20.0  # issue 18: 8+2+2 x 30 min on the default variant
+FLOOR_S = 20.0  # issue 18: 8+2+2 x 30 min on the default variant (compared with the fit's CPU time)
 
 
 def _timed_fit(train, val, test, settings, **kw):
@@ -95,6 +95,8 @@ def _independent() -> dict:
                                                 FitSettings(model=model))
             entry[f"{model}_wall_s"], entry[f"{model}_cpu_s"] = wall, cpu
         entry["floor_s"] = FLOOR_S
+        # CPU time, not wall: the machine is shared, and the fit's two threads share it with others
+        entry["extended_under_floor_cpu"] = entry["extended_cpu_s"] <= FLOOR_S
         t0 = time.perf_counter()
         base = fit_baseline(clean_flights(splits["train"])[0])
         entry["baseline_s"] = round(time.perf_counter() - t0, 2)
@@ -156,7 +158,7 @@ def main() -> None:
     }
     ext, ext_wall, ext_cpu = _timed_fit(fl[:8], fl[8:10], fl[10:], FitSettings(model="extended"), pack=args.pack)
     out["default_variant_on_paper_data"] = {
-        "model": ext.model, "wall_s": ext_wall, "cpu_s": ext_cpu, "floor_s": FLOOR_S, "under_floor": ext_wall <= FLOOR_S,
+        "model": ext.model, "wall_s": ext_wall, "cpu_s": ext_cpu, "floor_s": FLOOR_S, "under_floor_cpu": ext_cpu <= FLOOR_S,
         "load_average_1min": round(os.getloadavg()[0], 2), "test": figs(ext.errors["learned"]["test"]["overall"])}
     if not args.skip_independent:
         out["independent_pybamm"] = _independent()

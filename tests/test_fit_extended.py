@@ -85,3 +85,32 @@ def test_cli_fits_a_table_without_a_temperature_column_and_takes_model_paper(tmp
     assert rc == 0
     d = json.loads((tmp_path / "paper" / "result.json").read_text())
     assert d["model"] == "paper" and set(d["parameters"]) == set(kernel.PACK_PARAMS)
+
+
+def test_library_default_is_the_extended_variant():
+    assert FitSettings().model == "extended"
+    assert FitSettings(model="paper").search_for("electrical") == FitSettings().search
+
+
+def test_ocv_smoothness_prior_is_zero_on_a_straight_curve_and_grows_with_a_kink():
+    from gcs_pdm.fitting import problem as pb
+    from gcs_pdm.fitting.cleaning import clean_flights
+    from gcs_pdm.models.params import extended_default
+
+    fl, _, _ = clean_flights(flights()[:1])
+    base = np.array(list(extended_default("li-ion").values()))
+    plain = pb.ExtendedPackProblem(fl, base, pb.EXTENDED_ELECTRICAL_BOUNDS, "voltage")
+    prior = pb.ExtendedPackProblem(fl, base, pb.EXTENDED_ELECTRICAL_BOUNDS, "voltage", ocv_smoothing=0.04)
+    assert prior.n_residuals == plain.n_residuals + kernel.N_OCV_KNOTS - 2
+    names = prior.space.names
+    values = np.array([base[kernel.EXT_PACK_PARAMS.index(n)] for n in names])
+    widths = np.diff(kernel.EXT_OCV_SOC)
+    for k in range(1, kernel.N_OCV_KNOTS):
+        values[names.index(f"docv_{k}")] = 4.0 * widths[k - 1]      # a straight line, 4 V per unit SoC
+    straight = prior.residuals(prior.space.to_unit(values)[None])[0]
+    np.testing.assert_allclose(straight[:plain.n_residuals], plain.residuals(plain.space.to_unit(values)[None])[0])
+    np.testing.assert_allclose(straight[plain.n_residuals:], 0.0, atol=1e-9)
+    kinked = values.copy()
+    kinked[names.index("docv_20")] *= 3.0                              # a step the data did not ask for
+    rows = prior.residuals(prior.space.to_unit(kinked)[None])[0][plain.n_residuals:]
+    assert np.count_nonzero(np.abs(rows) > 1e-6) == 2 and np.abs(rows).max() == pytest.approx(0.04 * 8.0)

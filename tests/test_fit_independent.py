@@ -6,12 +6,14 @@ polynomial-OCV baseline (tests/baseline_one_rc.py) by least squares on the same 
 flights. The paper variant's figures are in docs/fitting.md (benchmarks/bench_fit.py --independent
 produces the whole table).
 
-Issue 15's bounds (<= 50 mV, <= half the baseline, <= 0.8 K) hold on the test flights that end in a
-normal landing. They do NOT yet hold on the test flights that run into the cut-off: the last minute's
-voltage collapse of the SPMe cell (electrolyte and particle-surface depletion) arrives earlier and
-steeper than the circuit's knee, and a few hundred mV over that minute dominate the flight's RMSE
-(docs/fitting.md has the figures). For those flights this file asserts today's level as a guard
-against regressions, with its own, looser bounds — a known shortfall, reported, not hidden.
+Issue 15's bounds are at most 50 mV, at most half the baseline's voltage RMSE and at most 0.8 K on
+every test flight. The extended variant meets all three on the test flights that land normally. On
+the test flights that run into the cut-off it meets "half the baseline" and 0.8 K, but not yet 50 mV
+(58 and 63 mV, docs/fitting.md): there the last minute's collapse is volts, and 0.005 of initial
+SoC read from the rest voltage is 25-50 mV of RMSE. Those two flights are held to 75 mV here, a
+guard against regressions with a stated margin, not the issue's bound — a known shortfall, reported.
+The fit sees only the training flights and chooses on the validation flights; nothing is tuned to
+the test flights.
 """
 import json
 from pathlib import Path
@@ -26,7 +28,7 @@ from gcs_pdm.fitting.procedure import FitSettings, fit_battery
 
 ROOT = Path(__file__).resolve().parents[1] / "fixtures" / "pybamm"
 SETS = ("Chen2020", "Marquis2019")
-SETTINGS = FitSettings(model="extended")  # what `gcs-pdm fit battery` runs with no flags
+SETTINGS = FitSettings()  # the library default, which is what `gcs-pdm fit battery` runs with no flags
 
 
 def load(set_name):
@@ -62,35 +64,28 @@ def test_fixture_is_what_the_manifest_says():
     assert sum(p.stat().st_size for p in ROOT.rglob("*")) < 3e6
 
 
-def _cutoff(name):
+def _cutoff_flights() -> set[str]:
     manifest = json.loads((ROOT / "manifest.json").read_text())
-    return next(f["reached_cutoff"] for f in manifest["flights"] if f["flight"] == name)
+    return {f["flight"] for f in manifest["flights"] if f["reached_cutoff"]}
 
 
-def test_extended_variant_meets_the_issue_bounds_on_landed_test_flights(fitted):
+#: the cut-off test flights' voltage RMSE is held to this, not to the issue's 50 mV (module docstring)
+CUTOFF_GUARD_V = 0.075
+
+
+def test_extended_variant_meets_the_issue_bounds_on_the_test_flights(fitted):
     set_name, result, baseline, test = fitted
     assert result.model == "extended" and result.thermal["fitted"]
     learned = {e["flight"]: e for e in result.errors["learned"]["test"]["flights"]}
     assert set(learned) == {f.name for f in test}
-    landed = [f for f in test if not _cutoff(f.name)]
-    assert landed
-    for f in landed:
+    cutoff = _cutoff_flights()
+    assert cutoff & set(learned) and set(learned) - cutoff, "each set tests a cut-off flight and a landed one"
+    for f in test:
         v_ext = learned[f.name]["voltage"]["rmse"]
         t_ext = learned[f.name]["temperature"]["rmse"]
         v_base = rmse(baseline.voltage(f), f.voltage_v)
-        assert v_ext <= 0.050, f"{set_name} {f.name}: voltage RMSE {v_ext * 1000:.1f} mV > 50 mV"
+        limit = CUTOFF_GUARD_V if f.name in cutoff else 0.050
+        assert v_ext <= limit, f"{set_name} {f.name}: voltage RMSE {v_ext * 1000:.1f} mV > {limit * 1000:.0f} mV"
         assert v_ext <= 0.5 * v_base, (f"{set_name} {f.name}: voltage RMSE {v_ext * 1000:.1f} mV not half the "
                                        f"baseline's {v_base * 1000:.1f} mV")
         assert t_ext <= 0.8, f"{set_name} {f.name}: temperature RMSE {t_ext:.2f} K > 0.8 K"
-
-
-def test_cutoff_test_flights_stay_at_todays_level(fitted):
-    set_name, result, baseline, test = fitted
-    learned = {e["flight"]: e for e in result.errors["learned"]["test"]["flights"]}
-    for f in (f for f in test if _cutoff(f.name)):
-        v_ext = learned[f.name]["voltage"]["rmse"]
-        t_ext = learned[f.name]["temperature"]["rmse"]
-        v_base = rmse(baseline.voltage(f), f.voltage_v)
-        assert v_ext <= 0.25, f"{set_name} {f.name}: voltage RMSE {v_ext * 1000:.1f} mV"
-        assert v_ext <= 1.5 * v_base, f"{set_name} {f.name}: {v_ext * 1000:.1f} mV vs baseline {v_base * 1000:.1f} mV"
-        assert t_ext <= 1.5, f"{set_name} {f.name}: temperature RMSE {t_ext:.2f} K"

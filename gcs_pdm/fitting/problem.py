@@ -83,12 +83,17 @@ EXTENDED_RC_BOUNDS: tuple[Bound, ...] = (
     Bound("tau_1", 1.0, 100.0, "s", "charge transfer / double layer: seconds to a minute"),
     Bound("R_2", 1e-4, 0.2, "ohm", "slow (diffusion) polarisation pair"),
     Bound("tau_2", 60.0, 3000.0, "s", "solid-state diffusion: minutes to an hour"),
-    Bound("E_r", 100.0, 8000.0, "K", "Arrhenius E_a/R: activation energies 1-65 kJ/mol"),
-    Bound("k_soc", 1e-3, 10.0, "1", "resistance rise near empty: f = 1 + k_soc exp(-SoC/0.1)"),
+    Bound("E_r", 100.0, 8000.0, "K", "Arrhenius E_a/R of the resistances: activation energies 1-65 kJ/mol"),
+    Bound("E_ct", 100.0, 8000.0, "K", "Arrhenius E_a/R of the exchange current (charge transfer): 1-65 kJ/mol"),
+    Bound("k_soc", 1e-3, 10.0, "1", "resistance rise near empty: f = 1 + k_soc exp(-SoC_surface/soc_knee)"),
+    Bound("soc_knee", 0.01, 0.3, "1", "SoC scale of that rise: how sharp the end-of-discharge collapse is"),
     Bound("b_ct", 1e-3, 1.0, "V", "charge-transfer slope: 5 cells x RT/(alpha F) ~ 0.25 V; small = no kinetics"),
     Bound("i_ct", 0.1, 500.0, "A", "current where the charge-transfer drop turns logarithmic (exchange current)"),
     Bound("k_d", 1e-2, 3000.0, "s", "surface depletion I k_d / C_max: up to 0.3 SoC at 3C (slow solid diffusion)"),
-    Bound("C_max", 0.6 * PACK_CAPACITY_C, 1.4 * PACK_CAPACITY_C, "C", "usable capacity 60-140 % of the rated 7.8 Ah"),
+    Bound("tau_d", 5.0, 5000.0, "s", "particle-surface depletion time constant: ~R^2/(pi^2 D), seconds to an hour"),
+    Bound("C_max", 0.5 * PACK_CAPACITY_C, 2.0 * PACK_CAPACITY_C, "C",
+          "usable capacity 50-200 % of the rated 7.8 Ah (labels are not capacities: a worn pack, or a cell's nominal "
+          "rating below its electrodes' capacity)"),
 )
 EXTENDED_OCV_BOUNDS: tuple[Bound, ...] = (
     Bound("ocv_0", 12.5, 18.0, "V", "OCV of the pack at SoC 0: 2.5-3.6 V per cell"),
@@ -301,7 +306,9 @@ class _Problem:
         self.flights = flights
         self.mapper = mapper or map
         self.workers = workers
-        self.n_residuals = int(sum(f.mask.sum() for f in flights))
+        #: measured samples (rows of the data residuals); n_residuals may add prior rows after them
+        self.n_data = int(sum(f.mask.sum() for f in flights))
+        self.n_residuals = self.n_data
         if self.n_residuals == 0:
             raise ValueError("no measured samples in the flights")
 
@@ -321,7 +328,7 @@ class _Problem:
 
     def _residuals_serial(self, args: tuple[np.ndarray, np.ndarray | None]) -> np.ndarray:
         values, extras = args
-        out = np.empty((values.shape[0], self.n_residuals))
+        out = np.empty((values.shape[0], self.n_data))
         for fi, (f, rows) in enumerate(zip(self.flights, self.row_slices)):
             pred = self.simulate(values, f, None if extras is None else extras[:, fi])
             out[:, rows] = pred[:, f.mask] - f.target[f.mask]
@@ -422,11 +429,33 @@ class PackProblem(_Problem):
 
 
 class ExtendedPackProblem(PackProblem):
-    """One pack in the extended variant; the free parameters replace those of ``base`` (23,) in
-    EXT_PACK_PARAMS order. For the voltage target the resistances follow the *measured* temperature
-    (so the electrical stage needs no thermal parameters); for the temperature target the model's
-    own temperature drives them, as in a prediction. The initial SoC comes from the first rest
-    voltage through this vector's open-circuit voltage."""
+    """One pack in the extended variant; the free parameters replace those of ``base``
+    (N_EXT_PARAMS,) in EXT_PACK_PARAMS order. For the voltage target the resistances follow the
+    *measured* temperature (so the electrical stage needs no thermal parameters); for the temperature
+    target the model's own temperature drives them, as in a prediction. The initial SoC comes from
+    the first rest voltage through this vector's open-circuit voltage.
+
+    ``ocv_smoothing`` (V per V/SoC; 0: off) appends one residual per inner OCV knot, the change of
+    the curve's slope across it times that weight: a weak prior that the OCV bends only where the
+    flights say it does. Data move a knot that a flight's rest voltage or trajectory sees by far more;
+    a knot that none sees (a pack that never got near full, or empty) stays smooth instead of taking
+    any jump that happens to help a training flight — the jump a test flight then starts on."""
+
+    def __init__(self, *args, ocv_smoothing: float = 0.0, **kwargs):
+        super().__init__(*args, **kwargs)
+        names = self.space.names
+        self._docv = [names.index(f"docv_{k}") if f"docv_{k}" in names else -1 for k in range(1, kernel.N_OCV_KNOTS)]
+        self.ocv_smoothing = float(ocv_smoothing) if all(i >= 0 for i in self._docv) else 0.0
+        if self.ocv_smoothing > 0:
+            self.n_residuals += kernel.N_OCV_KNOTS - 2
+
+    def _residuals_serial(self, args: tuple[np.ndarray, np.ndarray | None]) -> np.ndarray:
+        if self.ocv_smoothing <= 0:
+            return super()._residuals_serial(args)
+        values, _ = args
+        data = super()._residuals_serial(args)
+        slopes = values[:, self._docv] / np.diff(kernel.EXT_OCV_SOC)
+        return np.concatenate([data, self.ocv_smoothing * np.diff(slopes, axis=1)], axis=1)
 
     def pack_vectors(self, values: np.ndarray) -> np.ndarray:
         values = np.atleast_2d(values)

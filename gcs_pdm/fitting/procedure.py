@@ -40,7 +40,7 @@ log = logging.getLogger(__name__)
 Progress = Callable[[float, str], None]
 ShouldStop = Callable[[], bool]
 SPLITS = ("train", "validation", "test")
-#: the variant of new fits from the command line (`gcs-pdm fit battery` with no --model)
+#: the variant of new fits (`FitSettings().model`, `gcs-pdm fit battery` with no --model)
 DEFAULT_MODEL = "extended"
 
 
@@ -56,19 +56,27 @@ class FitSettings:
     #: LM also learns a per-training-flight initial-SoC correction of up to this much (0: off); the
     #: first-samples estimate is noisy, and near the knee a 0.005 SoC error is a visible voltage error
     soc_offset_range: float = 0.05
+    #: the same for the extended variant: off. Its initial SoC comes from the rest voltage through the
+    #: learned OCV (a few mV of noise: < 0.001 SoC), and a free correction lets the OCV disagree with
+    #: the rest voltages, which is exactly what a predicted flight starts from (docs/fitting.md)
+    extended_soc_offset_range: float = 0.0
+    #: weight of the extended variant's OCV smoothness prior (problem.ExtendedPackProblem; 0: off)
+    ocv_smoothing: float = 0.0
     workers: int = 2
-    #: model variant of a battery fit: "extended" or "paper" (eqs. 1-7). New fits from the command
-    #: line use "extended" (`gcs-pdm fit battery`, DEFAULT_MODEL); the library default stays "paper"
-    #: while the service's consumers of a stored set (estimator, planner, simulated vehicle) read the
-    #: paper layout only: a job runner opts in with model="extended"
-    model: str = "paper"
+    #: model variant of a battery fit: "extended" (the default, for new fits: right on real cells,
+    #: docs/model.md) or "paper" (eqs. 1-7, for reproducing the paper: pass model="paper")
+    model: str = DEFAULT_MODEL
     #: open-circuit-voltage default (start of the search) when the base set has no extended values
     chemistry: str = "lipo"
-    #: search of the extended variant: its 23 electrical unknowns make each LM run costlier, and LM
-    #: (not the annealing, which only sees the 10 resistance/time-constant/capacity values) does most
-    #: of the work, so fewer starts with a longer LM; its 3-value thermal stage needs few generations
+    #: search of the extended variant: its 41 electrical unknowns make each LM run costlier, and LM
+    #: (not the annealing, which only sees the 14 resistance, time-constant, kinetic and capacity values)
+    #: does most of the work, so fewer starts with a longer LM; its 3-value thermal stage needs few
+    #: generations
     extended_search: SearchSettings = SearchSettings(starts=4, sa_generations=60, lm_max_nfev=40)
-    extended_thermal_generations: int = 20
+    extended_thermal_generations: int = 10
+    #: a further LM run of this many evaluations from the chosen electrical candidate (extended
+    #: variant; kept if the validation error does not rise): the short runs screen the starts
+    extended_polish_nfev: int = 45
 
     def search_for(self, stage: str) -> SearchSettings:
         """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
@@ -82,7 +90,10 @@ class FitSettings:
         return {"search": self.search.to_dict(), "base": self.base, "reference": self.reference,
                 "model": self.model, "chemistry": self.chemistry, "extended_search": self.extended_search.to_dict(),
                 "extended_thermal_generations": self.extended_thermal_generations,
-                "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range, "workers": self.workers,
+                "extended_polish_nfev": self.extended_polish_nfev,
+                "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range,
+                "extended_soc_offset_range": self.extended_soc_offset_range, "ocv_smoothing": self.ocv_smoothing,
+                "workers": self.workers,
                 "cleaning": {k: v for k, v in self.cleaning.__dict__.items()}}
 
 
@@ -94,10 +105,13 @@ class Candidate:
     val_rmse: float
     lm_nfev: int
     values: dict[str, float]
+    #: a longer LM run from the chosen candidate (``polish_nfev``), kept if validation agrees
+    polished: bool = False
 
     def to_dict(self) -> dict:
         return {"start": self.start, "sa_train_rmse": self.sa_rmse, "lm_train_rmse": self.lm_rmse,
-                "validation_rmse": self.val_rmse, "lm_evaluations": self.lm_nfev, "parameters": self.values}
+                "validation_rmse": self.val_rmse, "lm_evaluations": self.lm_nfev, "parameters": self.values,
+                "polished": self.polished}
 
 
 @dataclass
@@ -253,7 +267,7 @@ class _Stepper:
 def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], train: Sequence[Flight],
                val: Sequence[Flight], search: SearchSettings, pool: ThreadPoolExecutor, workers: int,
                stepper: _Stepper, span: tuple[float, float], seed_offset: int,
-               make_sa: Callable[[Sequence[Flight], int], pb._Problem] | None = None,
+               make_sa: Callable[[Sequence[Flight], int], pb._Problem] | None = None, polish_nfev: int = 0,
                ) -> tuple[np.ndarray, StageResult, pb._Problem]:
     """SA from random starts, LM from each SA result, the LM result with the lowest validation error.
 
@@ -321,6 +335,26 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
                             values={n: float(v) for n, v in zip(prob.space.names, values[i])})
                   for i, r in enumerate(lm_results)]
     chosen = int(np.argmin(val_mse))
+    if polish_nfev > 0:
+        # the short LM runs screen the starts; the chosen one is refined further (both cores on its
+        # Jacobian) and the refinement kept only if the validation flights agree it is better
+        stepper.check()
+        more = levenberg_marquardt(lambda U_: prob.residuals(U_, parallel=True), U_full[chosen],
+                                   dataclasses.replace(search, lm_max_nfev=polish_nfev),
+                                   shared=d, blocks=prob.row_slices if n_extra else None)
+        v_more = float(vprob.mse(more.u[None, :d], parallel=False)[0])
+        if v_more <= val_mse[chosen]:
+            candidates.append(Candidate(start=candidates[chosen].start, sa_rmse=candidates[chosen].sa_rmse,
+                                        lm_rmse=float(np.sqrt(more.mse)), val_rmse=float(np.sqrt(v_more)),
+                                        lm_nfev=more.nfev + more.njev * (d + (n_extra > 0)),
+                                        values={n: float(v) for n, v in
+                                                zip(prob.space.names, prob.space.to_values(more.u[:d]))},
+                                        polished=True))
+            U_full = np.vstack([U_full, more.u[None]])
+            U = U_full[:, :d]
+            chosen = len(candidates) - 1
+        else:
+            candidates[chosen].lm_nfev += more.nfev + more.njev * (d + (n_extra > 0))
     evaluations = ann.evaluations + sum(c.lm_nfev for c in candidates) + len(candidates)
     stage = StageResult(name=name, target=getattr(prob, "target", "temperature"), free=prob.space.names,
                         bounds={bd.name: (bd.lo, bd.hi) for bd in prob.space.bounds}, candidates=candidates,
@@ -415,16 +449,19 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     stepper.report(0.02, "electrical: annealing")
     with ThreadPoolExecutor(max_workers=max(1, s.workers)) as pool:
         def make_el(flights, workers, training):
+            extra = {"ocv_smoothing": s.ocv_smoothing if training else 0.0} if extended else {}
             return problem_cls(flights, base_vec, el_bounds, "voltage", init_samples=s.init_samples,
                                mapper=pool.map, workers=workers,
-                               soc_offset_range=s.soc_offset_range if training else 0.0)
+                               soc_offset_range=(s.extended_soc_offset_range if extended else s.soc_offset_range)
+                               if training else 0.0, **extra)
 
         def make_el_sa(flights, workers):
             return problem_cls(flights, base_vec, bounds.annealing, "voltage", init_samples=s.init_samples,
                                mapper=pool.map, workers=workers)
         u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"],
                                           s.search_for("electrical"), pool,
-                                          s.workers, stepper, (0.02, 0.55), 1, make_sa=make_el_sa if extended else None)
+                                          s.workers, stepper, (0.02, 0.55), 1, make_sa=make_el_sa if extended else None,
+                                          polish_nfev=s.extended_polish_nfev if extended else 0)
         el_vec = prob_el.pack_vectors(prob_el.space.to_values(u_el))[0]
         stages = [st_el]
         final = el_vec
@@ -543,7 +580,7 @@ def _fit_provenance(res: FitResult) -> dict:
 
 def evaluate_battery(vector: np.ndarray, flights: Sequence[Flight], settings: FitSettings = FitSettings(),
                      model: str = "paper") -> dict:
-    """Errors of one pack vector ((12,) paper or (23,) extended, per ``model``) on flights, cleaned and
+    """Errors of one pack vector ((12,) paper or (N_EXT_PARAMS,) extended, per ``model``) on flights, cleaned and
     initialised exactly as in a fit (so the errors of the true parameters compare with a fit's)."""
     usable, _, _ = clean_flights(list(flights), settings.cleaning)
     traces = _pack_traces(np.asarray(vector, dtype=np.float64), usable, settings.init_samples, model)

@@ -484,36 +484,41 @@ def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
 
 # ---- the extended equivalent circuit (variant "extended") ----------------------------------------
 #
-# docs/model.md gives the equations. States: SoC, the two R–C voltages and the temperature. The
-# open-circuit voltage is a monotone piecewise-cubic (PCHIP, Fritsch–Carlson slopes) through knots
-# at EXT_OCV_SOC, parametrised by the voltage at SoC 0 and positive increments, so any parameter
-# vector inside the bounds is monotone. Every resistance is scaled by
-#     f(T, SoC) = exp(E_r (1/T_K - 1/298.15 K)) * (1 + k_soc exp(-SoC / EXT_SOC_SCALE)),
-# the charge-transfer (Butler–Volmer) overpotential b_ct asinh(I f / i_ct) is linear at small current
-# and logarithmic at high current, heat is I (OCV - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges heat with the
-# air as in eq. 7. With f and the OCV slope frozen over a step, the R–C pairs and the temperature have
-# exact exponential steps, as in the paper variant.
+# docs/model.md gives the equations. States: SoC, the two R–C voltages, the temperature and the
+# surface depletion. The open-circuit voltage is a monotone piecewise-cubic (PCHIP, Fritsch–Carlson
+# slopes) through knots at EXT_OCV_SOC, parametrised by the voltage at SoC 0 and positive increments,
+# so any parameter vector inside the bounds is monotone. Every resistance is scaled by
+#     f(T, s) = exp(E_r (1/T_K - 1/298.15 K)) * (1 + k_soc exp(-s / soc_knee)),   s = SoC - s_d,
+# the charge-transfer (Butler–Volmer) overpotential b_ct (T_K/298.15) asinh(I g / i_ct), with g like f
+# but its own activation temperature E_ct, is linear at small current and logarithmic at high
+# current; heat is I (OCV(s) - V) - I T_K dU/dT (irreversible plus entropic), and the pack exchanges
+# heat with the air as in eq. 7. With f, g and the OCV slope frozen over a step, the R–C pairs, the
+# depletion and the temperature have exact exponential steps, as in the paper variant.
 #
-# Solid diffusion: the OCV is read at the particles' *surface* SoC, SoC - s_d, where the depletion
-# s_d relaxes towards I k_d / C_max with the slow time constant tau_2 (a one-state diffusion
-# approximation). On the plateau it acts as one more R–C drop; near empty, where the OCV falls
-# steeply, it makes the knee arrive earlier at high current, as it does in real cells.
+# Solid diffusion: the OCV is read at the particles' *surface* SoC s, where the depletion s_d relaxes
+# towards I k_d / C_max with its own time constant tau_d (a one-state diffusion approximation). On the
+# plateau it acts as one more R–C drop; near empty, where the OCV falls steeply, it makes the knee
+# arrive earlier and steeper at high current, as it does in real cells.
 
 MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
-#: SoC of the open-circuit-voltage knots (denser at the bottom, where the curve bends)
-EXT_OCV_SOC = np.array([0.0, 0.03, 0.07, 0.12, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0])
+#: SoC of the open-circuit-voltage knots: denser at the bottom, where the curve bends, every 0.05 above
+#: 0.2 and every 0.025 above 0.7, where flights start. Every flight starts from a rest voltage read
+#: through this curve, so a feature it cannot draw (a graphite staging step) is an initial-SoC error,
+#: and on a flight to the cut-off 0.005 of SoC is 25-50 mV of RMSE (docs/model.md)
+EXT_OCV_SOC = np.round(np.concatenate([[0.0, 0.03, 0.07, 0.12], np.arange(0.2, 0.7 - 1e-9, 0.05),
+                                       np.arange(0.7, 1.0 + 1e-9, 0.025)]), 3)
 N_OCV_KNOTS = len(EXT_OCV_SOC)
-#: SoC scale of the low-charge resistance rise
-EXT_SOC_SCALE = 0.1
 EXT_T_REF_K = 298.15
 EXT_PACK_PARAMS: tuple[str, ...] = (
-    "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "k_soc", "b_ct", "i_ct", "k_d", "C_max", "C_t", "h", "dU_dT",
+    "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "E_ct", "k_soc", "soc_knee", "b_ct", "i_ct", "k_d", "tau_d", "C_max", "C_t", "h",
+    "dU_dT",
     "ocv_0",
 ) + tuple(f"docv_{k}" for k in range(1, N_OCV_KNOTS))
 EXT_PACK_STATE: tuple[str, ...] = ("soc", "v_1", "v_2", "T", "s_d")
 N_EXT_STATE = len(EXT_PACK_STATE)
 N_EXT_PARAMS = len(EXT_PACK_PARAMS)
-(E_R0, E_R1, E_TAU1, E_R2, E_TAU2, E_ER, E_KSOC, E_BCT, E_ICT, E_KD, E_CMAX, E_CT, E_H, E_DUDT, E_OCV0) = range(15)
+(E_R0, E_R1, E_TAU1, E_R2, E_TAU2, E_ER, E_ECT, E_KSOC, E_KNEE, E_BCT, E_ICT, E_KD, E_TAUD, E_CMAX, E_CT,
+ E_H, E_DUDT, E_OCV0) = range(18)
 (X_SOC, X_V1, X_V2, X_T, X_SD) = range(N_EXT_STATE)
 
 
@@ -552,9 +557,13 @@ def _ocv_eval(y, d, soc):
         return y[0] + (soc - xs[0]) * d[0]
     if soc >= xs[last]:
         return y[last] + (soc - xs[last]) * d[last]
-    k = 0
-    while soc > xs[k + 1]:
-        k += 1
+    k, hi = 0, last
+    while hi - k > 1:  # bisection: the knot interval holding soc
+        mid = (k + hi) // 2
+        if soc > xs[mid]:
+            k = mid
+        else:
+            hi = mid
     hk = xs[k + 1] - xs[k]
     t = (soc - xs[k]) / hk
     t2 = t * t
@@ -564,15 +573,31 @@ def _ocv_eval(y, d, soc):
 
 
 @njit(inline="always", **_JIT)
-def _resistance_factor(p, temperature_c, soc):
-    arrhenius = math.exp(p[E_ER] * (1.0 / (temperature_c + 273.15) - 1.0 / EXT_T_REF_K))
-    return arrhenius * (1.0 + p[E_KSOC] * math.exp(-max(soc, 0.0) / EXT_SOC_SCALE))
+def _low_charge(p, soc):
+    """Rise of the resistances and of the exchange current's inverse as the (surface) SoC empties."""
+    return 1.0 + p[E_KSOC] * math.exp(-max(soc, 0.0) / p[E_KNEE])
 
 
 @njit(inline="always", **_JIT)
-def _kinetic(p, current, f):
-    # symmetric Butler–Volmer overpotential; slower kinetics (cold, empty) scale the current up
-    return p[E_BCT] * math.asinh(current * f / p[E_ICT])
+def _resistance_factor(p, temperature_c, soc):
+    arrhenius = math.exp(p[E_ER] * (1.0 / (temperature_c + 273.15) - 1.0 / EXT_T_REF_K))
+    return arrhenius * _low_charge(p, soc)
+
+
+@njit(inline="always", **_JIT)
+def _kinetic_rho(p, current, temperature_c, rho):
+    """Butler–Volmer overpotential b_ct (T/T_ref) asinh(I g / i_ct): the slope is the thermal voltage
+    (∝ T), and the exchange current has its own activation temperature E_ct (charge transfer is
+    activated differently from the electrolyte's and contacts' resistance) and falls as the surface
+    empties (``rho``, the same low-charge factor as the resistances)."""
+    t_k = temperature_c + 273.15
+    g = math.exp(p[E_ECT] * (1.0 / t_k - 1.0 / EXT_T_REF_K)) * rho
+    return p[E_BCT] * (t_k / EXT_T_REF_K) * math.asinh(current * g / p[E_ICT])
+
+
+@njit(inline="always", **_JIT)
+def _kinetic(p, current, temperature_c, soc):
+    return _kinetic_rho(p, current, temperature_c, _low_charge(p, soc))
 
 
 @njit(**_JIT)
@@ -583,35 +608,53 @@ def _ext_advance(p, y, d, x, current, ambient, t_drive, dt, max_dt):
     model's own temperature does. Returns the terminal voltage at the end of the step."""
     if dt <= 0.0:
         t_res = x[X_T] if math.isnan(t_drive) else t_drive
-        f = _resistance_factor(p, t_res, x[X_SOC])
-        return (_ocv_eval(y, d, x[X_SOC] - x[X_SD]) - current * p[E_R0] * f - _kinetic(p, current, f)
+        f = _resistance_factor(p, t_res, x[X_SOC] - x[X_SD])
+        return (_ocv_eval(y, d, x[X_SOC] - x[X_SD]) - current * p[E_R0] * f
+                - _kinetic(p, current, t_res, x[X_SOC] - x[X_SD])
                 - x[X_V1] - x[X_V2])
+    n_sub, h, decay_1, decay_2, decay_d, decay_t = _ext_decays(p, dt, max_dt)
+    return _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_d, decay_t)
+
+
+@njit(inline="always", **_JIT)
+def _ext_decays(p, dt, max_dt):
+    """Sub-steps of an interval and the exact decay factors of one sub-step (they depend on dt only,
+    so a log at a steady rate computes them once)."""
     n_sub = 1
     if dt > max_dt:
         # bounded like the paper variant's step: work follows samples, not the span of a log gap
         n_sub = min(int(math.ceil(dt / max_dt)), MAX_SUBSTEPS)
     h = dt / n_sub
-    decay_1 = math.exp(-h / p[E_TAU1])
-    decay_2 = math.exp(-h / p[E_TAU2])
-    decay_t = math.exp(-h * p[E_H] / p[E_CT])
+    return (n_sub, h, math.exp(-h / p[E_TAU1]), math.exp(-h / p[E_TAU2]), math.exp(-h / p[E_TAUD]),
+            math.exp(-h * p[E_H] / p[E_CT]))
+
+
+@njit(inline="always", **_JIT)
+def _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_d, decay_t):
     d_soc = current * h / p[E_CMAX]
     s_inf = current * p[E_KD] / p[E_CMAX]
     v = 0.0
     for _ in range(n_sub):
         t_res = x[X_T] if math.isnan(t_drive) else t_drive
-        soc_mid = x[X_SOC] - 0.5 * d_soc
-        f = _resistance_factor(p, t_res, soc_mid)
+        s_d = s_inf + (x[X_SD] - s_inf) * decay_d
+        # the low-charge rise follows the particles' surface SoC (the exchange current falls as the
+        # surface empties), so at high current it arrives early and steep, as the knee does
+        surface_mid = x[X_SOC] - 0.5 * d_soc - 0.5 * (x[X_SD] + s_d)
+        rho = _low_charge(p, surface_mid)
+        f = math.exp(p[E_ER] * (1.0 / (t_res + 273.15) - 1.0 / EXT_T_REF_K)) * rho
         i1 = current * p[E_R1] * f
         i2 = current * p[E_R2] * f
         v1 = i1 + (x[X_V1] - i1) * decay_1
         v2 = i2 + (x[X_V2] - i2) * decay_2
-        # heat over the step: I (OCV - V) at the step's mean overpotential, minus the entropic term
-        eta = current * p[E_R0] * f + _kinetic(p, current, f)
-        s_d = s_inf + (x[X_SD] - s_inf) * decay_2
+        # heat over the step: I (OCV(surface) - V) at the step's mean overpotential, minus the entropic
+        # term. The surface-depletion drop OCV(SoC) - OCV(SoC - s_d) is not heat: its energy sits in the
+        # particles' concentration gradient (the heat of mixing, released slowly as it relaxes and
+        # neglected, as in the usual cell energy balance). Counting it as heat over-heated the packs
+        # by kelvins in the last minutes before the cut-off, where the OCV is steep.
+        eta = current * p[E_R0] * f + _kinetic_rho(p, current, t_res, rho)
         soc_new = x[X_SOC] - d_soc
         ocv_surface = _ocv_eval(y, d, soc_new - s_d)
-        # diffusion overpotential at the step's end (OCV at the bulk minus at the surface)
-        over = eta + 0.5 * (x[X_V1] + v1 + x[X_V2] + v2) + _ocv_eval(y, d, soc_new) - ocv_surface
+        over = eta + 0.5 * (x[X_V1] + v1 + x[X_V2] + v2)
         heat = current * over - current * (x[X_T] + 273.15) * p[E_DUDT]
         t_inf = ambient + heat / p[E_H]
         x[X_T] = t_inf + (x[X_T] - t_inf) * decay_t
@@ -637,8 +680,18 @@ def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, volta
     ti = j if t_meas.shape[0] > 1 else 0
     for s in range(N_EXT_STATE):
         x[s] = x0[j, s]
+    last_dt = -1.0
+    n_sub, h, decay_1, decay_2, decay_d, decay_t = 1, 0.0, 1.0, 1.0, 1.0, 1.0
     for k in range(n):
-        voltage[j, k] = _ext_advance(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], dt[di, k], max_dt)
+        dtk = dt[di, k]
+        if dtk <= 0.0:
+            voltage[j, k] = _ext_advance(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], dtk, max_dt)
+        else:
+            if dtk != last_dt:
+                n_sub, h, decay_1, decay_2, decay_d, decay_t = _ext_decays(p, dtk, max_dt)
+                last_dt = dtk
+            voltage[j, k] = _ext_substeps(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], n_sub, h,
+                                          decay_1, decay_2, decay_d, decay_t)
         temperature[j, k] = x[X_T]
         soc[j, k] = x[X_SOC]
     for s in range(N_EXT_STATE):
@@ -700,7 +753,7 @@ def resistance_factor(params: np.ndarray, temperature_c: np.ndarray | float, soc
     t_k = np.asarray(temperature_c, dtype=np.float64) + 273.15
     soc = np.maximum(np.asarray(soc, dtype=np.float64), 0.0)
     return (np.exp(params[:, E_ER] * (1.0 / t_k - 1.0 / EXT_T_REF_K))
-            * (1.0 + params[:, E_KSOC] * np.exp(-soc / EXT_SOC_SCALE)))
+            * (1.0 + params[:, E_KSOC] * np.exp(-soc / params[:, E_KNEE])))
 
 
 def initial_extended_state(params: np.ndarray, soc: np.ndarray | float, temperature: np.ndarray | float,
@@ -710,11 +763,11 @@ def initial_extended_state(params: np.ndarray, soc: np.ndarray | float, temperat
     params = _params2d(params, N_EXT_PARAMS, "params")
     n_vec = params.shape[0]
     soc = np.broadcast_to(np.asarray(soc, dtype=np.float64), (n_vec,))
-    f = resistance_factor(params, temperature, soc)
     current = np.asarray(current, dtype=np.float64)
     x = np.empty((n_vec, N_EXT_STATE))
     x[:, X_SOC] = soc
     x[:, X_SD] = current * params[:, E_KD] / params[:, E_CMAX]
+    f = resistance_factor(params, temperature, soc - x[:, X_SD])
     x[:, X_V1] = current * params[:, E_R1] * f
     x[:, X_V2] = current * params[:, E_R2] * f
     x[:, X_T] = temperature
@@ -727,18 +780,32 @@ def extended_rest_soc(params: np.ndarray, voltage: float, current: float, temper
     terminal ``voltage``: V = OCV(SoC - I k_d / C_max) - I (R_0 + R_1 + R_2) f - b_ct asinh(I f / i_ct);
     bisection on [-0.3, 1.3]."""
     params = _params2d(params, N_EXT_PARAMS, "params")
-    r = params[:, E_R0] + params[:, E_R1] + params[:, E_R2]
-    lo = np.full(params.shape[0], -0.3)
-    hi = np.full(params.shape[0], 1.3)
-    for _ in range(iterations):
-        mid = 0.5 * (lo + hi)
-        f = resistance_factor(params, temperature, mid)
-        v = (open_circuit_voltage(params, mid - current * params[:, E_KD] / params[:, E_CMAX]) - current * r * f
-             - params[:, E_BCT] * np.arcsinh(current * f / params[:, E_ICT]))
-        above = v > voltage
-        hi = np.where(above, mid, hi)
-        lo = np.where(above, lo, mid)
-    return 0.5 * (lo + hi)
+    out = np.empty(params.shape[0])
+    # compiled: the fit computes it for every vector on every flight, and a numpy bisection cost more
+    # than the simulation of a one-vector batch
+    _rest_soc_batch(params, float(voltage), float(current), float(temperature), int(iterations), out)
+    return out
+
+
+@njit(**_JIT)
+def _rest_soc_batch(params, voltage, current, temperature, iterations, out):
+    y = np.empty(N_OCV_KNOTS)
+    d = np.empty(N_OCV_KNOTS)
+    for j in range(params.shape[0]):
+        p = params[j]
+        _ocv_knots(p, y, d)
+        r = p[E_R0] + p[E_R1] + p[E_R2]
+        shift = current * p[E_KD] / p[E_CMAX]
+        lo, hi = -0.3, 1.3
+        for _ in range(iterations):
+            mid = 0.5 * (lo + hi)
+            f = _resistance_factor(p, temperature, mid - shift)
+            v = _ocv_eval(y, d, mid - shift) - current * r * f - _kinetic(p, current, temperature, mid - shift)
+            if v > voltage:
+                hi = mid
+            else:
+                lo = mid
+        out[j] = 0.5 * (lo + hi)
 
 
 # ---- power-driven powertrain (planner, simulated vehicle) ---------------------------------------

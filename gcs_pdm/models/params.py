@@ -67,19 +67,23 @@ class ThermalParams:
 
 
 #: open-circuit voltage per cell (V) at the kernel's knots ``EXT_OCV_SOC`` = 0, 0.03, 0.07, 0.12, 0.2,
-#: 0.3 … 1.0: typical discharge curves at rest (C/20, 25 °C) of a LiPo (LiCoO2/graphite) and a
-#: Li-ion NMC/graphite cell. Starting points and fallbacks; a fit learns the pack's own curve.
+#: 0.25 … 0.7, 0.725 … 1.0: typical discharge curves at rest (C/20, 25 °C) of a LiPo (LiCoO2/graphite) and a
+#: Li-ion NMC/graphite cell. Starting points and fallbacks; a fit learns the pack's own.
 OCV_PER_CELL: Mapping[str, tuple[float, ...]] = {
-    "lipo": (3.27, 3.45, 3.60, 3.68, 3.73, 3.77, 3.80, 3.84, 3.88, 3.95, 4.02, 4.10, 4.20),
-    "li-ion": (3.00, 3.30, 3.42, 3.50, 3.57, 3.63, 3.68, 3.73, 3.80, 3.88, 3.96, 4.06, 4.18),
+    "lipo": (
+        3.27, 3.45, 3.6, 3.68, 3.73, 3.752, 3.77, 3.785, 3.8, 3.819, 3.84, 3.859, 3.88, 3.913, 3.95, 3.967, 3.984,
+        4.002, 4.02, 4.039, 4.058, 4.078, 4.1, 4.123, 4.147, 4.173, 4.2),
+    "li-ion": (
+        3.0, 3.3, 3.42, 3.5, 3.57, 3.602, 3.63, 3.656, 3.68, 3.704, 3.73, 3.763, 3.8, 3.839, 3.88, 3.9, 3.919, 3.939,
+        3.96, 3.983, 4.007, 4.033, 4.06, 4.088, 4.117, 4.148, 4.18),
 }
 CHEMISTRIES: tuple[str, ...] = tuple(OCV_PER_CELL)
 #: extended-variant values other than the OCV for a 5S 7.8 Ah pack (docs/model.md)
-_EXTENDED_DEFAULTS = dict(R_0=0.02, R_1=0.01, tau_1=20.0, R_2=0.01, tau_2=300.0, E_r=2500.0, k_soc=0.3,
-                          b_ct=0.1, i_ct=20.0, k_d=1.0,
+_EXTENDED_DEFAULTS = dict(R_0=0.02, R_1=0.01, tau_1=20.0, R_2=0.01, tau_2=300.0, E_r=2500.0, E_ct=4000.0, k_soc=0.3, soc_knee=0.1,
+                          b_ct=0.1, i_ct=20.0, k_d=1.0, tau_d=600.0,
                           C_max=PACK_CAPACITY_C, C_t=1000.0, h=2.0, dU_dT=0.0)
 #: extended-variant fields that may be zero (the rest must be > 0); dU_dT may have either sign
-_EXTENDED_MAY_BE_ZERO = {"E_r", "k_soc"}
+_EXTENDED_MAY_BE_ZERO = {"E_r", "E_ct", "k_soc"}
 
 
 def extended_default(chemistry: str = "lipo", cells: int = CELLS_PER_PACK) -> dict[str, float]:
@@ -259,8 +263,8 @@ def _build_extended(values: Mapping[str, Any], where: str) -> dict[str, float]:
 
 #: units of the extended variant's values (docs/model.md)
 EXTENDED_UNITS: Mapping[str, str] = {
-    "R_0": "ohm", "R_1": "ohm", "tau_1": "s", "R_2": "ohm", "tau_2": "s", "E_r": "K", "k_soc": "1",
-    "b_ct": "V", "i_ct": "A", "k_d": "s",
+    "R_0": "ohm", "R_1": "ohm", "tau_1": "s", "R_2": "ohm", "tau_2": "s", "E_r": "K", "E_ct": "K", "k_soc": "1", "soc_knee": "1",
+    "b_ct": "V", "i_ct": "A", "k_d": "s", "tau_d": "s",
     "C_max": "C", "C_t": "J/K", "h": "W/K", "dU_dT": "V/K", "ocv_0": "V",
 }
 

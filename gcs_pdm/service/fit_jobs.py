@@ -102,7 +102,9 @@ def make_fit_job(service) -> Callable:
             opts["cleaning"] = CleaningSettings(**opts["cleaning"])
         ref_name = opts.pop("reference", "previous_si")
         # the values not learned come from the requested base set itself (a user's set too)
-        settings = FitSettings(search=search, base=base.name, reference=ref_name, **opts)
+        # the paper variant: the service's stored sets drive the estimator and planner, which read the
+        # paper layout of a pack (the library default, FitSettings().model, is the extended variant)
+        settings = FitSettings(search=search, base=base.name, reference=ref_name, model="paper", **opts)
         targets = list(request["packs"]) if component == "battery" else [None]
         results, body = {}, {"component": component, "fits": {}, "plots": {}}
         for k, pack in enumerate(targets):
