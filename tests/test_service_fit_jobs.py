@@ -38,7 +38,8 @@ def test_fit_job_from_uploaded_csv(tmp_path):
         body = {"component": "battery", "packs": ["LLF20"], "save_as": "fitted_llf20",
                 "flights": {"train": [{"file_id": ids[0]}], "validation": [{"file_id": ids[1]}],
                             "test": [{"file_id": ids[2]}]},
-                "settings": {"search": {"starts": 2, "sa_generations": 8, "lm_max_nfev": 4, "seed": 1}, "workers": 1}}
+                "settings": {"model": "paper", "search": {"starts": 2, "sa_generations": 8, "lm_max_nfev": 4, "seed": 1},
+                             "workers": 1}}
         r = client.post("/jobs/fit", json=body, headers=AUTH)
         assert r.status_code == 202, r.text
         job = svc.runner.wait(r.json()["id"], timeout=240)
@@ -124,5 +125,42 @@ def test_fit_over_a_user_set_keeps_its_fixed_values(tmp_path):
         assert result["fits"]["motor"]["parameters"]["R_w"] == pytest.approx(0.045)
         assert result["fits"]["motor"]["parameters"]["I_0"] == pytest.approx(2.1)
         assert result["parameter_set"]["motor"]["R_w"] == pytest.approx(0.045)
+    finally:
+        svc.close()
+
+
+def test_fit_job_settings_name_the_model_variant_and_refuse_others():
+    from gcs_pdm.service.fit_jobs import check_settings
+
+    assert check_settings({"model": "paper"}) is None
+    assert check_settings({"model": "extended"}) is None
+    field, why = check_settings({"model": "spline"})
+    assert field == "settings.model" and "paper" in why and "extended" in why
+
+
+@pytest.mark.slow
+def test_fit_job_without_a_model_setting_stores_an_extended_pack(tmp_path):
+    """The extended variant is the default for new fits, through the service as on the command line."""
+    from gcs_pdm.models.kernel import EXT_PACK_PARAMS
+
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN))
+    try:
+        client = TestClient(create_app(svc))
+        truth = synthetic_truth(seed=3)
+        ids = []
+        for seed in range(3):
+            f = generate_flight(truth, seed, duration_s=600.0, dt=2.0, damage=None).packs["LLF20"]
+            r = client.post("/files", files={"file": (f"flight{seed}.csv", _csv(f))}, headers=AUTH)
+            ids.append(r.json()["id"])
+        body = {"component": "battery", "packs": ["LLF20"], "save_as": "fitted_ext",
+                "flights": {"train": [{"file_id": ids[0]}], "validation": [{"file_id": ids[1]}],
+                            "test": [{"file_id": ids[2]}]},
+                "settings": {"search": {"starts": 2, "sa_generations": 4, "lm_max_nfev": 3, "seed": 1}, "workers": 1}}
+        r = client.post("/jobs/fit", json=body, headers=AUTH)
+        assert r.status_code == 202, r.text
+        job = svc.runner.wait(r.json()["id"], timeout=240)
+        assert job["status"] == "succeeded", job["error"]
+        stored = client.get("/parameter-sets/fitted_ext").json()["packs"]["LLF20"]
+        assert stored["model"] == "extended" and set(stored["extended"]) == set(EXT_PACK_PARAMS)
     finally:
         svc.close()

@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 
 #: the request's ``settings``: top-level FitSettings fields a client may set (``base`` is the job's
 #: ``base_set``), with ``search`` and ``cleaning`` as objects of SearchSettings/CleaningSettings fields
-SETTINGS_TOP = ("search", "cleaning", "reference", "init_samples", "soc_offset_range", "workers")
+SETTINGS_TOP = ("model", "search", "cleaning", "reference", "init_samples", "soc_offset_range", "workers")
 
 
 def _type_ok(value, default) -> bool:
@@ -42,9 +42,15 @@ def check_settings(settings: dict) -> tuple[str, str] | None:
     from gcs_pdm.fitting.search import SearchSettings
 
     defaults = FitSettings()
+    from gcs_pdm.models.kernel import MODEL_VARIANTS
+
     for key, value in settings.items():
         if key not in SETTINGS_TOP:
             return f"settings.{key}", f"unknown fit setting {key!r}; expected one of {', '.join(SETTINGS_TOP)}"
+        if key == "model":
+            if value not in MODEL_VARIANTS:
+                return "settings.model", f"expected one of {', '.join(MODEL_VARIANTS)}, got {value!r}"
+            continue
         if key in ("search", "cleaning"):
             cls = SearchSettings if key == "search" else CleaningSettings
             if not isinstance(value, dict):
@@ -102,9 +108,11 @@ def make_fit_job(service) -> Callable:
             opts["cleaning"] = CleaningSettings(**opts["cleaning"])
         ref_name = opts.pop("reference", "previous_si")
         # the values not learned come from the requested base set itself (a user's set too)
-        # the paper variant: the service's stored sets drive the estimator and planner, which read the
-        # paper layout of a pack (the library default, FitSettings().model, is the extended variant)
-        settings = FitSettings(search=search, base=base.name, reference=ref_name, model="paper", **opts)
+        # the extended variant unless asked otherwise (issue 15: the default for new fits). The
+        # estimator and the Monte Carlo fly an extended pack on its extended values; the planner's
+        # vehicle simulator still flies its paper values, and /status says so once the set is active.
+        model = opts.pop("model", "extended")
+        settings = FitSettings(search=search, base=base.name, reference=ref_name, model=model, **opts)
         targets = list(request["packs"]) if component == "battery" else [None]
         results, body = {}, {"component": component, "fits": {}, "plots": {}}
         for k, pack in enumerate(targets):

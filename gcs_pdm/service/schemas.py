@@ -226,8 +226,9 @@ class FitJobIn(BaseModel):
     save_as: str | None = Field(None, min_length=1, max_length=80, pattern=r"^[A-Za-z0-9_.\-]+$",
                                 description="store the result under this name (a new one, unless overwrite)")
     overwrite: bool = Field(False, description="save_as may replace an existing user set (never a built-in or the active set)")
-    settings: dict[str, Any] = Field(default_factory=dict, description="fitter settings: search {starts, seed, sa_generations, ...}, cleaning {...}, "
-                                       "reference, init_samples, soc_offset_range, workers; unknown keys are 422")
+    settings: dict[str, Any] = Field(default_factory=dict, description="fitter settings: model (\"extended\", the default, or \"paper\"), search {starts, seed, "
+                                       "sa_generations, ...}, cleaning {...}, reference, init_samples, soc_offset_range, workers; "
+                                       "unknown keys are 422")
 
 
 class JobOut(BaseModel):
