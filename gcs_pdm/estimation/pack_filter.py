@@ -28,10 +28,10 @@ on a pack that matches its model the statistic sits well below 1 (0.3-0.5 on syn
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from gcs_pdm.estimation import ukf
 from gcs_pdm.models import kernel
@@ -66,10 +66,12 @@ class PackFilterConfig:
 
 def clipped_chi2_moments(clip: float) -> tuple[float, float]:
     """Mean and variance of min(Z², c²) for Z ~ N(0, 1)."""
-    from scipy.stats import norm
+    # scipy.special, not scipy.stats: the same functions, without the 0.6 s import of scipy.stats
+    # on every command's start (numba already loads scipy.linalg; scipy.special adds ≈ 50 ms)
+    from scipy.special import ndtr
 
-    inside = 1.0 - 2.0 * norm.sf(clip)
-    pdf = norm.pdf(clip)
+    inside = 1.0 - 2.0 * ndtr(-clip)
+    pdf = math.exp(-0.5 * clip * clip) / math.sqrt(2.0 * math.pi)
     tail = 1.0 - inside
     m1 = inside - 2.0 * clip * pdf + clip ** 2 * tail
     m2 = 3.0 * inside - 2.0 * pdf * (clip ** 3 + 3.0 * clip) + clip ** 4 * tail
@@ -79,9 +81,11 @@ def clipped_chi2_moments(clip: float) -> tuple[float, float]:
 def clipped_mean_quantile(q: float, n: int, clip: float) -> float:
     """The ``q`` quantile of the mean of ``n`` independent min(Z², c²): a scaled χ² with the same
     mean and variance (Satterthwaite)."""
+    from scipy.special import gammaincinv
+
     m1, var = clipped_chi2_moments(clip)
     scale, dof = var / (2.0 * m1), 2.0 * n * m1 ** 2 / var
-    return float(scale * chi2.ppf(q, dof) / n)
+    return float(scale * 2.0 * gammaincinv(0.5 * dof, q) / n)  # the χ² quantile, as scipy.stats.chi2.ppf
 
 
 #: model-consistency channels (the window's second index)

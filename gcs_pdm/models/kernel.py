@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
+from gcs_pdm.models.params import MODEL_VARIANTS  # noqa: F401 (defined with the parameter sets)
+
 PACK_PARAMS: tuple[str, ...] = (
     "R_s", "R_p", "R_cp0", "R_cp1", "R_cp2", "C_s", "C_b", "C_cp", "q_max", "C_max", "C_t", "h",
 )
@@ -500,7 +502,6 @@ def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
 # plateau it acts as one more R–C drop; near empty, where the OCV falls steeply, it makes the knee
 # arrive earlier and steeper at high current, as it does in real cells.
 
-MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
 #: SoC of the open-circuit-voltage knots: denser at the bottom, where the curve bends, every 0.05 above
 #: 0.2 and every 0.025 above 0.7, where flights start. Every flight starts from a rest voltage read
 #: through this curve, so a feature it cannot draw (a graphite staging step) is an initial-SoC error,

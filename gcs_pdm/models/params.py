@@ -24,6 +24,9 @@ from typing import Any, Mapping
 import numpy as np
 
 PACK_NAMES: tuple[str, ...] = ("LLF20", "ULA20", "LRF40", "URA40")
+#: the pack model variants a parameter set may name (docs/model.md); defined here, not in the
+#: kernel, so reading or validating a set does not import numba (start-up of every command)
+MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
 MOTOR_NAMES: tuple[str, ...] = ("fwd", "aft")
 
 CELLS_PER_PACK = 5
@@ -297,8 +300,6 @@ def _check_record(obj: Any, where: str) -> None:
 
 
 def _check_variant(p: PackParams, where: str) -> None:
-    from gcs_pdm.models.kernel import MODEL_VARIANTS
-
     if p.model not in MODEL_VARIANTS:
         raise ParameterError(f"{where}.model: expected one of {', '.join(MODEL_VARIANTS)}, got {p.model!r}")
     if p.model == "extended" and p.extended is None:
