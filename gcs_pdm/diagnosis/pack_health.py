@@ -13,7 +13,7 @@ regression would. Spikes are cut with a MAD rule; samples near the knee (model S
 standard errors above the clear one) at three checks in a row, and clears likewise.
 
 A check after the first starts one search from the previous check's fit instead of the two or
-three cold starts (``PackHealthConfig.warm_start``: ≈ 5× fewer kernel calls); the cold search is
+three cold starts (``PackHealthConfig.warm_start``: ≈ 5× fewer kernel calls per check); the cold search is
 kept for a new or restarted record, when the capacity becomes free, when the warm fit's residual
 grows, when its verdict would change, and every ``cold_every_checks`` checks.
 
@@ -57,7 +57,7 @@ class PackHealthConfig:
     debounce: DebounceConfig = DebounceConfig(raise_after_s=120.0, clear_after_s=120.0)
     #: warm start: a check starts one Gauss–Newton search from the previous check's fit (its
     #: scales, and the SoC its simulation had at the record's new first sample) instead of the
-    #: two or three cold starts (≈ 2.7 kernel calls instead of ≈ 13); the cold search runs again
+    #: two or three cold starts (≈ 2–3 kernel calls instead of ≈ 12–13); the cold search runs again
     #: when there is no previous fit, the record restarted (a gap), the capacity became free, the
     #: warm fit failed or its residual grew beyond ``warm_rms_ratio`` times the previous one, its
     #: verdict (strong / below clear, either fault) differs from the previous check's, and every
