@@ -12,6 +12,11 @@ regression would. Spikes are cut with a MAD rule; samples near the knee (model S
 ``min_soc``) are left out. A fault needs its estimate beyond the raise threshold (and two
 standard errors above the clear one) at three checks in a row, and clears likewise.
 
+A check after the first starts one search from the previous check's fit instead of the two or
+three cold starts (``PackHealthConfig.warm_start``: ≈ 5× fewer kernel calls per check); the cold search is
+kept for a new or restarted record, when the capacity becomes free, when the warm fit's residual
+grows, when its verdict would change, and every ``cold_every_checks`` checks.
+
 Thresholds sit above what an uncalibrated parameter set alone produces (≈15 % per parameter for
 the simulated vehicle); after the fitter has learned the real pack they can be tightened.
 """
@@ -50,6 +55,16 @@ class PackHealthConfig:
     #: current nobody measured (a 49.7-day gap was re-simulated at every check)
     max_gap_s: float = 60.0
     debounce: DebounceConfig = DebounceConfig(raise_after_s=120.0, clear_after_s=120.0)
+    #: warm start: a check starts one Gauss–Newton search from the previous check's fit (its
+    #: scales, and the SoC its simulation had at the record's new first sample) instead of the
+    #: two or three cold starts (≈ 2–3 kernel calls instead of ≈ 12–13); the cold search runs again
+    #: when there is no previous fit, the record restarted (a gap), the capacity became free, the
+    #: warm fit failed or its residual grew beyond ``warm_rms_ratio`` times the previous one, its
+    #: verdict (strong / below clear, either fault) differs from the previous check's, and every
+    #: ``cold_every_checks`` checks, so a basin the record no longer supports is left within minutes
+    warm_start: bool = True
+    warm_rms_ratio: float = 1.2
+    cold_every_checks: int = 10
 
 
 @dataclass(frozen=True)
@@ -142,6 +157,13 @@ def fit_pack_residual(params: np.ndarray, t: np.ndarray, current: np.ndarray, vo
     False the capacity scale stays at 1 (its standard error is then inf): early in a flight the
     record cannot tell a small pack from a weak one, and holding the capacity lets the resistance
     be read correctly from the current steps alone."""
+    fit = _fit_cold(params, t, current, voltage, ambient, min_soc, iterations, fit_capacity)
+    return None if fit is None else fit[:4]
+
+
+def _fit_cold(params, t, current, voltage, ambient, min_soc, iterations, fit_capacity):
+    """``fit_pack_residual``'s search, returning the fitted run's SoC trajectory too (a warm start's
+    initial SoC for the next check)."""
     dt = np.diff(t, prepend=t[0])
     if t.size < 20 or np.ptp(current) < 1.0:
         return None
@@ -157,13 +179,24 @@ def fit_pack_residual(params: np.ndarray, t: np.ndarray, current: np.ndarray, vo
     return best
 
 
-def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale, fit_capacity):
+def _fit_warm(params, t, current, voltage, ambient, min_soc, iterations, fit_capacity, theta0):
+    """One Gauss–Newton search from ``theta0`` (the previous check's scales and the SoC its run had at
+    this record's first sample); None where the record cannot be fitted."""
+    if t.size < 20 or np.ptp(current) < 1.0:
+        return None
+    return _gauss_newton(params, t, np.diff(t, prepend=t[0]), current, voltage, ambient, min_soc, iterations,
+                         float(theta0[0]), float(theta0[1]), fit_capacity, soc0=float(theta0[2]))
+
+
+def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale, fit_capacity,
+                  soc0: float | None = None):
     free = np.array([True, fit_capacity, True])
-    # start from the SoC the first reading implies (the capacity scale leaves the open-circuit
-    # curve unchanged: q_max and C_max scale with C_b)
-    r_cp = float(kernel.concentration_resistance(params, 0.5))
-    v_b = voltage[0] + current[0] * r_scale * (params[kernel.I_RS] + r_cp)
-    soc0 = float(kernel.soc_at_bulk_voltage(params, v_b))
+    if soc0 is None:
+        # start from the SoC the first reading implies (the capacity scale leaves the open-circuit
+        # curve unchanged: q_max and C_max scale with C_b)
+        r_cp = float(kernel.concentration_resistance(params, 0.5))
+        v_b = voltage[0] + current[0] * r_scale * (params[kernel.I_RS] + r_cp)
+        soc0 = float(kernel.soc_at_bulk_voltage(params, v_b))
     theta = np.array([r_scale, c_scale, min(max(soc0, 0.2), 1.0)])
     max_step = np.array([0.5, 0.15, 0.1])
     eps = np.array([0.02, 0.005, 0.005])
@@ -210,7 +243,18 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     span = float(t[-1] - t[0])
     inflate = math.sqrt(max(n / max(span / 30.0, 1.0), 1.0))
     se = np.sqrt(np.maximum(np.diag(cov), 0.0)) * inflate
-    return theta, se, math.sqrt(float(res @ res) / n), n
+    return theta, se, math.sqrt(float(res @ res) / n), n, run.soc[0]
+
+
+@dataclass
+class _PreviousFit:
+    """What a warm start needs of a pack's last fit."""
+    theta: np.ndarray
+    rms: float
+    fit_capacity: bool
+    t: np.ndarray          # the record's times at that fit
+    soc: np.ndarray        # the fitted run's SoC at those times
+    warm_checks: int       # warm fits since the last cold one
 
 
 class PackHealthMonitor:
@@ -226,6 +270,65 @@ class PackHealthMonitor:
                           for ty in (PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE)}
         self.faults: dict[tuple[str, str], Fault] = {}
         self.latest: dict[str, PackHealthEstimate] = {}
+        self._previous: list[_PreviousFit | None] = [None] * len(self.names)
+        #: each pack's last check's verdicts (``_verdicts``): a warm fit that changes them is re-done cold
+        self._verdict: list[tuple | None] = [None] * len(self.names)
+        #: how the checks' fits ran (cold: the multi-start search; warm: one start from the last fit;
+        #: warm_rejected: a warm fit whose residual grew, thrown away for the cold search;
+        #: warm_unconfirmed: one whose verdict changed, re-done cold; both also counted as cold)
+        self.fit_counts = {"cold": 0, "warm": 0, "warm_rejected": 0, "warm_unconfirmed": 0}
+
+    def _fit_record(self, b: int, arr: np.ndarray, fit_capacity: bool, cold: bool = False):
+        """The check's fit of pack ``b``'s record: warm from the previous fit where it still applies,
+        else (or when the warm fit looks trapped) the cold multi-start search. Returns the fit (or None)
+        and how it ran, for ``fit_counts`` (counted by the caller: the packs' fits run on threads)."""
+        cfg = self.config
+        p = self.params[b]
+        t, cur, v, amb = arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3]
+        prev = self._previous[b]
+        warm_ok = (not cold and cfg.warm_start and prev is not None and prev.fit_capacity == fit_capacity
+                   and prev.warm_checks + 1 < cfg.cold_every_checks and prev.t[0] <= t[0] <= prev.t[-1])
+        fit, kinds = None, ("cold",)
+        if warm_ok:
+            theta0 = prev.theta.copy()
+            theta0[2] = float(np.interp(t[0], prev.t, prev.soc))
+            fit = _fit_warm(p, t, cur, v, amb, cfg.min_soc, 10, fit_capacity, theta0)
+            if fit is not None and fit[2] <= cfg.warm_rms_ratio * prev.rms:
+                kinds = ("warm",)
+            else:
+                kinds, fit = ("warm_rejected", "cold"), None
+        if fit is None:
+            fit = _fit_cold(p, t, cur, v, amb, cfg.min_soc, 10, fit_capacity)
+        if fit is None:
+            self._previous[b] = None
+            return None, kinds
+        self._previous[b] = _PreviousFit(fit[0].copy(), fit[2], fit_capacity, t, fit[4],
+                                         prev.warm_checks + 1 if kinds == ("warm",) else 0)
+        return fit[:4], kinds
+
+    def _estimate(self, b: int, fit) -> PackHealthEstimate:
+        p = self.params[b]
+        theta, se, rms, n = fit
+        r_nom = p[kernel.I_RS] + p[kernel.I_RCP0]
+        return PackHealthEstimate(self.names[b], n, float(theta[2]), float((theta[0] - 1.0) * r_nom),
+                                  float(theta[0] - 1.0), float(theta[1]), float(1.0 - theta[1]), float(se[0]),
+                                  float(se[1]), rms)
+
+    def _judged(self, est: PackHealthEstimate) -> tuple:
+        """(fault type, value, standard error, raise threshold, clear threshold) for both faults."""
+        cfg = self.config
+        return ((PACK_CAPACITY_LOSS, est.capacity_loss, est.se_capacity_loss, cfg.capacity_loss_raise,
+                 cfg.capacity_loss_clear),
+                (PACK_RESISTANCE_RISE, est.resistance_rise, est.se_resistance_rise, cfg.resistance_rise_raise,
+                 cfg.resistance_rise_clear))
+
+    def _verdicts(self, est: PackHealthEstimate | None, drawn: float) -> tuple:
+        """What a check's estimate tells the debouncers: (strong, below clear) per fault, or None."""
+        if est is None:
+            return None
+        held = drawn < self.config.min_drawn_for_capacity
+        return tuple(None if held and ty == PACK_CAPACITY_LOSS else (value >= hi and value - 2.0 * se_v > lo, value < lo)
+                     for ty, value, se_v, hi, lo in self._judged(est))
 
     def add(self, b: int, time_s: float, current_a: float, voltage_v: float, ambient_c: float,
             ) -> None:
@@ -252,26 +355,31 @@ class PackHealthMonitor:
             arr = buf.array().copy()  # the fits run on threads: a copy, whatever is appended meanwhile
             p = self.params[b]
             drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
-            return drawn, fit_pack_residual(p, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], self.config.min_soc,
-                                            fit_capacity=drawn >= self.config.min_drawn_for_capacity)
+            fit_capacity = drawn >= self.config.min_drawn_for_capacity
+            return (drawn, arr, fit_capacity, *self._fit_record(b, arr, fit_capacity))
 
         # the packs' fits are independent: on the threads available (the kernel releases the GIL)
         fits = thread_map(fit, range(len(self.names)))
         for b, name in enumerate(self.names):
-            if fits[b] is None or fits[b][1] is None:
+            if fits[b] is None:
                 continue
-            drawn, fit_b = fits[b]
-            p = self.params[b]
-            theta, se, rms, n = fit_b
-            r_nom = p[kernel.I_RS] + p[kernel.I_RCP0]
-            est = PackHealthEstimate(name, n, float(theta[2]), float((theta[0] - 1.0) * r_nom), float(theta[0] - 1.0),
-                                     float(theta[1]), float(1.0 - theta[1]), float(se[0]), float(se[1]), rms)
+            drawn, arr, fit_capacity, fit_b, kinds = fits[b]
+            est = None if fit_b is None else self._estimate(b, fit_b)
+            if kinds == ("warm",) and self._verdicts(est, drawn) != self._verdict[b]:
+                # a warm fit that would change what the debouncers are told is confirmed by the cold
+                # search: a fault's raise or clear never rests on a warm fit's change alone
+                fit_b, cold = self._fit_record(b, arr, fit_capacity, cold=True)
+                kinds = ("warm_unconfirmed", *cold)
+                est = None if fit_b is None else self._estimate(b, fit_b)
+            for kind in kinds:
+                self.fit_counts[kind] += 1
+            self._verdict[b] = self._verdicts(est, drawn)
+            if est is None:
+                continue
+            rms, n = est.residual_rms_v, est.n
             self.latest[name] = est
             cfg = self.config
-            for ty, value, se_v, hi, lo in ((PACK_CAPACITY_LOSS, est.capacity_loss, est.se_capacity_loss,
-                                             cfg.capacity_loss_raise, cfg.capacity_loss_clear),
-                                            (PACK_RESISTANCE_RISE, est.resistance_rise, est.se_resistance_rise,
-                                             cfg.resistance_rise_raise, cfg.resistance_rise_clear)):
+            for ty, value, se_v, hi, lo in self._judged(est):
                 if ty == PACK_CAPACITY_LOSS and drawn < cfg.min_drawn_for_capacity:
                     continue  # the fit held the capacity: no verdict on it yet
                 strong = value >= hi and value - 2.0 * se_v > lo
