@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from gcs_pdm.models.params import MODEL_VARIANTS  # noqa: F401 (defined with the parameter sets)
+from gcs_pdm.models.variants import MODEL_VARIANTS  # noqa: F401 (re-exported: kernel.MODEL_VARIANTS)
 
 PACK_PARAMS: tuple[str, ...] = (
     "R_s", "R_p", "R_cp0", "R_cp1", "R_cp2", "C_s", "C_b", "C_cp", "q_max", "C_max", "C_t", "h",

@@ -23,10 +23,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from gcs_pdm.models.variants import MODEL_VARIANTS
+
 PACK_NAMES: tuple[str, ...] = ("LLF20", "ULA20", "LRF40", "URA40")
-#: the pack model variants a parameter set may name (docs/model.md); defined here, not in the
-#: kernel, so reading or validating a set does not import numba (start-up of every command)
-MODEL_VARIANTS: tuple[str, ...] = ("paper", "extended")
 MOTOR_NAMES: tuple[str, ...] = ("fwd", "aft")
 
 CELLS_PER_PACK = 5

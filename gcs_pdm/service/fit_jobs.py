@@ -42,7 +42,7 @@ def check_settings(settings: dict) -> tuple[str, str] | None:
     from gcs_pdm.fitting.search import SearchSettings
 
     defaults = FitSettings()
-    from gcs_pdm.models.params import MODEL_VARIANTS
+    from gcs_pdm.models.variants import MODEL_VARIANTS
 
     for key, value in settings.items():
         if key not in SETTINGS_TOP:
