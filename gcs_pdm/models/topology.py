@@ -144,43 +144,8 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
             for u in range(n_bus):
                 if bus_parallel[u]:
                     vbus[u] = vbus[u] / packs_on_bus[u]
-            p_tot = p_dem
-            if p_dem > 0.0:
-                # Σ f_q V_q I0_q, written as (Σ f_q V_q (I0_q / I0_0)) I0_0 so that motors sharing
-                # one I_0 (the paper's) round exactly as the four-pack kernel always has
-                unpowered = 0.0
-                i0_ref = mp[0, M_I0]
-                for q in range(n_motors):
-                    if i0_ref > 0.0:
-                        unpowered += f[q] * vbus[bus_of_motor[q]] * (mp[q, M_I0] / i0_ref)
-                    else:
-                        unpowered += f[q] * vbus[bus_of_motor[q]] * mp[q, M_I0]
-                if i0_ref > 0.0:
-                    unpowered *= i0_ref
-                p_tot = p_dem * (1.0 + inv_m * fault_drag * fault_sum) + unpowered
-            cause = FAIL_NONE
-            if cap_total <= 0.0:
-                for q in range(n_motors):
-                    share[q] = 0.0
-                if p_dem > 0.0:
-                    cause = FAIL_POWER
-            else:
-                shortfall = p_tot
-                for q in range(n_motors):
-                    share[q] = inv_m * p_tot * cap[q]
-                    shortfall -= share[q]
-                for q in range(n_motors):
-                    if f[q] == f_min:
-                        share[q] += shortfall / n_least
-            for q in range(n_motors):
-                u = bus_of_motor[q]
-                i_q = _motor_current(mp, q, vbus[u], share[q], cap[q])
-                if i_q < 0.0:
-                    cause = FAIL_POWER
-                    i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
-                imot[q] = i_q
-                ibus[u] += i_q
-                energy[j] += vbus[u] * i_q * h
+            cause, energy[j] = _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min,
+                                               n_least, inv_m, fault_drag, share, imot, ibus, h, energy[j])
             for b in range(n_packs):
                 u = bus_of_pack[b]
                 i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
@@ -368,15 +333,17 @@ def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: n
 # is each pack's voltage at the end of the previous step (as for the paper packs, whose R–C voltages
 # carry the previous current).
 
-@njit(**_JIT)
+@njit(inline="always", **_JIT)
 def _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min, n_least, inv_m,
-                    fault_drag, share, imot, ibus, h):
+                    fault_drag, share, imot, ibus, h, energy):
     """The motors' shares of the demanded power and their currents from the bus voltages (the rules
-    of ``_simulate``); adds each motor's current to its bus. Returns (failure cause, energy drawn)."""
+    of the powertrain, shared by ``_simulate`` and ``_simulate_extended``); adds each motor's current
+    to its bus. Returns (failure cause, ``energy`` plus the energy drawn over ``h``)."""
     n_motors = share.shape[0]
     p_tot = p_dem
     if p_dem > 0.0:
-        # written as _simulate's, so the two agree bit for bit on paper packs
+        # Σ f_q V_q I0_q, written as (Σ f_q V_q (I0_q / I0_0)) I0_0 so that motors sharing
+        # one I_0 (the paper's) round exactly as the four-pack kernel always has
         unpowered = 0.0
         i0_ref = mp[0, M_I0]
         for q in range(n_motors):
@@ -401,13 +368,12 @@ def _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum,
         for q in range(n_motors):
             if f[q] == f_min:
                 share[q] += shortfall / n_least
-    energy = 0.0
     for q in range(n_motors):
         u = bus_of_motor[q]
         i_q = _motor_current(mp, q, vbus[u], share[q], cap[q])
         if i_q < 0.0:
             cause = FAIL_POWER
-            i_q = vbus[u] / (2.0 * mp[q, M_RW])
+            i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
         imot[q] = i_q
         ibus[u] += i_q
         energy += vbus[u] * i_q * h
@@ -489,9 +455,9 @@ def _simulate_extended(pack_params, ext_params, is_ext, motor_params, x0, tm0, d
             for u in range(n_bus):
                 if bus_parallel[u]:
                     vbus[u] = vbus[u] / packs_on_bus[u]
-            cause, e = _motor_currents(mp, f, vbus, bus_of_motor, shaft_power[si, k], cap, cap_total, fault_sum,
-                                       f_min, n_least, inv_m, fault_drag, share, imot, ibus, h)
-            energy[j] += e
+            cause, energy[j] = _motor_currents(mp, f, vbus, bus_of_motor, shaft_power[si, k], cap, cap_total,
+                                               fault_sum, f_min, n_least, inv_m, fault_drag, share, imot, ibus, h,
+                                               energy[j])
             for b in range(n_packs):
                 u = bus_of_pack[b]
                 i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
