@@ -26,9 +26,9 @@ from numba import njit
 from gcs_pdm.models import kernel
 from gcs_pdm.models.kernel import (_JIT, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAIL_NONE, FAIL_PACK_OVERTEMP,
                                    FAIL_POWER, FAIL_UNDERVOLTAGE, M_I0, M_RW, N_MOTOR_PARAMS, N_PACK_PARAMS,
-                                   N_PACK_STATE, S_QB, S_T, PowertrainRun, _motor_current, _pack_advance, _rows,
-                                   _soc, _terminal_voltage, _thermal_advance)
-from gcs_pdm.models.kernel import (N_EXT_PARAMS, N_EXT_STATE, N_OCV_KNOTS, X_SOC, X_T, _ext_advance,  # extended block
+                                   N_PACK_STATE, S_QB, S_T, PowertrainRun, _motor_current, _rows, _soc,
+                                   _terminal_voltage)
+from gcs_pdm.models.kernel import (N_EXT_PARAMS, N_EXT_STATE, N_OCV_KNOTS, X_SOC, _ext_advance,  # extended block
                                    _ocv_knots)
 
 
@@ -64,9 +64,55 @@ PAPER_TOPOLOGY = Topology(bus_of_pack=kernel.STRING_OF_PACK.copy(), bus_of_motor
                           pack_max_temp_c=np.full(4, np.inf), motor_max_temp_c=np.full(2, np.inf))
 
 
+@njit(inline="always", **_JIT)
+def _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min, n_least, inv_m,
+                    fault_drag, share, imot, ibus, h, energy):
+    """The motors' shares of the demanded power and their currents from the bus voltages (the rules
+    of the powertrain); adds each motor's current to its bus. Returns (failure cause, ``energy`` plus the energy drawn over ``h``)."""
+    n_motors = share.shape[0]
+    p_tot = p_dem
+    if p_dem > 0.0:
+        # Σ f_q V_q I0_q, written as (Σ f_q V_q (I0_q / I0_0)) I0_0 so that motors sharing
+        # one I_0 (the paper's) round exactly as the four-pack kernel always has
+        unpowered = 0.0
+        i0_ref = mp[0, M_I0]
+        for q in range(n_motors):
+            if i0_ref > 0.0:
+                unpowered += f[q] * vbus[bus_of_motor[q]] * (mp[q, M_I0] / i0_ref)
+            else:
+                unpowered += f[q] * vbus[bus_of_motor[q]] * mp[q, M_I0]
+        if i0_ref > 0.0:
+            unpowered *= i0_ref
+        p_tot = p_dem * (1.0 + inv_m * fault_drag * fault_sum) + unpowered
+    cause = FAIL_NONE
+    if cap_total <= 0.0:
+        for q in range(n_motors):
+            share[q] = 0.0
+        if p_dem > 0.0:
+            cause = FAIL_POWER
+    else:
+        shortfall = p_tot
+        for q in range(n_motors):
+            share[q] = inv_m * p_tot * cap[q]
+            shortfall -= share[q]
+        for q in range(n_motors):
+            if f[q] == f_min:
+                share[q] += shortfall / n_least
+    for q in range(n_motors):
+        u = bus_of_motor[q]
+        i_q = _motor_current(mp, q, vbus[u], share[q], cap[q])
+        if i_q < 0.0:
+            cause = FAIL_POWER
+            i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
+        imot[q] = i_q
+        ibus[u] += i_q
+        energy += vbus[u] * i_q * h
+    return cause, energy
+
+
 @njit(**_JIT)
-def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambient, bus_of_pack, bus_of_motor,
-              bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag, max_dt, stop_on_failure, slot_of_step,
+def _simulate(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_power, fault, ambient, bus_of_pack,
+              bus_of_motor, bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag, max_dt, stop_on_failure, slot_of_step,
               rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt,
               final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed,
               end_k, end_energy, peak_tp, peak_tm):
@@ -76,7 +122,12 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
     n_motors = tm0.shape[1]
     n_bus = bus_parallel.shape[0]
     record = slot_of_step.shape[0] == n
-    x = np.empty((n_packs, N_PACK_STATE))
+    # a paper pack's state is PACK_STATE (its first four columns when the run has extended packs), an
+    # extended pack's EXT_PACK_STATE; the temperature is column 3 in both (S_T == X_T)
+    width = x0.shape[2]
+    x = np.empty((n_packs, width))
+    ky = np.empty((n_packs, N_OCV_KNOTS))  # an extended pack's OCV knots and slopes
+    kd = np.empty((n_packs, N_OCV_KNOTS))
     step_cache = np.empty((n_packs, kernel.N_STEP_CACHE))
     tm = np.empty(n_motors)
     motor_dt = np.empty(n_motors)
@@ -93,16 +144,21 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
     inv_m = 1.0 / n_motors
     for j in range(n_vec):
         pp = pack_params[j if pack_params.shape[0] > 1 else 0]
+        ep = ext_params[j if ext_params.shape[0] > 1 else 0]
         mp = motor_params[j if motor_params.shape[0] > 1 else 0]
         f = fault[j if fault.shape[0] > 1 else 0]
         di = j if dt.shape[0] > 1 else 0
         si = j if shaft_power.shape[0] > 1 else 0
         ai = j if ambient.shape[0] > 1 else 0
         for b in range(n_packs):
-            for s in range(N_PACK_STATE):
+            for s in range(width):
                 x[b, s] = x0[j, b, s]
-            v[b] = _terminal_voltage(pp, b, x, b)
-            kernel._reset_step_cache(pp, b, step_cache, b)
+            if is_ext[b]:
+                _ocv_knots(ep[b], ky[b], kd[b])
+                v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], 0.0, 0.0, np.nan, 0.0, max_dt)
+            else:
+                v[b] = _terminal_voltage(pp, b, x, b)
+                kernel._reset_step_cache(pp, b, step_cache, b)
             min_v[j, b] = v[b]
             max_tp[j, b] = x[b, S_T]
             charge[j, b] = 0.0
@@ -149,13 +205,17 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
             for b in range(n_packs):
                 u = bus_of_pack[b]
                 i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
-                v[b] = kernel._pack_advance_cached(pp, b, x, b, i_b, ambient[ai, k], h, max_dt, v[b], step_cache)
+                if is_ext[b]:
+                    v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], i_b, ambient[ai, k], np.nan, h, max_dt)
+                    soc_b = x[b, X_SOC]
+                else:
+                    v[b] = kernel._pack_advance_cached(pp, b, x, b, i_b, ambient[ai, k], h, max_dt, v[b], step_cache)
+                    soc_b = _soc(pp, b, x[b, S_QB])
                 charge[j, b] += i_b * h
                 if v[b] < min_v[j, b]:
                     min_v[j, b] = v[b]
                 if x[b, S_T] > max_tp[j, b]:
                     max_tp[j, b] = x[b, S_T]
-                soc_b = _soc(pp, b, x[b, S_QB])
                 if end_k[j, b] < 0:
                     w = v[b] * i_b
                     end_energy[j, b] += (w if math.isfinite(w) else 0.0) * h
@@ -210,7 +270,7 @@ def _simulate(pack_params, motor_params, x0, tm0, dt, shaft_power, fault, ambien
                                 rec_mt[j, slot, q] = np.nan
                     break
         for b in range(n_packs):
-            for s in range(N_PACK_STATE):
+            for s in range(width):
                 final_x[j, b, s] = x[b, s]
         for q in range(n_motors):
             final_tm[j, q] = tm[q]
@@ -244,6 +304,17 @@ def simulate_vehicle(inputs: "Topology | ModelInputs", pack_params: np.ndarray |
     x0 = np.ascontiguousarray(x0[None] if x0.ndim == 2 else x0)
     if x0.shape[1:] != (n_packs, N_PACK_STATE):
         raise ValueError(f"x0: expected (N, {n_packs}, {N_PACK_STATE}), got {x0.shape}")
+    no_ext = np.zeros((1, n_packs, N_EXT_PARAMS))
+    return _run(topo, pp, no_ext, np.zeros(n_packs, dtype=np.bool_), mp, x0, motor_temp0, dt, shaft_power, ambient,
+                fault, fault_drag, max_dt, stop_on_failure, record, record_at)
+
+
+def _run(topo: Topology, pp: np.ndarray, ep: np.ndarray, is_ext: np.ndarray, mp: np.ndarray, x0: np.ndarray,
+         motor_temp0, dt, shaft_power, ambient, fault, fault_drag: float, max_dt: float, stop_on_failure: bool,
+         record: bool, record_at: np.ndarray | None) -> PowertrainRun:
+    """The shared half of ``simulate_vehicle``/``simulate_vehicle_extended``: shape the profiles,
+    allocate the outputs, fly ``_simulate``. Parameter and state arrays arrive checked."""
+    n_packs, n_motors = topo.n_packs, topo.n_motors
     n_vec = x0.shape[0]
     tm0 = np.ascontiguousarray(np.broadcast_to(np.asarray(motor_temp0, dtype=np.float64), (n_vec, n_motors)))
     sp = np.asarray(shaft_power, dtype=np.float64)
@@ -260,14 +331,15 @@ def simulate_vehicle(inputs: "Topology | ModelInputs", pack_params: np.ndarray |
     slot_of_step, recorded_steps = _record_slots(n, record, record_at)
     shape_rec = (n_vec, len(recorded_steps)) if recorded_steps is not None else (1, 1)
     rec = [np.empty(shape_rec + (n_packs,)) for _ in range(4)] + [np.empty(shape_rec + (n_motors,)) for _ in range(2)]
-    out = dict(final_x=np.empty((n_vec, n_packs, N_PACK_STATE)), final_tm=np.empty((n_vec, n_motors)),
+    out = dict(final_x=np.empty((n_vec, n_packs, x0.shape[2])), final_tm=np.empty((n_vec, n_motors)),
                min_v=np.empty((n_vec, n_packs)), max_tp=np.empty((n_vec, n_packs)),
                max_tm=np.empty((n_vec, n_motors)), charge=np.empty((n_vec, n_packs)), energy=np.empty(n_vec),
                fail_k=np.empty(n_vec, dtype=np.int64), fail_cause=np.empty(n_vec, dtype=np.int64),
                elapsed=np.empty(n_vec), end_k=np.empty((n_vec, n_packs), dtype=np.int64),
                end_energy=np.empty((n_vec, n_packs)), peak_tp=np.empty((n_vec, n_packs)),
                peak_tm=np.empty((n_vec, n_motors)))
-    _simulate(pp, mp, x0, tm0, dt_, sp, f, amb, np.ascontiguousarray(topo.bus_of_pack, dtype=np.int64),
+    _simulate(pp, ep, np.ascontiguousarray(is_ext, dtype=np.bool_), mp, x0, tm0, dt_, sp, f, amb,
+              np.ascontiguousarray(topo.bus_of_pack, dtype=np.int64),
               np.ascontiguousarray(topo.bus_of_motor, dtype=np.int64),
               np.ascontiguousarray(topo.bus_parallel, dtype=np.bool_),
               np.ascontiguousarray(topo.pack_cutoff_v, dtype=np.float64),
@@ -328,189 +400,10 @@ def simulate_powertrain(pack_params: np.ndarray, motor_params: np.ndarray, x0: n
 #
 # ``simulate_vehicle_extended`` flies the same vehicles with some packs on the kernel's extended
 # variant (``kernel._ext_advance``: curved OCV, temperature- and SoC-dependent resistances, loss-based
-# heat; docs/model.md). The bus, motor and failure rules are ``_simulate``'s; an extended pack's
-# terminal voltage depends on its current, so the bus voltage a step's motor currents are solved at
-# is each pack's voltage at the end of the previous step (as for the paper packs, whose R–C voltages
-# carry the previous current).
-
-@njit(inline="always", **_JIT)
-def _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min, n_least, inv_m,
-                    fault_drag, share, imot, ibus, h, energy):
-    """The motors' shares of the demanded power and their currents from the bus voltages (the rules
-    of the powertrain, shared by ``_simulate`` and ``_simulate_extended``); adds each motor's current
-    to its bus. Returns (failure cause, ``energy`` plus the energy drawn over ``h``)."""
-    n_motors = share.shape[0]
-    p_tot = p_dem
-    if p_dem > 0.0:
-        # Σ f_q V_q I0_q, written as (Σ f_q V_q (I0_q / I0_0)) I0_0 so that motors sharing
-        # one I_0 (the paper's) round exactly as the four-pack kernel always has
-        unpowered = 0.0
-        i0_ref = mp[0, M_I0]
-        for q in range(n_motors):
-            if i0_ref > 0.0:
-                unpowered += f[q] * vbus[bus_of_motor[q]] * (mp[q, M_I0] / i0_ref)
-            else:
-                unpowered += f[q] * vbus[bus_of_motor[q]] * mp[q, M_I0]
-        if i0_ref > 0.0:
-            unpowered *= i0_ref
-        p_tot = p_dem * (1.0 + inv_m * fault_drag * fault_sum) + unpowered
-    cause = FAIL_NONE
-    if cap_total <= 0.0:
-        for q in range(n_motors):
-            share[q] = 0.0
-        if p_dem > 0.0:
-            cause = FAIL_POWER
-    else:
-        shortfall = p_tot
-        for q in range(n_motors):
-            share[q] = inv_m * p_tot * cap[q]
-            shortfall -= share[q]
-        for q in range(n_motors):
-            if f[q] == f_min:
-                share[q] += shortfall / n_least
-    for q in range(n_motors):
-        u = bus_of_motor[q]
-        i_q = _motor_current(mp, q, vbus[u], share[q], cap[q])
-        if i_q < 0.0:
-            cause = FAIL_POWER
-            i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
-        imot[q] = i_q
-        ibus[u] += i_q
-        energy += vbus[u] * i_q * h
-    return cause, energy
-
-
-@njit(**_JIT)
-def _simulate_extended(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_power, fault, ambient,
-                       bus_of_pack, bus_of_motor, bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag,
-                       max_dt, stop_on_failure, record, rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt,
-                       final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed):
-    """``_simulate`` with packs ``is_ext`` on the extended variant. States are (N, P, 5): a paper
-    pack's four in ``PACK_STATE`` order (the fifth unused), an extended pack's ``EXT_PACK_STATE``."""
-    n_vec = x0.shape[0]
-    n = shaft_power.shape[1]
-    n_packs = x0.shape[1]
-    n_motors = tm0.shape[1]
-    n_bus = bus_parallel.shape[0]
-    x = np.empty((n_packs, N_EXT_STATE))
-    ky = np.empty((n_packs, N_OCV_KNOTS))
-    kd = np.empty((n_packs, N_OCV_KNOTS))
-    tm = np.empty(n_motors)
-    v = np.empty(n_packs)
-    vbus = np.empty(n_bus)
-    ibus = np.empty(n_bus)
-    packs_on_bus = np.zeros(n_bus)
-    for b in range(n_packs):
-        packs_on_bus[bus_of_pack[b]] += 1.0
-    imot = np.empty(n_motors)
-    share = np.empty(n_motors)
-    cap = np.empty(n_motors)
-    inv_m = 1.0 / n_motors
-    for j in range(n_vec):
-        pp = pack_params[j if pack_params.shape[0] > 1 else 0]
-        ep = ext_params[j if ext_params.shape[0] > 1 else 0]
-        mp = motor_params[j if motor_params.shape[0] > 1 else 0]
-        f = fault[j if fault.shape[0] > 1 else 0]
-        di = j if dt.shape[0] > 1 else 0
-        si = j if shaft_power.shape[0] > 1 else 0
-        ai = j if ambient.shape[0] > 1 else 0
-        for b in range(n_packs):
-            for s in range(N_EXT_STATE):
-                x[b, s] = x0[j, b, s]
-            if is_ext[b]:
-                _ocv_knots(ep[b], ky[b], kd[b])
-                v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], 0.0, 0.0, np.nan, 0.0, max_dt)
-                max_tp[j, b] = x[b, X_T]
-            else:
-                v[b] = _terminal_voltage(pp, b, x, b)
-                max_tp[j, b] = x[b, S_T]
-            min_v[j, b] = v[b]
-            charge[j, b] = 0.0
-        f_min = 1.0
-        cap_total = 0.0
-        fault_sum = 0.0
-        for q in range(n_motors):
-            tm[q] = tm0[j, q]
-            max_tm[j, q] = tm[q]
-            cap[q] = 1.0 - f[q]
-            cap_total += cap[q]
-            fault_sum += f[q]
-            if f[q] < f_min:
-                f_min = f[q]
-        n_least = 0.0
-        for q in range(n_motors):
-            if f[q] == f_min:
-                n_least += 1.0
-        energy[j] = 0.0
-        fail_k[j] = -1
-        fail_cause[j] = FAIL_NONE
-        t = 0.0
-        for k in range(n):
-            h = dt[di, k]
-            for u in range(n_bus):
-                vbus[u] = 0.0
-                ibus[u] = 0.0
-            for b in range(n_packs):
-                vbus[bus_of_pack[b]] += v[b]
-            for u in range(n_bus):
-                if bus_parallel[u]:
-                    vbus[u] = vbus[u] / packs_on_bus[u]
-            cause, energy[j] = _motor_currents(mp, f, vbus, bus_of_motor, shaft_power[si, k], cap, cap_total,
-                                               fault_sum, f_min, n_least, inv_m, fault_drag, share, imot, ibus, h,
-                                               energy[j])
-            for b in range(n_packs):
-                u = bus_of_pack[b]
-                i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
-                if is_ext[b]:
-                    v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], i_b, ambient[ai, k], np.nan, h, max_dt)
-                    soc_b, t_b = x[b, X_SOC], x[b, X_T]
-                else:
-                    _pack_advance(pp[b], x[b], i_b, ambient[ai, k], h, max_dt)
-                    v[b] = _terminal_voltage(pp, b, x, b)
-                    soc_b, t_b = _soc(pp, b, x[b, S_QB]), x[b, S_T]
-                charge[j, b] += i_b * h
-                min_v[j, b] = min(min_v[j, b], v[b])
-                max_tp[j, b] = max(max_tp[j, b], t_b)
-                if cause == FAIL_NONE:
-                    if soc_b <= 0.0:
-                        cause = FAIL_DEPLETED
-                    elif v[b] < cutoff_v[b]:
-                        cause = FAIL_UNDERVOLTAGE
-                    elif t_b > pack_max_t[b]:
-                        cause = FAIL_PACK_OVERTEMP
-                if record:
-                    rec_v[j, k, b] = v[b]
-                    rec_i[j, k, b] = i_b
-                    rec_t[j, k, b] = t_b
-                    rec_soc[j, k, b] = soc_b
-            for q in range(n_motors):
-                tm[q] = _thermal_advance(mp[q], tm[q], imot[q], ambient[ai, k], h)
-                max_tm[j, q] = max(max_tm[j, q], tm[q])
-                if cause == FAIL_NONE and tm[q] > motor_max_t[q]:
-                    cause = FAIL_MOTOR_OVERTEMP
-                if record:
-                    rec_mi[j, k, q] = imot[q]
-                    rec_mt[j, k, q] = tm[q]
-            t += h
-            if cause != FAIL_NONE and fail_k[j] < 0:
-                fail_k[j] = k
-                fail_cause[j] = cause
-                if stop_on_failure:
-                    if record:
-                        rec_v[j, k + 1:] = np.nan
-                        rec_i[j, k + 1:] = np.nan
-                        rec_t[j, k + 1:] = np.nan
-                        rec_soc[j, k + 1:] = np.nan
-                        rec_mi[j, k + 1:] = np.nan
-                        rec_mt[j, k + 1:] = np.nan
-                    break
-        for b in range(n_packs):
-            for s in range(N_EXT_STATE):
-                final_x[j, b, s] = x[b, s]
-        for q in range(n_motors):
-            final_tm[j, q] = tm[q]
-        elapsed[j] = t
-
+# heat; docs/model.md) through the same driver, ``_simulate``. An extended pack's terminal voltage
+# depends on its current, so the bus voltage a step's motor currents are solved at is each pack's
+# voltage at the end of the previous step (as for the paper packs, whose R–C voltages carry the
+# previous current).
 
 def simulate_vehicle_extended(topology: Topology, pack_params: np.ndarray, ext_params: np.ndarray,
                               is_ext: np.ndarray, motor_params: np.ndarray, x0: np.ndarray, motor_temp0: np.ndarray,
@@ -524,8 +417,7 @@ def simulate_vehicle_extended(topology: Topology, pack_params: np.ndarray, ext_p
     (N or 1, P, N_EXT_PARAMS) for the extended ones (others unused); x0 (N, P, 5): a paper pack's
     PACK_STATE in its first four columns, an extended pack's EXT_PACK_STATE; motor_params (N or 1,
     M, 5). ``final_pack_state`` is (N, P, 5) in the same layout; the rest as ``simulate_vehicle``
-    (``record_at`` and the pack ends and peaks too: this driver records every step and reads them
-    from the record, where ``_simulate`` keeps them as it flies)."""
+    (one driver, ``_simulate``, flies both variants)."""
     topo = topology
     n_packs, n_motors = topo.n_packs, topo.n_motors
 
@@ -541,78 +433,6 @@ def simulate_vehicle_extended(topology: Topology, pack_params: np.ndarray, ext_p
     ep = arr(ext_params, N_EXT_PARAMS, "ext_params")
     mp = arr(motor_params, N_MOTOR_PARAMS, "motor_params")
     x0 = arr(x0, N_EXT_STATE, "x0")
-    flags = np.ascontiguousarray(np.asarray(is_ext, dtype=np.bool_).reshape(n_packs))
-    n_vec = x0.shape[0]
-    tm0 = np.ascontiguousarray(np.broadcast_to(np.asarray(motor_temp0, dtype=np.float64), (n_vec, n_motors)))
-    sp = np.asarray(shaft_power, dtype=np.float64)
-    n = sp.shape[-1]
-    sp = _rows(sp, n_vec, n, "shaft_power")
-    dt_ = _rows(dt, n_vec, n, "dt")
-    if np.any(dt_ < 0):
-        raise ValueError("dt: time steps must be non-negative")
-    amb = _rows(ambient, n_vec, n, "ambient")
-    f = np.zeros((1, n_motors)) if fault is None else np.ascontiguousarray(np.atleast_2d(np.asarray(fault, dtype=np.float64)))
-    if f.shape[1] != n_motors or f.shape[0] not in (1, n_vec) or np.any((f < 0) | (f > 1)):
-        raise ValueError(f"fault: expected magnitudes in [0, 1] shaped (N or 1, {n_motors}), got {f!r}")
-    slot_of_step, recorded_steps = _record_slots(n, record, record_at)  # validates record_at
-    shape_rec = (n_vec, n)
-    rec = [np.empty(shape_rec + (n_packs,)) for _ in range(4)] + [np.empty(shape_rec + (n_motors,)) for _ in range(2)]
-    out = dict(final_x=np.empty((n_vec, n_packs, N_EXT_STATE)), final_tm=np.empty((n_vec, n_motors)),
-               min_v=np.empty((n_vec, n_packs)), max_tp=np.empty((n_vec, n_packs)),
-               max_tm=np.empty((n_vec, n_motors)), charge=np.empty((n_vec, n_packs)), energy=np.empty(n_vec),
-               fail_k=np.empty(n_vec, dtype=np.int64), fail_cause=np.empty(n_vec, dtype=np.int64),
-               elapsed=np.empty(n_vec))
-    _simulate_extended(pp, ep, flags, mp, x0, tm0, dt_, sp, f, amb,
-                       np.ascontiguousarray(topo.bus_of_pack, dtype=np.int64),
-                       np.ascontiguousarray(topo.bus_of_motor, dtype=np.int64),
-                       np.ascontiguousarray(topo.bus_parallel, dtype=np.bool_),
-                       np.ascontiguousarray(topo.pack_cutoff_v, dtype=np.float64),
-                       np.ascontiguousarray(topo.pack_max_temp_c, dtype=np.float64),
-                       np.ascontiguousarray(topo.motor_max_temp_c, dtype=np.float64),
-                       float(fault_drag), float(max_dt), bool(stop_on_failure), True, *rec, *out.values())
-    end_k, end_energy, peak_tp, peak_tm = _ends_from_record(
-        rec[0], rec[1], rec[3], rec[2], rec[5], out["fail_k"],
-        np.ascontiguousarray(topo.pack_cutoff_v, dtype=np.float64), dt_)
-    names = ("pack_voltage", "pack_current", "pack_temp", "pack_soc", "motor_current", "motor_temp")
-    recorded = {}
-    if recorded_steps is not None:
-        recorded = {k: (a if record_at is None else np.ascontiguousarray(a[:, recorded_steps]))
-                    for k, a in zip(names, rec)}
-        if record_at is not None:
-            recorded["recorded_steps"] = recorded_steps
-    return PowertrainRun(out["final_x"], out["final_tm"], out["min_v"], out["max_tp"], out["max_tm"], out["charge"],
-                         out["energy"], out["fail_k"], out["fail_cause"], out["elapsed"], **recorded,
-                         pack_end_step=end_k, pack_end_energy_j=end_energy,
-                         peak_pack_temp_to_failure=peak_tp, peak_motor_temp_to_failure=peak_tm)
-
-
-@njit(**_JIT)
-def _ends_from_record(v, current, soc, pack_temp, motor_temp, fail_step, cutoff_v, dt):
-    """The pack ends and peaks ``_simulate`` keeps as it flies, read from a full record: per
-    sample and pack the first step below cut-off or empty (-1 if none), the energy delivered up to
-    and including it (else over the run), and the peak temperatures up to the first failure."""
-    n_vec, n, n_packs = v.shape
-    n_motors = motor_temp.shape[2]
-    end_k = np.full((n_vec, n_packs), -1, dtype=np.int64)
-    energy = np.zeros((n_vec, n_packs))
-    peak_pack = np.full((n_vec, n_packs), -np.inf)
-    peak_motor = np.full((n_vec, n_motors), -np.inf)
-    for j in range(n_vec):
-        jd = j if dt.shape[0] > 1 else 0
-        k_stop = fail_step[j] if fail_step[j] >= 0 else n - 1
-        for b in range(n_packs):
-            acc = 0.0
-            for k in range(n):
-                w = v[j, k, b] * current[j, k, b] * dt[jd, k]
-                if math.isfinite(w) and end_k[j, b] < 0:
-                    acc += w
-                if end_k[j, b] < 0 and (v[j, k, b] < cutoff_v[b] or soc[j, k, b] <= 0.0):
-                    end_k[j, b] = k
-                if k <= k_stop and pack_temp[j, k, b] > peak_pack[j, b]:
-                    peak_pack[j, b] = pack_temp[j, k, b]
-            energy[j, b] = acc
-        for q in range(n_motors):
-            for k in range(k_stop + 1):
-                if motor_temp[j, k, q] > peak_motor[j, q]:
-                    peak_motor[j, q] = motor_temp[j, k, q]
-    return end_k, energy, peak_pack, peak_motor
+    flags = np.asarray(is_ext, dtype=np.bool_).reshape(n_packs)
+    return _run(topo, pp, ep, flags, mp, x0, motor_temp0, dt, shaft_power, ambient, fault, fault_drag, max_dt,
+                stop_on_failure, record, record_at)
