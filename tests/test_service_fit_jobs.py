@@ -23,18 +23,24 @@ def _csv(flight) -> bytes:
     return buf.getvalue().encode()
 
 
+def _upload_llf20_flights(client) -> list[int]:
+    """Three synthetic LLF20 flights uploaded as CSV files: their file ids (train, validation, test)."""
+    truth = synthetic_truth(seed=3)
+    ids = []
+    for seed in range(3):
+        f = generate_flight(truth, seed, duration_s=600.0, dt=2.0, damage=None).packs["LLF20"]
+        r = client.post("/files", files={"file": (f"flight{seed}.csv", _csv(f))}, headers=AUTH)
+        assert r.status_code == 201
+        ids.append(r.json()["id"])
+    return ids
+
+
 @pytest.mark.slow
 def test_fit_job_from_uploaded_csv(tmp_path):
     svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN))
     try:
         client = TestClient(create_app(svc))
-        truth = synthetic_truth(seed=3)
-        ids = []
-        for seed in range(3):
-            f = generate_flight(truth, seed, duration_s=600.0, dt=2.0, damage=None).packs["LLF20"]
-            r = client.post("/files", files={"file": (f"flight{seed}.csv", _csv(f))}, headers=AUTH)
-            assert r.status_code == 201
-            ids.append(r.json()["id"])
+        ids = _upload_llf20_flights(client)
         body = {"component": "battery", "packs": ["LLF20"], "save_as": "fitted_llf20",
                 "flights": {"train": [{"file_id": ids[0]}], "validation": [{"file_id": ids[1]}],
                             "test": [{"file_id": ids[2]}]},
@@ -146,12 +152,7 @@ def test_fit_job_without_a_model_setting_stores_an_extended_pack(tmp_path):
     svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN))
     try:
         client = TestClient(create_app(svc))
-        truth = synthetic_truth(seed=3)
-        ids = []
-        for seed in range(3):
-            f = generate_flight(truth, seed, duration_s=600.0, dt=2.0, damage=None).packs["LLF20"]
-            r = client.post("/files", files={"file": (f"flight{seed}.csv", _csv(f))}, headers=AUTH)
-            ids.append(r.json()["id"])
+        ids = _upload_llf20_flights(client)
         body = {"component": "battery", "packs": ["LLF20"], "save_as": "fitted_ext",
                 "flights": {"train": [{"file_id": ids[0]}], "validation": [{"file_id": ids[1]}],
                             "test": [{"file_id": ids[2]}]},
