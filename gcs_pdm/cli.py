@@ -11,6 +11,8 @@ import importlib
 import logging
 import sys
 
+from gcs_pdm.start_up import starting
+
 # subcommand name -> module with register(subparsers)
 COMMAND_MODULES: dict[str, str] = {
     "replay": "gcs_pdm.mavlink.cli",
@@ -40,7 +42,11 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+    with starting():
+        return _main(list(sys.argv[1:] if argv is None else argv))
+
+
+def _main(argv: list[str]) -> int:
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(command if command in COMMAND_MODULES else None)
     args = parser.parse_args(argv)

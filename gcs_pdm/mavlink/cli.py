@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from gcs_pdm.mavlink.mapping import FrameMapper, MappingError
+from gcs_pdm.start_up import start_up_over
 
 
 def register(subparsers) -> None:
@@ -61,7 +62,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
         from gcs_pdm.logs.replay import print_replay
+        start_up_over()
         return print_replay(args.file, consumer, as_json=args.json)
+    start_up_over()
     summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
                           frame_consumer=consumer).to_dict()
     # 2: nothing could be read; 1: read, but neither packs nor motors could be diagnosed.
