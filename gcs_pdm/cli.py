@@ -2,7 +2,7 @@
 
 Every package that offers a command has a module with ``register(subparsers)``; it adds its
 subparser(s) and sets ``func`` (returning an exit code). Imports are per subcommand so that
-``gcs-pdm replay`` does not pay for FastAPI or matplotlib.
+``gcs-pdm replay`` does not pay for FastAPI or matplotlib, and ``gcs-pdm --help`` for none of them.
 """
 from __future__ import annotations
 
@@ -13,32 +13,44 @@ import sys
 
 from gcs_pdm.start_up import starting
 
-# subcommand name -> module with register(subparsers)
-COMMAND_MODULES: dict[str, str] = {
-    "replay": "gcs_pdm.mavlink.cli",
-    "plan": "gcs_pdm.planning.cli",
-    "experiment": "gcs_pdm.planning.cli",
-    "fit": "gcs_pdm.fitting.cli",
-    "serve": "gcs_pdm.service.cli",
-    "demo": "gcs_pdm.service.cli",
-    "sim": "gcs_pdm.sim.cli",
-    "vehicle": "gcs_pdm.vehicle.cli",
+#: subcommand -> (module with ``register(subparsers)``, the one line ``gcs-pdm --help`` shows). The
+#: lines live here so that ``gcs-pdm --help`` imports no command module (they import numpy, numba,
+#: pydantic: a second); a command's own ``--help`` imports only its module.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "replay": ("gcs_pdm.mavlink.cli",
+               "replay a tlog (or an ArduPilot .bin / PX4 .ulg log) through the telemetry frames and summarise it"),
+    "plan": ("gcs_pdm.planning.cli", "plan a route for a scenario file and print it"),
+    "experiment": ("gcs_pdm.planning.cli", "rebuild the paper's Table III"),
+    "fit": ("gcs_pdm.fitting.cli", "learn battery/motor parameters from flight logs (SA -> LM)"),
+    "serve": ("gcs_pdm.service.cli", "run the decision service beside a ground station (MAVLink + HTTP)"),
+    "demo": ("gcs_pdm.service.cli", "simulated vehicle + service on loopback: the Table III flight, live"),
+    "sim": ("gcs_pdm.sim.cli", "simulated MAVLink vehicle (fixed wing, system 1) on a UDP link"),
+    "vehicle": ("gcs_pdm.vehicle.cli", "print, validate and write vehicle descriptions (docs/vehicles.md)"),
 }
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser with ``only``'s module registered (all its commands, options and their checks);
+    every other command is a name with its help line, enough to list and to reject."""
     parser = argparse.ArgumentParser(prog="gcs-pdm", description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    registered: set[str] = set()
-    for name, module_name in COMMAND_MODULES.items():
-        if only is not None and name != only:
-            continue
-        if module_name in registered:
-            continue
-        importlib.import_module(module_name).register(sub)
-        registered.add(module_name)
+    if only is not None:
+        importlib.import_module(COMMANDS[only][0]).register(_WithHelpLines(sub))
+    for name, (_, summary) in COMMANDS.items():
+        if name not in sub.choices:
+            sub.add_parser(name, help=summary)
     return parser
+
+
+class _WithHelpLines:
+    """What a module's ``register`` is handed: ``add_parser`` that gives each command its help line."""
+
+    def __init__(self, subparsers: argparse._SubParsersAction):
+        self._subparsers = subparsers
+
+    def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
+        return self._subparsers.add_parser(name, help=COMMANDS[name][1], **kwargs)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str]) -> int:
     command = next((a for a in argv if not a.startswith("-")), None)
-    parser = build_parser(command if command in COMMAND_MODULES else None)
+    parser = build_parser(command if command in COMMANDS else None)
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.WARNING - 10 * min(args.verbose, 2) if args.verbose else logging.INFO,

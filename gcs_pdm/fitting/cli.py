@@ -28,7 +28,7 @@ DEFAULT_MODEL = "extended"
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("fit", help="learn battery/motor parameters from flight logs (SA -> LM)")
+    p = subparsers.add_parser("fit")
     sub = p.add_subparsers(dest="fit_command", metavar="WHAT")
     for what in ("battery", "motor"):
         q = sub.add_parser(what, help=f"fit the {what} parameters")

@@ -12,7 +12,7 @@ from gcs_pdm.start_up import start_up_over
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("replay", help="replay a tlog (or an ArduPilot .bin / PX4 .ulg log) through the telemetry frames and summarise it")
+    p = subparsers.add_parser("replay")
     p.add_argument("file", type=Path, help="tlog file (8-byte big-endian µs timestamp + packet records)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--speed", type=float, default=None, help="pace at this multiple of real time (default: as fast as possible)")

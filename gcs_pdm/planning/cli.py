@@ -13,8 +13,7 @@ DEFAULT_LEARNED = Path("fixtures/params/learned_sim.json")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("plan", help="plan a route for a scenario file and print it",
-                              description="Plan the best route for SCENARIO.json (format: docs/planning.md).")
+    p = subparsers.add_parser("plan", description="Plan the best route for SCENARIO.json (format: docs/planning.md).")
     p.add_argument("scenario", type=Path, help="scenario JSON file")
     from gcs_pdm.planning.planners import ALIASES, REGISTRY
 
@@ -36,8 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="with --vehicle: a motor power loss by the description's motor name (repeatable)")
     p.set_defaults(func=cmd_plan)
 
-    e = subparsers.add_parser("experiment", help="rebuild the paper's Table III",
-                              description="Experiments of the planning package.")
+    e = subparsers.add_parser("experiment", description="Experiments of the planning package.")
     e.add_argument("which", choices=("table3", "scenarios"),
                    help="table3 = print the table; scenarios = write fixtures/scenarios/table3_{7..10}.json")
     e.add_argument("--trials", type=int, default=30)

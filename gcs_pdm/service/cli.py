@@ -7,7 +7,7 @@ import sys
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("serve", help="run the decision service beside a ground station (MAVLink + HTTP)")
+    p = subparsers.add_parser("serve")
     p.add_argument("--config", help="TOML or JSON settings file (see docs/service.md); env GCS_PDM_* override it")
     p.add_argument("--mavlink", dest="mavlink_url",
                    help="MAVLink address (default udpin:127.0.0.1:14551; docs/operations.md says how to listen elsewhere)")
@@ -22,7 +22,7 @@ def register(subparsers) -> None:
                    help="vehicle description (docs/vehicles.md); default: a provisional one derived from the first "
                         "telemetry (said in /status and the log)")
     p.set_defaults(func=_serve)
-    d = subparsers.add_parser("demo", help="simulated vehicle + service on loopback: the Table III flight, live")
+    d = subparsers.add_parser("demo")
     d.add_argument("--speedup", type=float, default=60.0, help="simulated seconds per wall second (default 60)")
     d.add_argument("--http-port", type=int, default=8000, help="status page port (0: any free port)")
     d.add_argument("--data-dir", help="keep the database and tlog here (default: a temporary directory)")

@@ -15,8 +15,7 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("sim", help="simulated MAVLink vehicle (fixed wing, system 1) on a UDP link",
-                              description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p = subparsers.add_parser("sim", description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--connect", default="udpout:127.0.0.1:14550",
                    help="pymavlink address: udpout:host:port (send to a GCS) or udpin:host:port (listen)")
     speed = p.add_mutually_exclusive_group()

@@ -11,7 +11,7 @@ from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("vehicle", help="print, validate and write vehicle descriptions (docs/vehicles.md)")
+    p = sub.add_parser("vehicle")
     vsub = p.add_subparsers(dest="vehicle_command", metavar="ACTION", required=True)
     show = vsub.add_parser("show", help="print a preset or a description file (TOML by default)")
     show.add_argument("vehicle", nargs="?", default=DEFAULT_PRESET, help=f"FILE or PRESET ({', '.join(PRESETS)})")
