@@ -1,19 +1,28 @@
-"""Start-up of ``gcs-pdm replay`` and ``gcs-pdm serve``, and where it goes (issue 18).
+"""Start-up of ``gcs-pdm replay``, ``gcs-pdm serve`` and ``gcs-pdm --help``, and where it goes (issue 18).
 
     PYTHONPATH=$PWD python benchmarks/bench_startup.py [--repeat 3]
 
 Measured in child processes (wall time and the child's CPU time from ``getrusage``, best of
-``--repeat``, with the load average):
+``--repeat``, with the load average). The children run as an installed package does: with
+gcs_pdm's bytecode cached (this machine's shells set ``PYTHONDONTWRITEBYTECODE``, so the benchmark
+compiles it into the tree's ``__pycache__`` first, beside numba's caches; git ignores both):
 
 - ``python_bare``: ``python -c pass`` — the interpreter alone;
-- ``replay_stages``: inside one child, the wall/CPU time of each stage of a replay's start:
-  importing the command and the frame mapping, importing the diagnosis pipeline (numpy, numba,
-  the kernel), building the pipeline, and the first call of each compiled function (numba loads
-  it from its on-disk cache — ``cache=True`` — rather than compiling; the first load of any also
-  initialises numba's code generator);
+- ``help``: ``gcs-pdm --help`` (imports no command module);
+- ``replay_stages_ms``: inside one child, run as ``gcs-pdm`` runs a command (``gcs_pdm.start_up``:
+  no GC passes over the start, frozen when it is over), the wall/CPU time of each stage of a
+  replay's start: numpy; the command, tlog scanner, frame mapping and pymavlink's dialect; numba;
+  the vehicle description (pydantic) and the model modules; the diagnosis pipeline's modules;
+  building the pipeline (its χ² bounds import ``scipy.special``); then what the first compiled
+  call does, split: ``scipy.linalg`` (numba's BLAS check imports it), numba's target context
+  (typing and lowering registries, LLVM, its runtime), loading that function from numba's on-disk
+  cache (``cache=True``: no compilation); then the other compiled functions; ``gc_ms``: the
+  garbage collector's share of all of it;
 - ``replay_small_json``: the whole ``gcs-pdm replay FILE --json`` on a 300-message tlog (the
-  start of a fixture flight), so start-up dominates;
-- ``serve_first_http``: ``gcs-pdm serve`` on free ports until ``GET /health`` answers.
+  start of a fixture flight), so start-up dominates; ``replay_small_json_no_bytecode``: the same
+  without cached bytecode (how the other benchmarks' child processes run on this machine);
+- ``serve_first_http``: ``gcs-pdm serve`` on free ports until ``GET /health`` answers: wall, and
+  the CPU the server had used by then (``/proc``).
 
 Prints one line per figure and, last, one JSON object.
 """
@@ -36,31 +45,48 @@ sys.path.insert(0, str(REPO))
 from measure import loadavg, timed_process  # noqa: E402
 
 STAGES = r'''
-import json, sys, time
+import gc, json, sys, time
 marks = []
+gc_cpu = [0.0, 0.0]
+def gc_timer(phase, info):
+    if phase == "start":
+        gc_cpu[1] = time.process_time()
+    else:
+        gc_cpu[0] += time.process_time() - gc_cpu[1]
+gc.callbacks.append(gc_timer)
 def mark(name):
     marks.append((name, time.perf_counter(), time.process_time()))
-mark("start")
-import numpy
-mark("import_numpy")
-import gcs_pdm.cli, gcs_pdm.mavlink.cli, gcs_pdm.mavlink.replay
-mark("import_replay_command_and_mapping")
-import numba
-mark("import_numba")
-from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
-mark("import_diagnosis_pipeline")
-p = DiagnosisPipeline()
-mark("build_pipeline")
-p.estimator.packs.step_one(0, 0.0, 0.0, 20.0, float("nan"), float("nan"))
-mark("first_compiled_call_loads_numba")
-p.estimator.motors.step_one(0, 0.0, 0.0, 20.0, float("nan"))
-from gcs_pdm.models import kernel
-x0 = kernel.initial_pack_state(p.estimator.packs.params[:1], 0.9, 20.0)
-kernel.simulate_packs(p.estimator.packs.params[:1], x0, numpy.ones(3), numpy.ones(3), 20.0)
-mark("other_compiled_functions_from_cache")
+from gcs_pdm.start_up import start_up_over, starting
+with starting():
+    mark("start")
+    import numpy
+    mark("import_numpy")
+    import gcs_pdm.cli, gcs_pdm.mavlink.cli, gcs_pdm.mavlink.replay
+    mark("import_replay_command_mapping_pymavlink")
+    import numba
+    mark("import_numba")
+    import gcs_pdm.vehicle.replay
+    mark("import_vehicle_description_pydantic_models")
+    from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
+    mark("import_diagnosis_pipeline")
+    p = DiagnosisPipeline()
+    mark("build_pipeline_scipy_special")
+    start_up_over()  # where `gcs-pdm replay` says so: before the first message
+    import scipy.linalg
+    mark("scipy_linalg_for_numba_blas_check")
+    from numba.core.registry import cpu_target
+    cpu_target.target_context.refresh()
+    mark("numba_target_context_registries")
+    p.estimator.packs.step_one(0, 0.0, 0.0, 20.0, float("nan"), float("nan"))
+    mark("first_compiled_function_from_cache")
+    p.estimator.motors.step_one(0, 0.0, 0.0, 20.0, float("nan"))
+    from gcs_pdm.models import kernel
+    x0 = kernel.initial_pack_state(p.estimator.packs.params[:1], 0.9, 20.0)
+    kernel.simulate_packs(p.estimator.packs.params[:1], x0, numpy.ones(3), numpy.ones(3), 20.0)
+    mark("other_compiled_functions_from_cache")
 out = {b[0]: {"wall_ms": round((b[1] - a[1]) * 1e3, 1), "cpu_ms": round((b[2] - a[2]) * 1e3, 1)}
        for a, b in zip(marks[:-1], marks[1:])}
-print(json.dumps(out))
+print(json.dumps({"stages": out, "gc_cpu_ms": round(gc_cpu[0] * 1e3, 1)}))
 '''
 
 
@@ -79,9 +105,16 @@ def small_tlog(path: Path, messages: int = 300) -> Path:
     return path
 
 
+def process_cpu_s(pid: int) -> float:
+    """User + system CPU seconds a running process has used so far (Linux ``/proc``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def serve_first_http(env: dict, repeat: int) -> dict:
-    """Wall time from spawning ``gcs-pdm serve`` to the first answer of GET /health, best of repeat."""
-    best = float("inf")
+    """From spawning ``gcs-pdm serve`` to the first answer of GET /health: wall, and the server's CPU
+    by then; best of repeat."""
+    best_wall = best_cpu = float("inf")
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as data:
             port = free_port()
@@ -94,7 +127,8 @@ def serve_first_http(env: dict, repeat: int) -> dict:
                     try:
                         with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=1) as r:
                             r.read()
-                        best = min(best, time.perf_counter() - started)
+                        best_wall = min(best_wall, time.perf_counter() - started)
+                        best_cpu = min(best_cpu, process_cpu_s(proc.pid))
                         break
                     except OSError:
                         if proc.poll() is not None:
@@ -103,33 +137,47 @@ def serve_first_http(env: dict, repeat: int) -> dict:
             finally:
                 proc.terminate()
                 proc.wait(timeout=10)
-    return {"wall_s": round(best, 3), "loadavg_1min": loadavg()}
+    return {"wall_s": round(best_wall, 3), "cpu_s": round(best_cpu, 3), "loadavg_1min": loadavg()}
+
+
+def process_figure(argv: list[str], repeat: int, env: dict) -> dict:
+    t = timed_process(argv, repeat, env)
+    return {"wall_s": round(t["wall_s"], 3), "cpu_s": round(t["cpu_s"], 3), "loadavg_1min": t["loadavg_1min"]}
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
-           "GCS_PDM_API_TOKEN": "a-benchmark-token-long-enough"}
-    env.pop("GCS_PDM_CONFIG", None)
-    out = {"benchmark": "bench_startup"}
-    t = timed_process([sys.executable, "-c", "pass"], args.repeat, env)
-    out["python_bare"] = {"wall_s": round(t["wall_s"], 3), "cpu_s": round(t["cpu_s"], 3), "loadavg_1min": t["loadavg_1min"]}
-    stages = [json.loads(timed_process([sys.executable, "-c", STAGES], 1, env)["stdout"]) for _ in range(args.repeat)]
-    out["replay_stages_ms"] = {k: {m: min(s[k][m] for s in stages) for m in ("wall_ms", "cpu_ms")} for k in stages[0]}
+    no_bytecode = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
+                   "GCS_PDM_API_TOKEN": "a-benchmark-token-long-enough", "PYTHONDONTWRITEBYTECODE": "1"}
+    no_bytecode.pop("GCS_PDM_CONFIG", None)
+    out = {"benchmark": "bench_startup", "bytecode": "cached, as an installed package"}
+    env = {k: v for k, v in no_bytecode.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX")}
+    subprocess.run([sys.executable, "-m", "compileall", "-q", str(REPO / "gcs_pdm")], env=env, check=True)
     with tempfile.TemporaryDirectory() as tmp:
         small = small_tlog(Path(tmp) / "small.tlog")
-        t = timed_process([sys.executable, "-m", "gcs_pdm.cli", "replay", str(small), "--json"], args.repeat, env)
-    out["replay_small_json"] = {"wall_s": round(t["wall_s"], 3), "cpu_s": round(t["cpu_s"], 3),
-                                "loadavg_1min": t["loadavg_1min"]}
-    out["serve_first_http"] = serve_first_http(env, args.repeat)
-    print(f"python -c pass                  wall {out['python_bare']['wall_s']:.3f} s cpu {out['python_bare']['cpu_s']:.3f} s")
+        replay = [sys.executable, "-m", "gcs_pdm.cli", "replay", str(small), "--json"]
+        out["python_bare"] = process_figure([sys.executable, "-c", "pass"], args.repeat, env)
+        out["help"] = process_figure([sys.executable, "-m", "gcs_pdm.cli", "--help"], args.repeat, env)
+        stages = [json.loads(timed_process([sys.executable, "-c", STAGES], 1, env)["stdout"])
+                  for _ in range(args.repeat)]
+        out["replay_stages_ms"] = {k: {m: min(s["stages"][k][m] for s in stages) for m in ("wall_ms", "cpu_ms")}
+                                   for k in stages[0]["stages"]}
+        out["replay_stages_ms"]["gc_cpu_ms"] = min(s["gc_cpu_ms"] for s in stages)
+        out["replay_small_json"] = process_figure(replay, args.repeat, env)
+        out["replay_small_json_no_bytecode"] = process_figure(replay, args.repeat, no_bytecode)
+        out["serve_first_http"] = serve_first_http(env, args.repeat)
+    for name, label in (("python_bare", "python -c pass"), ("help", "gcs-pdm --help")):
+        print(f"{label:<40} wall {out[name]['wall_s']:.3f} s cpu {out[name]['cpu_s']:.3f} s")
     for k, v in out["replay_stages_ms"].items():
-        print(f"  {k:<40} wall {v['wall_ms']:>7.1f} ms cpu {v['cpu_ms']:>7.1f} ms")
-    print(f"gcs-pdm replay (300 msgs) --json wall {out['replay_small_json']['wall_s']:.3f} s "
-          f"cpu {out['replay_small_json']['cpu_s']:.3f} s")
-    print(f"gcs-pdm serve to first /health  wall {out['serve_first_http']['wall_s']:.3f} s")
+        if k != "gc_cpu_ms":
+            print(f"  {k:<45} wall {v['wall_ms']:>7.1f} ms cpu {v['cpu_ms']:>7.1f} ms")
+    print(f"  {'(of which the garbage collector)':<45} cpu {out['replay_stages_ms']['gc_cpu_ms']:>7.1f} ms")
+    for name, label in (("replay_small_json", "gcs-pdm replay (300 msgs) --json"),
+                        ("replay_small_json_no_bytecode", "  the same, no cached bytecode"),
+                        ("serve_first_http", "gcs-pdm serve to first /health")):
+        print(f"{label:<40} wall {out[name]['wall_s']:.3f} s cpu {out[name]['cpu_s']:.3f} s")
     print(json.dumps(out))
     return 0
 
