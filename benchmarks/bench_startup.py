@@ -9,15 +9,16 @@ compiles it into the tree's ``__pycache__`` first, beside numba's caches; git ig
 
 - ``python_bare``: ``python -c pass`` — the interpreter alone;
 - ``help``: ``gcs-pdm --help`` (imports no command module);
-- ``replay_stages_ms``: inside one child, run as ``gcs-pdm`` runs a command (``gcs_pdm.start_up``:
+- ``replay_stages_ms``: inside one child, run as ``gcs-pdm`` runs a command (``gcs_pdm.process_gc``:
   no GC passes over the start, frozen when it is over), the wall/CPU time of each stage of a
   replay's start: numpy; the command, tlog scanner, frame mapping and pymavlink's dialect; numba;
   the vehicle description (pydantic) and the model modules; the diagnosis pipeline's modules;
   building the pipeline (its χ² bounds import ``scipy.special``); then what the first compiled
   call does, split: ``scipy.linalg`` (numba's BLAS check imports it), numba's target context
   (typing and lowering registries, LLVM, its runtime), loading that function from numba's on-disk
-  cache (``cache=True``: no compilation); then the other compiled functions; ``gc_ms``: the
-  garbage collector's share of all of it;
+  cache (``cache=True``: no compilation); then the other compiled functions; ``gc_cpu_ms``: the
+  garbage collector's share of all of it; ``interpreter_exit_cpu_ms``: the child's CPU after its
+  last line (module teardown and the interpreter's final collections);
 - ``replay_small_json``: the whole ``gcs-pdm replay FILE --json`` on a 300-message tlog (the
   start of a fixture flight), so start-up dominates; ``replay_small_json_no_bytecode``: the same
   without cached bytecode (how the other benchmarks' child processes run on this machine);
@@ -56,8 +57,8 @@ def gc_timer(phase, info):
 gc.callbacks.append(gc_timer)
 def mark(name):
     marks.append((name, time.perf_counter(), time.process_time()))
-from gcs_pdm.start_up import start_up_over, starting
-with starting():
+from gcs_pdm.process_gc import command, start_up_over
+with command():
     mark("start")
     import numpy
     mark("import_numpy")
@@ -86,7 +87,7 @@ with starting():
     mark("other_compiled_functions_from_cache")
 out = {b[0]: {"wall_ms": round((b[1] - a[1]) * 1e3, 1), "cpu_ms": round((b[2] - a[2]) * 1e3, 1)}
        for a, b in zip(marks[:-1], marks[1:])}
-print(json.dumps({"stages": out, "gc_cpu_ms": round(gc_cpu[0] * 1e3, 1)}))
+print(json.dumps({"stages": out, "gc_cpu_ms": round(gc_cpu[0] * 1e3, 1), "cpu_at_end_ms": time.process_time() * 1e3}))
 '''
 
 
@@ -160,20 +161,25 @@ def main() -> int:
         replay = [sys.executable, "-m", "gcs_pdm.cli", "replay", str(small), "--json"]
         out["python_bare"] = process_figure([sys.executable, "-c", "pass"], args.repeat, env)
         out["help"] = process_figure([sys.executable, "-m", "gcs_pdm.cli", "--help"], args.repeat, env)
-        stages = [json.loads(timed_process([sys.executable, "-c", STAGES], 1, env)["stdout"])
-                  for _ in range(args.repeat)]
+        stages = []
+        for _ in range(args.repeat):
+            t = timed_process([sys.executable, "-c", STAGES], 1, env)
+            stages.append(json.loads(t["stdout"]))
+            stages[-1]["exit_cpu_ms"] = t["cpu_s"] * 1e3 - stages[-1]["cpu_at_end_ms"]  # after the last line
         out["replay_stages_ms"] = {k: {m: min(s["stages"][k][m] for s in stages) for m in ("wall_ms", "cpu_ms")}
                                    for k in stages[0]["stages"]}
         out["replay_stages_ms"]["gc_cpu_ms"] = min(s["gc_cpu_ms"] for s in stages)
+        out["replay_stages_ms"]["interpreter_exit_cpu_ms"] = round(min(s["exit_cpu_ms"] for s in stages), 1)
         out["replay_small_json"] = process_figure(replay, args.repeat, env)
         out["replay_small_json_no_bytecode"] = process_figure(replay, args.repeat, no_bytecode)
         out["serve_first_http"] = serve_first_http(env, args.repeat)
     for name, label in (("python_bare", "python -c pass"), ("help", "gcs-pdm --help")):
         print(f"{label:<40} wall {out[name]['wall_s']:.3f} s cpu {out[name]['cpu_s']:.3f} s")
     for k, v in out["replay_stages_ms"].items():
-        if k != "gc_cpu_ms":
+        if isinstance(v, dict):
             print(f"  {k:<45} wall {v['wall_ms']:>7.1f} ms cpu {v['cpu_ms']:>7.1f} ms")
     print(f"  {'(of which the garbage collector)':<45} cpu {out['replay_stages_ms']['gc_cpu_ms']:>7.1f} ms")
+    print(f"  {'the interpreter's exit':<45} cpu {out['replay_stages_ms']['interpreter_exit_cpu_ms']:>7.1f} ms")
     for name, label in (("replay_small_json", "gcs-pdm replay (300 msgs) --json"),
                         ("replay_small_json_no_bytecode", "  the same, no cached bytecode"),
                         ("serve_first_http", "gcs-pdm serve to first /health")):

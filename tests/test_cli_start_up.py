@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from gcs_pdm import cli, start_up
+from gcs_pdm import cli, process_gc
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HEAVY = ("numpy", "numba", "scipy", "pydantic", "pymavlink", "fastapi")
@@ -56,21 +56,33 @@ def test_unknown_command_is_rejected_with_the_choices(capsys):
 
 def test_start_up_setting_is_undone():
     before = gc.get_threshold()
-    with start_up.starting():
-        assert gc.get_threshold()[0] == start_up.START_UP_GC_THRESHOLD
-        with start_up.starting():  # nested: the outer one decides
+    with process_gc.command():
+        assert gc.get_threshold()[0] == process_gc.START_UP_GC_THRESHOLD
+        with process_gc.command():  # nested: the outer one decides
             pass
-        assert gc.get_threshold()[0] == start_up.START_UP_GC_THRESHOLD
-        start_up.start_up_over()
+        assert gc.get_threshold()[0] == process_gc.START_UP_GC_THRESHOLD
+        process_gc.start_up_over()
         assert gc.get_threshold() == before and gc.get_freeze_count() > 0
-        start_up.start_up_over()  # once only
+        process_gc.start_up_over()  # once only
     assert gc.get_threshold() == before and gc.get_freeze_count() == 0
-    start_up.start_up_over()  # outside a command: nothing
+    process_gc.start_up_over()  # outside a command: nothing
     assert gc.get_threshold() == before and gc.get_freeze_count() == 0
 
 
 def test_start_up_setting_is_undone_when_the_command_fails():
     before = gc.get_threshold()
-    with pytest.raises(RuntimeError), start_up.starting():
+    with pytest.raises(RuntimeError), process_gc.command():
         raise RuntimeError("the command failed")
     assert gc.get_threshold() == before and gc.get_freeze_count() == 0
+
+
+def test_what_is_left_is_frozen_before_the_interpreters_final_collections():
+    code = ("import atexit, contextlib, gc, io\n"
+            "atexit.register(lambda: print('at exit', gc.get_freeze_count() > 0))  # runs after gcs_pdm's\n"
+            "from gcs_pdm import cli\n"
+            "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+            "    cli.main(['--help'])\n"
+            "print('after main', gc.get_freeze_count() > 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO,
+                         env=dict(os.environ, PYTHONPATH=REPO), timeout=60)
+    assert out.stdout.split("\n")[:2] == ["after main False", "at exit True"], out.stdout + out.stderr

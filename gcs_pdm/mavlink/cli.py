@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from gcs_pdm.mavlink.mapping import FrameMapper, MappingError
-from gcs_pdm.start_up import start_up_over
+from gcs_pdm.process_gc import start_up_over
 
 
 def register(subparsers) -> None:

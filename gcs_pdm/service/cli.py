@@ -77,7 +77,7 @@ def _serve(args: argparse.Namespace) -> int:
         return fail(str(exc))
     from gcs_pdm.service.server import StartupError, serve
     from gcs_pdm.service.storage import Conflict, NotFound
-    from gcs_pdm.start_up import start_up_over
+    from gcs_pdm.process_gc import start_up_over
     from gcs_pdm.vehicle.description import VehicleError
 
     start_up_over()
