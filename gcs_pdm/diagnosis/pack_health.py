@@ -342,8 +342,12 @@ class PackHealthMonitor:
             buf.clear()
         buf.append((time_s, current_a, voltage_v, ambient_c))
 
+    def due(self, time_s: float) -> bool:
+        """Whether ``check`` at ``time_s`` would fit (the caller can skip the call between checks)."""
+        return not time_s - self._last_check < self.config.check_every_s
+
     def check(self, time_s: float) -> list[tuple[str, Fault]]:
-        if time_s - self._last_check < self.config.check_every_s:
+        if not self.due(time_s):
             return []
         self._last_check = time_s
         events = []
