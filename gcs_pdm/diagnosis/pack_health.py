@@ -149,16 +149,20 @@ def _median_of(x):
 class _Record:
     """The newest ``capacity`` samples (time, current, voltage, ambient) of one pack, kept as one
     float array so a check reads them without converting thousands of tuples: rows are appended
-    into twice the room and moved back to the front when it is full."""
+    into twice the room and moved back to the front when it is full. A sample arrives with every
+    pack frame and is read only at a check (every minute): appends wait in a list and go into the
+    array in one assignment when the record is next read."""
 
     def __init__(self, capacity: int):
         self.capacity = capacity
         self._rows = np.empty((2 * capacity, 4))
         self._start = self._end = 0
+        self._pending: list[tuple] = []
         #: the newest sample's time (None: empty)
         self.last_time: float | None = None
 
     def __len__(self) -> int:
+        self._flush()
         return self._end - self._start
 
     def __getitem__(self, i: int) -> tuple:
@@ -172,21 +176,37 @@ class _Record:
 
     def clear(self) -> None:
         self._start = self._end = 0
+        self._pending.clear()
         self.last_time = None
 
     def append(self, row: tuple) -> None:
-        if self._end == self._rows.shape[0]:
-            keep = self.capacity - 1
-            self._rows[:keep] = self._rows[self._end - keep:self._end]
-            self._start, self._end = 0, keep
-        self._rows[self._end] = row
+        self._pending.append(row)
         self.last_time = row[0]
-        self._end += 1
-        if self._end - self._start > self.capacity:
-            self._start += 1
+        if len(self._pending) >= self.capacity:
+            self._flush()
+
+    def _flush(self) -> None:
+        """The waiting rows into the array: the newest ``capacity`` rows stay, oldest first."""
+        if not self._pending:
+            return
+        new = np.array(self._pending, dtype=np.float64)
+        self._pending.clear()
+        cap, k = self.capacity, new.shape[0]
+        if k >= cap:
+            self._rows[:cap] = new[k - cap:]
+            self._start, self._end = 0, cap
+            return
+        keep = min(self._end - self._start, cap - k)   # the rows already held that stay
+        if self._end + k > self._rows.shape[0]:
+            self._rows[:keep] = self._rows[self._end - keep:self._end]
+            self._end = keep
+        self._start = self._end - keep
+        self._rows[self._end:self._end + k] = new
+        self._end += k
 
     def array(self) -> np.ndarray:
         """(n, 4) rows, oldest first (a view: valid until the next append)."""
+        self._flush()
         return self._rows[self._start:self._end]
 
 
