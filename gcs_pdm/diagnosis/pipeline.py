@@ -147,15 +147,17 @@ class DiagnosisPipeline:
         Plain Python floats: this runs at every motor frame and the vectors are two to eight long."""
         est = self.estimator
         tc, currents, rpms = est.motor_readings()
-        if max(tc) - min(tc) > self.pair_within_s or t < max(tc):
+        latest = max(tc)
+        if latest - min(tc) > self.pair_within_s or t < latest:
             return
         bus = []
         v_filter = None  # the filter's voltages only if a reading is stale (rare: spare the einsum)
+        pack_v, pack_v_time, fresh_s = self._pack_v, self._pack_v_time, self.voltage_fresh_s
         for packs, parallel in zip(self._packs_of_bus, self._bus_parallel):
             total = 0.0
             for b in packs:
-                if t - self._pack_v_time[b] <= self.voltage_fresh_s:
-                    total += self._pack_v[b]
+                if t - pack_v_time[b] <= fresh_s:
+                    total += pack_v[b]
                 else:
                     if v_filter is None:
                         v_filter = est.packs.voltage()[0].tolist()
