@@ -10,6 +10,7 @@ the advisory is active, with the suggestion to refit the pack.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
@@ -30,15 +31,18 @@ class ModelMismatchMonitor:
         self.config = config
         debounce = DebounceConfig(config.raise_after_s, config.clear_after_s)
         self._debounce = {n: Debouncer(debounce) for n in self.pack_names}
+        self._index = {n: b for b, n in enumerate(self.pack_names)}
         self.faults: dict[tuple[str, str], Fault] = {}
 
     def update(self, time_s: float, estimator, pack: str) -> list[tuple[str, Fault]]:
         """After a frame of ``pack``: the raise/clear events of its advisory."""
-        deb = self._debounce.get(pack)
-        if deb is None:
+        b = self._index.get(pack)
+        if b is None:
             return []
-        b = self.pack_names.index(pack)
+        deb = self._debounce[pack]
         active = bool(estimator.model_mismatch_active[b])
+        if not active and not deb.active and math.isnan(deb.pending_since):
+            return []  # the pack matches its model and nothing is pending (nearly every frame): no change
         key = (MODEL_MISMATCH, pack)
         kind = deb.update(time_s, active, not active)
         if kind == "raise":

@@ -121,17 +121,19 @@ class EscImbalanceDetector:
     def update(self, time_s: float, currents, bus_v) -> list[tuple[str, Fault]]:
         currents, bus_v = _floats(currents), _floats(bus_v, len(currents))
         power = self._powers(currents, bus_v)
-        if not (all(math.isfinite(i) for i in currents) and sum(power) >= self.config.min_power_w):
+        if not (all(map(math.isfinite, currents)) and sum(power) >= self.config.min_power_w):
             self.low_power_skipped += 1
             return []
         self.samples += 1
         events = []
         cfg = self.config
-        for q, (name, f) in enumerate(zip(self.names, self._magnitudes(power, bus_v))):
+        full = cfg.window
+        for q, f in enumerate(self._magnitudes(power, bus_v)):
+            name = self.names[q]
             win = self._window[name]
             if math.isfinite(f):
                 win.append(f)
-            if len(win) < win.maxlen:
+            if len(win) < full:
                 continue
             med = median_of_sorted(sorted(win))
             deb = self._debounce[name]
@@ -168,6 +170,8 @@ class EscImbalanceDetector:
 
 def _floats(x, n: int | None = None) -> list[float]:
     """A reading as a list of Python floats (a scalar bus voltage repeated ``n`` times)."""
+    if type(x) is list:
+        return list(map(float, x))   # the pipeline's readings (per sample: the short way)
     if isinstance(x, np.ndarray):
         return x.astype(np.float64).tolist() if x.ndim else [float(x)] * (1 if n is None else n)
     if isinstance(x, (list, tuple)):

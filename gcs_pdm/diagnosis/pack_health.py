@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, Fault
@@ -81,29 +82,87 @@ class PackHealthEstimate:
     residual_rms_v: float
 
 
-def _median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D finite array, the same number without its generic machinery (the
-    fit takes two per iteration, thousands per flight)."""
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _linearise(run_voltage, run_soc, voltage, keep, perturbed, eps, min_soc):
+    """One Gauss–Newton iteration's linearisation, in one compiled pass over the record (numpy spent
+    a dozen array operations of the record's length on it): the residual r = measured − simulated
+    voltage, the Jacobian's forward differences (n, 3) (a held unknown's column stays zero), the
+    samples used (kept so far, finite, model SoC ≥ ``min_soc``: their count is returned before the
+    spike cut, as it decides whether the fit goes on) and the MAD spike cut (|r − median| > 5 MAD,
+    over the used samples) applied to ``keep`` and the used samples; and the least-squares problem
+    (the used rows of the free unknowns' columns — ``perturbed`` are the free unknowns — and their
+    residuals). Returns (r, jac, use, keep, count, a_used, r_used): the same numbers as the numpy
+    formulation (elementwise, medians by selection, copies)."""
+    n = voltage.shape[0]
+    r = np.empty(n)
+    jac = np.zeros((n, 3))
+    use = np.empty(n, dtype=np.bool_)
+    count = 0
+    for i in range(n):
+        r[i] = voltage[i] - run_voltage[0, i]
+        for k in range(perturbed.shape[0]):
+            j = perturbed[k]
+            jac[i, j] = (run_voltage[1 + k, i] - run_voltage[0, i]) / eps[j]
+        use[i] = keep[i] and np.isfinite(r[i]) and run_soc[i] >= min_soc
+        count += use[i]
+    if count < 20:
+        return r, jac, use, keep, count, np.empty((0, perturbed.shape[0])), np.empty(0)
+    res = np.empty(count)
+    k = 0
+    for i in range(n):
+        if use[i]:
+            res[k] = r[i]
+            k += 1
+    centre = _median_of(res)
+    for i in range(count):
+        res[i] = abs(res[i] - centre)
+    mad = 1.4826 * _median_of(res) + 1e-6
+    kept = np.empty(n, dtype=np.bool_)
+    n_used = 0
+    for i in range(n):
+        kept[i] = keep[i] and not abs(r[i] - centre) > 5.0 * mad
+        use[i] = use[i] and kept[i]
+        n_used += use[i]
+    # the least-squares problem: the used rows of the free unknowns' columns, and their residuals
+    a_used = np.empty((n_used, perturbed.shape[0]))
+    r_used = np.empty(n_used)
+    k = 0
+    for i in range(n):
+        if use[i]:
+            for c in range(perturbed.shape[0]):
+                a_used[k, c] = jac[i, perturbed[c]]
+            r_used[k] = r[i]
+            k += 1
+    return r, jac, use, kept, count, a_used, r_used
+
+
+@njit(cache=True, nogil=True)
+def _median_of(x):
+    """``np.median`` of a 1-D finite array by selection (the same number; ``x`` is reordered)."""
     k = x.size // 2
     if x.size % 2:
         return np.partition(x, k)[k]
-    part = np.partition(x, (k - 1, k))
-    return (part[k - 1] + part[k]) / 2.0
+    part = np.partition(x, k)
+    return (np.max(part[:k]) + part[k]) / 2.0
 
 
 class _Record:
     """The newest ``capacity`` samples (time, current, voltage, ambient) of one pack, kept as one
     float array so a check reads them without converting thousands of tuples: rows are appended
-    into twice the room and moved back to the front when it is full."""
+    into twice the room and moved back to the front when it is full. A sample arrives with every
+    pack frame and is read only at a check (every minute): appends wait in a list and go into the
+    array in one assignment when the record is next read."""
 
     def __init__(self, capacity: int):
         self.capacity = capacity
         self._rows = np.empty((2 * capacity, 4))
         self._start = self._end = 0
+        self._pending: list[tuple] = []
         #: the newest sample's time (None: empty)
         self.last_time: float | None = None
 
     def __len__(self) -> int:
+        self._flush()
         return self._end - self._start
 
     def __getitem__(self, i: int) -> tuple:
@@ -117,21 +176,37 @@ class _Record:
 
     def clear(self) -> None:
         self._start = self._end = 0
+        self._pending.clear()
         self.last_time = None
 
     def append(self, row: tuple) -> None:
-        if self._end == self._rows.shape[0]:
-            keep = self.capacity - 1
-            self._rows[:keep] = self._rows[self._end - keep:self._end]
-            self._start, self._end = 0, keep
-        self._rows[self._end] = row
+        self._pending.append(row)
         self.last_time = row[0]
-        self._end += 1
-        if self._end - self._start > self.capacity:
-            self._start += 1
+        if len(self._pending) >= self.capacity:
+            self._flush()
+
+    def _flush(self) -> None:
+        """The waiting rows into the array: the newest ``capacity`` rows stay, oldest first."""
+        if not self._pending:
+            return
+        new = np.array(self._pending, dtype=np.float64)
+        self._pending.clear()
+        cap, k = self.capacity, new.shape[0]
+        if k >= cap:
+            self._rows[:cap] = new[k - cap:]
+            self._start, self._end = 0, cap
+            return
+        keep = min(self._end - self._start, cap - k)   # the rows already held that stay
+        if self._end + k > self._rows.shape[0]:
+            self._rows[:keep] = self._rows[self._end - keep:self._end]
+            self._end = keep
+        self._start = self._end - keep
+        self._rows[self._end:self._end + k] = new
+        self._end += k
 
     def array(self) -> np.ndarray:
         """(n, 4) rows, oldest first (a view: valid until the next append)."""
+        self._flush()
         return self._rows[self._start:self._end]
 
 
@@ -210,20 +285,12 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
         p = _scaled(params, th)
         x0 = kernel.initial_pack_state(p, th[:, 2], float(ambient[0]), float(current[0]))
         run = kernel.simulate_packs(p, x0, dt, current, ambient)
-        r = voltage - run.voltage[0]
-        columns = np.zeros((3, t.size))
-        columns[perturbed] = (run.voltage[1:] - run.voltage[0]) / eps[perturbed][:, None]
-        jac = columns.T     # (n, 3)
-        use = keep & np.isfinite(r) & (run.soc[0] >= min_soc)
-        if use.sum() < 20:
+        r, jac, use, keep, n_use, a_used, r_used = _linearise(run.voltage, run.soc[0], voltage, keep, perturbed, eps,
+                                                              min_soc)
+        if n_use < 20:
             return None
-        res = r[use]
-        centre = _median(res)
-        mad = 1.4826 * _median(np.abs(res - centre)) + 1e-6
-        keep = keep & ~(np.abs(r - centre) > 5.0 * mad)
-        use = use & keep
         step = np.zeros(3)
-        step[free], *_ = np.linalg.lstsq(jac[use][:, free], r[use], rcond=None)
+        step[free], *_ = np.linalg.lstsq(a_used, r_used, rcond=None)
         # a trust region: the knee makes the first linearisation poor far from the answer
         step = step * min(1.0, float(np.min(max_step / (np.abs(step) + 1e-12))))
         theta = theta + step
@@ -342,8 +409,12 @@ class PackHealthMonitor:
             buf.clear()
         buf.append((time_s, current_a, voltage_v, ambient_c))
 
+    def due(self, time_s: float) -> bool:
+        """Whether ``check`` at ``time_s`` would fit (the caller can skip the call between checks)."""
+        return not time_s - self._last_check < self.config.check_every_s
+
     def check(self, time_s: float) -> list[tuple[str, Fault]]:
-        if time_s - self._last_check < self.config.check_every_s:
+        if not self.due(time_s):
             return []
         self._last_check = time_s
         events = []

@@ -58,6 +58,10 @@ class DiagnosisPipeline:
         self._pack_v_time = [-math.inf] * len(est.pack_names)
         self._pack_index = {name: b for b, name in enumerate(est.pack_names)}
         self._motor_set_of = set(est.motor_names)
+        # the motor detector runs at a set of ESC readings (a description's motors only where their
+        # telemetry can show a power loss)
+        self._motor_diagnosed = vehicle is None or isinstance(self.motor_power, EscImbalanceDetector)
+        self._handlers: dict[type, object] = {}
         if vehicle is None:
             self._packs_of_bus = [[b for b in range(4) if MOTOR_OF_PACK[b] == q] for q in range(2)]
             self._bus_parallel = [False, False]
@@ -81,27 +85,57 @@ class DiagnosisPipeline:
 
     def consume(self, frame) -> None:
         self.frames += 1
+        handler = self._handlers.get(type(frame))
+        if handler is None:
+            handler = self._handlers[type(frame)] = self._handler_for(frame)
+        handler(frame)
+
+    def _handler_for(self, frame):
+        """The handler of a frame's type. A frame that changes nothing the estimator or a detector
+        uses (position, air data, status, mission progress: two thirds of a log) ends there."""
+        if isinstance(frame, PackFrame):
+            return self._pack_frame
+        if isinstance(frame, MotorFrame):
+            return self._motor_frame
+        # ambient: the estimator's alone, no check follows; anything else: ``ignore_frame``
+        return self.estimator.handler_for(frame)
+
+    def _pack_frame(self, frame: PackFrame) -> None:
         est = self.estimator
         est.consume(frame)
-        t = float(getattr(frame, "time_s", math.nan))
-        if isinstance(frame, PackFrame):
-            b = self._pack_index.get(frame.pack, -1)
-            if b >= 0:
-                if frame.voltage_v is not None and math.isfinite(frame.voltage_v):
-                    self._pack_v[b], self._pack_v_time[b] = frame.voltage_v, t
-                if est.packs.initialised[b] and frame.voltage_v is not None:
-                    self.pack_health.add(b, t, float(est.pack_current[b]), float(frame.voltage_v), est.ambient_c)
-                self._record(self.model_fidelity.update(t, est, frame.pack))
-        elif isinstance(frame, MotorFrame) and frame.motor in self._motor_set_of:
-            self._motors(t)
-        else:
-            return
-        pack_events = self.pack_health.check(t)
-        self._record(pack_events)
-        if pack_events or self.pack_health.faults:
-            self._adopt_pack_degradation()
+        t = float(frame.time_s)
+        b = self._pack_index.get(frame.pack, -1)
+        if b >= 0:
+            v = frame.voltage_v
+            if v is not None and math.isfinite(v):
+                self._pack_v[b], self._pack_v_time[b] = v, t
+            if v is not None and est.packs.initialised[b]:
+                self.pack_health.add(b, t, float(est.latest_pack_current(b)), float(v), est.ambient_c)
+            events = self.model_fidelity.update(t, est, frame.pack)
+            if events:
+                self._record(events)
+        self._checks(t)
+
+    def _motor_frame(self, frame: MotorFrame) -> None:
+        self.estimator.consume(frame)
+        if frame.motor in self._motor_set_of:
+            t = float(frame.time_s)
+            if self._motor_diagnosed:
+                self._motors(t)
+            self._checks(t)
+
+    def _checks(self, t: float) -> None:
+        """The periodic checks, after a pack or motor frame: the pack-health fits (every
+        ``check_every_s``) and the prognosis (when due). The estimator's adopted pack degradation
+        follows the pack-health faults, which change only when a check runs."""
+        health = self.pack_health
+        if health.due(t):
+            pack_events = health.check(t)
+            self._record(pack_events)
+            if pack_events or health.faults:
+                self._adopt_pack_degradation()
         if self.prognosis.due(t):
-            self._record(self.prognosis.check(t, est, self.motor_power.fault_vector()))
+            self._record(self.prognosis.check(t, self.estimator, self.motor_power.fault_vector()))
 
     #: a pipeline is itself a frame consumer (``replay_tlog(frame_consumer=pipeline)`` then finds ``report``)
     def __call__(self, frame) -> None:
@@ -112,29 +146,28 @@ class DiagnosisPipeline:
         current against its bus voltage (the string of packs feeding it; the mean of a parallel bus).
         Plain Python floats: this runs at every motor frame and the vectors are two to eight long."""
         est = self.estimator
-        if self.vehicle is not None and not isinstance(self.motor_power, EscImbalanceDetector):
-            return
-        tc = est.motor_current_time.tolist()
-        if max(tc) - min(tc) > self.pair_within_s or t < max(tc):
+        tc, currents, rpms = est.motor_readings()
+        latest = max(tc)
+        if latest - min(tc) > self.pair_within_s or t < latest:
             return
         bus = []
         v_filter = None  # the filter's voltages only if a reading is stale (rare: spare the einsum)
+        pack_v, pack_v_time, fresh_s = self._pack_v, self._pack_v_time, self.voltage_fresh_s
         for packs, parallel in zip(self._packs_of_bus, self._bus_parallel):
             total = 0.0
             for b in packs:
-                if t - self._pack_v_time[b] <= self.voltage_fresh_s:
-                    total += self._pack_v[b]
+                if t - pack_v_time[b] <= fresh_s:
+                    total += pack_v[b]
                 else:
                     if v_filter is None:
                         v_filter = est.packs.voltage()[0].tolist()
                     total += v_filter[b]
             bus.append(total if not parallel else total / len(packs) if packs else math.nan)
         bus_of_motor = [bus[k] for k in self._bus_of_motor]
-        currents = est.motor_current.tolist()
         if not all(math.isfinite(x) for x in bus_of_motor):
             return
         if self.vehicle is None:
-            heard = [r for r in est.motor_rpm.tolist() if math.isfinite(r)]  # np.nanmean, without its warnings
+            heard = [r for r in rpms if math.isfinite(r)]  # np.nanmean, without its warnings
             rpm = sum(heard) / len(heard) if heard else math.nan
             self._record(self.motor_power.update(t, currents[0], currents[1], bus_of_motor[0], bus_of_motor[1], rpm))
         elif all(math.isfinite(i) for i in currents):

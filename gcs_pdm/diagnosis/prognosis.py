@@ -170,7 +170,7 @@ class PrognosisMonitor:
     @staticmethod
     def _state(estimator) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
         """The filter's SoC and the pack and motor temperatures (what the band is about), and their sds."""
-        e = estimator.estimate()
+        e = estimator.estimate(details=False)
         return ((e.soc.copy(), e.pack_temp_c.copy(), e.motor_temp_c.copy()),
                 (e.soc_sd.copy(), e.pack_temp_sd.copy(), e.motor_temp_sd.copy()))
 
@@ -239,7 +239,7 @@ class PrognosisMonitor:
     def _snapshot(self, estimator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Observed SoC by counting the measured charge (the filter's SoC also moves when the voltage
         corrects it, which is calibration, not a degradation rate), and filtered temperatures."""
-        e = estimator.estimate()
+        e = estimator.estimate(details=False)
         soc_counted = 1.0 - estimator.charge_c / estimator.capacity_c()
         return soc_counted, e.pack_temp_c.copy(), e.motor_temp_c.copy()
 

@@ -174,21 +174,36 @@ class StateEstimator:
         self.time_s = -math.inf
         self._pack_index = {n: i for i, n in enumerate(self.pack_names)}
         self._motor_index = {n: i for i, n in enumerate(self.motor_names)}
-        self.pack_time = np.full(n_packs, -math.inf)
-        self.pack_current = np.full(n_packs, np.nan)
-        self.pack_current_time = np.full(n_packs, -math.inf)
-        self._reading = np.full(n_packs, np.nan)           # the latest measured current, as measured
-        self._reading_time = np.full(n_packs, -math.inf)
-        self.motor_time = np.full(n_motors, -math.inf)
-        self.motor_current = np.full(n_motors, np.nan)
-        self.motor_current_time = np.full(n_motors, -math.inf)
-        self.motor_rpm = np.full(n_motors, np.nan)
-        #: charge drawn from each pack since its filter started (cleaned current × dt), C
-        self.charge_c = np.zeros(n_packs)
+        # per pack and motor: the message time of its last frame, its cleaned current and when it was
+        # last set, the latest measured current as measured (and when), the motors' rpm, the charge
+        # drawn since the filter started (cleaned current × dt, C). Python lists of floats: every frame
+        # reads and writes a few of them, and a numpy scalar costs several times a list item; the
+        # public names (``pack_current`` etc.) are read-only numpy copies
+        self._pack_time = [-math.inf] * n_packs
+        self._pack_current = [math.nan] * n_packs
+        self._pack_current_time = [-math.inf] * n_packs
+        self._reading = [math.nan] * n_packs
+        self._reading_time = [-math.inf] * n_packs
+        self._motor_time = [-math.inf] * n_motors
+        self._motor_current = [math.nan] * n_motors
+        self._motor_current_time = [-math.inf] * n_motors
+        self._motor_rpm = [math.nan] * n_motors
+        self._charge_c = [0.0] * n_packs
         # currents of the frames that arrived while message time stood still (a link that stamps
         # untimed messages with the last timed one): their mean is the current over the next step
-        self._i_sum = np.zeros(n_packs)
-        self._i_n = np.zeros(n_packs, dtype=np.int64)
+        self._i_sum = [0.0] * n_packs
+        self._i_n = [0] * n_packs
+        # per pack: the motor whose current is the pack's own (it feeds that motor alone, and the
+        # motor is fed by the pack's series string alone), else None
+        self._own_motor = [
+            self._motors_of_pack[b][0] if len(self._motors_of_pack[b]) == 1
+            and len(self._packs_of_motor[self._motors_of_pack[b][0]]) == 1 + len(self._mates[b]) else None
+            for b in range(n_packs)]
+        # the ``seen`` keys of each pack's and motor's channels (built once, not per frame)
+        self._pack_keys = [tuple(f"{n}.{c}" for c in ("current", "voltage", "temperature")) for n in self.pack_names]
+        self._motor_keys = [tuple(f"{n}.{c}" for c in ("current", "rpm", "temperature")) for n in self.motor_names]
+        # frame type -> handler (``consume``); a type not seen before is looked up once by isinstance
+        self._handlers: dict[type, object] = {}
         # per sensor channel: last message time it carried a value
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
@@ -199,18 +214,78 @@ class StateEstimator:
 
     # ---- frames ----------------------------------------------------------------------------------
     def consume(self, frame) -> None:
-        if isinstance(frame, PackFrame):
-            self._pack(frame)
-        elif isinstance(frame, MotorFrame):
-            self._motor(frame)
-        elif isinstance(frame, AmbientFrame):
-            if frame.temperature_c is not None and math.isfinite(frame.temperature_c):
-                self.ambient_c = float(frame.temperature_c)
-                self.seen["ambient"] = frame.time_s
-        else:
-            return
-        if frame.time_s > self.time_s:
-            self.time_s = float(frame.time_s)
+        handler = self._handlers.get(type(frame))
+        if handler is None:
+            handler = self.handler_for(frame)
+        handler(frame)
+
+    def handler_for(self, frame):
+        """What ``consume`` does with a frame of this type (a callable taking the frame; looked up
+        once per type). A frame that carries nothing the estimator uses (position, air data, status,
+        mission progress: most of a log) gets ``ignore_frame``, so it costs one dictionary look-up."""
+        handler = self._handlers.get(type(frame))
+        if handler is None:
+            handler = ignore_frame
+            for kind, fn in ((PackFrame, self._pack), (MotorFrame, self._motor), (AmbientFrame, self._ambient)):
+                if isinstance(frame, kind):
+                    handler = fn
+                    break
+            self._handlers[type(frame)] = handler
+        return handler
+
+    def _ambient(self, frame: AmbientFrame) -> None:
+        if frame.temperature_c is not None and math.isfinite(frame.temperature_c):
+            self.ambient_c = float(frame.temperature_c)
+            self.seen["ambient"] = frame.time_s
+        self._advance_time(frame.time_s)
+
+    def _advance_time(self, t) -> None:
+        if t > self.time_s:
+            self.time_s = float(t)
+
+    # read-only numpy copies of the per-frame state (the estimator keeps it in lists)
+    @property
+    def pack_time(self) -> np.ndarray:
+        return np.array(self._pack_time, dtype=np.float64)
+
+    @property
+    def pack_current(self) -> np.ndarray:
+        """(packs,) the latest cleaned current of each pack, A (NaN before any)."""
+        return np.array(self._pack_current, dtype=np.float64)
+
+    @property
+    def pack_current_time(self) -> np.ndarray:
+        return np.array(self._pack_current_time, dtype=np.float64)
+
+    @property
+    def motor_time(self) -> np.ndarray:
+        return np.array(self._motor_time, dtype=np.float64)
+
+    @property
+    def motor_current(self) -> np.ndarray:
+        return np.array(self._motor_current, dtype=np.float64)
+
+    @property
+    def motor_current_time(self) -> np.ndarray:
+        return np.array(self._motor_current_time, dtype=np.float64)
+
+    @property
+    def motor_rpm(self) -> np.ndarray:
+        return np.array(self._motor_rpm, dtype=np.float64)
+
+    @property
+    def charge_c(self) -> np.ndarray:
+        """(packs,) charge drawn from each pack since its filter started (cleaned current × dt), C."""
+        return np.array(self._charge_c, dtype=np.float64)
+
+    def latest_pack_current(self, b: int) -> float:
+        """Pack ``b``'s latest cleaned current, A, as a float (a per-frame read of the diagnoser)."""
+        return self._pack_current[b]
+
+    def motor_readings(self) -> tuple[list[float], list[float], list[float]]:
+        """(message time of each motor's latest current, that current, its latest rpm): the
+        estimator's own lists, for per-frame readers — read them, never change them."""
+        return self._motor_current_time, self._motor_current, self._motor_rpm
 
     def _reference_current(self, b: int, t: float, own: float = math.nan) -> float:
         """What the rest of pack b's series string says its current is (NaN if nobody recent).
@@ -218,23 +293,27 @@ class StateEstimator:
         With two or more references the pack's ``own`` reading votes too: the median of three
         survives a spike in any one of them, where the references' own median (the mean of two)
         let one spiked reference replace a good reading."""
+        within = self.config.corroborate_within_s
         refs = []
         for mate in self._mates[b]:
             # the mate's own reading, not what it was cleaned to: when the whole string's current
             # steps (a throttle chop), a mate cleaned to its pre-step reference would hold every
             # pack of the string at the old current, frame after frame
-            if t - self._reading_time[mate] <= self.config.corroborate_within_s:
-                refs.append(self._reading[mate])
+            if t - self._reading_time[mate] <= within:
+                r = self._reading[mate]
+                if math.isfinite(r):
+                    refs.append(r)
         # a motor's current is its pack's only when the pack feeds that motor alone
-        motors = self._motors_of_pack[b]
-        if len(motors) == 1 and len(self._packs_of_motor[motors[0]]) == 1 + len(self._mates[b]):
-            q = motors[0]
-            if t - self.motor_current_time[q] <= self.config.corroborate_within_s:
-                refs.append(self.motor_current[q])
-        refs = [r for r in refs if math.isfinite(r)]
+        q = self._own_motor[b]
+        if q is not None and t - self._motor_current_time[q] <= within:
+            r = self._motor_current[q]
+            if math.isfinite(r):
+                refs.append(r)
         if len(refs) < self._min_references:
             return math.nan
-        if len(refs) >= 2 and math.isfinite(own):
+        if len(refs) == 1:
+            return refs[0]
+        if math.isfinite(own):
             refs.append(own)
         return _median(refs)
 
@@ -242,64 +321,73 @@ class StateEstimator:
         b = self._pack_index.get(f.pack)
         if b is None:
             self._skip("unknown_pack", f"pack frame for unknown pack {f.pack!r} skipped")
+            self._advance_time(f.time_s)
             return
         t = float(f.time_s)
-        if not t >= self.pack_time[b]:
-            self._skip("out_of_order", f"pack {f.pack}: frame at {t} s older than the last ({self.pack_time[b]} s) skipped")
+        last = self._pack_time[b]
+        if not t >= last:
+            self._skip("out_of_order", f"pack {f.pack}: frame at {t} s older than the last ({last} s) skipped")
+            self._advance_time(f.time_s)
             return
+        cfg = self.config
+        keys = self._pack_keys[b]
         cur = _num(f.current_a)
+        measured = math.isfinite(cur)
         ref = self._reference_current(b, t, cur)
-        if math.isfinite(cur):
-            self.seen[f"{f.pack}.current"] = t
+        if measured:
+            self.seen[keys[0]] = t
             self._reading[b], self._reading_time[b] = cur, t
-            if math.isfinite(ref) and abs(cur - ref) > max(self.config.current_spike_a, 0.5 * abs(ref)):
+            if math.isfinite(ref) and abs(cur - ref) > max(cfg.current_spike_a, 0.5 * abs(ref)):
                 self.counters["current_spikes"] += 1
                 cur = ref
         else:
-            cur = ref if math.isfinite(ref) else self.pack_current[b]
+            cur = ref if math.isfinite(ref) else self._pack_current[b]
             self.counters["current_held"] += 1
-        if math.isfinite(_num(f.current_a)) or math.isfinite(cur):
-            self.pack_current[b] = cur
-            self.pack_current_time[b] = t
+        if measured or math.isfinite(cur):
+            self._pack_current[b] = cur
+            self._pack_current_time[b] = t
         v, temp = _num(f.voltage_v), _num(f.temperature_c)
         if math.isfinite(v):
-            self.seen[f"{f.pack}.voltage"] = t
+            self.seen[keys[1]] = t
         if math.isfinite(temp):
-            self.seen[f"{f.pack}.temperature"] = t
-        if self.packs.initialised[b] and t - self.pack_time[b] > self.config.restart_after_s:
-            self._restart("pack", f.pack, t - self.pack_time[b])
-            self.packs.initialised[b] = False
+            self.seen[keys[2]] = t
+        packs = self.packs
+        initialised = packs.initialised[b]
+        if initialised and t - last > cfg.restart_after_s:
+            self._restart("pack", f.pack, t - last)
+            packs.initialised[b] = initialised = False
             if b in self.ext_row:
                 self.ext.initialised[self.ext_row[b]] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
-        if not self.packs.initialised[b]:
-            if not math.isfinite(v):
-                return  # nothing to start from yet
-            self.packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]), self.ambient_c)
-            if b in self.ext_row:
-                self.ext.initialise(np.array([self.ext_row[b]]), np.array([v]), np.array([cur]), np.array([temp]),
-                                    self.ambient_c)
-            self.pack_time[b] = t
+        if not initialised:
+            if math.isfinite(v):  # else nothing to start from yet
+                packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]), self.ambient_c)
+                if b in self.ext_row:
+                    self.ext.initialise(np.array([self.ext_row[b]]), np.array([v]), np.array([cur]), np.array([temp]),
+                                        self.ambient_c)
+                self._pack_time[b] = t
+            self._advance_time(t)
             return
-        dt = t - self.pack_time[b]
+        dt = t - last
         if math.isfinite(cur):
             self._i_sum[b] += cur
             self._i_n[b] += 1
         if dt > 0 and self._i_n[b] > 0:
             cur = self._i_sum[b] / self._i_n[b]
             self._i_sum[b], self._i_n[b] = 0.0, 0
-        if dt > self.config.long_gap_s:
+        if dt > cfg.long_gap_s:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
         # the compiled steps say when a consistency state flipped (nearly never): only then is it read
-        flipped = self.packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
+        flipped = packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
         if b in self.ext_row:
             flipped = self.ext.step_one(self.ext_row[b], dt, i_used, self.ambient_c, v, temp)
-        self.charge_c[b] += i_used * dt
-        self.pack_time[b] = t
+        self._charge_c[b] += i_used * dt
+        self._pack_time[b] = t
         if flipped or self._mismatch_active[b]:
             self._mismatch_changed(b, t)
+        self._advance_time(t)
 
     def _mismatch_changed(self, b: int, t: float) -> None:
         window, row = self._window_of(b)
@@ -319,45 +407,52 @@ class StateEstimator:
         q = self._motor_index.get(f.motor)
         if q is None:
             self._skip("unknown_motor", f"motor frame for unknown motor {f.motor!r} skipped")
+            self._advance_time(f.time_s)
             return
         t = float(f.time_s)
-        if not t >= self.motor_time[q]:
-            self._skip("out_of_order", f"motor {f.motor}: frame at {t} s older than the last ({self.motor_time[q]} s) skipped")
+        last = self._motor_time[q]
+        if not t >= last:
+            self._skip("out_of_order", f"motor {f.motor}: frame at {t} s older than the last ({last} s) skipped")
+            self._advance_time(f.time_s)
             return
+        keys = self._motor_keys[q]
         cur = _num(f.current_a)
         if math.isfinite(cur):
-            self.seen[f"{f.motor}.current"] = t
-            self.motor_current[q] = cur
-            self.motor_current_time[q] = t
+            self.seen[keys[0]] = t
+            self._motor_current[q] = cur
+            self._motor_current_time[q] = t
         else:
             # the string's pack currents are the motor's current
             packs = [b for b in self._packs_of_motor[q] if len(self._motors_of_pack[b]) == 1]
-            fresh = [self.pack_current[b] for b in packs if t - self.pack_current_time[b] <= self.config.corroborate_within_s]
-            cur = float(np.nanmedian(fresh)) if fresh and np.isfinite(fresh).any() else self.motor_current[q]
+            fresh = [self._pack_current[b] for b in packs
+                     if t - self._pack_current_time[b] <= self.config.corroborate_within_s]
+            cur = float(np.nanmedian(fresh)) if fresh and np.isfinite(fresh).any() else self._motor_current[q]
         rpm = _num(f.rpm)
         if math.isfinite(rpm):
-            self.motor_rpm[q] = rpm
-            self.seen[f"{f.motor}.rpm"] = t
+            self._motor_rpm[q] = rpm
+            self.seen[keys[1]] = t
         temp = _num(f.temperature_c)
         if math.isfinite(temp):
-            self.seen[f"{f.motor}.temperature"] = t
-        if self.motors.initialised[q] and t - self.motor_time[q] > self.config.restart_after_s:
-            self._restart("motor", f.motor, t - self.motor_time[q])
-            self.motors.initialised[q] = False
-        if not self.motors.initialised[q]:
+            self.seen[keys[2]] = t
+        motors = self.motors
+        initialised = motors.initialised[q]
+        if initialised and t - last > self.config.restart_after_s:
+            self._restart("motor", f.motor, t - last)
+            motors.initialised[q] = initialised = False
+        if not initialised:
             readings = self._motor_reports.get(f.motor)
             if not math.isfinite(temp) and readings is not None and not readings.temperature:
                 # no sensor: the thermal model from ambient, with its wider uncertainty
-                self.motors.initialise(np.array([q]), np.array([self.ambient_c]), self.config.motor.initial_sigma_c)
-                self.motor_time[q] = t
-                return
-            if not math.isfinite(temp):
-                return
-            self.motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
-            self.motor_time[q] = t
+                motors.initialise(np.array([q]), np.array([self.ambient_c]), self.config.motor.initial_sigma_c)
+                self._motor_time[q] = t
+            elif math.isfinite(temp):
+                motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
+                self._motor_time[q] = t
+            self._advance_time(t)
             return
-        self.motors.step_one(q, t - self.motor_time[q], cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
-        self.motor_time[q] = t
+        motors.step_one(q, t - last, cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
+        self._motor_time[q] = t
+        self._advance_time(t)
 
     def adopt_pack_scales(self, pack: str, resistance_scale: float, capacity_scale: float) -> None:
         """Run pack ``pack`` on its parameter set's values with R_s, R_cp0 scaled by
@@ -471,7 +566,10 @@ class StateEstimator:
                      if m not in self._motor_reports or getattr(self._motor_reports[m], c)]
         return tuple(c for c in channels if now - self.seen.get(c, -math.inf) > self.config.stale_after_s)
 
-    def estimate(self) -> Estimate:
+    def estimate(self, *, details: bool = True) -> Estimate:
+        """The estimate now. ``details=False`` leaves out the per-pack model checks and the list of
+        missing channels (``model_mismatch`` and ``missing`` empty): the numbers alone, for a reader
+        that needs only the state (the prognosis, every check), at a fraction of the cost."""
         soc, soc_sd = self.packs.soc()
         tp, tp_sd = self.packs.temperature()
         v, _ = self.packs.voltage()
@@ -495,10 +593,11 @@ class StateEstimator:
         counters["relocks"] = int(self.packs.relocks.sum() + self.motors.relocks.sum())
         modelled = tuple(n for b, n in enumerate(self.pack_names)
                          if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
-        return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c, self.missing(), counters,
+        return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c,
+                        self.missing() if details else (), counters,
                         pack_names=self.pack_names, motor_names=self.motor_names, modelled_temperature=modelled,
-                        mismatch=mismatch, motor_current_a=self.motor_current.copy(), motor_rpm=self.motor_rpm.copy(),
-                        model_mismatch=self.model_mismatch())
+                        mismatch=mismatch, motor_current_a=self.motor_current, motor_rpm=self.motor_rpm,
+                        model_mismatch=self.model_mismatch() if details else {})
 
     def _range_guard(self, soc, soc_sd, tp, tp_sd, v) -> tuple[str, ...]:
         """Clip a SoC that is in [0, 1] within its noise; withhold (NaN) and report a pack whose
@@ -542,7 +641,7 @@ class StateEstimator:
                     if not self.motors.initialised[q]
                     and not (n in self._motor_reports and not self._motor_reports[n].temperature)]
         state = "ready" if not waiting else "waiting for " + ", ".join(waiting)
-        mismatch = self.estimate().mismatch if not waiting else ()
+        mismatch = self.estimate(details=False).mismatch if not waiting else ()
         prediction = state if not mismatch else "model mismatch: " + "; ".join(mismatch)
         heard = [n for n in self.motor_names if f"{n}.current" in self.seen or f"{n}.rpm" in self.seen]
         if not heard:
@@ -573,6 +672,10 @@ def _median(values: list[float]) -> float:
     v = sorted(values)
     n = len(v)
     return v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+
+
+def ignore_frame(frame) -> None:
+    """The handler of a frame the estimator does not use."""
 
 
 def _num(x) -> float:

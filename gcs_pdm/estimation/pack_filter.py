@@ -169,7 +169,13 @@ class PackFilterBank:
         self._h_v = np.stack([1.0 / p[:, kernel.I_CB], -1.0 / p[:, kernel.I_CCP], -1.0 / p[:, kernel.I_CS],
                               np.zeros(n_packs)], axis=1)
         self._h_t = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n_packs, 1))
-        self._one_idx = [np.array([b], dtype=np.int64) for b in range(n_packs)]
+        # the compiled step's arguments other than the frame's, in its order: the arrays are updated in
+        # place, never replaced, so the tuple is built once
+        c = self.config
+        self._step_args = (self.params, self.mean, self.cov, self._q, self._h_v, c.voltage_sigma_v ** 2,
+                           c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
+                           kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total, self.rejected_in_row,
+                           self.relocks, self.consistency.arrays)
 
     # ---- initialisation -------------------------------------------------------------------------
     def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray,
@@ -213,14 +219,11 @@ class PackFilterBank:
                            self.rejected_in_row, self.relocks, self.consistency.arrays)
 
     def step_one(self, b: int, dt: float, current: float, ambient: float, voltage: float, temperature: float) -> int:
-        """``step`` for one pack and plain floats (a telemetry frame), without the array set-up.
-        Returns how many of its consistency states flipped (0 nearly always)."""
-        c = self.config
-        return ukf.pack_step_rows(self.params, self.mean, self.cov, self._one_idx[b], np.array([dt]), np.array([current]),
-                           np.array([ambient]), np.array([voltage]), np.array([temperature]), self._q,
-                           self._h_v, c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
-                           c.relock_inflation, kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total,
-                           self.rejected_in_row, self.relocks, self.consistency.arrays)
+        """``step`` for one pack and plain floats (a telemetry frame), without the array set-up
+        (``ukf.pack_step_one``: the same compiled arithmetic). Returns how many of its consistency
+        states flipped (0 nearly always)."""
+        a = self._step_args
+        return ukf.pack_step_one(a[0], a[1], a[2], b, dt, current, ambient, voltage, temperature, *a[3:])
 
     def set_params(self, b: int, row: np.ndarray) -> None:
         """Adopt new parameters for pack ``b`` (e.g. a diagnosed capacity loss), keeping what the

@@ -270,6 +270,30 @@ def _moments_into(pts, m, c, q, dt):
 
 
 @njit(**_JIT)
+def _pack_row(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v, h_t, r_v, r_t, gate,
+              relock_after, relock_inflation, max_dt, last_innovation, rejected_total, rejected_in_row, relocks,
+              window, chol, pts, x):
+    """One frame of pack row ``b`` (``pack_step_rows``' body; ``chol``, ``pts``, ``x`` scratch).
+    Returns how many of its consistency states flipped."""
+    n = _N
+    m, c, p = mean[b], cov[b], params[b]
+    _quiet_after_gap(window, b, dt)
+    if dt > 0.0:
+        _sigma_factor(c, chol)
+        for s in range(2 * n):
+            _sigma_point(m, chol, s, x)
+            kernel._pack_advance(p, x, current, ambient, dt, max_dt)
+            for i in range(n):
+                pts[s, i] = x[i]
+        _moments_into(pts, m, c, q, dt)
+    flips = _observe_channel(m, c, h_v[b], voltage, r_v, dt, 0, b, gate, relock_after, relock_inflation,
+                             last_innovation, rejected_total, rejected_in_row, relocks, window)
+    flips += _observe_channel(m, c, h_t, temperature, r_t, dt, 1, b, gate, relock_after, relock_inflation,
+                              last_innovation, rejected_total, rejected_in_row, relocks, window)
+    return flips
+
+
+@njit(**_JIT)
 def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temperature, q, h_v,
                    r_v, r_t, gate, relock_after, relock_inflation, max_dt,
                    last_innovation, rejected_total, rejected_in_row, relocks, window):
@@ -284,22 +308,24 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
     h_t[n - 1] = 1.0
     flips = 0
     for k in range(idx.shape[0]):
-        b = idx[k]
-        m, c, p = mean[b], cov[b], params[b]
-        _quiet_after_gap(window, b, dt[k])
-        if dt[k] > 0.0:
-            _sigma_factor(c, chol)
-            for s in range(2 * n):
-                _sigma_point(m, chol, s, x)
-                kernel._pack_advance(p, x, current[k], ambient[k], dt[k], max_dt)
-                for i in range(n):
-                    pts[s, i] = x[i]
-            _moments_into(pts, m, c, q, dt[k])
-        flips += _observe_channel(m, c, h_v[b], voltage[k], r_v, dt[k], 0, b, gate, relock_after, relock_inflation,
-                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
-        flips += _observe_channel(m, c, h_t, temperature[k], r_t, dt[k], 1, b, gate, relock_after, relock_inflation,
-                                  last_innovation, rejected_total, rejected_in_row, relocks, window)
+        flips += _pack_row(params, mean, cov, idx[k], dt[k], current[k], ambient[k], voltage[k], temperature[k], q,
+                           h_v, h_t, r_v, r_t, gate, relock_after, relock_inflation, max_dt, last_innovation,
+                           rejected_total, rejected_in_row, relocks, window, chol, pts, x)
     return flips
+
+
+@njit(**_JIT)
+def pack_step_one(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v,
+                  r_v, r_t, gate, relock_after, relock_inflation, max_dt,
+                  last_innovation, rejected_total, rejected_in_row, relocks, window):
+    """``pack_step_rows`` for the one row ``b`` and plain floats (a telemetry frame): the same
+    arithmetic (``_pack_row``), without the five one-element arrays a frame would otherwise build."""
+    n = _N
+    h_t = np.zeros(n)
+    h_t[n - 1] = 1.0
+    return _pack_row(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v, h_t, r_v, r_t, gate,
+                     relock_after, relock_inflation, max_dt, last_innovation, rejected_total, rejected_in_row,
+                     relocks, window, np.empty((n, n)), np.empty((2 * n, n)), np.empty(n))
 
 
 _NX = kernel.N_EXT_STATE
@@ -365,20 +391,35 @@ def ext_pack_step_rows(params, knots_y, knots_d, mean, cov, idx, dt, current, am
 
 
 @njit(**_JIT)
+def _motor_row(params, mean, cov, q, dt, current, ambient, temperature, process_var, r, gate, relock_after,
+               relock_inflation, rejected_total, rejected_in_row, relocks, h, innovation):
+    """One frame of motor row ``q`` (``motor_step_rows``' body; ``h``, ``innovation`` scratch)."""
+    m, c = mean[q], cov[q]
+    if dt > 0.0:
+        sd = math.sqrt(c[0, 0]) if c[0, 0] > 0.0 else math.sqrt(c[0, 0] + 1e-9 * c[0, 0] + 1e-12)
+        hi = kernel._thermal_advance(params[q], m[0] + sd, current, ambient, dt)
+        lo = kernel._thermal_advance(params[q], m[0] - sd, current, ambient, dt)
+        m[0] = 0.5 * (hi + lo)
+        c[0, 0] = 0.5 * ((hi - m[0]) ** 2 + (lo - m[0]) ** 2) + process_var * dt
+    if math.isfinite(temperature):
+        _observe(m, c, h, temperature, r, gate, relock_after, relock_inflation, 0, q,
+                 innovation, rejected_total, rejected_in_row, relocks)
+
+
+@njit(**_JIT)
 def motor_step_rows(params, mean, cov, idx, dt, current, ambient, temperature, process_var, r, gate,
                     relock_after, relock_inflation, rejected_total, rejected_in_row, relocks):
     """``MotorThermalFilter.step`` for rows ``idx``, in place (one state per motor)."""
     h = np.ones(1)
     innovation = np.empty((mean.shape[0], 1))
     for k in range(idx.shape[0]):
-        q = idx[k]
-        m, c = mean[q], cov[q]
-        if dt[k] > 0.0:
-            sd = math.sqrt(c[0, 0]) if c[0, 0] > 0.0 else math.sqrt(c[0, 0] + 1e-9 * c[0, 0] + 1e-12)
-            hi = kernel._thermal_advance(params[q], m[0] + sd, current[k], ambient, dt[k])
-            lo = kernel._thermal_advance(params[q], m[0] - sd, current[k], ambient, dt[k])
-            m[0] = 0.5 * (hi + lo)
-            c[0, 0] = 0.5 * ((hi - m[0]) ** 2 + (lo - m[0]) ** 2) + process_var * dt[k]
-        if math.isfinite(temperature[k]):
-            _observe(m, c, h, temperature[k], r, gate, relock_after, relock_inflation, 0, q,
-                     innovation, rejected_total, rejected_in_row, relocks)
+        _motor_row(params, mean, cov, idx[k], dt[k], current[k], ambient, temperature[k], process_var, r, gate,
+                   relock_after, relock_inflation, rejected_total, rejected_in_row, relocks, h, innovation)
+
+
+@njit(**_JIT)
+def motor_step_one(params, mean, cov, q, dt, current, ambient, temperature, process_var, r, gate,
+                   relock_after, relock_inflation, rejected_total, rejected_in_row, relocks):
+    """``motor_step_rows`` for the one row ``q`` and plain floats (a telemetry frame)."""
+    _motor_row(params, mean, cov, q, dt, current, ambient, temperature, process_var, r, gate, relock_after,
+               relock_inflation, rejected_total, rejected_in_row, relocks, np.ones(1), np.empty((mean.shape[0], 1)))
