@@ -9,8 +9,10 @@ skipped and counted, never fatal:
   plausible record follows it, else byte by byte until one does (``garbage_bytes``);
 * a record cut off by the end of the file is counted in ``truncated_tail_bytes``.
 
-``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field dicts
-(what the provisional vehicle description reads).
+``scanned_tlog`` reads and scans a file once and keeps the last file's records, so the commands that
+read a log twice (``gcs-pdm replay`` derives the provisional vehicle description, then replays) decode
+it once. ``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field
+dicts (what the provisional vehicle description reads).
 """
 from __future__ import annotations
 
@@ -224,6 +226,45 @@ def _plausible_record(data: bytes, start: int, n: int) -> bool:
     return end <= n
 
 
+#: files up to this size keep their scanned records for the next reader (a 100,000-message tlog,
+#: 4.6 MB, keeps ≈ 30 MB of records); larger ones are streamed each time
+SCAN_CACHE_MAX_BYTES = 64 * 1024 * 1024
+
+Record = tuple[int, int, int, int, memoryview, int, int]
+
+
+@dataclass
+class ScannedTlog:
+    """One file read and scanned: its bytes, the records :func:`scan_tlog_bytes` handed out, its stats."""
+
+    data: bytes
+    records: list[Record]
+    stats: ScanStats
+
+
+_last_scan: tuple[tuple, ScannedTlog] | None = None
+
+
+def scanned_tlog(path: str | Path) -> ScannedTlog | None:
+    """The file scanned, reusing the previous call's scan when the file is the same (path, size,
+    modification time, inode); None for a file above :data:`SCAN_CACHE_MAX_BYTES` (stream it with
+    :func:`scan_tlog` instead). Only the last file is kept."""
+    global _last_scan
+    path = Path(path)
+    st = path.stat()
+    if st.st_size > SCAN_CACHE_MAX_BYTES:
+        return None
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
+    last = _last_scan
+    if last is not None and last[0] == key:
+        return last[1]
+    data = path.read_bytes()
+    stats = ScanStats()
+    scanned = ScannedTlog(data, list(scan_tlog_bytes(data, stats)), stats)
+    _last_scan = (key, scanned)
+    return scanned
+
+
 def scan_tlog(path: str | Path, stats: ScanStats | None = None) -> Iterator[tuple[int, int, int, int, memoryview, int, int]]:
     """:func:`scan_tlog_bytes` over a file (read whole: tlogs of a flight are megabytes)."""
     data = Path(path).read_bytes()
@@ -237,7 +278,8 @@ def tlog_message_dicts(path: str | Path, names, *, system: int | None = None) ->
     from gcs_pdm.mavlink.dialect import MESSAGE_IDS_BY_NAME
 
     wanted = {MESSAGE_IDS_BY_NAME[n]: layout(MESSAGE_IDS_BY_NAME[n]) for n in names}
-    for _ts, msgid, sysid, _compid, payload, _start, _end in scan_tlog(path):
+    scanned = scanned_tlog(path)
+    for _ts, msgid, sysid, _compid, payload, _start, _end in (scanned.records if scanned else scan_tlog(path)):
         lay = wanted.get(msgid)
         if lay is None or (system is not None and sysid != system):
             continue
