@@ -451,37 +451,32 @@ class FrameMapper:
 
     def feed(self, recv_s: float, msgid: int, sysid: int, compid: int, payload) -> list | tuple:
         """Frames produced by one CRC-checked packet (often none). ``recv_s``: receive/tlog time."""
-        if msgid == _HEARTBEAT and self.target_system is not None and sysid != self.target_system:
-            self._note_foreign(sysid, compid, payload)
-        if not self.locked:
-            if not self._try_lock(msgid, sysid, compid, payload):
-                self.stats.before_vehicle += 1
+        if not self.locked or sysid != self.target_system or compid != self.target_component:
+            if msgid == _HEARTBEAT and self.target_system is not None and sysid != self.target_system:
+                self._note_foreign(sysid, compid, payload)
+            if not self.locked:
+                if not self._try_lock(msgid, sysid, compid, payload):
+                    self.stats.before_vehicle += 1
+                    return _EMPTY
+            else:
+                self.stats.other_source += 1
                 return _EMPTY
-        elif sysid != self.target_system or compid != self.target_component:
-            self.stats.other_source += 1
-            return _EMPTY
         clock = self.clock
         time_offset = TIME_BOOT_MS_OFFSET.get(msgid)
-        boot_s = None
+        boot_s = released = None
         if time_offset is not None:
-            raw = payload[time_offset:time_offset + 4]
-            if len(raw) < 4:  # MAVLink 2 truncates trailing zero bytes
-                raw = bytes(raw).ljust(4, b"\0")
-            boot_s = int.from_bytes(raw, "little") / 1000.0
+            # MAVLink 2 truncates trailing zero bytes: a shorter field is little-endian all the same
+            boot_s = int.from_bytes(payload[time_offset:time_offset + 4], "little") / 1000.0
             t = clock.on_time_boot(boot_s, recv_s, msgid)
-            if t is Verdict.REJECTED:
-                self.stats.time_rejected += 1
-                return _EMPTY
-            if t is Verdict.FALLBACK:
-                t = recv_s
-            if t is Verdict.ACQUIRING:
-                t = None
-                released = None
-            else:
-                released = self._release_pending(t, recv_s) if self._pending else None
+            if t.__class__ is Verdict:
+                if t is Verdict.REJECTED:
+                    self.stats.time_rejected += 1
+                    return _EMPTY
+                t = recv_s if t is Verdict.FALLBACK else None  # else ACQUIRING: hold the frames
+            if t is not None and self._pending:
+                released = self._release_pending(t, recv_s)
         else:
-            t = clock.untimed(recv_s)
-            released = None
+            t = clock.now if clock.synced else clock.untimed(recv_s)
             if t is not None and self._pending:
                 released = self._release_pending(t, recv_s)
         handler = self.rules.get(msgid)
@@ -489,7 +484,7 @@ class FrameMapper:
             return released or _EMPTY
         lay, rules = handler
         try:
-            vals = lay.unpack(payload)
+            vals = lay.struct.unpack(payload) if len(payload) == lay.size else lay.unpack(payload)
         except Exception:  # noqa: BLE001 - a bad payload is counted, never fatal
             self.stats.undecodable += 1
             return released or _EMPTY
