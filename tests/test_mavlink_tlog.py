@@ -187,6 +187,44 @@ def test_unknown_message_id_is_counted(tmp_path):
     assert stats.unknown_msgid == 1
 
 
+def test_a_file_is_scanned_once_for_the_description_and_the_replay(tmp_path, monkeypatch):
+    """``gcs-pdm replay`` reads a log twice (provisional description, replay): the second reader gets
+    the first one's scan, the same records and counts as a fresh scan; a changed file is scanned
+    again; a file above the size limit is streamed, with the same summary."""
+    import gcs_pdm.mavlink.tlog as tlog
+    from gcs_pdm.mavlink.wire import layout
+
+    packets, _ = synthetic_tlog()
+    v2 = PacketFactory()
+    bad = bytearray(v2.heartbeat())
+    bad[-1] ^= 0xFF
+    data = b"".join(tlog_record(1_000_000 + i, p) for i, p in enumerate(packets)) + tlog_record(9, bytes(bad)) + b"\x00\x01"
+    path = tmp_path / "once.tlog"
+    path.write_bytes(data)
+    stats = ScanStats()
+    fresh = [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in scan_tlog_bytes(data, stats)]
+    scans = []
+    monkeypatch.setattr(tlog, "_scan_records", lambda *a, f=tlog._scan_records: scans.append(1) or f(*a))
+    first = tlog.scanned_tlog(path)
+    assert [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in first.records()] == fresh
+    assert first.stats == stats and stats.garbage_bytes > 0
+    names = ["HEARTBEAT", "GLOBAL_POSITION_INT"]
+    want = [(MESSAGE_CLASSES[m].msgname, layout(m).as_dict(p)) for _, m, _, _, p, *_ in fresh
+            if MESSAGE_CLASSES[m].msgname in names]
+    assert list(tlog_message_dicts(path, names)) == want != []
+    summary = replay_tlog(path).to_dict()
+    assert len(scans) == 1 and tlog.scanned_tlog(path) is first
+    path.write_bytes(data + tlog_record(10, v2.heartbeat()))
+    assert len(tlog.scanned_tlog(path)) == len(first) + 1 and len(scans) == 2
+    path.write_bytes(data)
+    monkeypatch.setattr(tlog, "SCAN_CACHE_MAX_BYTES", len(data) - 1)
+    assert tlog.scanned_tlog(path) is None
+    streamed = replay_tlog(path).to_dict()
+    for s in (summary, streamed):
+        s.pop("elapsed_s"), s.pop("messages_per_s")
+    assert streamed == summary and summary["scan"]["records"] == len(fresh)
+
+
 def test_writer_and_scanner_round_trip(tmp_path):
     packets, _ = synthetic_tlog()
     path = tmp_path / "w.tlog"

@@ -128,7 +128,7 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
     path = Path(path)
     scanned = scanned_tlog(path)  # already scanned when the provisional description read this file
     if scanned is not None:
-        data, stats, records = scanned.data, scanned.stats, scanned.records
+        data, stats, records = scanned.data, scanned.stats, scanned.records()
     else:
         data, stats = path.read_bytes(), ScanStats()
         records = scan_tlog_bytes(data, stats)
