@@ -34,8 +34,7 @@ from measure import loadavg, rate, timed, timed_process  # noqa: E402
 from gcs_pdm.mavlink.dialect import mavutil  # noqa: E402
 from gcs_pdm.mavlink.mapping import FrameMapper  # noqa: E402
 from gcs_pdm.mavlink.replay import replay_tlog  # noqa: E402
-import gcs_pdm.mavlink.tlog as tlog  # noqa: E402
-from gcs_pdm.mavlink.tlog import scan_tlog_bytes  # noqa: E402
+from gcs_pdm.mavlink.tlog import scan_tlog_bytes, scanned_tlog  # noqa: E402
 
 TLOG_DIR = Path(os.environ.get("GCS_PDM_TLOG_DIR", REPO / ".." / "shared" / "tlogs"))
 
@@ -49,16 +48,10 @@ def best_of(repeat: int, fn) -> tuple[float, int]:
     return best, count
 
 
-def fresh_replay(path, **kwargs):
-    """``replay_tlog`` as a fresh process runs it: scanning the file (no scan kept from a previous run)."""
-    tlog._last_scan = None
-    return replay_tlog(path, **kwargs)
-
-
 def ours_to_frames(paths) -> int:
     messages = 0
     for path in paths:
-        messages += fresh_replay(path, mapper=FrameMapper()).messages
+        messages += replay_tlog(path, mapper=FrameMapper()).messages
     return messages
 
 
@@ -83,7 +76,7 @@ def pymavlink_loop(paths, match: bool) -> int:
 def ours_diagnosed(paths) -> int:
     from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 
-    return sum(fresh_replay(p, mapper=FrameMapper(), frame_consumer=DiagnosisPipeline()).messages for p in paths)
+    return sum(replay_tlog(p, mapper=FrameMapper(), frame_consumer=DiagnosisPipeline()).messages for p in paths)
 
 
 def replay_stages(path: Path) -> dict:
@@ -114,14 +107,14 @@ def replay_stages(path: Path) -> dict:
     prediction.predict_packs_at_current = timing(predict, "trace_monte_carlo")
     pack_health.thread_map = lambda fn, items: [fn(i) for i in items]
     try:
-        tlog._last_scan = None  # a fresh process has scanned nothing
         c0 = time.process_time()
-        tlog.scanned_tlog(path)
+        scanned_tlog(path)  # kept for the provisional description and the replay, as in the command
         c1 = time.process_time()
         desc, about = replay_vehicle(path, None)
         c2 = time.process_time()
         replay_tlog(path, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)))
         c3 = time.process_time()
+        scanned_tlog(path)  # the replay took the scan: keep it again for the diagnosed replay
         consumer = TracedPipeline(desc, about)
         replay_tlog(path, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)), frame_consumer=consumer)
         json.dumps(consumer.report())

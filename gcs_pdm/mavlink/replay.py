@@ -126,7 +126,7 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
                 udp_target: str | None = None) -> ReplaySummary:
     """Replay ``path`` to its end; damaged data is skipped and counted, never raised."""
     path = Path(path)
-    scanned = scanned_tlog(path)  # already scanned when the provisional description read this file
+    scanned = scanned_tlog(path, keep=False)  # kept by the provisional description's pass, if it ran
     if scanned is not None:
         data, stats, records = scanned.data, scanned.stats, scanned.records()
     else:

@@ -9,9 +9,9 @@ skipped and counted, never fatal:
   plausible record follows it, else byte by byte until one does (``garbage_bytes``);
 * a record cut off by the end of the file is counted in ``truncated_tail_bytes``.
 
-``scanned_tlog`` reads and scans a file once and keeps the last file's records, so the commands that
-read a log twice (``gcs-pdm replay`` derives the provisional vehicle description, then replays) decode
-it once. ``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field
+``scanned_tlog`` reads and scans a file once and keeps its records for the next reader, so a command
+that reads a log twice (``gcs-pdm replay`` derives the provisional vehicle description, then
+replays) decodes it once; the replay takes the kept scan and nothing stays in memory after it. ``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field
 dicts (what the provisional vehicle description reads).
 """
 from __future__ import annotations
@@ -268,27 +268,30 @@ class ScannedTlog:
 _last_scan: tuple[tuple, ScannedTlog] | None = None
 
 
-def scanned_tlog(path: str | Path) -> ScannedTlog | None:
-    """The file scanned, reusing the previous call's scan when the file is the same (path, size,
-    modification time, inode); None for a file above :data:`SCAN_CACHE_MAX_BYTES` (stream it with
-    :func:`scan_tlog` instead). Only the last file is kept."""
+def scanned_tlog(path: str | Path, *, keep: bool = True) -> ScannedTlog | None:
+    """The file scanned, or the scan kept by the previous call when the file is the same (path, size,
+    modification time, inode). ``keep``: keep this scan for the next reader; False: the last reader
+    (a replay) takes it and nothing stays in memory. None for a file above
+    :data:`SCAN_CACHE_MAX_BYTES` (stream it with :func:`scan_tlog` instead)."""
     global _last_scan
     path = Path(path)
     st = path.stat()
     if st.st_size > SCAN_CACHE_MAX_BYTES:
         return None
     key = (str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
-    last = _last_scan
+    last, _last_scan = _last_scan, None
     if last is not None and last[0] == key:
-        return last[1]
-    data = path.read_bytes()
-    stats = ScanStats()
-    flat = array("q")
-    extend = flat.extend
-    for record in _scan_records(data, stats):
-        extend(record)
-    scanned = ScannedTlog(data, tuple(flat[i::_COLUMNS] for i in range(_COLUMNS)), stats)
-    _last_scan = (key, scanned)
+        scanned = last[1]
+    else:
+        data = path.read_bytes()
+        stats = ScanStats()
+        flat = array("q")
+        extend = flat.extend
+        for record in _scan_records(data, stats):
+            extend(record)
+        scanned = ScannedTlog(data, tuple(flat[i::_COLUMNS] for i in range(_COLUMNS)), stats)
+    if keep:
+        _last_scan = (key, scanned)
     return scanned
 
 
