@@ -338,8 +338,9 @@ _WANTED = ["HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", *_ESC_MESSAGES]
 
 def tlog_messages(path: str | Path, *, system: int | None = None) -> Iterable[tuple[str, dict]]:
     """The messages ``ProvisionalObserver`` uses from a tlog (I/O shell): the project's own tlog
-    scanner decodes only these, with the fields pymavlink's ``to_dict()`` gives (≈ 6 µs a message
-    where pymavlink's parser took ≈ 70 µs; a replay reads the log twice, once for this)."""
+    scanner decodes only these, with the fields pymavlink's ``to_dict()`` gives (a few µs a message
+    where pymavlink's parser took ≈ 70 µs). The scan is kept for the replay that follows
+    (``gcs_pdm.mavlink.tlog.scanned_tlog``): a replay scans its log once."""
     from gcs_pdm.mavlink.tlog import tlog_message_dicts
 
     path = Path(path)
