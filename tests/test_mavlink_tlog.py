@@ -219,7 +219,7 @@ def test_a_file_is_scanned_once_for_the_description_and_the_replay(tmp_path, mon
     assert len(tlog.scanned_tlog(path)) == len(first) + 1 and len(scans) == 3
     path.write_bytes(data)
     monkeypatch.setattr(tlog, "SCAN_CACHE_MAX_BYTES", len(data) - 1)
-    assert tlog.scanned_tlog(path) is None
+    assert tlog.scanned_tlog(path) is None and tlog.take_kept_scan(path) is None
     streamed = replay_tlog(path).to_dict()
     for s in (summary, streamed):
         s.pop("elapsed_s"), s.pop("messages_per_s")

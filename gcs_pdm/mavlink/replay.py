@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
 from gcs_pdm.mavlink.mapping import FrameMapper
-from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes, scanned_tlog
+from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes, take_kept_scan
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +126,7 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
                 udp_target: str | None = None) -> ReplaySummary:
     """Replay ``path`` to its end; damaged data is skipped and counted, never raised."""
     path = Path(path)
-    scanned = scanned_tlog(path, keep=False)  # kept by the provisional description's pass, if it ran
+    scanned = take_kept_scan(path)  # kept by the provisional description's pass, if it ran
     if scanned is not None:
         data, stats, records = scanned.data, scanned.stats, scanned.records()
     else:

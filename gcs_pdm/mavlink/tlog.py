@@ -11,7 +11,8 @@ skipped and counted, never fatal:
 
 ``scanned_tlog`` reads and scans a file once and keeps its records for the next reader, so a command
 that reads a log twice (``gcs-pdm replay`` derives the provisional vehicle description, then
-replays) decodes it once; the replay takes the kept scan and nothing stays in memory after it. ``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field
+replays) decodes it once; the replay takes the kept scan (``take_kept_scan``) and nothing stays in
+memory after it. ``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field
 dicts (what the provisional vehicle description reads).
 """
 from __future__ import annotations
@@ -268,31 +269,45 @@ class ScannedTlog:
 _last_scan: tuple[tuple, ScannedTlog] | None = None
 
 
-def scanned_tlog(path: str | Path, *, keep: bool = True) -> ScannedTlog | None:
-    """The file scanned, or the scan kept by the previous call when the file is the same (path, size,
-    modification time, inode). ``keep``: keep this scan for the next reader; False: the last reader
-    (a replay) takes it and nothing stays in memory. None for a file above
-    :data:`SCAN_CACHE_MAX_BYTES` (stream it with :func:`scan_tlog` instead)."""
-    global _last_scan
-    path = Path(path)
+def _scan_key(path: Path) -> tuple | None:
+    """What identifies a file's content for a kept scan (None: too large to keep)."""
     st = path.stat()
     if st.st_size > SCAN_CACHE_MAX_BYTES:
         return None
-    key = (str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino)
-    last, _last_scan = _last_scan, None
+    return str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino
+
+
+def scanned_tlog(path: str | Path) -> ScannedTlog | None:
+    """The file scanned and kept for the next reader (the previous call's scan when the file is the
+    same: path, size, modification time, inode); None for a file above
+    :data:`SCAN_CACHE_MAX_BYTES` (stream it with :func:`scan_tlog` instead). Only one is kept."""
+    global _last_scan
+    path = Path(path)
+    key = _scan_key(path)
+    if key is None:
+        return None
+    last = _last_scan
     if last is not None and last[0] == key:
-        scanned = last[1]
-    else:
-        data = path.read_bytes()
-        stats = ScanStats()
-        flat = array("q")
-        extend = flat.extend
-        for record in _scan_records(data, stats):
-            extend(record)
-        scanned = ScannedTlog(data, tuple(flat[i::_COLUMNS] for i in range(_COLUMNS)), stats)
-    if keep:
-        _last_scan = (key, scanned)
+        return last[1]
+    data = path.read_bytes()
+    stats = ScanStats()
+    flat = array("q")
+    extend = flat.extend
+    for record in _scan_records(data, stats):
+        extend(record)
+    scanned = ScannedTlog(data, tuple(flat[i::_COLUMNS] for i in range(_COLUMNS)), stats)
+    _last_scan = (key, scanned)
     return scanned
+
+
+def take_kept_scan(path: str | Path) -> ScannedTlog | None:
+    """The scan :func:`scanned_tlog` kept of this file, handed over and no longer kept (the last
+    reader, a replay, takes it); None when none is kept."""
+    global _last_scan
+    last, _last_scan = _last_scan, None
+    if last is not None and last[0] == _scan_key(Path(path)):
+        return last[1]
+    return None
 
 
 def scan_tlog(path: str | Path, stats: ScanStats | None = None) -> Iterator[tuple[int, int, int, int, memoryview, int, int]]:
