@@ -204,7 +204,7 @@ def test_a_file_is_scanned_once_for_the_description_and_the_replay(tmp_path, mon
     stats = ScanStats()
     fresh = [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in scan_tlog_bytes(data, stats)]
     scans = []
-    monkeypatch.setattr(tlog, "_scan_records", lambda *a, f=tlog._scan_records: scans.append(1) or f(*a))
+    monkeypatch.setattr(tlog, "_scan_records", lambda *a, f=tlog._scan_records, **k: scans.append(1) or f(*a, **k))
     first = tlog.scanned_tlog(path)
     assert [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in first.records()] == fresh
     assert first.stats == stats and stats.garbage_bytes > 0

@@ -113,14 +113,12 @@ def scan_tlog_bytes(data: bytes, stats: ScanStats | None = None) -> Iterator[tup
     A tlog record is an 8-byte big-endian µs timestamp followed by one MAVLink 1 (0xFE) or
     MAVLink 2 (0xFD) packet; MAVLink 2 payloads come back zero-truncated, as on the wire.
     """
-    mv = memoryview(data)
-    for ts, msgid, sysid, compid, payload_start, payload_end, start, end in _scan_records(data, stats):
-        yield ts, msgid, sysid, compid, mv[payload_start:payload_end], start, end
+    return _scan_records(data, stats, views=True)
 
 
-def _scan_records(data: bytes, stats: ScanStats | None) -> Iterator[tuple[int, int, int, int, int, int, int, int]]:
-    """:func:`scan_tlog_bytes` with the payload as its bounds: ``(timestamp_us, msgid, sysid,
-    compid, payload_start, payload_end, packet_start, packet_end)``, plain integers."""
+def _scan_records(data: bytes, stats: ScanStats | None, views: bool = False) -> Iterator[tuple]:
+    """:func:`scan_tlog_bytes` (``views``), or with the payload as its bounds: ``(timestamp_us,
+    msgid, sysid, compid, payload_start, payload_end, packet_start, packet_end)``, plain integers."""
     st = stats if stats is not None else ScanStats()
     mv = memoryview(data)
     n = len(data)
@@ -191,10 +189,14 @@ def _scan_records(data: bytes, stats: ScanStats | None) -> Iterator[tuple[int, i
             st.records += 1
             if v2:
                 st.mavlink2 += 1
-                yield ts, msgid, sysid, compid, p + 10, body_end, p, end
+                payload_start = p + 10
             else:
                 st.mavlink1 += 1
-                yield ts, msgid, sysid, compid, p + 6, body_end, p, end
+                payload_start = p + 6
+            if views:
+                yield ts, msgid, sysid, compid, mv[payload_start:body_end], p, end
+            else:
+                yield ts, msgid, sysid, compid, payload_start, body_end, p, end
             pos = end
             continue
         # A damaged or foreign packet: skip it whole if a record seems to start right after it
