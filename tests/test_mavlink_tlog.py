@@ -226,6 +226,56 @@ def test_a_file_is_scanned_once_for_the_description_and_the_replay(tmp_path, mon
     assert streamed == summary and summary["scan"]["records"] == len(fresh)
 
 
+def _signed(packet: bytes) -> bytes:
+    """A MAVLink 2 packet marked signed (incompat flag, CRC redone, 13 signature bytes appended)."""
+    from fastcrc.crc16 import mcrf4xx
+
+    from gcs_pdm.mavlink.dialect import CRC_EXTRA
+
+    body = bytearray(packet[:-2])
+    body[2] |= 0x01
+    msgid = body[7] | (body[8] << 8) | (body[9] << 16)
+    crc = mcrf4xx(bytes((CRC_EXTRA[msgid],)), mcrf4xx(bytes(body[1:])))
+    return bytes(body) + crc.to_bytes(2, "little") + bytes(range(13))
+
+
+@pytest.mark.parametrize("damage", [None, "bad_crc", "unknown_msgid", "garbage", "truncated", "short_tail"])
+def test_scan_of_a_whole_file_is_the_sequential_scan(tmp_path, damage):
+    """The scan a command keeps computes the headers and CRCs of all records at once when nothing
+    is damaged, and falls back to the sequential scanner otherwise: both give the records and counts
+    of :func:`scan_tlog_bytes` (MAVLink 1 and 2, signed packets, zero-truncated payloads)."""
+    import gcs_pdm.mavlink.tlog as tlog
+
+    v2, v1 = PacketFactory(), PacketFactory(mavlink1=True)
+    packets = [v2.heartbeat(), v1.heartbeat(), _signed(v2.position(1000)), v1.pressure(1100),
+               v2.battery(0, [4000] * 5, 1234, 2500), _signed(v2.hud()), v2.position(1200), v1.battery(1, [0], 0, 0)]
+    packets *= 40
+    if damage == "bad_crc":
+        packets[17] = packets[17][:-3] + bytes([packets[17][-3] ^ 0x55]) + packets[17][-2:]
+    elif damage == "unknown_msgid":
+        bad = bytearray(v2.heartbeat())
+        bad[7:10] = (0x7FF0).to_bytes(3, "little")
+        packets[30] = bytes(bad)
+    data = b"".join(tlog_record(1_700_000_000_000_000 + 1000 * i, p) for i, p in enumerate(packets))
+    if damage == "garbage":
+        data = data[:500] + b"\x07\xfd\x03" + data[500:]
+    elif damage == "truncated":
+        data = data[:-5]
+    elif damage == "short_tail":
+        data += b"\x00" * 6
+    stats = ScanStats()
+    want = [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in scan_tlog_bytes(data, stats)]
+    path = tmp_path / "whole.tlog"
+    path.write_bytes(data)
+    assert (tlog._scan_flawless(data) is None) == (damage is not None)
+    got = tlog.scanned_tlog(path)
+    assert [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in got.records()] == want
+    assert got.stats == stats and stats.signed == 80
+    heartbeats = {MESSAGE_CLASSES[m].msgname: m for _, m, *_ in want}["HEARTBEAT"]
+    assert [r[:4] for r in got.records({heartbeats})] == [r[:4] for r in want if r[1] == heartbeats]
+    tlog.take_kept_scan(path)
+
+
 def test_writer_and_scanner_round_trip(tmp_path):
     packets, _ = synthetic_tlog()
     path = tmp_path / "w.tlog"
