@@ -187,6 +187,95 @@ def test_unknown_message_id_is_counted(tmp_path):
     assert stats.unknown_msgid == 1
 
 
+def test_a_file_is_scanned_once_for_the_description_and_the_replay(tmp_path, monkeypatch):
+    """``gcs-pdm replay`` reads a log twice (provisional description, replay): the second reader gets
+    the first one's scan, the same records and counts as a fresh scan; a changed file is scanned
+    again; a file above the size limit is streamed, with the same summary."""
+    import gcs_pdm.mavlink.tlog as tlog
+    from gcs_pdm.mavlink.wire import layout
+
+    packets, _ = synthetic_tlog()
+    v2 = PacketFactory()
+    bad = bytearray(v2.heartbeat())
+    bad[-1] ^= 0xFF
+    data = b"".join(tlog_record(1_000_000 + i, p) for i, p in enumerate(packets)) + tlog_record(9, bytes(bad)) + b"\x00\x01"
+    path = tmp_path / "once.tlog"
+    path.write_bytes(data)
+    stats = ScanStats()
+    fresh = [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in scan_tlog_bytes(data, stats)]
+    scans = []
+    monkeypatch.setattr(tlog, "_scan_records", lambda *a, f=tlog._scan_records, **k: scans.append(1) or f(*a, **k))
+    first = tlog.scanned_tlog(path)
+    assert [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in first.records()] == fresh
+    assert first.stats == stats and stats.garbage_bytes > 0
+    names = ["HEARTBEAT", "GLOBAL_POSITION_INT"]
+    want = [(MESSAGE_CLASSES[m].msgname, layout(m).as_dict(p)) for _, m, _, _, p, *_ in fresh
+            if MESSAGE_CLASSES[m].msgname in names]
+    assert list(tlog_message_dicts(path, names)) == want != []
+    summary = replay_tlog(path).to_dict()
+    assert len(scans) == 1 and tlog._last_scan is None  # the replay took the scan: nothing is kept
+    assert tlog.scanned_tlog(path) is not first and len(scans) == 2
+    path.write_bytes(data + tlog_record(10, v2.heartbeat()))
+    assert len(tlog.scanned_tlog(path)) == len(first) + 1 and len(scans) == 3
+    path.write_bytes(data)
+    monkeypatch.setattr(tlog, "SCAN_CACHE_MAX_BYTES", len(data) - 1)
+    assert tlog.scanned_tlog(path) is None and tlog.take_kept_scan(path) is None
+    streamed = replay_tlog(path).to_dict()
+    for s in (summary, streamed):
+        s.pop("elapsed_s"), s.pop("messages_per_s")
+    assert streamed == summary and summary["scan"]["records"] == len(fresh)
+
+
+def _signed(packet: bytes) -> bytes:
+    """A MAVLink 2 packet marked signed (incompat flag, CRC redone, 13 signature bytes appended)."""
+    from fastcrc.crc16 import mcrf4xx
+
+    from gcs_pdm.mavlink.dialect import CRC_EXTRA
+
+    body = bytearray(packet[:-2])
+    body[2] |= 0x01
+    msgid = body[7] | (body[8] << 8) | (body[9] << 16)
+    crc = mcrf4xx(bytes((CRC_EXTRA[msgid],)), mcrf4xx(bytes(body[1:])))
+    return bytes(body) + crc.to_bytes(2, "little") + bytes(range(13))
+
+
+@pytest.mark.parametrize("damage", [None, "bad_crc", "unknown_msgid", "garbage", "truncated", "short_tail"])
+def test_scan_of_a_whole_file_is_the_sequential_scan(tmp_path, damage):
+    """The scan a command keeps computes the headers and CRCs of all records at once when nothing
+    is damaged, and falls back to the sequential scanner otherwise: both give the records and counts
+    of :func:`scan_tlog_bytes` (MAVLink 1 and 2, signed packets, zero-truncated payloads)."""
+    import gcs_pdm.mavlink.tlog as tlog
+
+    v2, v1 = PacketFactory(), PacketFactory(mavlink1=True)
+    packets = [v2.heartbeat(), v1.heartbeat(), _signed(v2.position(1000)), v1.pressure(1100),
+               v2.battery(0, [4000] * 5, 1234, 2500), _signed(v2.hud()), v2.position(1200), v1.battery(1, [0], 0, 0)]
+    packets *= 40
+    if damage == "bad_crc":
+        packets[17] = packets[17][:-3] + bytes([packets[17][-3] ^ 0x55]) + packets[17][-2:]
+    elif damage == "unknown_msgid":
+        bad = bytearray(v2.heartbeat())
+        bad[7:10] = (0x7FF0).to_bytes(3, "little")
+        packets[30] = bytes(bad)
+    data = b"".join(tlog_record(1_700_000_000_000_000 + 1000 * i, p) for i, p in enumerate(packets))
+    if damage == "garbage":
+        data = data[:500] + b"\x07\xfd\x03" + data[500:]
+    elif damage == "truncated":
+        data = data[:-5]
+    elif damage == "short_tail":
+        data += b"\x00" * 6
+    stats = ScanStats()
+    want = [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in scan_tlog_bytes(data, stats)]
+    path = tmp_path / "whole.tlog"
+    path.write_bytes(data)
+    assert (tlog._scan_flawless(data) is None) == (damage is not None)
+    got = tlog.scanned_tlog(path)
+    assert [(ts, m, s, c, bytes(p), a, b) for ts, m, s, c, p, a, b in got.records()] == want
+    assert got.stats == stats and stats.signed == 80
+    heartbeats = {MESSAGE_CLASSES[m].msgname: m for _, m, *_ in want}["HEARTBEAT"]
+    assert [r[:4] for r in got.records({heartbeats})] == [r[:4] for r in want if r[1] == heartbeats]
+    tlog.take_kept_scan(path)
+
+
 def test_writer_and_scanner_round_trip(tmp_path):
     packets, _ = synthetic_tlog()
     path = tmp_path / "w.tlog"

@@ -220,6 +220,44 @@ def test_gate_handles_non_finite_and_huge_values():
                              "pack.temperature_c.below_range": 1, "pack.voltage_v.not_finite": 1}
 
 
+def test_mapping_gates_as_the_gate_does_whatever_the_values():
+    """The mapping tests the gate's ranges where it builds a frame (issue 18): every frame it makes
+    equals the gate applied to the ungated frame, and the counts are the gate's."""
+    import random
+
+    rng = random.Random(18)
+    v = PacketFactory()
+    gated, plain = FrameMapper(), FrameMapper(envelope=None)
+    reference, reference_by_field = FrameGate(default_envelope()), FrameGate(default_envelope())
+    _flying(gated, v)
+    _flying(plain, v)
+    # a mapping whose pack names come from a message field: the gate looks the range up per frame
+    by_field = FrameMapper({"NAMED_VALUE_FLOAT": [{"frame": "pack", "fields": {"pack": {"field": "name", "text": True},
+                                                                                  "voltage_v": {"field": "value"}}}]})
+    _flying(by_field, v)
+    unsigned, signed = [0, 1, 4100, 65534, 65535], [0, 1, 32767, -32768, -1]
+    for i in range(400):
+        pack_id = rng.randrange(4)
+        cells = [rng.choice(unsigned + [rng.randrange(65536)]) for _ in range(rng.randrange(1, 6))]
+        packets = [v.battery(pack_id, cells, rng.choice(signed + [rng.randrange(-32768, 32768)]),
+                             rng.choice(signed + [rng.randrange(-32768, 32768)])),
+                   v.esc([rng.randrange(65536) for _ in range(4)], [rng.randrange(65536) for _ in range(4)],
+                         [rng.randrange(256) for _ in range(4)]),
+                   v.pressure(60_000 + i, rng.randrange(-32768, 32768)),
+                   v.position(60_000 + i, rng.randrange(-2 ** 31, 2 ** 31), rng.randrange(-2 ** 31, 2 ** 31)),
+                   v.hud(airspeed=rng.choice([math.nan, math.inf, -5.0, 20.0, 1e30]))]
+        for packet in packets:
+            want = [reference(f) for f in feed(plain, packet, 60.0 + i / 1000)]
+            assert feed(gated, packet, 60.0 + i / 1000) == want
+        name = rng.choice(["LLF20", "LLF23", "nobody"]).encode()
+        value = rng.choice([math.nan, 0.0, 21.0, 101.0])
+        frame, = feed(by_field, v.pack(v.mav.named_value_float_encode(60_000 + i, name, value)), 60.0 + i / 1000)
+        raw = None if math.isnan(value) else value  # the mapping's "not available"
+        assert frame == reference_by_field(PackFrame(frame.time_s, name.decode(), raw, None, None))
+    assert gated.stats.to_dict()["gated"] == reference.counts() != {}
+    assert by_field.stats.to_dict()["gated"] == reference_by_field.counts() != {}
+
+
 def test_service_setting_target_system_takes_an_id_or_auto():
     from gcs_pdm.service.config import ConfigError, load_config
 

@@ -211,29 +211,55 @@ def _field_source(spec: dict, lay, element: int | None, src: _Source) -> str:
     return f"(None if {absent} else {_conversion_source(x, scale, offset)})"
 
 
-def _builder(lay, exprs: list[str], src: _Source) -> Callable[[tuple], tuple]:
-    """One function from the unpacked payload to a frame's field values (after time_s), compiled
-    from source so a message costs one call, not one closure per field."""
-    code = f"def build(v):\n    return ({', '.join(exprs)},)\n"
+def _builders(lay, frame_fields: list[str], exprs: list[str], src: _Source, cls: type, gate: FrameGate | None,
+              checks: tuple | None) -> tuple[Callable[[tuple], tuple], Callable[[float, tuple], Any]]:
+    """Two functions compiled from source, so a message costs one call, not one closure per field:
+    ``build(v)``, the frame's field values after time_s from the unpacked payload ``v`` (for frames
+    held until the clock has a time), and ``make(t, v)``, the frame itself, gated: ``checks`` are
+    the gate's (field, low, high) tests for this frame (None: not known here, the gate tests every
+    frame); a frame that passes them is the gate's unchanged, any other goes through the gate."""
+    values = ", ".join(exprs)
+    code = f"def build(v):\n    return ({values},)\n"
+    if gate is None or checks == ():
+        code += f"def make(t, v):\n    return _cls(t, {values})\n"
+    elif checks is None:
+        code += f"def make(t, v):\n    return _gate(_cls(t, {values}))\n"
+    else:
+        tests = []
+        for name, low, high in checks:
+            i = frame_fields.index(name)
+            tests.append(f"(r[{i}] is None or {src.bind(low)} <= r[{i}] <= {src.bind(high)})")
+        code += (f"def make(t, v):\n    r = ({values},)\n    if {' and '.join(tests)}:\n"
+                 f"        return _cls(t, *r)\n    return _gate(_cls(t, *r))\n")
     namespace = {k: v for k, v in src.names.items() if not k.startswith("_x")}
+    namespace.update(_cls=cls, _gate=gate)
     exec(compile(code, f"<mapping {lay.name}>", "exec"), namespace)  # noqa: S102 - our own source
-    return namespace["build"]
+    return namespace["build"], namespace["make"]
+
+
+@dataclass(slots=True, frozen=True)
+class _Instance:
+    """One frame a rule makes from a message (one per mapped key or array element)."""
+
+    raw_key: Any  # the raw key value (None: not keyed by a field)
+    name: str | None  # the frame's key
+    element: int | None  # array index
+    build: Callable[[tuple], tuple]
+    make: Callable[[float, tuple], Any]
 
 
 @dataclass(slots=True)
 class _CompiledRule:
     frame_cls: type
-    # (raw key value or None, frame key or None, element index or None, builder of the frame's
-    # field values after time_s from the unpacked payload)
-    instances: list[tuple[Any, str | None, int | None, Callable[[tuple], tuple]]]
+    instances: tuple[_Instance, ...]
     key_position: int | None
     match: tuple[tuple[int, Any], ...]
     kind: str = ""
-    #: the raw key values mapped (a keyed rule counts the others in ``unmapped_keys``)
-    keys: frozenset = frozenset()
+    #: raw key value -> the instances it makes (a keyed rule counts the other values in ``unmapped_keys``)
+    by_key: dict = field(default_factory=dict)
 
 
-def _compile_rule(message: str, rule: dict) -> _CompiledRule:
+def _compile_rule(message: str, rule: dict, gate: FrameGate | None) -> _CompiledRule:
     if message not in MESSAGE_IDS_BY_NAME:
         raise MappingError(f"unknown message {message!r} in mapping (dialect ardupilotmega)")
     lay = layout(MESSAGE_IDS_BY_NAME[message])
@@ -251,7 +277,7 @@ def _compile_rule(message: str, rule: dict) -> _CompiledRule:
         if name not in frame_fields:
             raise MappingError(f"{message}: {cls.__name__} has no field {name!r}")
 
-    def extractors(element: int | None, key_value: str | None) -> Callable[[tuple], tuple]:
+    def instance(raw_key, element: int | None, key_value: str | None) -> _Instance:
         src = _Source()
         exprs = []
         for name in frame_fields:
@@ -261,22 +287,26 @@ def _compile_rule(message: str, rule: dict) -> _CompiledRule:
                 exprs.append(_field_source(specs[name], lay, element, src))
             else:
                 exprs.append("None")
-        return _builder(lay, exprs, src)
+        # the gate looks a per-pack range up by the frame's field named after its kind: known
+        # here unless a message field fills it
+        gate_key = key_value if kind == key_target else None
+        checks = None if kind in specs or gate is None else gate.ranges_for(cls, gate_key)
+        return _Instance(raw_key, key_value, element, *_builders(lay, frame_fields, exprs, src, cls, gate, checks))
 
-    instances: list[tuple[Any, str | None, int | None, tuple]] = []
+    instances: list[_Instance] = []
     key_position = None
     if "field" in key:
         if key["field"] not in lay.index:
             raise MappingError(f"{message} has no key field {key['field']!r}")
         key_position = lay.index[key["field"]]
         for raw, name in key.get("map", {}).items():
-            instances.append((int(raw), name, None, extractors(None, name)))
+            instances.append(instance(int(raw), None, name))
     elif key.get("index"):
         for raw, name in key.get("map", {}).items():
-            instances.append((None, name, int(raw), extractors(int(raw), name)))
+            instances.append(instance(None, int(raw), name))
     else:
         const = key.get("const")
-        instances.append((None, const, None, extractors(None, const)))
+        instances.append(instance(None, None, const))
     match = []
     for fname, wanted in rule.get("match", {}).items():
         if fname not in lay.index:
@@ -284,16 +314,21 @@ def _compile_rule(message: str, rule: dict) -> _CompiledRule:
         if isinstance(wanted, str):
             wanted = wanted.encode()
         match.append((lay.index[fname], wanted))
-    return _CompiledRule(cls, instances, key_position, tuple(match), kind,
-                         frozenset(k for k, *_ in instances if k is not None))
+    by_key: dict = {}
+    for inst in instances:
+        if inst.raw_key is not None:
+            by_key[inst.raw_key] = by_key.get(inst.raw_key, ()) + (inst,)
+    return _CompiledRule(cls, tuple(instances), key_position, tuple(match), kind, by_key)
 
 
-def _compile_mapping(mapping: dict) -> dict[int, list[_CompiledRule]]:
-    rules: dict[int, list[_CompiledRule]] = {}
+def _compile_mapping(mapping: dict, gate: FrameGate | None) -> dict[int, tuple[Any, list[_CompiledRule]]]:
+    """msgid -> (its payload layout, its rules); ``gate``: the frames' plausibility gate, or None."""
+    rules: dict[int, tuple[Any, list[_CompiledRule]]] = {}
     for message, message_rules in mapping.items():
         for rule in message_rules:
-            compiled = _compile_rule(message, rule)  # names an unknown message before the lookup below
-            rules.setdefault(MESSAGE_IDS_BY_NAME[message], []).append(compiled)
+            compiled = _compile_rule(message, rule, gate)  # names an unknown message before the lookup below
+            msgid = MESSAGE_IDS_BY_NAME[message]
+            rules.setdefault(msgid, (layout(msgid), []))[1].append(compiled)
     return rules
 
 
@@ -357,16 +392,16 @@ class FrameMapper:
                  target_component: int | None = None, sync_window_s: float = 30.0,
                  envelope: PhysicalEnvelope | None | str = "default"):
         self.mapping = default_mapping() if mapping is None else mapping
-        self.rules: dict[int, list[_CompiledRule]] = _compile_mapping(self.mapping)
+        if envelope == "default":
+            envelope = default_envelope()
+        self.stats = MappingStats()
+        self.gate = FrameGate(envelope, self.stats.gated) if envelope is not None else None
+        self.rules: dict[int, tuple[Any, list[_CompiledRule]]] = _compile_mapping(self.mapping, self.gate)
         self.target_system = target_system
         self.target_component = target_component
         self.locked = target_system is not None and target_component is not None
         self.clock = VehicleClock(sync_window_s)
-        self.stats = MappingStats()
         self.foreign_systems: dict[int, ForeignSystem] = {}
-        if envelope == "default":
-            envelope = default_envelope()
-        self.gate = FrameGate(envelope, self.stats.gated) if envelope is not None else None
         # frames held until the clock has a time: (receive time, own time_boot s or None, class, values)
         self._pending: list[tuple[float, float | None, type, tuple]] = []
 
@@ -374,9 +409,9 @@ class FrameMapper:
         """Another vehicle layout (a description derived from the first telemetry), keeping the
         clock and the vehicle lock. The rules are swapped in one assignment: the reader thread
         maps each packet with the old rules or the new, never a mix."""
-        rules = _compile_mapping(mapping)
-        if envelope is not None:
-            self.gate = FrameGate(envelope, self.stats.gated)
+        gate = FrameGate(envelope, self.stats.gated) if envelope is not None else self.gate
+        rules = _compile_mapping(mapping, gate)  # the rules carry their gate
+        self.gate = gate
         self.mapping = mapping
         self.rules = rules
 
@@ -416,68 +451,60 @@ class FrameMapper:
 
     def feed(self, recv_s: float, msgid: int, sysid: int, compid: int, payload) -> list | tuple:
         """Frames produced by one CRC-checked packet (often none). ``recv_s``: receive/tlog time."""
-        if msgid == _HEARTBEAT and self.target_system is not None and sysid != self.target_system:
-            self._note_foreign(sysid, compid, payload)
-        if not self.locked:
-            if not self._try_lock(msgid, sysid, compid, payload):
-                self.stats.before_vehicle += 1
+        if not self.locked or sysid != self.target_system or compid != self.target_component:
+            if msgid == _HEARTBEAT and self.target_system is not None and sysid != self.target_system:
+                self._note_foreign(sysid, compid, payload)
+            if not self.locked:
+                if not self._try_lock(msgid, sysid, compid, payload):
+                    self.stats.before_vehicle += 1
+                    return _EMPTY
+            else:
+                self.stats.other_source += 1
                 return _EMPTY
-        elif sysid != self.target_system or compid != self.target_component:
-            self.stats.other_source += 1
-            return _EMPTY
         clock = self.clock
         time_offset = TIME_BOOT_MS_OFFSET.get(msgid)
-        boot_s = None
+        boot_s = released = None
         if time_offset is not None:
-            raw = payload[time_offset:time_offset + 4]
-            if len(raw) < 4:  # MAVLink 2 truncates trailing zero bytes
-                raw = bytes(raw).ljust(4, b"\0")
-            boot_s = int.from_bytes(raw, "little") / 1000.0
+            # MAVLink 2 truncates trailing zero bytes: a shorter field is little-endian all the same
+            boot_s = int.from_bytes(payload[time_offset:time_offset + 4], "little") / 1000.0
             t = clock.on_time_boot(boot_s, recv_s, msgid)
-            if t is Verdict.REJECTED:
-                self.stats.time_rejected += 1
-                return _EMPTY
-            if t is Verdict.FALLBACK:
-                t = recv_s
-            if t is Verdict.ACQUIRING:
-                t = None
-                released = None
-            else:
-                released = self._release_pending(t, recv_s) if self._pending else None
-        else:
-            t = clock.untimed(recv_s)
-            released = None
+            if t.__class__ is Verdict:
+                if t is Verdict.REJECTED:
+                    self.stats.time_rejected += 1
+                    return _EMPTY
+                t = recv_s if t is Verdict.FALLBACK else None  # else ACQUIRING: hold the frames
             if t is not None and self._pending:
                 released = self._release_pending(t, recv_s)
-        rules = self.rules.get(msgid)
-        if rules is None:
+        else:
+            t = clock.now if clock.synced else clock.untimed(recv_s)
+            if t is not None and self._pending:
+                released = self._release_pending(t, recv_s)
+        handler = self.rules.get(msgid)
+        if handler is None:
             return released or _EMPTY
-        lay = layout(msgid)
+        lay, rules = handler
         try:
-            vals = lay.unpack(payload)
+            vals = lay.struct.unpack(payload) if len(payload) == lay.size else lay.unpack(payload)
         except Exception:  # noqa: BLE001 - a bad payload is counted, never fatal
             self.stats.undecodable += 1
             return released or _EMPTY
         out: list = []
-        counts = self.stats.frames_by_kind
         for rule in rules:
             if rule.match and not all(_matches(vals[pos], wanted) for pos, wanted in rule.match):
                 continue
-            cls = rule.frame_cls
-            key_position = rule.key_position
-            for raw_key, _name, _element, build in rule.instances:
-                if raw_key is not None and vals[key_position] != raw_key:
+            if rule.key_position is None:
+                instances = rule.instances
+            else:
+                instances = rule.by_key.get(vals[rule.key_position])
+                if instances is None:
+                    self.stats.unmapped_keys[(lay.name, vals[rule.key_position])] += 1
                     continue
-                if t is None:
-                    self._pending.append((recv_s, boot_s, cls, build(vals)))
-                else:
-                    out.append(cls(t, *build(vals)))
-                    counts[rule.kind] += 1
-            if key_position is not None and vals[key_position] not in rule.keys:
-                self.stats.unmapped_keys[(lay.name, vals[key_position])] += 1
-        if self.gate is not None and out:
-            gate = self.gate
-            out = [gate(f) for f in out]
+            if t is None:
+                self._pending.extend((recv_s, boot_s, rule.frame_cls, inst.build(vals)) for inst in instances)
+            else:
+                for inst in instances:
+                    out.append(inst.make(t, vals))  # gated as it is made
+                self.stats.frames_by_kind[rule.kind] += len(instances)
         return released + out if released else out
 
     def _gated(self, frames: list) -> list:

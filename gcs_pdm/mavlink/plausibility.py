@@ -119,6 +119,20 @@ class FrameGate:
             self.gated[(kind, name, reason)] += 1
         return dataclasses.replace(frame, **changes) if changes else frame
 
+    def ranges_for(self, cls: type, key) -> tuple[tuple[str, float, float], ...]:
+        """The (field, low, high) checks :meth:`__call__` makes on a frame of class ``cls`` whose key
+        field (``pack``/``motor``) is ``key``: a frame whose checked values are all None or within
+        them passes unchanged, so the frame mapping can test them where it builds the frame."""
+        kind, checks = self._by_class.get(cls, (None, ()))
+        out = []
+        for name, allowed, per_key in checks:
+            if per_key:
+                allowed = allowed.get(key)
+                if allowed is None:
+                    continue
+            out.append((name, allowed[0], allowed[1]))
+        return tuple(out)
+
     def counts(self) -> dict[str, int]:
         """``{"pack.voltage_v.above_range": 3, ...}``"""
         return {f"{k}.{f}.{r}": n for (k, f, r), n in sorted(self.gated.items())}

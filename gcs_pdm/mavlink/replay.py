@@ -1,6 +1,7 @@
 """Replay a tlog through the live frame-mapping code, by message time.
 
-``replay_tlog`` scans the file (``gcs_pdm.mavlink.tlog``), feeds every CRC-valid packet to the
+``replay_tlog`` scans the file (``gcs_pdm.mavlink.tlog``; a file the provisional vehicle description
+has just read is not scanned again), feeds every CRC-valid packet to the
 same :class:`~gcs_pdm.mavlink.mapping.FrameMapper` the live link uses, and hands each frame to
 an optional ``frame_consumer``. Pacing: as fast as possible (``speed=None``), or ×``speed`` real
 time following the tlog timestamps; ``udp_target`` re-sends every valid packet, unchanged, to a
@@ -23,7 +24,7 @@ from typing import Any, Callable
 
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
 from gcs_pdm.mavlink.mapping import FrameMapper
-from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes
+from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes, take_kept_scan
 
 log = logging.getLogger(__name__)
 
@@ -125,9 +126,13 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
                 udp_target: str | None = None) -> ReplaySummary:
     """Replay ``path`` to its end; damaged data is skipped and counted, never raised."""
     path = Path(path)
-    data = path.read_bytes()
+    scanned = take_kept_scan(path)  # kept by the provisional description's pass, if it ran
+    if scanned is not None:
+        data, stats, records = scanned.data, scanned.stats, scanned.records()
+    else:
+        data, stats = path.read_bytes(), ScanStats()
+        records = scan_tlog_bytes(data, stats)
     mapper = mapper or FrameMapper()
-    stats = ScanStats()
     by_id: Counter = Counter()
     first_t = last_t = None
     sock = address = None
@@ -135,8 +140,9 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
         sock, address = _udp_sender(udp_target)
     pace_origin_ts = pace_origin_wall = None
     feed = mapper.feed
+    consume = frame_consumer
     started = time.perf_counter()
-    for ts_us, msgid, sysid, compid, payload, start, end in scan_tlog_bytes(data, stats):
+    for ts_us, msgid, sysid, compid, payload, start, end in records:
         by_id[msgid] += 1
         if speed is not None:
             if pace_origin_ts is None:
@@ -154,9 +160,9 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
             if first_t is None:
                 first_t = frames[0].time_s
             last_t = frames[-1].time_s
-            if frame_consumer is not None:
+            if consume is not None:
                 for frame in frames:
-                    frame_consumer(frame)
+                    consume(frame)
     leftovers = mapper.flush()
     if frame_consumer is not None:
         for frame in leftovers:

@@ -9,13 +9,17 @@ skipped and counted, never fatal:
   plausible record follows it, else byte by byte until one does (``garbage_bytes``);
 * a record cut off by the end of the file is counted in ``truncated_tail_bytes``.
 
-``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field dicts
-(what the provisional vehicle description reads).
+``scanned_tlog`` reads and scans a file once and keeps its records for the next reader, so a command
+that reads a log twice (``gcs-pdm replay`` derives the provisional vehicle description, then
+replays) decodes it once; the replay takes the kept scan (``take_kept_scan``) and nothing stays in
+memory after it. ``tlog_message_dicts`` decodes only the named messages of a tlog into pymavlink-style field
+dicts (what the provisional vehicle description reads).
 """
 from __future__ import annotations
 
 import logging
 import struct
+from array import array
 import threading
 import time
 from dataclasses import dataclass
@@ -109,6 +113,12 @@ def scan_tlog_bytes(data: bytes, stats: ScanStats | None = None) -> Iterator[tup
     A tlog record is an 8-byte big-endian µs timestamp followed by one MAVLink 1 (0xFE) or
     MAVLink 2 (0xFD) packet; MAVLink 2 payloads come back zero-truncated, as on the wire.
     """
+    return _scan_records(data, stats, views=True)
+
+
+def _scan_records(data: bytes, stats: ScanStats | None, views: bool = False) -> Iterator[tuple]:
+    """:func:`scan_tlog_bytes` (``views``), or with the payload as its bounds: ``(timestamp_us,
+    msgid, sysid, compid, payload_start, payload_end, packet_start, packet_end)``, plain integers."""
     st = stats if stats is not None else ScanStats()
     mv = memoryview(data)
     n = len(data)
@@ -179,10 +189,14 @@ def scan_tlog_bytes(data: bytes, stats: ScanStats | None = None) -> Iterator[tup
             st.records += 1
             if v2:
                 st.mavlink2 += 1
-                yield ts, msgid, sysid, compid, mv[p + 10:body_end], p, end
+                payload_start = p + 10
             else:
                 st.mavlink1 += 1
-                yield ts, msgid, sysid, compid, mv[p + 6:body_end], p, end
+                payload_start = p + 6
+            if views:
+                yield ts, msgid, sysid, compid, mv[payload_start:body_end], p, end
+            else:
+                yield ts, msgid, sysid, compid, payload_start, body_end, p, end
             pos = end
             continue
         # A damaged or foreign packet: skip it whole if a record seems to start right after it
@@ -224,6 +238,182 @@ def _plausible_record(data: bytes, start: int, n: int) -> bool:
     return end <= n
 
 
+#: files up to this size keep their scan for the next reader (8 integers a record: a 100,000-message
+#: tlog, 4.6 MB, keeps 6.4 MB); larger ones are streamed each time
+SCAN_CACHE_MAX_BYTES = 64 * 1024 * 1024
+
+Record = tuple[int, int, int, int, memoryview, int, int]
+_COLUMNS = 8  # the fields of a record of _scan_records
+
+
+@dataclass
+class ScannedTlog:
+    """One file read and scanned: its bytes, its records as integer columns, its stats.
+
+    Columns, not a list of tuples: 100,000 records held as Python objects made every garbage
+    collection of the process walk them (≈ 0.3 s of CPU over a replay), integer arrays are not
+    tracked."""
+
+    data: bytes
+    columns: tuple[array, ...]  # timestamp_us, msgid, sysid, compid, payload start/end, packet start/end
+    stats: ScanStats
+
+    def __len__(self) -> int:
+        return len(self.columns[0])
+
+    def records(self, msgids=None) -> Iterator[Record]:
+        """The records as :func:`scan_tlog_bytes` yields them; ``msgids``: only those messages'
+        (picked from the message-id column at once, not record by record)."""
+        mv = memoryview(self.data)
+        columns = self.columns
+        if msgids is not None:
+            import numpy as np
+
+            picked = np.flatnonzero(np.isin(np.frombuffer(columns[1], dtype=np.uint64), list(msgids))).tolist()
+            columns = tuple([column[i] for i in picked] for column in columns)
+        for ts, msgid, sysid, compid, payload_start, payload_end, start, end in zip(*columns):
+            yield ts, msgid, sysid, compid, mv[payload_start:payload_end], start, end
+
+
+_last_scan: tuple[tuple, ScannedTlog] | None = None
+
+
+def _scan_key(path: Path) -> tuple | None:
+    """What identifies a file's content for a kept scan (None: too large to keep)."""
+    st = path.stat()
+    if st.st_size > SCAN_CACHE_MAX_BYTES:
+        return None
+    return str(path.resolve()), st.st_size, st.st_mtime_ns, st.st_ino
+
+
+def scanned_tlog(path: str | Path) -> ScannedTlog | None:
+    """The file scanned and kept for the next reader (the previous call's scan when the file is the
+    same: path, size, modification time, inode); None for a file above
+    :data:`SCAN_CACHE_MAX_BYTES` (stream it with :func:`scan_tlog` instead). Only one is kept."""
+    global _last_scan
+    path = Path(path)
+    key = _scan_key(path)
+    if key is None:
+        return None
+    last = _last_scan
+    if last is not None and last[0] == key:
+        return last[1]
+    data = path.read_bytes()
+    scanned = _scan_flawless(data)
+    if scanned is None:  # damage somewhere: the sequential scanner skips and counts it
+        stats = ScanStats()
+        flat = array("Q")  # all non-negative; a timestamp may use all 64 bits
+        extend = flat.extend
+        for record in _scan_records(data, stats):
+            extend(record)
+        scanned = ScannedTlog(data, tuple(flat[i::_COLUMNS] for i in range(_COLUMNS)), stats)
+    _last_scan = (key, scanned)
+    return scanned
+
+
+def _crc_accumulate(crc, byte):
+    """MAVLink's CRC-16/MCRF4XX step (``crc_accumulate``) over arrays of CRCs and bytes."""
+    tmp = byte ^ (crc & 0xFF)
+    tmp ^= (tmp << 4) & 0xFF
+    return ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+
+
+def _scan_flawless(data: bytes) -> ScannedTlog | None:
+    """The scan of a tlog without a flaw — every record complete, of a known message, CRC-valid —
+    with the headers and CRCs of all records computed at once (numpy); None at the first flaw, for
+    the sequential scanner to skip and count the damage. On a flawless file the sequential scanner
+    hands out exactly these records (it only moves from one good record to the next)."""
+    import numpy as np
+
+    n = len(data)
+    starts = array("q")  # record starts
+    append = starts.append
+    pos = 0
+    while pos + 9 <= n:  # walk the chain of records by their length bytes
+        magic = data[pos + 8]
+        if magic == 0xFD:
+            if pos + 20 > n:
+                return None
+            end = pos + 20 + data[pos + 9] + (SIGNATURE_LEN if data[pos + 10] & MAVLINK_IFLAG_SIGNED else 0)
+        elif magic == 0xFE:
+            if pos + 16 > n:
+                return None
+            end = pos + 16 + data[pos + 9]
+        else:
+            return None
+        append(pos)
+        pos = end
+    if pos != n or not starts:
+        return None
+    raw = np.frombuffer(data, dtype=np.uint8)
+    record = np.frombuffer(starts, dtype=np.int64)
+    p = record + 8  # packet starts
+
+    def at(offset: int) -> np.ndarray:  # header byte per packet (clipped: v1 headers are shorter)
+        return raw[np.minimum(p + offset, n - 1)].astype(np.int64)
+
+    v2 = raw[p] == 0xFD
+    header = np.where(v2, 10, 6)
+    body_end = p + header + at(1)
+    signed = v2 & ((at(2) & MAVLINK_IFLAG_SIGNED) != 0)
+    msgid = np.where(v2, at(7) | (at(8) << 8) | (at(9) << 16), at(5))
+    extras = _crc_extra_table()
+    if msgid.max() >= extras.size:
+        return None
+    extra = extras[msgid]
+    if (extra < 0).any():
+        return None
+    # the CRC over each packet's bytes after the magic, longest packets first so that the packets
+    # still running at byte j are a prefix
+    length = body_end - p - 1
+    order = np.argsort(-length, kind="stable")
+    first, length_sorted = p[order] + 1, length[order]
+    crc = np.full(order.size, 0xFFFF, dtype=np.int64)
+    running = np.searchsorted(-length_sorted, -np.arange(int(length_sorted[0])), side="left")  # length > j
+    for j, k in enumerate(running.tolist()):
+        crc[:k] = _crc_accumulate(crc[:k], raw[first[:k] + j])
+    crc = _crc_accumulate(crc, extra[order])
+    sent = raw[body_end[order]].astype(np.int64) | (raw[body_end[order] + 1].astype(np.int64) << 8)
+    if (crc != sent).any():
+        return None
+    timestamp = raw[record[:, None] + np.arange(8)].view(">u8").ravel().astype(np.uint64)
+    packet_end = body_end + 2 + np.where(signed, SIGNATURE_LEN, 0)
+    columns = tuple(array("Q", column.astype(np.uint64).tobytes())
+                    for column in (timestamp, msgid, np.where(v2, at(5), at(3)), np.where(v2, at(6), at(4)),
+                                   p + header, body_end, p, packet_end))
+    n_v2 = int(v2.sum())
+    stats = ScanStats(records=int(record.size), mavlink1=int(record.size) - n_v2, mavlink2=n_v2,
+                      signed=int(signed.sum()), first_timestamp_us=int(timestamp[0]),
+                      last_timestamp_us=int(timestamp[-1]))
+    return ScannedTlog(data, columns, stats)
+
+
+_EXTRA_TABLE = None
+
+
+def _crc_extra_table():
+    """msgid -> CRC_EXTRA (-1: not in the dialect), as an array."""
+    global _EXTRA_TABLE
+    if _EXTRA_TABLE is None:
+        import numpy as np
+
+        table = np.full(max(CRC_EXTRA_BYTES) + 1, -1, dtype=np.int64)
+        for msgid, extra in CRC_EXTRA_BYTES.items():
+            table[msgid] = extra[0]
+        _EXTRA_TABLE = table
+    return _EXTRA_TABLE
+
+
+def take_kept_scan(path: str | Path) -> ScannedTlog | None:
+    """The scan :func:`scanned_tlog` kept of this file, handed over and no longer kept (the last
+    reader, a replay, takes it); None when none is kept."""
+    global _last_scan
+    last, _last_scan = _last_scan, None
+    if last is not None and last[0] == _scan_key(Path(path)):
+        return last[1]
+    return None
+
+
 def scan_tlog(path: str | Path, stats: ScanStats | None = None) -> Iterator[tuple[int, int, int, int, memoryview, int, int]]:
     """:func:`scan_tlog_bytes` over a file (read whole: tlogs of a flight are megabytes)."""
     data = Path(path).read_bytes()
@@ -237,7 +427,8 @@ def tlog_message_dicts(path: str | Path, names, *, system: int | None = None) ->
     from gcs_pdm.mavlink.dialect import MESSAGE_IDS_BY_NAME
 
     wanted = {MESSAGE_IDS_BY_NAME[n]: layout(MESSAGE_IDS_BY_NAME[n]) for n in names}
-    for _ts, msgid, sysid, _compid, payload, _start, _end in scan_tlog(path):
+    scanned = scanned_tlog(path)
+    for _ts, msgid, sysid, _compid, payload, _start, _end in (scanned.records(wanted) if scanned else scan_tlog(path)):
         lay = wanted.get(msgid)
         if lay is None or (system is not None and sysid != system):
             continue

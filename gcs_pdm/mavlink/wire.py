@@ -70,7 +70,7 @@ class PayloadLayout:
     so :meth:`unpack` pads short payloads with zeros (which is what the dropped bytes were).
     """
 
-    __slots__ = ("msgid", "name", "struct", "size", "index", "count", "_fields")
+    __slots__ = ("msgid", "name", "struct", "size", "index", "count", "_fields", "_as_dict")
 
     def __init__(self, msgid: int):
         cls = MESSAGE_CLASSES[msgid]
@@ -90,6 +90,22 @@ class PayloadLayout:
         # (name, position, count, is text) in the message's field order, for :meth:`as_dict`
         text = {name for name, (_r, code) in zip(cls.ordered_fieldnames, tokens) if code == "s"}
         self._fields = tuple((name, self.index[name], self.count[name], name in text) for name in cls.fieldnames)
+        self._as_dict = self._compile_as_dict()
+
+    def _compile_as_dict(self):
+        """``as_dict`` over the unpacked tuple as one dict display compiled from source (one call a
+        message, not a loop over the fields)."""
+        items = []
+        for name, pos, count, text in self._fields:
+            if text:
+                items.append(f"{name!r}: v[{pos}].split(b'\\0', 1)[0].decode(errors='backslashreplace')")
+            elif count == 1:
+                items.append(f"{name!r}: v[{pos}]")
+            else:
+                items.append(f"{name!r}: list(v[{pos}:{pos + count}])")
+        namespace: dict = {}
+        exec(f"def as_dict(v):\n    return {{{', '.join(items)}}}\n", namespace)  # noqa: S102 - our own source
+        return namespace["as_dict"]
 
     def unpack(self, payload: bytes | memoryview) -> tuple:
         if len(payload) != self.size:
@@ -99,16 +115,7 @@ class PayloadLayout:
     def as_dict(self, payload: bytes | memoryview) -> dict:
         """The fields by name as pymavlink's ``msg.to_dict()`` gives them (arrays as lists, text
         decoded up to its NUL padding), without building a pymavlink message."""
-        vals = self.unpack(payload)
-        out = {}
-        for name, pos, count, text in self._fields:
-            if text:
-                out[name] = vals[pos].split(b"\0", 1)[0].decode(errors="backslashreplace")
-            elif count == 1:
-                out[name] = vals[pos]
-            else:
-                out[name] = list(vals[pos:pos + count])
-        return out
+        return self._as_dict(self.struct.unpack(payload) if len(payload) == self.size else self.unpack(payload))
 
 
 _LAYOUTS: dict[int, PayloadLayout] = {}

@@ -165,12 +165,12 @@ class ProvisionalObserver:
     def _battery(self, f: Mapping[str, Any]) -> None:
         seen = self.packs.setdefault(int(f["id"]), _PackSeen())
         seen.frames += 1
-        cells = [c for c in list(f.get("voltages") or []) + list(f.get("voltages_ext") or [])
-                 if c not in (0, _UINT16_MAX)]
+        cells = [c for c in [*(f.get("voltages") or ()), *(f.get("voltages_ext") or ())] if c != 0 and c != _UINT16_MAX]
+        volts = sum(cells) / 1000.0
         if cells:
-            seen.max_voltage = max(seen.max_voltage, sum(cells) / 1000.0)
+            seen.max_voltage = max(seen.max_voltage, volts)
             if len(seen.first_voltages) < FIRST_READINGS:
-                seen.first_voltages.append(sum(cells) / 1000.0)
+                seen.first_voltages.append(volts)
         temp = f.get("temperature")
         if temp is not None and temp != _INT16_MAX:
             seen.temperature_reported = True
@@ -178,7 +178,7 @@ class ProvisionalObserver:
         current = f.get("current_battery")
         if (cells and current is not None and current >= LOADED_CURRENT_A * 100 and remaining is not None
                 and 0 < remaining <= 100 and len(seen.loaded) < LOADED_READINGS):
-            seen.loaded.append((sum(cells) / 1000.0, current / 100.0, remaining / 100.0))
+            seen.loaded.append((volts, current / 100.0, remaining / 100.0))
         if remaining is None or consumed is None or remaining < 0 or consumed < 0:
             return
         if seen.first_remaining is None:
@@ -190,15 +190,16 @@ class ProvisionalObserver:
                 seen.capacity_estimate_mah = drawn / ((seen.first_remaining - remaining) / 100.0)
 
     def _esc(self, base: int, f: Mapping[str, Any]) -> None:
+        columns = [f.get(key) or (0, 0, 0, 0) for key in ("current", "rpm", "temperature", "voltage", "count")]
         for k in range(4):
-            values = {key: (f.get(key) or [0] * 4)[k] for key in ("current", "rpm", "temperature", "voltage", "count")}
-            if not any(values.values()):
+            current, rpm, temperature, voltage, count = (column[k] for column in columns)
+            if not (current or rpm or temperature or voltage or count):
                 continue
             seen = self.escs.setdefault(base + k, _EscSeen())
             seen.frames += 1
-            seen.current |= bool(values["current"])
-            seen.rpm |= bool(values["rpm"])
-            seen.temperature |= bool(values["temperature"])
+            seen.current |= bool(current)
+            seen.rpm |= bool(rpm)
+            seen.temperature |= bool(temperature)
 
     def waiting_for(self) -> str | None:
         """What a derivation still waits for (None: settled, derive now). Settled = the vehicle's
@@ -337,8 +338,9 @@ _WANTED = ["HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", *_ESC_MESSAGES]
 
 def tlog_messages(path: str | Path, *, system: int | None = None) -> Iterable[tuple[str, dict]]:
     """The messages ``ProvisionalObserver`` uses from a tlog (I/O shell): the project's own tlog
-    scanner decodes only these, with the fields pymavlink's ``to_dict()`` gives (≈ 6 µs a message
-    where pymavlink's parser took ≈ 70 µs; a replay reads the log twice, once for this)."""
+    scanner decodes only these, with the fields pymavlink's ``to_dict()`` gives (a few µs a message
+    where pymavlink's parser took ≈ 70 µs). The scan is kept for the replay that follows
+    (``gcs_pdm.mavlink.tlog.scanned_tlog``): a replay scans its log once."""
     from gcs_pdm.mavlink.tlog import tlog_message_dicts
 
     path = Path(path)
