@@ -537,16 +537,31 @@ class ExtendedPackProblem(PackProblem):
             # through the initial SoC: dV/ds_0 (n,) times ds_0/dy (k,)
             dsoc = (self.rest_soc(Pk, f) - self.rest_soc(P, f)[0]) / step
             J[rows] = np.outer((v[1] - v[0]) / self.SOC_STEP, dsoc)
-        # through the curve at the surface SoC the flights passed (all flights in one call per knot)
+        # through the curve at the surface SoC the flights passed. The knot increments are cumulative and
+        # a PCHIP piece between knots k and k+1 reads the knots k-1 .. k+2: increment j shifts the curve
+        # rigidly above knot j+1 (derivative = its own scale), leaves it alone below knot j-2, and only
+        # between them is the curve evaluated again (about 3 of the 27 columns per sample)
+        xs = kernel.EXT_OCV_SOC
         ocv = kernel.open_circuit_voltage(P, surface)
-        for c in range(cols.size):
-            J[:self.n_data, c] += (kernel.open_circuit_voltage(Pk[c:c + 1], surface) - ocv) / step
+        idx = [kernel.EXT_PACK_PARAMS.index(self.space.names[c]) for c in cols]
+        rigid = (Pk[np.arange(cols.size), idx] - P[0, idx]) / step
+        knot = np.array([0 if self.space.names[c] == "ocv_0" else int(self.space.names[c].split("_")[1]) for c in cols])
+        piece = np.searchsorted(xs, surface, side="right") - 1          # -1 below knot 0, last above the top
+        # ocv_0 (knot 0) shifts every piece; increment j rigidly shifts pieces j+1 and up
+        J[:self.n_data] += (piece[:, None] >= np.where(knot == 0, -1, knot + 1)[None, :]) * rigid[None, :]
+        for c in np.flatnonzero(knot > 0):
+            j = knot[c]
+            local = np.flatnonzero((piece >= j - 2) & (piece <= j)) if j >= 2 else np.flatnonzero(piece <= j)
+            if local.size:
+                J[local, c] += (kernel.open_circuit_voltage(Pk[c:c + 1], np.ascontiguousarray(surface[local]))
+                                - ocv[local]) / step
         if self.n_residuals > self.n_data:
             prior = self._prior(np.vstack([values, self.space.to_values(shifted)]))
             r0[self.n_data:] = prior[0]
             J[self.n_data:] = ((prior[1:] - prior[0]) / step).T
         np.nan_to_num(r0, copy=False, nan=1e6, posinf=1e6, neginf=-1e6)
-        np.nan_to_num(J, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+        if not np.isfinite(J).all():  # a diverged simulation: no direction from it
+            np.nan_to_num(J, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
         return r0, J
 
 

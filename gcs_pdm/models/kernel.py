@@ -712,8 +712,8 @@ def _simulate_ext(params, x0, dt, current, ambient, t_meas, max_dt, voltage, tem
 
 
 @njit(parallel=True, **_JIT)
-def _simulate_ext_parallel(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, states, record_states,
-                           final):
+def _simulate_ext_parallel(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, states,
+                           record_states, final):
     for j in prange(params.shape[0]):
         _simulate_one_ext(np.int64(j), params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc,
                           states, record_states, final)
