@@ -114,3 +114,52 @@ def test_ocv_smoothness_prior_is_zero_on_a_straight_curve_and_grows_with_a_kink(
     kinked[names.index("docv_20")] *= 3.0                              # a step the data did not ask for
     rows = prior.residuals(prior.space.to_unit(kinked)[None])[0][plain.n_residuals:]
     assert np.count_nonzero(np.abs(rows) > 1e-6) == 2 and np.abs(rows).max() == pytest.approx(0.04 * 8.0)
+
+
+@pytest.mark.parametrize("smoothing", [0.0, 0.04])
+def test_ocv_knot_jacobian_matches_one_simulation_per_knot(smoothing):
+    """ExtendedPackProblem.ocv_jacobian (two simulations per flight) against plain forward differences
+    (one shifted vector per knot), away from the base point so the initial SoC and the curve both move."""
+    from gcs_pdm.fitting import problem as pb
+    from gcs_pdm.fitting.cleaning import clean_flights
+    from gcs_pdm.models.params import extended_default
+
+    fl, _, _ = clean_flights(flights()[:2])
+    base = np.array(list(extended_default("li-ion").values()))
+    prob = pb.ExtendedPackProblem(fl, base, pb.EXTENDED_ELECTRICAL_BOUNDS, "voltage", ocv_smoothing=smoothing)
+    cols = prob.ocv_columns
+    assert [prob.space.names[c] for c in cols] == ["ocv_0"] + [f"docv_{k}" for k in range(1, kernel.N_OCV_KNOTS)]
+    start = prob.space.to_unit(np.array([base[kernel.EXT_PACK_PARAMS.index(n)] for n in prob.space.names]))
+    u = np.clip(start + 0.03 * np.random.default_rng(4).standard_normal(start.size), 0.02, 0.98)
+    r0, J = prob.ocv_jacobian(u)
+    h = 1e-6
+    U = np.tile(u, (cols.size + 1, 1))
+    U[np.arange(cols.size), cols] += h
+    R = prob.residuals(U, parallel=False)
+    np.testing.assert_array_equal(r0, R[-1])
+    J_fd = ((R[:-1] - R[-1]) / h).T
+    scale = np.abs(J_fd).max(axis=0)
+    # every knot below the flights' starts moves some sample (those above it move none: exactly 0 both ways)
+    assert np.count_nonzero(scale > 0.1) >= cols.size - 4
+    assert np.all(np.abs(J - J_fd).max(axis=0) <= 1e-3 * np.maximum(scale, 1.0))
+    # a temperature problem has no knot columns (the curve does not enter the heat)
+    assert pb.ExtendedPackProblem(fl, base, pb.EXTENDED_THERMAL_BOUNDS, "temperature").ocv_columns.size == 0
+
+
+def test_extended_kernel_records_its_states():
+    from gcs_pdm.models.params import extended_default
+
+    p = np.array(list(extended_default("lipo").values()))
+    n = 300
+    current = np.where(np.arange(n) < 50, 0.0, 20.0)
+    x0 = kernel.initial_extended_state(p, 0.9, 20.0)
+    plain = kernel.simulate_packs(p, x0, np.ones(n), current, 20.0, variant="extended")
+    rec = kernel.simulate_packs(p, x0, np.ones(n), current, 20.0, variant="extended", record_states=True)
+    assert plain.states is None and rec.states.shape == (1, n, kernel.N_EXT_STATE)
+    np.testing.assert_array_equal(rec.voltage, plain.voltage)
+    np.testing.assert_array_equal(rec.states[0, :, kernel.X_SOC], plain.soc[0])
+    np.testing.assert_array_equal(rec.states[0, :, kernel.X_T], plain.temperature[0])
+    np.testing.assert_array_equal(rec.states[0, -1], plain.final_state[0])
+    # the terminal voltage is the OCV at the recorded surface SoC minus the drops
+    surface = rec.states[0, :, kernel.X_SOC] - rec.states[0, :, kernel.X_SD]
+    assert np.all(kernel.open_circuit_voltage(p, surface) >= rec.voltage[0] - 1e-9)

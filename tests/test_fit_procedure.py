@@ -184,3 +184,34 @@ def test_canonical_relabels_the_slow_pair_and_keeps_the_voltage():
     np.testing.assert_allclose(prob.canonical(u_slow), u_fast, atol=1e-12)
     r_fast, r_slow = prob.residuals(np.array([u_fast, u_slow]))
     assert np.sqrt(np.mean((r_fast - r_slow) ** 2)) < 2e-3  # the same circuit on the plateau
+
+
+def test_levenberg_marquardt_uses_a_problem_s_own_jacobian_columns():
+    """``partial``: the columns a problem differentiates itself replace their forward differences (the
+    extended variant's OCV knots), and ``levenberg_marquardt_subset`` fits those coordinates alone."""
+    from gcs_pdm.fitting.search import levenberg_marquardt_subset
+
+    t = np.linspace(0.0, 3.0, 40)
+    truth = np.array([0.3, 0.6, 0.7])
+    calls = []
+
+    def model(u):  # linear in u[1], u[2]; nonlinear in u[0]
+        return u[..., 1:2] * np.exp(-3.0 * u[..., 0:1] * t) + u[..., 2:3]
+
+    def residuals(U):
+        calls.append(U.shape[0])
+        return model(U) - model(truth)
+
+    def own(u):
+        return residuals(u[None])[0], np.stack([np.exp(-3.0 * u[0] * t), np.ones_like(t)], axis=1)
+
+    r = levenberg_marquardt(residuals, np.array([0.5, 0.2, 0.2]), SearchSettings(lm_max_nfev=100),
+                            partial=(np.array([1, 2]), own))
+    np.testing.assert_allclose(r.u, truth, atol=1e-5)
+    # the Jacobians shifted one vector each (column 0), never three
+    assert max(calls) == 1
+    calls.clear()
+    sub = levenberg_marquardt_subset(residuals, np.array([0.3, 0.2, 0.2]), np.array([1, 2]),
+                                     SearchSettings(lm_max_nfev=50), partial=lambda u: own(u))
+    np.testing.assert_allclose(sub.u, truth, atol=1e-6)
+    assert sub.u[0] == 0.3 and max(calls) == 1

@@ -29,7 +29,8 @@ import numpy as np
 from gcs_pdm.fitting import problem as pb
 from gcs_pdm.fitting.cleaning import CleaningReport, CleaningSettings, RejectedFlight, clean_flights
 from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
-from gcs_pdm.fitting.search import FitCancelled, SearchSettings, anneal, levenberg_marquardt
+from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenberg_marquardt,
+                                   levenberg_marquardt_subset)
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import (PACK_NAMES, MotorParams, PackParams, ParameterSet, builtin, extended_default,
@@ -68,15 +69,19 @@ class FitSettings:
     model: str = DEFAULT_MODEL
     #: open-circuit-voltage default (start of the search) when the base set has no extended values
     chemistry: str = "lipo"
-    #: search of the extended variant: its 41 electrical unknowns make each LM run costlier, and LM
-    #: (not the annealing, which only sees the 14 resistance, time-constant, kinetic and capacity values)
-    #: does most of the work, so fewer starts with a longer LM; its 3-value thermal stage needs few
-    #: generations
-    extended_search: SearchSettings = SearchSettings(starts=4, sa_generations=60, lm_max_nfev=40)
+    #: search of the extended variant: LM over its 41 electrical unknowns (not the annealing, which only
+    #: sees the 14 resistance, time-constant, kinetic and capacity values) does most of the work, so
+    #: fewer starts with a longer LM (its Jacobian simulates 16 vectors, not 42: the OCV knots' columns
+    #: come from ExtendedPackProblem.ocv_jacobian); its 3-value thermal stage needs few generations
+    extended_search: SearchSettings = SearchSettings(starts=4, sa_generations=60, lm_max_nfev=60)
     extended_thermal_generations: int = 10
     #: a further LM run of this many evaluations from the chosen electrical candidate (extended
     #: variant; kept if the validation error does not rise): the short runs screen the starts
-    extended_polish_nfev: int = 45
+    extended_polish_nfev: int = 60
+    #: LM evaluations of the extended variant's OCV knots alone, the other values held at an annealed
+    #: start's, before the joint LM from it: the annealing searched with the chemistry's default curve,
+    #: and the knots are cheap to fit alone (their Jacobian needs no shifted simulation)
+    extended_ocv_refit_nfev: int = 20
 
     def search_for(self, stage: str) -> SearchSettings:
         """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
@@ -91,6 +96,7 @@ class FitSettings:
                 "model": self.model, "chemistry": self.chemistry, "extended_search": self.extended_search.to_dict(),
                 "extended_thermal_generations": self.extended_thermal_generations,
                 "extended_polish_nfev": self.extended_polish_nfev,
+                "extended_ocv_refit_nfev": self.extended_ocv_refit_nfev,
                 "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range,
                 "extended_soc_offset_range": self.extended_soc_offset_range, "ocv_smoothing": self.ocv_smoothing,
                 "workers": self.workers,
@@ -268,13 +274,14 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
                val: Sequence[Flight], search: SearchSettings, pool: ThreadPoolExecutor, workers: int,
                stepper: _Stepper, span: tuple[float, float], seed_offset: int,
                make_sa: Callable[[Sequence[Flight], int], pb._Problem] | None = None, polish_nfev: int = 0,
-               ) -> tuple[np.ndarray, StageResult, pb._Problem]:
+               ocv_refit_nfev: int = 0) -> tuple[np.ndarray, StageResult, pb._Problem]:
     """SA from random starts, LM from each SA result, the LM result with the lowest validation error.
 
     ``make_sa`` (optional) builds a problem over a subset of the free parameters for the annealing;
     LM then starts from each annealed point with the other parameters at the base values (the
     extended variant anneals its resistances and time constants with the default OCV curve, and
-    lets LM, which is good at the nearly linear OCV knots, learn the curve)."""
+    lets LM, which is good at the nearly linear OCV knots, learn the curve: first the knots alone for
+    ``ocv_refit_nfev`` evaluations, then everything)."""
     t0 = time.perf_counter()
     prob = make(train, workers, True)
     vprob = make(val, 1, False)
@@ -283,6 +290,17 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
     rng = np.random.default_rng([search.seed, seed_offset])
     label = f"{name}: annealing"
     sa_prob = make_sa(train, workers) if make_sa is not None else prob
+    # the extended variant's OCV knots: Jacobian columns from two simulations per flight, not one each
+    own = getattr(prob, "ocv_columns", np.zeros(0, dtype=int))
+    partial = (own, prob.ocv_jacobian) if own.size else None
+
+    def fit_knots(u: np.ndarray, nfev: int):
+        # the curve alone for the other values held (cheap: no shifted vector is simulated)
+        if not own.size or nfev <= 0:
+            return None
+        return levenberg_marquardt_subset(lambda U: prob.residuals(U, parallel=False), u, own,
+                                          dataclasses.replace(search, lm_max_nfev=nfev), partial=prob.ocv_jacobian)
+
     ann = anneal(sa_prob.mse, sa_prob.space.dim, search, rng,
                  progress=lambda f: stepper.report(a + f * (sa_end - a), label), should_stop=stepper.should_stop)
     if make_sa is not None:
@@ -298,20 +316,25 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
     d, n_extra = prob.space.dim, prob.n_extra
 
     canonical = getattr(prob, "canonical", None)
+    per_jacobian = d - own.size + (n_extra > 0) + (2 if own.size else 0)  # simulated vectors per Jacobian
+    blocks = prob.row_slices if n_extra else None
 
     def lm(u0: np.ndarray):
         stepper.check()
         # per-flight unknowns (initial-SoC corrections) start at "none" and join the LM only
         start = np.concatenate([u0, np.full(n_extra, 0.5)])
-        res = levenberg_marquardt(lambda U: prob.residuals(U, parallel=False), start, search,
-                                  shared=d, blocks=prob.row_slices if n_extra else None)
+        knots = fit_knots(start, ocv_refit_nfev)
+        res = levenberg_marquardt(lambda U: prob.residuals(U, parallel=False),
+                                  start if knots is None else knots.u, search, shared=d, blocks=blocks, partial=partial)
+        if knots is not None:
+            res.nfev += knots.nfev + 2 * knots.njev
         swapped = canonical(res.u[:d]) if canonical is not None else None
         if swapped is not None:
             # the two R-C pairs of the circuit are interchangeable on the plateau: a solution with the
             # slow pair labelled R_s-C_s is relabelled and refined; kept unless clearly worse
             alt = levenberg_marquardt(lambda U: prob.residuals(U, parallel=False),
                                       np.concatenate([swapped, res.u[d:]]), search,
-                                      shared=d, blocks=prob.row_slices if n_extra else None)
+                                      shared=d, blocks=blocks, partial=partial)
             alt.nfev += res.nfev
             alt.njev += res.njev
             if alt.mse <= 1.01 * res.mse:
@@ -331,7 +354,7 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
     val_mse = vprob.mse(U, parallel=False)
     values = prob.space.to_values(U)
     candidates = [Candidate(start=i, sa_rmse=float(np.sqrt(ann.best_mse[i])), lm_rmse=float(np.sqrt(r.mse)),
-                            val_rmse=float(np.sqrt(val_mse[i])), lm_nfev=r.nfev + r.njev * (d + (n_extra > 0)),
+                            val_rmse=float(np.sqrt(val_mse[i])), lm_nfev=r.nfev + r.njev * per_jacobian,
                             values={n: float(v) for n, v in zip(prob.space.names, values[i])})
                   for i, r in enumerate(lm_results)]
     chosen = int(np.argmin(val_mse))
@@ -341,12 +364,12 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
         stepper.check()
         more = levenberg_marquardt(lambda U_: prob.residuals(U_, parallel=True), U_full[chosen],
                                    dataclasses.replace(search, lm_max_nfev=polish_nfev),
-                                   shared=d, blocks=prob.row_slices if n_extra else None)
+                                   shared=d, blocks=blocks, partial=partial)
         v_more = float(vprob.mse(more.u[None, :d], parallel=False)[0])
         if v_more <= val_mse[chosen]:
             candidates.append(Candidate(start=candidates[chosen].start, sa_rmse=candidates[chosen].sa_rmse,
                                         lm_rmse=float(np.sqrt(more.mse)), val_rmse=float(np.sqrt(v_more)),
-                                        lm_nfev=more.nfev + more.njev * (d + (n_extra > 0)),
+                                        lm_nfev=more.nfev + more.njev * per_jacobian,
                                         values={n: float(v) for n, v in
                                                 zip(prob.space.names, prob.space.to_values(more.u[:d]))},
                                         polished=True))
@@ -354,7 +377,7 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
             U = U_full[:, :d]
             chosen = len(candidates) - 1
         else:
-            candidates[chosen].lm_nfev += more.nfev + more.njev * (d + (n_extra > 0))
+            candidates[chosen].lm_nfev += more.nfev + more.njev * per_jacobian
     evaluations = ann.evaluations + sum(c.lm_nfev for c in candidates) + len(candidates)
     stage = StageResult(name=name, target=getattr(prob, "target", "temperature"), free=prob.space.names,
                         bounds={bd.name: (bd.lo, bd.hi) for bd in prob.space.bounds}, candidates=candidates,
@@ -461,7 +484,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         u_el, st_el, prob_el = _run_stage("electrical", make_el, splits["train"], splits["validation"],
                                           s.search_for("electrical"), pool,
                                           s.workers, stepper, (0.02, 0.55), 1, make_sa=make_el_sa if extended else None,
-                                          polish_nfev=s.extended_polish_nfev if extended else 0)
+                                          polish_nfev=s.extended_polish_nfev if extended else 0,
+                                          ocv_refit_nfev=s.extended_ocv_refit_nfev if extended else 0)
         el_vec = prob_el.pack_vectors(prob_el.space.to_values(u_el))[0]
         stages = [st_el]
         final = el_vec

@@ -113,14 +113,24 @@ class LMResult:
     message: str
 
 
+#: columns of the Jacobian a problem computes itself: (their indices among the shared unknowns, a function
+#: u (n,) -> (residuals (m,), derivatives (m, k) with respect to those coordinates of u))
+PartialJacobian = tuple[np.ndarray, Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]]
+
+
 def levenberg_marquardt(residuals: Callable[[np.ndarray], np.ndarray], u0: np.ndarray, settings: SearchSettings,
-                        *, shared: int | None = None, blocks: list[slice] | None = None) -> LMResult:
+                        *, shared: int | None = None, blocks: list[slice] | None = None,
+                        partial: PartialJacobian | None = None) -> LMResult:
     """Refine ``u0`` with MINPACK's LM; ``residuals`` maps U (N, n) -> (N, m) in one batched call.
 
     Block-separable unknowns: with ``shared=d`` and ``blocks`` (one row slice per extra unknown), the
     coordinates after the first d are per-block unknowns (e.g. each flight's initial SoC) that move
     only their own rows. One shifted vector then moves all of them at once and gives every block's
     derivative, so the Jacobian costs d + 1 vectors, not n.
+
+    ``partial``: columns the problem differentiates more cheaply than one shifted vector each (the
+    extended variant's OCV knots, ``ExtendedPackProblem.ocv_jacobian``); the others are forward
+    differences as above.
     """
     n = u0.size
     d = n if shared is None else int(shared)
@@ -128,6 +138,8 @@ def levenberg_marquardt(residuals: Callable[[np.ndarray], np.ndarray], u0: np.nd
     if extra and (blocks is None or len(blocks) != extra):
         raise ValueError(f"blocks: need one row slice per extra unknown ({extra})")
     h = settings.lm_fd_step
+    own = np.zeros(0, dtype=int) if partial is None else np.asarray(partial[0], dtype=int)
+    fd_cols = np.setdiff1d(np.arange(d), own)
     cache: dict[bytes, np.ndarray] = {}
 
     def fun(z: np.ndarray) -> np.ndarray:
@@ -138,18 +150,26 @@ def levenberg_marquardt(residuals: Callable[[np.ndarray], np.ndarray], u0: np.nd
 
     def jac(z: np.ndarray) -> np.ndarray:
         r0 = cache.get(z.tobytes())
-        k = d + (1 if extra else 0)
+        J_own = None
+        if own.size:
+            r_own, J_own = partial[1](_u_of_z(z))
+            r0 = r_own if r0 is None else r0
+        nd = fd_cols.size
+        k = nd + (1 if extra else 0)
         shifted = np.tile(z, (k + (r0 is None), 1))
-        shifted[np.arange(d), np.arange(d)] += h
+        shifted[np.arange(nd), fd_cols] += h
         if extra:
-            shifted[d, d:] += h
-        R = residuals(_u_of_z(shifted))
+            shifted[nd, d:] += h
+        R = residuals(_u_of_z(shifted)) if shifted.shape[0] else np.zeros((0, r0.size))
         if r0 is None:
             r0 = R[-1]
         J = np.zeros((r0.size, n))
-        J[:, :d] = ((R[:d] - r0) / h).T
+        J[:, fd_cols] = ((R[:nd] - r0) / h).T
+        if J_own is not None:
+            # chain rule through u = (1 + sin z) / 2
+            J[:, own] = J_own * (0.5 * np.cos(z[own]))
         if extra:
-            col = (R[d] - r0) / h
+            col = (R[nd] - r0) / h
             for i, rows in enumerate(blocks):
                 J[rows, d + i] = col[rows]
         return J
@@ -159,3 +179,22 @@ def levenberg_marquardt(residuals: Callable[[np.ndarray], np.ndarray], u0: np.nd
     u = _u_of_z(res.x)
     return LMResult(u=u, mse=float(np.mean(res.fun ** 2)), nfev=int(res.nfev), njev=int(res.njev or 0),
                     status=int(res.status), message=str(res.message))
+
+
+def levenberg_marquardt_subset(residuals: Callable[[np.ndarray], np.ndarray], u: np.ndarray, cols: np.ndarray,
+                               settings: SearchSettings, *, partial: Callable | None = None) -> LMResult:
+    """LM over the coordinates ``cols`` of ``u`` only, the others held; ``partial`` (optional): u (n,) ->
+    (residuals, derivatives with respect to exactly those coordinates), so no shifted vector is simulated.
+    The result's ``u`` is the whole point."""
+    u = np.asarray(u, dtype=np.float64)
+    cols = np.asarray(cols, dtype=int)
+
+    def embed(U_sub: np.ndarray) -> np.ndarray:
+        U = np.tile(u, (U_sub.shape[0], 1))
+        U[:, cols] = U_sub
+        return U
+
+    own = None if partial is None else (np.arange(cols.size), lambda us: partial(embed(us[None])[0]))
+    res = levenberg_marquardt(lambda U_sub: residuals(embed(U_sub)), u[cols], settings, partial=own)
+    res.u = embed(res.u[None])[0]
+    return res

@@ -374,8 +374,8 @@ class PackTrajectory:
     voltage: np.ndarray      # (N, n) terminal voltage, V
     temperature: np.ndarray  # (N, n) pack temperature, °C
     soc: np.ndarray          # (N, n) state of charge, 1
-    final_state: np.ndarray  # (N, 4) PACK_STATE after the last sample
-    states: np.ndarray | None = None  # (N, n, 4) if requested
+    final_state: np.ndarray  # (N, 4) PACK_STATE after the last sample (extended: (N, 5) EXT_PACK_STATE)
+    states: np.ndarray | None = None  # (N, n, 4) if requested (extended: (N, n, 5))
 
 
 def _pack_inputs(params, n_params: int, x0, n_state: int, dt, current, ambient):
@@ -668,7 +668,8 @@ def _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, deca
 
 
 @njit(inline="always", **_JIT)
-def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final):
+def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, states,
+                      record_states, final):
     n = current.shape[1]
     x = np.empty(N_EXT_STATE)
     p = params[j]
@@ -695,26 +696,31 @@ def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, volta
                                           decay_1, decay_2, decay_d, decay_t)
         temperature[j, k] = x[X_T]
         soc[j, k] = x[X_SOC]
+        if record_states:
+            for s in range(N_EXT_STATE):
+                states[j, k, s] = x[s]
     for s in range(N_EXT_STATE):
         final[j, s] = x[s]
 
 
 @njit(**_JIT)
-def _simulate_ext(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final):
+def _simulate_ext(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, states, record_states,
+                  final):
     for j in range(params.shape[0]):
-        _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final)
+        _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, states,
+                          record_states, final)
 
 
 @njit(parallel=True, **_JIT)
-def _simulate_ext_parallel(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final):
+def _simulate_ext_parallel(params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, states,
+                           record_states, final):
     for j in prange(params.shape[0]):
-        _simulate_one_ext(np.int64(j), params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc, final)
+        _simulate_one_ext(np.int64(j), params, x0, dt, current, ambient, t_meas, max_dt, voltage, temperature, soc,
+                          states, record_states, final)
 
 
 def _simulate_packs_extended(params, x0, dt, current, ambient, max_dt, record_states, measured_temperature,
                              parallel) -> PackTrajectory:
-    if record_states:
-        raise ValueError("record_states: not available for the extended variant")
     params, x0, dt_, cur, amb = _pack_inputs(params, N_EXT_PARAMS, x0, N_EXT_STATE, dt, current, ambient)
     n_vec, n = params.shape[0], cur.shape[1]
     t_meas = _rows(np.nan if measured_temperature is None else measured_temperature, n_vec, n, "measured_temperature")
@@ -722,9 +728,11 @@ def _simulate_packs_extended(params, x0, dt, current, ambient, max_dt, record_st
     temperature = np.empty((n_vec, n))
     soc = np.empty((n_vec, n))
     final = np.empty((n_vec, N_EXT_STATE))
+    # the fit reads the surface SoC (soc - s_d) off the recorded states (problem.ExtendedPackProblem)
+    states = np.empty((n_vec, n, N_EXT_STATE) if record_states else (1, 1, N_EXT_STATE))
     run = _simulate_ext_parallel if parallel else _simulate_ext
-    run(params, x0, dt_, cur, amb, t_meas, float(max_dt), voltage, temperature, soc, final)
-    return PackTrajectory(voltage, temperature, soc, final, None)
+    run(params, x0, dt_, cur, amb, t_meas, float(max_dt), voltage, temperature, soc, states, bool(record_states), final)
+    return PackTrajectory(voltage, temperature, soc, final, states if record_states else None)
 
 
 @njit(**_JIT)
