@@ -1,0 +1,26 @@
+"""Session set-up shared by every test directory.
+
+Numba keeps its compiled functions in an on-disk cache next to the sources (``cache=True``). A fresh
+clone has none, and the first process to need a function compiles it — tens of seconds for the
+estimator's, the diagnoser's and the kernel's under load. The browser tests run first and start the
+service in a subprocess whose first telemetry frames would pay that compilation inside the tests'
+timeouts. One replay of a fixture flight before the session compiles (or, with a warm cache, only
+loads) what the live path uses, so every test sees the start-up a user sees after installing.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+WARM_UP_TLOG = REPO / "fixtures" / "flights" / "fault_01.tlog"
+
+
+def pytest_sessionstart(session) -> None:
+    if not WARM_UP_TLOG.exists():
+        return
+    # a subprocess, so the test process itself starts as a user's would; its output is of no interest,
+    # and a failure here is left to the tests that exercise the replay to report
+    subprocess.run([sys.executable, "-m", "gcs_pdm.cli", "replay", str(WARM_UP_TLOG), "--json"],
+                   cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=900, check=False)
