@@ -116,6 +116,13 @@ def scan_tlog_bytes(data: bytes, stats: ScanStats | None = None) -> Iterator[tup
     return _scan_records(data, stats, views=True)
 
 
+def scan_tlog_bounds(data: bytes, stats: ScanStats | None = None) -> Iterator[tuple[int, ...]]:
+    """Like :func:`scan_tlog_bytes` with each payload as its bounds in ``data``: ``(timestamp_us,
+    msgid, sysid, compid, payload_start, payload_end, packet_start, packet_end)``, plain integers
+    (the rows of :attr:`ScannedTlog.columns`)."""
+    return _scan_records(data, stats)
+
+
 def _scan_records(data: bytes, stats: ScanStats | None, views: bool = False) -> Iterator[tuple]:
     """:func:`scan_tlog_bytes` (``views``), or with the payload as its bounds: ``(timestamp_us,
     msgid, sysid, compid, payload_start, payload_end, packet_start, packet_end)``, plain integers."""
