@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import struct
 from collections import Counter
 from dataclasses import dataclass, field, fields as dc_fields
 from typing import Any, Callable
@@ -338,6 +339,20 @@ def _emitter(lay, rules: list[_CompiledRule], stats: "MappingStats") -> Callable
     rules, not a loop over them (the rules' matches, keys and builders bound as constants)."""
     names: dict[str, Any] = {"_kinds": stats.frames_by_kind, "_unmapped": stats.unmapped_keys,
                              "_matches": _matches, "_name": lay.name}
+    if all(rule.key_position is None and not rule.match for rule in rules):
+        # the common case: every rule makes its frames from every message, so one list display
+        makes = []
+        for i, rule in enumerate(rules):
+            for j, inst in enumerate(rule.instances):
+                names[f"_m{i}_{j}"] = inst.make
+                makes.append(f"_m{i}_{j}(t, v)")
+        counts = Counter()
+        for rule in rules:
+            counts[rule.kind] += len(rule.instances)
+        lines = ["def emit(t, v):"] + [f"    _kinds[{kind!r}] += {n}" for kind, n in counts.items()]
+        lines.append(f"    return [{', '.join(makes)}]")
+        exec(compile("\n".join(lines) + "\n", f"<emit {lay.name}>", "exec"), names)  # noqa: S102 - our own source
+        return names["emit"]
     lines = ["def emit(t, v):", "    out = []"]
     for i, rule in enumerate(rules):
         indent = "    "
@@ -433,6 +448,7 @@ def _matches(value, wanted) -> bool:
 
 
 _HEARTBEAT = MESSAGE_IDS_BY_NAME["HEARTBEAT"]
+_unpack_uint32 = struct.Struct("<I").unpack_from
 _EMPTY: tuple = ()
 
 
@@ -541,9 +557,11 @@ class FrameMapper:
         time_offset = plan.time_offset
         boot_s = released = None
         if time_offset is not None:
-            # MAVLink 2 truncates trailing zero bytes: a shorter field is little-endian all the same
             at = start + time_offset
-            boot_s = int.from_bytes(buf[at:min(at + 4, end)], "little") / 1000.0
+            if at + 4 <= end:
+                boot_s = _unpack_uint32(buf, at)[0] / 1000.0
+            else:  # MAVLink 2 truncates trailing zero bytes: a shorter field is little-endian all the same
+                boot_s = int.from_bytes(buf[at:end], "little") / 1000.0
             t = clock.on_time_boot(boot_s, recv_s, msgid)
             if t.__class__ is Verdict:
                 if t is Verdict.REJECTED:
