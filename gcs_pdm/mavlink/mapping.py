@@ -21,6 +21,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import struct
 from collections import Counter
 from dataclasses import dataclass, field, fields as dc_fields
 from typing import Any, Callable
@@ -332,6 +333,81 @@ def _compile_mapping(mapping: dict, gate: FrameGate | None) -> dict[int, tuple[A
     return rules
 
 
+def _emitter(lay, rules: list[_CompiledRule], stats: "MappingStats") -> Callable[[float, tuple], list]:
+    """``emit(t, v)``: every frame the rules make from one unpacked message ``v`` at message time
+    ``t``, counted; one function compiled per message type, so a message costs one call for its
+    rules, not a loop over them (the rules' matches, keys and builders bound as constants)."""
+    names: dict[str, Any] = {"_kinds": stats.frames_by_kind, "_unmapped": stats.unmapped_keys,
+                             "_matches": _matches, "_name": lay.name}
+    if all(rule.key_position is None and not rule.match for rule in rules):
+        # the common case: every rule makes its frames from every message, so one list display
+        makes = []
+        for i, rule in enumerate(rules):
+            for j, inst in enumerate(rule.instances):
+                names[f"_m{i}_{j}"] = inst.make
+                makes.append(f"_m{i}_{j}(t, v)")
+        counts = Counter()
+        for rule in rules:
+            counts[rule.kind] += len(rule.instances)
+        lines = ["def emit(t, v):"] + [f"    _kinds[{kind!r}] += {n}" for kind, n in counts.items()]
+        lines.append(f"    return [{', '.join(makes)}]")
+        exec(compile("\n".join(lines) + "\n", f"<emit {lay.name}>", "exec"), names)  # noqa: S102 - our own source
+        return names["emit"]
+    lines = ["def emit(t, v):", "    out = []"]
+    for i, rule in enumerate(rules):
+        indent = "    "
+        if rule.match:
+            tests = []
+            for j, (pos, wanted) in enumerate(rule.match):
+                names[f"_w{i}_{j}"] = wanted
+                tests.append(f"_matches(v[{pos}], _w{i}_{j})")
+            lines.append(f"    if {' and '.join(tests)}:")
+            indent = "        "
+        if rule.key_position is None:
+            for j, inst in enumerate(rule.instances):
+                names[f"_m{i}_{j}"] = inst.make
+                lines.append(f"{indent}out.append(_m{i}_{j}(t, v))")
+            lines.append(f"{indent}_kinds[{rule.kind!r}] += {len(rule.instances)}")
+        else:
+            names[f"_k{i}"] = {raw: tuple(inst.make for inst in insts) for raw, insts in rule.by_key.items()}
+            lines += [f"{indent}makes = _k{i}.get(v[{rule.key_position}])",
+                      f"{indent}if makes is None:",
+                      f"{indent}    _unmapped[(_name, v[{rule.key_position}])] += 1",
+                      f"{indent}else:",
+                      f"{indent}    for make in makes:",
+                      f"{indent}        out.append(make(t, v))",
+                      f"{indent}    _kinds[{rule.kind!r}] += len(makes)"]
+    lines.append("    return out")
+    exec(compile("\n".join(lines) + "\n", f"<emit {lay.name}>", "exec"), names)  # noqa: S102 - our own source
+    return names["emit"]
+
+
+@dataclass(slots=True, frozen=True)
+class _Dispatch:
+    """What one message id costs in :meth:`FrameMapper.feed`, looked up once: the byte offset of its
+    ``time_boot_ms`` (None: untimed) and, when the mapping makes frames from it, how to unpack it and
+    its compiled rules."""
+
+    time_offset: int | None
+    size: int = 0
+    unpack_from: Callable | None = None
+    unpack: Callable | None = None
+    zeros: bytes = b""
+    emit: Callable[[float, tuple], list] | None = None
+    layout: Any = None
+    rules: tuple = ()
+
+
+def _dispatch_table(rules: dict[int, tuple[Any, list[_CompiledRule]]], stats: "MappingStats") -> dict[int, _Dispatch]:
+    """msgid -> :class:`_Dispatch` for every timed or mapped message (others: untimed and unmapped)."""
+    table = {msgid: _Dispatch(offset) for msgid, offset in TIME_BOOT_MS_OFFSET.items()}
+    for msgid, (lay, message_rules) in rules.items():
+        table[msgid] = _Dispatch(TIME_BOOT_MS_OFFSET.get(msgid), lay.size, lay.struct.unpack_from, lay.struct.unpack,
+                                 bytes(lay.size),
+                                 _emitter(lay, message_rules, stats), lay, tuple(message_rules))
+    return table
+
+
 @dataclass
 class MappingStats:
     frames_by_kind: Counter = field(default_factory=Counter)
@@ -372,6 +448,7 @@ def _matches(value, wanted) -> bool:
 
 
 _HEARTBEAT = MESSAGE_IDS_BY_NAME["HEARTBEAT"]
+_unpack_uint32 = struct.Struct("<I").unpack_from
 _EMPTY: tuple = ()
 
 
@@ -397,6 +474,7 @@ class FrameMapper:
         self.stats = MappingStats()
         self.gate = FrameGate(envelope, self.stats.gated) if envelope is not None else None
         self.rules: dict[int, tuple[Any, list[_CompiledRule]]] = _compile_mapping(self.mapping, self.gate)
+        self._dispatch = _dispatch_table(self.rules, self.stats)
         self.target_system = target_system
         self.target_component = target_component
         self.locked = target_system is not None and target_component is not None
@@ -411,9 +489,11 @@ class FrameMapper:
         maps each packet with the old rules or the new, never a mix."""
         gate = FrameGate(envelope, self.stats.gated) if envelope is not None else self.gate
         rules = _compile_mapping(mapping, gate)  # the rules carry their gate
+        dispatch = _dispatch_table(rules, self.stats)
         self.gate = gate
         self.mapping = mapping
         self.rules = rules
+        self._dispatch = dispatch  # what feed() reads
 
     def _note_foreign(self, sysid: int, compid: int, payload) -> None:
         """A heartbeat from a system that is not our vehicle: record it if it claims to be an autopilot."""
@@ -451,7 +531,13 @@ class FrameMapper:
 
     def feed(self, recv_s: float, msgid: int, sysid: int, compid: int, payload) -> list | tuple:
         """Frames produced by one CRC-checked packet (often none). ``recv_s``: receive/tlog time."""
+        return self.feed_from(recv_s, msgid, sysid, compid, payload, 0, len(payload))
+
+    def feed_from(self, recv_s: float, msgid: int, sysid: int, compid: int, buf, start: int, end: int) -> list | tuple:
+        """:meth:`feed` of the payload ``buf[start:end]``, read in place (a replay passes the whole
+        tlog's bytes and each record's bounds: no slice per message)."""
         if not self.locked or sysid != self.target_system or compid != self.target_component:
+            payload = buf[start:end]
             if msgid == _HEARTBEAT and self.target_system is not None and sysid != self.target_system:
                 self._note_foreign(sysid, compid, payload)
             if not self.locked:
@@ -462,11 +548,20 @@ class FrameMapper:
                 self.stats.other_source += 1
                 return _EMPTY
         clock = self.clock
-        time_offset = TIME_BOOT_MS_OFFSET.get(msgid)
+        plan = self._dispatch.get(msgid)
+        if plan is None:  # untimed and unmapped: it only dates frames held before the clock existed
+            if clock.synced:
+                return self._release_pending(clock.now, recv_s) if self._pending else _EMPTY
+            t = clock.untimed(recv_s)
+            return self._release_pending(t, recv_s) if t is not None and self._pending else _EMPTY
+        time_offset = plan.time_offset
         boot_s = released = None
         if time_offset is not None:
-            # MAVLink 2 truncates trailing zero bytes: a shorter field is little-endian all the same
-            boot_s = int.from_bytes(payload[time_offset:time_offset + 4], "little") / 1000.0
+            at = start + time_offset
+            if at + 4 <= end:
+                boot_s = _unpack_uint32(buf, at)[0] / 1000.0
+            else:  # MAVLink 2 truncates trailing zero bytes: a shorter field is little-endian all the same
+                boot_s = int.from_bytes(buf[at:end], "little") / 1000.0
             t = clock.on_time_boot(boot_s, recv_s, msgid)
             if t.__class__ is Verdict:
                 if t is Verdict.REJECTED:
@@ -479,17 +574,28 @@ class FrameMapper:
             t = clock.now if clock.synced else clock.untimed(recv_s)
             if t is not None and self._pending:
                 released = self._release_pending(t, recv_s)
-        handler = self.rules.get(msgid)
-        if handler is None:
+        emit = plan.emit
+        if emit is None:
             return released or _EMPTY
-        lay, rules = handler
         try:
-            vals = lay.struct.unpack(payload) if len(payload) == lay.size else lay.unpack(payload)
+            missing = plan.size - (end - start)
+            if missing <= 0:  # longer (a newer dialect's extensions): the fields known here
+                vals = plan.unpack_from(buf, start)
+            else:  # zero-truncated (MAVLink 2), or without extensions (MAVLink 1): padded with zeros
+                vals = plan.unpack(bytes(buf[start:end]) + plan.zeros[:missing])
         except Exception:  # noqa: BLE001 - a bad payload is counted, never fatal
             self.stats.undecodable += 1
             return released or _EMPTY
-        out: list = []
-        for rule in rules:
+        if t is not None:
+            out = emit(t, vals)  # gated as they are made
+        else:
+            out = []
+            self._hold(plan, vals, recv_s, boot_s)
+        return released + out if released else out
+
+    def _hold(self, plan: _Dispatch, vals: tuple, recv_s: float, boot_s: float | None) -> None:
+        """Frames of a message that came before the clock had a time: kept as their values."""
+        for rule in plan.rules:
             if rule.match and not all(_matches(vals[pos], wanted) for pos, wanted in rule.match):
                 continue
             if rule.key_position is None:
@@ -497,15 +603,9 @@ class FrameMapper:
             else:
                 instances = rule.by_key.get(vals[rule.key_position])
                 if instances is None:
-                    self.stats.unmapped_keys[(lay.name, vals[rule.key_position])] += 1
+                    self.stats.unmapped_keys[(plan.layout.name, vals[rule.key_position])] += 1
                     continue
-            if t is None:
-                self._pending.extend((recv_s, boot_s, rule.frame_cls, inst.build(vals)) for inst in instances)
-            else:
-                for inst in instances:
-                    out.append(inst.make(t, vals))  # gated as it is made
-                self.stats.frames_by_kind[rule.kind] += len(instances)
-        return released + out if released else out
+            self._pending.extend((recv_s, boot_s, rule.frame_cls, inst.build(vals)) for inst in instances)
 
     def _gated(self, frames: list) -> list:
         gate = self.gate

@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
 from gcs_pdm.mavlink.mapping import FrameMapper
-from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bytes, take_kept_scan
+from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bounds, take_kept_scan
 
 log = logging.getLogger(__name__)
 
@@ -121,29 +121,19 @@ def _udp_sender(target: str):
     return sock, address
 
 
-def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
-                frame_consumer: FrameConsumer | None = None, speed: float | None = None,
-                udp_target: str | None = None) -> ReplaySummary:
-    """Replay ``path`` to its end; damaged data is skipped and counted, never raised."""
-    path = Path(path)
-    scanned = take_kept_scan(path)  # kept by the provisional description's pass, if it ran
-    if scanned is not None:
-        data, stats, records = scanned.data, scanned.stats, scanned.records()
-    else:
-        data, stats = path.read_bytes(), ScanStats()
-        records = scan_tlog_bytes(data, stats)
-    mapper = mapper or FrameMapper()
-    by_id: Counter = Counter()
-    first_t = last_t = None
-    sock = address = None
-    if udp_target:
-        sock, address = _udp_sender(udp_target)
+def _counted(rows, by_id: Counter):
+    """The rows of a streamed scan, counting their message ids."""
+    for row in rows:
+        by_id[row[1]] += 1
+        yield row
+
+
+def _paced(rows, data: bytes, speed: float | None, sock):
+    """The rows at ×``speed`` real time by their tlog timestamps, each packet re-sent over UDP
+    (``sock``: socket and address) before it is mapped."""
     pace_origin_ts = pace_origin_wall = None
-    feed = mapper.feed
-    consume = frame_consumer
-    started = time.perf_counter()
-    for ts_us, msgid, sysid, compid, payload, start, end in records:
-        by_id[msgid] += 1
+    for row in rows:
+        ts_us = row[0]
         if speed is not None:
             if pace_origin_ts is None:
                 pace_origin_ts, pace_origin_wall = ts_us, time.monotonic()
@@ -152,10 +142,38 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
                 time.sleep(delay)
         if sock is not None:
             try:
-                sock.sendto(data[start:end], address)
+                sock[0].sendto(data[row[6]:row[7]], sock[1])
             except OSError as exc:  # a closed port on the other side must not stop the replay
                 log.debug("UDP resend failed: %s", exc)
-        frames = feed(ts_us / 1e6, msgid, sysid, compid, payload)
+        yield row
+
+
+def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
+                frame_consumer: FrameConsumer | None = None, speed: float | None = None,
+                udp_target: str | None = None) -> ReplaySummary:
+    """Replay ``path`` to its end; damaged data is skipped and counted, never raised."""
+    path = Path(path)
+    scanned = take_kept_scan(path)  # kept by the provisional description's pass, if it ran
+    mapper = mapper or FrameMapper()
+    by_id: Counter = Counter()
+    first_t = last_t = None
+    sock = None
+    if scanned is not None:
+        data, stats = scanned.data, scanned.stats
+        rows = zip(*scanned.columns)  # the columns straight into the mapping: no record objects
+        by_id.update(scanned.columns[1])
+    else:
+        data, stats = path.read_bytes(), ScanStats()
+        rows = _counted(scan_tlog_bounds(data, stats), by_id)
+    if speed is not None or udp_target:
+        sock = _udp_sender(udp_target) if udp_target else None
+        rows = _paced(rows, data, speed, sock)
+    feed_from = mapper.feed_from
+    consume = frame_consumer
+    started = time.perf_counter()
+    # each payload is read in place in the file's bytes, from its bounds
+    for ts_us, msgid, sysid, compid, payload_start, payload_end, _start, _end in rows:
+        frames = feed_from(ts_us / 1e6, msgid, sysid, compid, data, payload_start, payload_end)
         if frames:
             if first_t is None:
                 first_t = frames[0].time_s
@@ -169,7 +187,7 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
             frame_consumer(frame)
     elapsed = time.perf_counter() - started
     if sock is not None:
-        sock.close()
+        sock[0].close()
     skipped = stats.bad_crc + stats.unknown_msgid
     if skipped or stats.garbage_bytes or stats.truncated_tail_bytes:
         log.warning("%s: skipped %d bad-CRC and %d unknown packets, %d garbage bytes, %d truncated tail bytes",

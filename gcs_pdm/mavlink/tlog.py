@@ -116,6 +116,13 @@ def scan_tlog_bytes(data: bytes, stats: ScanStats | None = None) -> Iterator[tup
     return _scan_records(data, stats, views=True)
 
 
+def scan_tlog_bounds(data: bytes, stats: ScanStats | None = None) -> Iterator[tuple[int, ...]]:
+    """Like :func:`scan_tlog_bytes` with each payload as its bounds in ``data``: ``(timestamp_us,
+    msgid, sysid, compid, payload_start, payload_end, packet_start, packet_end)``, plain integers
+    (the rows of :attr:`ScannedTlog.columns`)."""
+    return _scan_records(data, stats)
+
+
 def _scan_records(data: bytes, stats: ScanStats | None, views: bool = False) -> Iterator[tuple]:
     """:func:`scan_tlog_bytes` (``views``), or with the payload as its bounds: ``(timestamp_us,
     msgid, sysid, compid, payload_start, payload_end, packet_start, packet_end)``, plain integers."""
@@ -437,3 +444,56 @@ def tlog_message_dicts(path: str | Path, names, *, system: int | None = None) ->
         except Exception:  # noqa: BLE001 - a CRC-valid packet that still does not unpack: skip it
             continue
         yield lay.name, fields
+
+
+_NUMPY_CODES = {"b": "i1", "B": "u1", "h": "i2", "H": "u2", "i": "i4", "I": "u4", "q": "i8", "Q": "u8",
+                "f": "f4", "d": "f8"}
+
+
+def tlog_message_columns(path: str | Path, name: str, *, system: int | None = None) -> dict:
+    """One message's CRC-valid packets of a tlog as numpy columns, all at once: field -> array in
+    file order (arrays ``(n, count)``; zero-truncated payloads padded with the zeros they dropped),
+    plus ``"sysid"``. Numeric fields only (text fields are left out)."""
+    import numpy as np
+
+    from gcs_pdm.mavlink.dialect import MESSAGE_IDS_BY_NAME
+
+    msgid = MESSAGE_IDS_BY_NAME[name]
+    lay = layout(msgid)
+    scanned = scanned_tlog(path)
+    if scanned is not None:
+        data, columns = scanned.data, [np.frombuffer(c, dtype=np.uint64) for c in scanned.columns]
+    else:
+        data = Path(path).read_bytes()
+        rows = np.array(list(_scan_records(data, None)), dtype=np.uint64).reshape(-1, _COLUMNS)
+        columns = list(rows.T)
+    picked = columns[1] == msgid
+    if system is not None:
+        picked &= columns[2] == system
+    sysid = columns[2][picked].astype(np.int64)
+    start = columns[4][picked].astype(np.int64)
+    length = np.minimum(columns[5][picked].astype(np.int64) - start, lay.size)
+    raw = np.frombuffer(data, dtype=np.uint8)
+    offsets = np.arange(lay.size)
+    inside = offsets[None, :] < length[:, None]
+    payloads = np.where(inside, raw[np.where(inside, start[:, None] + offsets, 0)], 0).astype(np.uint8)
+    out = {"sysid": sysid}
+    fmt = _format_tokens(msgid)
+    position = 0
+    for field_name, (repeat, code) in zip(fmt[0], fmt[1]):
+        n = int(repeat) if repeat else 1
+        width = struct.calcsize("<" + code) * (1 if code == "s" else n)
+        if code in _NUMPY_CODES:
+            values = payloads[:, position:position + width].copy().view("<" + _NUMPY_CODES[code])
+            out[field_name] = values if repeat else values[:, 0]
+        position += width
+    return out
+
+
+def _format_tokens(msgid: int) -> tuple[list[str], list[tuple[str, str]]]:
+    """A message's field names and struct format tokens (repeat, code), in wire order."""
+    from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
+    from gcs_pdm.mavlink.wire import _FORMAT_TOKEN
+
+    cls = MESSAGE_CLASSES[msgid]
+    return list(cls.ordered_fieldnames), _FORMAT_TOKEN.findall(cls.unpacker.format.lstrip("<"))

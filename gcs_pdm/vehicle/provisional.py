@@ -189,6 +189,57 @@ class ProvisionalObserver:
             if drawn > 0:
                 seen.capacity_estimate_mah = drawn / ((seen.first_remaining - remaining) / 100.0)
 
+    def observe_batteries(self, columns: Mapping[str, Any]) -> None:
+        """Fold many BATTERY_STATUS messages at once, given as numpy columns in arrival order (field
+        -> array, ``voltages``/``voltages_ext`` one row per message; what
+        ``gcs_pdm.mavlink.tlog.tlog_message_columns`` gives): the same as :meth:`observe` of each
+        in turn, computed per pack over whole arrays."""
+        import numpy as np
+
+        ids = np.asarray(columns["id"]).astype(np.int64)
+        self.messages += int(ids.size)
+        cells = np.concatenate([np.asarray(columns["voltages"]), np.asarray(columns["voltages_ext"])],
+                               axis=1).astype(np.int64)
+        valid = (cells != 0) & (cells != _UINT16_MAX)
+        has_cells = valid.any(axis=1)
+        volts = np.where(valid, cells, 0).sum(axis=1) / 1000.0
+        temperature = np.asarray(columns["temperature"]).astype(np.int64)
+        current = np.asarray(columns["current_battery"]).astype(np.int64)
+        remaining = np.asarray(columns["battery_remaining"]).astype(np.int64)
+        consumed = np.asarray(columns["current_consumed"]).astype(np.int64)
+        loaded = has_cells & (current >= LOADED_CURRENT_A * 100) & (remaining > 0) & (remaining <= 100)
+        discharge = (remaining >= 0) & (consumed >= 0)
+        for pack_id in dict.fromkeys(ids.tolist()):  # in order of first appearance, as observe() adds them
+            mine = ids == pack_id
+            seen = self.packs.setdefault(pack_id, _PackSeen())
+            seen.frames += int(mine.sum())
+            reported = volts[mine & has_cells]
+            if reported.size:
+                seen.max_voltage = max(seen.max_voltage, float(reported.max()))
+                room = FIRST_READINGS - len(seen.first_voltages)
+                if room > 0:
+                    seen.first_voltages.extend(reported[:room].tolist())
+            if (temperature[mine] != _INT16_MAX).any():
+                seen.temperature_reported = True
+            room = LOADED_READINGS - len(seen.loaded)
+            if room > 0:
+                rows = mine & loaded
+                seen.loaded.extend(zip(volts[rows][:room].tolist(), (current[rows][:room] / 100.0).tolist(),
+                                       (remaining[rows][:room] / 100.0).tolist()))
+            rows = mine & discharge
+            if not rows.any():
+                continue
+            rem, con = remaining[rows], consumed[rows]
+            if seen.first_remaining is None:
+                seen.first_remaining, seen.first_consumed_mah = int(rem[0]), float(con[0])
+            fall = seen.first_remaining - rem
+            seen.remaining_fall = max(seen.remaining_fall, int(fall.max()))
+            drawn = con - seen.first_consumed_mah
+            measured = np.flatnonzero((fall >= CAPACITY_MIN_FALL_PCT) & (drawn > 0))
+            if measured.size:  # the last message that measures it, as observe() leaves it
+                last = measured[-1]
+                seen.capacity_estimate_mah = float(drawn[last] / (fall[last] / 100.0))
+
     def _esc(self, base: int, f: Mapping[str, Any]) -> None:
         columns = [f.get(key) or (0, 0, 0, 0) for key in ("current", "rpm", "temperature", "voltage", "count")]
         for k in range(4):
@@ -349,5 +400,17 @@ def tlog_messages(path: str | Path, *, system: int | None = None) -> Iterable[tu
     return tlog_message_dicts(path, _WANTED, system=system)
 
 
-def observe_tlog(path: str | Path, name: str | None = None) -> tuple[VehicleDescription, list[str]]:
-    return derive_provisional(tlog_messages(path), name or f"provisional-{Path(path).stem}")
+def observe_tlog(path: str | Path, name: str | None = None,
+                 capacities: Mapping[int, float] | None = None) -> tuple[VehicleDescription, list[str]]:
+    """The provisional description of a tlog: its BATTERY_STATUS messages (most of what it reads)
+    folded as columns at once, the rest message by message."""
+    from gcs_pdm.mavlink.tlog import tlog_message_columns, tlog_message_dicts
+
+    path = Path(path)
+    if not path.exists():
+        raise VehicleError(f"{path}: no such file")
+    obs = ProvisionalObserver()
+    for msg_name, fields in tlog_message_dicts(path, [n for n in _WANTED if n != "BATTERY_STATUS"]):
+        obs.observe(msg_name, fields)
+    obs.observe_batteries(tlog_message_columns(path, "BATTERY_STATUS"))
+    return obs.derive(name or f"provisional-{path.stem}", capacities)
