@@ -106,9 +106,8 @@ class DiagnosisPipeline:
         # every BATTERY_STATUS frame (a quarter of a log): the estimator's pack step called directly,
         # the model-fidelity monitor only when its pack's test is raised or a debounce is pending
         est = self.estimator
-        est._pack(frame)
+        b = est._pack(frame)  # the pack's index, -1: unknown
         t = float(frame.time_s)
-        b = self._pack_index.get(frame.pack, -1)
         if b >= 0:
             v = frame.voltage_v
             if v is not None:

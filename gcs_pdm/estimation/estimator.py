@@ -327,23 +327,26 @@ class StateEstimator:
             refs.append(own)
         return _median(refs)
 
-    def _pack(self, f: PackFrame) -> None:
-        # one BATTERY_STATUS frame: the per-frame path of a replay (issue 18). Locals instead of
-        # repeated attribute look-ups, the compiled step called directly, the config's floats read once
+    def _pack(self, f: PackFrame) -> int:
+        """One BATTERY_STATUS frame: the per-frame path of a replay (issue 18), so locals instead of
+        repeated attribute look-ups, the compiled step called directly, the config's floats read once.
+        Returns the pack's index, -1 for an unknown pack (the diagnoser's per-frame work needs it)."""
         b = self._pack_index.get(f.pack)
         if b is None:
             self._skip("unknown_pack", f"pack frame for unknown pack {f.pack!r} skipped")
             self._advance_time(f.time_s)
-            return
+            return -1
         t = float(f.time_s)
         last = self._pack_time[b]
         if not t >= last:
             self._skip("out_of_order", f"pack {f.pack}: frame at {t} s older than the last ({last} s) skipped")
             self._advance_time(f.time_s)
-            return
+            return b
         keys = self._pack_keys[b]
         seen = self.seen
-        cur = _num(f.current_a)
+        cur = f.current_a
+        if type(cur) is not float:  # None, or a number of another type: ``_num`` (a plain float is itself)
+            cur = _num(cur)
         measured = math.isfinite(cur)
         ref = self._reference_current(b, t, cur)
         if measured:
@@ -360,7 +363,11 @@ class StateEstimator:
         if measured or cur_finite:
             self._pack_current[b] = cur
             self._pack_current_time[b] = t
-        v, temp = _num(f.voltage_v), _num(f.temperature_c)
+        v, temp = f.voltage_v, f.temperature_c
+        if type(v) is not float:
+            v = _num(v)
+        if type(temp) is not float:
+            temp = _num(temp)
         if math.isfinite(v):
             seen[keys[1]] = t
         if math.isfinite(temp):
@@ -383,7 +390,7 @@ class StateEstimator:
                 self._pack_time[b] = t
             if t > self.time_s:
                 self.time_s = t
-            return
+            return b
         dt = t - last
         i_sum, i_n = self._i_sum, self._i_n
         if cur_finite:
@@ -409,6 +416,7 @@ class StateEstimator:
             self._mismatch_changed(b, t)
         if t > self.time_s:
             self.time_s = t
+        return b
 
     def _mismatch_changed(self, b: int, t: float) -> None:
         window, row = self._window_of(b)
