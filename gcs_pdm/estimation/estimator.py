@@ -218,6 +218,7 @@ class StateEstimator:
         self._mismatch_on = [False] * n_packs
         self._ext_row_of = [self.ext_row.get(b, -1) for b in range(n_packs)]
         self._spike_a = float(config.current_spike_a)
+        self._within_s = float(config.corroborate_within_s)
         self._long_gap_s = float(config.long_gap_s)
         self._restart_after_s = float(config.restart_after_s)
         self._pack_step_args = (self.packs._step_args[:3], self.packs._step_args[3:])
@@ -303,14 +304,15 @@ class StateEstimator:
         With two or more references the pack's ``own`` reading votes too: the median of three
         survives a spike in any one of them, where the references' own median (the mean of two)
         let one spiked reference replace a good reading."""
-        within = self.config.corroborate_within_s
+        within = self._within_s
+        reading, reading_time = self._reading, self._reading_time
         refs = []
         for mate in self._mates[b]:
             # the mate's own reading, not what it was cleaned to: when the whole string's current
             # steps (a throttle chop), a mate cleaned to its pre-step reference would hold every
             # pack of the string at the old current, frame after frame
-            if t - self._reading_time[mate] <= within:
-                r = self._reading[mate]
+            if t - reading_time[mate] <= within:
+                r = reading[mate]
                 if math.isfinite(r):
                     refs.append(r)
         # a motor's current is its pack's only when the pack feeds that motor alone
