@@ -33,6 +33,9 @@ class ModelMismatchMonitor:
         self._debounce = {n: Debouncer(debounce) for n in self.pack_names}
         self._index = {n: b for b, n in enumerate(self.pack_names)}
         self.faults: dict[tuple[str, str], Fault] = {}
+        #: per pack: nothing raised or pending, so ``update`` of a pack whose test is clear changes
+        #: nothing and returns nothing (the caller may skip it: nearly every frame)
+        self.idle = [True] * len(self.pack_names)
 
     def update(self, time_s: float, estimator, pack: str) -> list[tuple[str, Fault]]:
         """After a frame of ``pack``: the raise/clear events of its advisory."""
@@ -45,6 +48,7 @@ class ModelMismatchMonitor:
             return []  # the pack matches its model and nothing is pending (nearly every frame): no change
         key = (MODEL_MISMATCH, pack)
         kind = deb.update(time_s, active, not active)
+        self.idle[b] = not deb.active and math.isnan(deb.pending_since)
         if kind == "raise":
             ev = estimator.model_check(b)
             f = Fault(MODEL_MISMATCH, pack, float(ev["statistic"] or 0.0), time_s, _confidence(ev), ev,

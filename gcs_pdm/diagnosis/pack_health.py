@@ -403,10 +403,11 @@ class PackHealthMonitor:
             return
         buf = self._buf[b]
         last = buf.last_time
-        if last is not None and time_s < last:
-            return  # out of order: the estimator drops (and counts) it too
-        if last is not None and time_s - last > self.config.max_gap_s:
-            buf.clear()
+        if last is not None:
+            if time_s < last:
+                return  # out of order: the estimator drops (and counts) it too
+            if time_s - last > self.config.max_gap_s:
+                buf.clear()
         buf.append((time_s, current_a, voltage_v, ambient_c))
 
     def due(self, time_s: float) -> bool:

@@ -62,6 +62,8 @@ class DiagnosisPipeline:
         # telemetry can show a power loss)
         self._motor_diagnosed = vehicle is None or isinstance(self.motor_power, EscImbalanceDetector)
         self._handlers: dict[type, object] = {}
+        self._health_add = self.pack_health.add
+        self._fidelity_idle = self.model_fidelity.idle
         if vehicle is None:
             self._packs_of_bus = [[b for b in range(4) if MOTOR_OF_PACK[b] == q] for q in range(2)]
             self._bus_parallel = [False, False]
@@ -101,19 +103,23 @@ class DiagnosisPipeline:
         return self.estimator.handler_for(frame)
 
     def _pack_frame(self, frame: PackFrame) -> None:
+        # every BATTERY_STATUS frame (a quarter of a log): the estimator's pack step called directly,
+        # the model-fidelity monitor only when its pack's test is raised or a debounce is pending
         est = self.estimator
-        est.consume(frame)
+        b = est._pack(frame)  # the pack's index, -1: unknown
         t = float(frame.time_s)
-        b = self._pack_index.get(frame.pack, -1)
         if b >= 0:
             v = frame.voltage_v
-            if v is not None and math.isfinite(v):
-                self._pack_v[b], self._pack_v_time[b] = v, t
-            if v is not None and est.packs.initialised[b]:
-                self.pack_health.add(b, t, float(est.latest_pack_current(b)), float(v), est.ambient_c)
-            events = self.model_fidelity.update(t, est, frame.pack)
-            if events:
-                self._record(events)
+            if v is not None:
+                if math.isfinite(v):
+                    self._pack_v[b] = v
+                    self._pack_v_time[b] = t
+                if est.packs.initialised[b]:
+                    self._health_add(b, t, float(est._pack_current[b]), float(v), est.ambient_c)
+            if est._mismatch_on[b] or not self._fidelity_idle[b]:
+                events = self.model_fidelity.update(t, est, frame.pack)
+                if events:
+                    self._record(events)
         self._checks(t)
 
     def _motor_frame(self, frame: MotorFrame) -> None:

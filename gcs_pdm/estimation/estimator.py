@@ -22,6 +22,7 @@ import numpy as np
 
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
 from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
+from gcs_pdm.estimation.ukf import pack_step_one as _pack_step_one
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -211,6 +212,16 @@ class StateEstimator:
         # the message time it was raised or cleared
         self._mismatch_active = np.zeros(n_packs, dtype=bool)
         self._mismatch_since = np.full(n_packs, np.nan)
+        # per-frame reads, as Python values: ``_mismatch_active`` as a list (written beside it), the
+        # extended filter's row of each pack (-1: none), the config's floats, the compiled pack step's
+        # arguments before and after the frame's own
+        self._mismatch_on = [False] * n_packs
+        self._ext_row_of = [self.ext_row.get(b, -1) for b in range(n_packs)]
+        self._spike_a = float(config.current_spike_a)
+        self._within_s = float(config.corroborate_within_s)
+        self._long_gap_s = float(config.long_gap_s)
+        self._restart_after_s = float(config.restart_after_s)
+        self._pack_step_args = (self.packs._step_args[:3], self.packs._step_args[3:])
 
     # ---- frames ----------------------------------------------------------------------------------
     def consume(self, frame) -> None:
@@ -293,14 +304,15 @@ class StateEstimator:
         With two or more references the pack's ``own`` reading votes too: the median of three
         survives a spike in any one of them, where the references' own median (the mean of two)
         let one spiked reference replace a good reading."""
-        within = self.config.corroborate_within_s
+        within = self._within_s
+        reading, reading_time = self._reading, self._reading_time
         refs = []
         for mate in self._mates[b]:
             # the mate's own reading, not what it was cleaned to: when the whole string's current
             # steps (a throttle chop), a mate cleaned to its pre-step reference would hold every
             # pack of the string at the old current, frame after frame
-            if t - self._reading_time[mate] <= within:
-                r = self._reading[mate]
+            if t - reading_time[mate] <= within:
+                r = reading[mate]
                 if math.isfinite(r):
                     refs.append(r)
         # a motor's current is its pack's only when the pack feeds that motor alone
@@ -317,77 +329,96 @@ class StateEstimator:
             refs.append(own)
         return _median(refs)
 
-    def _pack(self, f: PackFrame) -> None:
+    def _pack(self, f: PackFrame) -> int:
+        """One BATTERY_STATUS frame: the per-frame path of a replay (issue 18), so locals instead of
+        repeated attribute look-ups, the compiled step called directly, the config's floats read once.
+        Returns the pack's index, -1 for an unknown pack (the diagnoser's per-frame work needs it)."""
         b = self._pack_index.get(f.pack)
         if b is None:
             self._skip("unknown_pack", f"pack frame for unknown pack {f.pack!r} skipped")
             self._advance_time(f.time_s)
-            return
+            return -1
         t = float(f.time_s)
         last = self._pack_time[b]
         if not t >= last:
             self._skip("out_of_order", f"pack {f.pack}: frame at {t} s older than the last ({last} s) skipped")
             self._advance_time(f.time_s)
-            return
-        cfg = self.config
+            return b
         keys = self._pack_keys[b]
-        cur = _num(f.current_a)
+        seen = self.seen
+        cur = f.current_a
+        if type(cur) is not float:  # None, or a number of another type: ``_num`` (a plain float is itself)
+            cur = _num(cur)
         measured = math.isfinite(cur)
         ref = self._reference_current(b, t, cur)
         if measured:
-            self.seen[keys[0]] = t
-            self._reading[b], self._reading_time[b] = cur, t
-            if math.isfinite(ref) and abs(cur - ref) > max(cfg.current_spike_a, 0.5 * abs(ref)):
+            seen[keys[0]] = t
+            self._reading[b] = cur
+            self._reading_time[b] = t
+            if math.isfinite(ref) and abs(cur - ref) > max(self._spike_a, 0.5 * abs(ref)):
                 self.counters["current_spikes"] += 1
                 cur = ref
         else:
             cur = ref if math.isfinite(ref) else self._pack_current[b]
             self.counters["current_held"] += 1
-        if measured or math.isfinite(cur):
+        cur_finite = math.isfinite(cur)
+        if measured or cur_finite:
             self._pack_current[b] = cur
             self._pack_current_time[b] = t
-        v, temp = _num(f.voltage_v), _num(f.temperature_c)
+        v, temp = f.voltage_v, f.temperature_c
+        if type(v) is not float:
+            v = _num(v)
+        if type(temp) is not float:
+            temp = _num(temp)
         if math.isfinite(v):
-            self.seen[keys[1]] = t
+            seen[keys[1]] = t
         if math.isfinite(temp):
-            self.seen[keys[2]] = t
+            seen[keys[2]] = t
         packs = self.packs
         initialised = packs.initialised[b]
-        if initialised and t - last > cfg.restart_after_s:
+        ext_row = self._ext_row_of[b]
+        if initialised and t - last > self._restart_after_s:
             self._restart("pack", f.pack, t - last)
             packs.initialised[b] = initialised = False
-            if b in self.ext_row:
-                self.ext.initialised[self.ext_row[b]] = False
+            if ext_row >= 0:
+                self.ext.initialised[ext_row] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
         if not initialised:
             if math.isfinite(v):  # else nothing to start from yet
                 packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]), self.ambient_c)
-                if b in self.ext_row:
-                    self.ext.initialise(np.array([self.ext_row[b]]), np.array([v]), np.array([cur]), np.array([temp]),
+                if ext_row >= 0:
+                    self.ext.initialise(np.array([ext_row]), np.array([v]), np.array([cur]), np.array([temp]),
                                         self.ambient_c)
                 self._pack_time[b] = t
-            self._advance_time(t)
-            return
+            if t > self.time_s:
+                self.time_s = t
+            return b
         dt = t - last
-        if math.isfinite(cur):
-            self._i_sum[b] += cur
-            self._i_n[b] += 1
-        if dt > 0 and self._i_n[b] > 0:
-            cur = self._i_sum[b] / self._i_n[b]
-            self._i_sum[b], self._i_n[b] = 0.0, 0
-        if dt > cfg.long_gap_s:
+        i_sum, i_n = self._i_sum, self._i_n
+        if cur_finite:
+            i_sum[b] += cur
+            i_n[b] += 1
+        if dt > 0 and i_n[b] > 0:
+            cur = i_sum[b] / i_n[b]
+            i_sum[b], i_n[b] = 0.0, 0
+        if dt > self._long_gap_s:
             self.counters["long_gaps"] += 1
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
-        # the compiled steps say when a consistency state flipped (nearly never): only then is it read
-        flipped = packs.step_one(b, dt, i_used, self.ambient_c, v, temp)
-        if b in self.ext_row:
-            flipped = self.ext.step_one(self.ext_row[b], dt, i_used, self.ambient_c, v, temp)
+        ambient = self.ambient_c
+        # the compiled steps say when a consistency state flipped (nearly never): only then is it read.
+        # ``PackFilterBank.step_one`` without its Python layer: the bank's argument tuple, split once
+        head, tail = self._pack_step_args
+        flipped = _pack_step_one(*head, b, dt, i_used, ambient, v, temp, *tail)
+        if ext_row >= 0:
+            flipped = self.ext.step_one(ext_row, dt, i_used, ambient, v, temp)
         self._charge_c[b] += i_used * dt
         self._pack_time[b] = t
-        if flipped or self._mismatch_active[b]:
+        if flipped or self._mismatch_on[b]:
             self._mismatch_changed(b, t)
-        self._advance_time(t)
+        if t > self.time_s:
+            self.time_s = t
+        return b
 
     def _mismatch_changed(self, b: int, t: float) -> None:
         window, row = self._window_of(b)
@@ -395,6 +426,7 @@ class StateEstimator:
         if now == self._mismatch_active[b]:
             return
         self._mismatch_active[b] = now
+        self._mismatch_on[b] = now
         self._mismatch_since[b] = t
         self.counters["model_mismatch_raised" if now else "model_mismatch_cleared"] += 1
         ev = self.model_check(b)
