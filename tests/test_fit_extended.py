@@ -163,3 +163,24 @@ def test_extended_kernel_records_its_states():
     # the terminal voltage is the OCV at the recorded surface SoC minus the drops
     surface = rec.states[0, :, kernel.X_SOC] - rec.states[0, :, kernel.X_SD]
     assert np.all(kernel.open_circuit_voltage(p, surface) >= rec.voltage[0] - 1e-9)
+
+
+def test_validation_chooses_only_among_candidates_that_fit_the_training_flights():
+    from gcs_pdm.fitting.procedure import _choose
+
+    train = np.array([30.0, 33.0, 53.0, 106.0]) ** 2 * 1e-6   # the last two: LM stopped in poor minima
+    val = np.array([140.0, 211.0, 137.0, 163.0]) ** 2 * 1e-6  # one of them has the lowest validation error
+    assert _choose(train, val, 1.5) == 0
+    assert _choose(train, val, 0.0) == 2                        # 0: the plain validation choice (paper variant)
+    assert _choose(train, val, 2.0) == 2
+    assert FitSettings().extended_train_tolerance == 1.5
+
+
+def test_the_fit_applies_the_training_tolerance_to_its_choice(fit):
+    cands = fit.stages[0].candidates
+    chosen = cands[fit.stages[0].chosen]
+    screened = [c for c in cands if not c.polished]
+    start = next(c for c in screened if c.start == chosen.start)
+    best_train = min(c.lm_rmse for c in screened)
+    fits = [c for c in screened if c.lm_rmse <= 1.5 * best_train]
+    assert start in fits and start.val_rmse == min(c.val_rmse for c in fits)
