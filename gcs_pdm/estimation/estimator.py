@@ -119,6 +119,21 @@ class Estimate:
         }
 
 
+class _ArrayCopy:
+    """A read-only property giving a float64 array copy of the instance's list attribute ``name``."""
+
+    def __init__(self, name: str, doc: str | None = None):
+        self.name, self.__doc__ = name, doc
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return np.array(getattr(obj, self.name), dtype=np.float64)
+
+    def __set__(self, obj, value):
+        raise AttributeError(f"read-only: the estimator keeps {self.name} itself")
+
+
 class StateEstimator:
     """Per-pack UKF and per-motor thermal filter, driven frame by frame.
 
@@ -254,40 +269,17 @@ class StateEstimator:
         if t > self.time_s:
             self.time_s = float(t)
 
-    # read-only numpy copies of the per-frame state (the estimator keeps it in lists)
-    @property
-    def pack_time(self) -> np.ndarray:
-        return np.array(self._pack_time, dtype=np.float64)
-
-    @property
-    def pack_current(self) -> np.ndarray:
-        """(packs,) the latest cleaned current of each pack, A (NaN before any)."""
-        return np.array(self._pack_current, dtype=np.float64)
-
-    @property
-    def pack_current_time(self) -> np.ndarray:
-        return np.array(self._pack_current_time, dtype=np.float64)
-
-    @property
-    def motor_time(self) -> np.ndarray:
-        return np.array(self._motor_time, dtype=np.float64)
-
-    @property
-    def motor_current(self) -> np.ndarray:
-        return np.array(self._motor_current, dtype=np.float64)
-
-    @property
-    def motor_current_time(self) -> np.ndarray:
-        return np.array(self._motor_current_time, dtype=np.float64)
-
-    @property
-    def motor_rpm(self) -> np.ndarray:
-        return np.array(self._motor_rpm, dtype=np.float64)
-
-    @property
-    def charge_c(self) -> np.ndarray:
-        """(packs,) charge drawn from each pack since its filter started (cleaned current × dt), C."""
-        return np.array(self._charge_c, dtype=np.float64)
+    # read-only numpy copies of the per-frame state (the estimator keeps it in lists: a frame's
+    # update is a few float stores, and readers that want arrays are rare)
+    pack_time = _ArrayCopy("_pack_time")
+    pack_current = _ArrayCopy("_pack_current", "(packs,) the latest cleaned current of each pack, A (NaN before any).")
+    pack_current_time = _ArrayCopy("_pack_current_time")
+    motor_time = _ArrayCopy("_motor_time")
+    motor_current = _ArrayCopy("_motor_current")
+    motor_current_time = _ArrayCopy("_motor_current_time")
+    motor_rpm = _ArrayCopy("_motor_rpm")
+    charge_c = _ArrayCopy("_charge_c", "(packs,) charge drawn from each pack since its filter started "
+                                       "(cleaned current × dt), C.")
 
     def latest_pack_current(self, b: int) -> float:
         """Pack ``b``'s latest cleaned current, A, as a float (a per-frame read of the diagnoser)."""
