@@ -391,8 +391,6 @@ class _Dispatch:
     time_offset: int | None
     size: int = 0
     unpack_from: Callable | None = None
-    unpack: Callable | None = None
-    zeros: bytes = b""
     emit: Callable[[float, tuple], list] | None = None
     layout: Any = None
     rules: tuple = ()
@@ -402,8 +400,7 @@ def _dispatch_table(rules: dict[int, tuple[Any, list[_CompiledRule]]], stats: "M
     """msgid -> :class:`_Dispatch` for every timed or mapped message (others: untimed and unmapped)."""
     table = {msgid: _Dispatch(offset) for msgid, offset in TIME_BOOT_MS_OFFSET.items()}
     for msgid, (lay, message_rules) in rules.items():
-        table[msgid] = _Dispatch(TIME_BOOT_MS_OFFSET.get(msgid), lay.size, lay.struct.unpack_from, lay.struct.unpack,
-                                 bytes(lay.size),
+        table[msgid] = _Dispatch(TIME_BOOT_MS_OFFSET.get(msgid), lay.size, lay.struct.unpack_from,
                                  _emitter(lay, message_rules, stats), lay, tuple(message_rules))
     return table
 
@@ -581,8 +578,8 @@ class FrameMapper:
             missing = plan.size - (end - start)
             if missing <= 0:  # longer (a newer dialect's extensions): the fields known here
                 vals = plan.unpack_from(buf, start)
-            else:  # zero-truncated (MAVLink 2), or without extensions (MAVLink 1): padded with zeros
-                vals = plan.unpack(bytes(buf[start:end]) + plan.zeros[:missing])
+            else:  # zero-truncated (MAVLink 2), or without extensions (MAVLink 1): the layout pads it
+                vals = plan.layout.unpack(buf[start:end])
         except Exception:  # noqa: BLE001 - a bad payload is counted, never fatal
             self.stats.undecodable += 1
             return released or _EMPTY

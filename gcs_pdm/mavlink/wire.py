@@ -115,7 +115,7 @@ class PayloadLayout:
     def as_dict(self, payload: bytes | memoryview) -> dict:
         """The fields by name as pymavlink's ``msg.to_dict()`` gives them (arrays as lists, text
         decoded up to its NUL padding), without building a pymavlink message."""
-        return self._as_dict(self.struct.unpack(payload) if len(payload) == self.size else self.unpack(payload))
+        return self._as_dict(self.unpack(payload))
 
 
 _LAYOUTS: dict[int, PayloadLayout] = {}
