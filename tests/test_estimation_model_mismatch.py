@@ -107,7 +107,7 @@ def test_mismatch_raised_with_evidence_widens_prediction_and_clears_when_matched
     # the prediction starts from a wider state: the same draws give a wider time to cut-off
     load = FutureLoad.constant(900.0, 3600.0, 10.0)
     plain = copy.deepcopy(est)
-    plain._mismatch_active[:] = False
+    plain._mismatch_active = [False] * len(plain.pack_names)
     assert np.all(plain.prediction_inflation() == 1.0) and est.prediction_inflation()[0] > 1.0
     wide = predict_from_estimator(est, load, rng=np.random.default_rng(1), n_samples=200, stop_on_failure=False,
                                   trajectories=False, param_rel_sigma=0.0)

@@ -43,7 +43,7 @@ class ModelMismatchMonitor:
         if b is None:
             return []
         deb = self._debounce[pack]
-        active = bool(estimator.model_mismatch_active[b])
+        active = estimator.mismatch_active(b)
         if not active and not deb.active and math.isnan(deb.pending_since):
             return []  # the pack matches its model and nothing is pending (nearly every frame): no change
         key = (MODEL_MISMATCH, pack)

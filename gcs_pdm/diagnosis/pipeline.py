@@ -115,8 +115,8 @@ class DiagnosisPipeline:
                     self._pack_v[b] = v
                     self._pack_v_time[b] = t
                 if est.packs.initialised[b]:
-                    self._health_add(b, t, float(est._pack_current[b]), float(v), est.ambient_c)
-            if est._mismatch_on[b] or not self._fidelity_idle[b]:
+                    self._health_add(b, t, float(est.latest_pack_current(b)), float(v), est.ambient_c)
+            if est.mismatch_active(b) or not self._fidelity_idle[b]:
                 events = self.model_fidelity.update(t, est, frame.pack)
                 if events:
                     self._record(events)

@@ -22,7 +22,6 @@ import numpy as np
 
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
 from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
-from gcs_pdm.estimation.ukf import pack_step_one as _pack_step_one
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
@@ -224,19 +223,16 @@ class StateEstimator:
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
         # model-consistency test per pack (pack_filter.ConsistencyWindow): whether it is raised and
-        # the message time it was raised or cleared
-        self._mismatch_active = np.zeros(n_packs, dtype=bool)
+        # the message time it was raised or cleared (a list of bools: read on every pack frame)
+        self._mismatch_active = [False] * n_packs
         self._mismatch_since = np.full(n_packs, np.nan)
-        # per-frame reads, as Python values: ``_mismatch_active`` as a list (written beside it), the
-        # extended filter's row of each pack (-1: none), the config's floats, the compiled pack step's
-        # arguments before and after the frame's own
-        self._mismatch_on = [False] * n_packs
+        # per-frame reads, as Python values: the extended filter's row of each pack (-1: none), the
+        # config's floats
         self._ext_row_of = [self.ext_row.get(b, -1) for b in range(n_packs)]
         self._spike_a = float(config.current_spike_a)
         self._within_s = float(config.corroborate_within_s)
         self._long_gap_s = float(config.long_gap_s)
         self._restart_after_s = float(config.restart_after_s)
-        self._pack_step_args = (self.packs._step_args[:3], self.packs._step_args[3:])
 
     # ---- frames ----------------------------------------------------------------------------------
     def consume(self, frame) -> None:
@@ -323,7 +319,7 @@ class StateEstimator:
 
     def _pack(self, f: PackFrame) -> int:
         """One BATTERY_STATUS frame: the per-frame path of a replay (issue 18), so locals instead of
-        repeated attribute look-ups, the compiled step called directly, the config's floats read once.
+        repeated attribute look-ups and the config's floats read once.
         Returns the pack's index, -1 for an unknown pack (the diagnoser's per-frame work needs it)."""
         b = self._pack_index.get(f.pack)
         if b is None:
@@ -398,15 +394,13 @@ class StateEstimator:
             log.info("pack %s: %.1f s without telemetry; integrating through at %.1f A", f.pack, dt, cur)
         i_used = cur if math.isfinite(cur) else 0.0
         ambient = self.ambient_c
-        # the compiled steps say when a consistency state flipped (nearly never): only then is it read.
-        # ``PackFilterBank.step_one`` without its Python layer: the bank's argument tuple, split once
-        head, tail = self._pack_step_args
-        flipped = _pack_step_one(*head, b, dt, i_used, ambient, v, temp, *tail)
+        # the compiled steps say when a consistency state flipped (nearly never): only then is it read
+        flipped = packs.step_one(b, dt, i_used, ambient, v, temp)
         if ext_row >= 0:
             flipped = self.ext.step_one(ext_row, dt, i_used, ambient, v, temp)
         self._charge_c[b] += i_used * dt
         self._pack_time[b] = t
-        if flipped or self._mismatch_on[b]:
+        if flipped or self._mismatch_active[b]:
             self._mismatch_changed(b, t)
         if t > self.time_s:
             self.time_s = t
@@ -418,7 +412,6 @@ class StateEstimator:
         if now == self._mismatch_active[b]:
             return
         self._mismatch_active[b] = now
-        self._mismatch_on[b] = now
         self._mismatch_since[b] = t
         self.counters["model_mismatch_raised" if now else "model_mismatch_cleared"] += 1
         ev = self.model_check(b)
@@ -520,7 +513,7 @@ class StateEstimator:
         w, row = self._window_of(b)
         stat, res = w.statistic()[row], w.mean_residual()[row]
         name = self.pack_names[b]
-        active = bool(self._mismatch_active[b])
+        active = self._mismatch_active[b]
 
         def num(x, nd):
             return None if not math.isfinite(float(x)) else round(float(x), nd)
@@ -553,8 +546,12 @@ class StateEstimator:
 
     @property
     def model_mismatch_active(self) -> np.ndarray:
-        """(packs,) bool: the pack fails its model-consistency test now (read-only view)."""
-        return self._mismatch_active
+        """(packs,) bool: the pack fails its model-consistency test now (a copy)."""
+        return np.array(self._mismatch_active, dtype=bool)
+
+    def mismatch_active(self, b: int) -> bool:
+        """Pack ``b`` fails its model-consistency test now (a per-frame read of the diagnoser)."""
+        return self._mismatch_active[b]
 
     def model_mismatch(self) -> dict[str, dict]:
         """``model_check`` of every pack, by name."""
@@ -566,7 +563,7 @@ class StateEstimator:
         times more variable than the filter believes, so its state is that much less certain
         (covariance matching). ``prediction.predict_from_estimator`` applies it."""
         worst = np.ones(len(self.pack_names))
-        for b in np.flatnonzero(self._mismatch_active):
+        for b in (b for b, on in enumerate(self._mismatch_active) if on):
             w, row = self._window_of(b)
             worst[b] = np.nanmax(np.where(w.active[row], w.statistic()[row], 1.0))
         return np.maximum(worst, 1.0)
