@@ -31,6 +31,7 @@ from numba import njit
 from gcs_pdm.diagnosis.debounce import DebounceConfig, Debouncer
 from gcs_pdm.diagnosis.faults import PACK_CAPACITY_LOSS, PACK_RESISTANCE_RISE, Fault
 from gcs_pdm.estimation.parallel import thread_map
+from gcs_pdm.estimation.prediction import median_by_selection
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import PACK_NAMES
 
@@ -113,10 +114,10 @@ def _linearise(run_voltage, run_soc, voltage, keep, perturbed, eps, min_soc):
         if use[i]:
             res[k] = r[i]
             k += 1
-    centre = _median_of(res)
+    centre = median_by_selection(res)
     for i in range(count):
         res[i] = abs(res[i] - centre)
-    mad = 1.4826 * _median_of(res) + 1e-6
+    mad = 1.4826 * median_by_selection(res) + 1e-6
     kept = np.empty(n, dtype=np.bool_)
     n_used = 0
     for i in range(n):
@@ -134,16 +135,6 @@ def _linearise(run_voltage, run_soc, voltage, keep, perturbed, eps, min_soc):
             r_used[k] = r[i]
             k += 1
     return r, jac, use, kept, count, a_used, r_used
-
-
-@njit(cache=True, nogil=True)
-def _median_of(x):
-    """``np.median`` of a 1-D finite array by selection (the same number; ``x`` is reordered)."""
-    k = x.size // 2
-    if x.size % 2:
-        return np.partition(x, k)[k]
-    part = np.partition(x, k)
-    return (np.max(part[:k]) + part[k]) / 2.0
 
 
 class _Record:

@@ -301,6 +301,15 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
 
 
 @njit(cache=True, nogil=True)
+def median_by_selection(x):
+    """``np.median`` of a non-empty 1-D finite array, the same number, by selection (``np.partition``)
+    instead of a sort: the middle order statistic, or the mean of the middle two."""
+    half = x.size // 2
+    part = np.partition(x, half)
+    return part[half] if x.size % 2 else (np.max(part[:half]) + part[half]) / 2.0
+
+
+@njit(cache=True, nogil=True)
 def _median_compiled(a, out):
     n_vec, m, c = a.shape
     col = np.empty(n_vec)
@@ -314,10 +323,7 @@ def _median_compiled(a, out):
             if n == 0:
                 out[k, i] = np.nan
                 continue
-            # the middle order statistics by selection, not a sort: the same numbers
-            half = n // 2
-            part = np.partition(col[:n], half)
-            out[k, i] = part[half] if n % 2 else (np.max(part[:half]) + part[half]) / 2.0
+            out[k, i] = median_by_selection(col[:n])
 
 
 def _median_over_samples(a: np.ndarray) -> np.ndarray:
