@@ -525,7 +525,8 @@ class ExtendedPackProblem(PackProblem):
         surface = np.empty(self.n_data)
         for fi, (f, rows) in enumerate(zip(self.flights, self.row_slices)):
             extra = u[d + fi] if u.size > d else None
-            soc0 = self.rest_soc(P, f)[0] + self.soc_offset(extra)
+            rest = self.rest_soc(P, f)[0]
+            soc0 = rest + self.soc_offset(extra)
             P2 = np.repeat(P, 2, axis=0)
             x0 = kernel.initial_extended_state(P2, np.array([soc0, soc0 + self.SOC_STEP]), f.init_temperature,
                                                f.init_current)
@@ -535,7 +536,7 @@ class ExtendedPackProblem(PackProblem):
             r0[rows] = v[0] - f.target[f.mask]
             surface[rows] = traj.states[0, f.mask, kernel.X_SOC] - traj.states[0, f.mask, kernel.X_SD]
             # through the initial SoC: dV/ds_0 (n,) times ds_0/dy (k,)
-            dsoc = (self.rest_soc(Pk, f) - self.rest_soc(P, f)[0]) / step
+            dsoc = (self.rest_soc(Pk, f) - rest) / step
             J[rows] = np.outer((v[1] - v[0]) / self.SOC_STEP, dsoc)
         # through the curve at the surface SoC the flights passed. The knot increments are cumulative and
         # a PCHIP piece between knots k and k+1 reads the knots k-1 .. k+2: increment j shifts the curve
