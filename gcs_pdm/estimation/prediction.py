@@ -399,6 +399,64 @@ class PackCutoffPrediction:
 
 #: steps a row of ``predict_packs_at_current`` is simulated before it is checked for its cut-off
 _CUTOFF_CHUNK_STEPS = 60
+_VARIANT_CODE = {"paper": 0, "extended": 1}
+
+
+@njit(cache=True, nogil=True)
+def _held_current_to_cutoff_compiled(variant, params, state, dt, current, cutoff_v, ambient_c, max_dt, end_step,
+                                     peak):
+    """``_held_current_to_cutoff``'s chunks in one compiled call (the GIL released throughout):
+    each chunk flies the rows still above their cut-off through the kernel's own driver
+    (``kernel._simulate_packs`` / ``kernel._simulate_ext``, what ``kernel.simulate_packs`` calls)
+    on the same inputs as the wrapper would build, so the same numbers."""
+    n_steps = dt.size
+    active = np.arange(params.shape[0])
+    k0 = 0
+    n_state = state.shape[1]
+    while active.size > 0 and k0 < n_steps:
+        m = min(_CUTOFF_CHUNK_STEPS, n_steps - k0)
+        na = active.size
+        p_a = params[active]
+        x_a = state[active]
+        dt_a = np.empty((1, m))
+        dt_a[0, :] = dt[k0:k0 + m]
+        cur_a = np.empty((na, m))
+        for r in range(na):
+            cur_a[r, :] = current[active[r]]
+        amb = np.full((1, m), ambient_c)
+        voltage = np.empty((na, m))
+        temperature = np.empty((na, m))
+        soc = np.empty((na, m))
+        states = np.empty((1, 1, n_state))
+        final = np.empty((na, n_state))
+        if variant == 0:
+            kernel._simulate_packs(p_a, x_a, dt_a, cur_a, amb, max_dt, voltage, temperature, soc, states, False,
+                                   final)
+        else:
+            t_meas = np.full((1, m), np.nan)
+            kernel._simulate_ext(p_a, x_a, dt_a, cur_a, amb, t_meas, max_dt, voltage, temperature, soc, states,
+                                 False, final)
+        keep = np.ones(na, dtype=np.bool_)
+        for r in range(na):
+            row = active[r]
+            top = -np.inf  # the peak up to and including the step that ends the row (NaN spreads, as np.max)
+            for k in range(m):
+                t = temperature[r, k]
+                if math.isnan(t) or math.isnan(top):
+                    top = np.nan
+                elif t > top:
+                    top = t
+                if voltage[r, k] < cutoff_v[row] or soc[r, k] <= 0.0:
+                    end_step[row] = k0 + k
+                    keep[r] = False
+                    break
+            if math.isnan(top) or math.isnan(peak[row]):
+                peak[row] = np.nan
+            elif top > peak[row]:
+                peak[row] = top
+            state[row] = final[r]
+        active = active[keep]
+        k0 += m
 
 
 def _held_current_to_cutoff(params: np.ndarray, state: np.ndarray, dt: np.ndarray, current: np.ndarray,
@@ -407,26 +465,55 @@ def _held_current_to_cutoff(params: np.ndarray, state: np.ndarray, dt: np.ndarra
     cut-off or empty, -1 if none; peak temperature up to it). In chunks, each row only until its
     cut-off: past it nothing is read, so a row that ends early stops costing. A chunk continues
     from the previous one's final state: the same numbers as one call over the whole horizon."""
-    n_steps = dt.size
-    state = np.array(state, dtype=np.float64)
+    n_params, n_state = ((kernel.N_PACK_PARAMS, kernel.N_PACK_STATE) if variant == "paper"
+                         else (kernel.N_EXT_PARAMS, kernel.N_EXT_STATE))
+    params = np.ascontiguousarray(params, dtype=np.float64).reshape(-1, n_params)
+    state = np.array(state, dtype=np.float64).reshape(-1, n_state)
     end_step = np.full(params.shape[0], -1)
     peak = np.full(params.shape[0], -np.inf)
-    active = np.arange(params.shape[0])
-    k0 = 0
-    while active.size and k0 < n_steps:
-        m = min(_CUTOFF_CHUNK_STEPS, n_steps - k0)
-        run = kernel.simulate_packs(params[active], state[active], dt[k0:k0 + m],
-                                    np.repeat(current[active, None], m, axis=1), ambient_c, variant=variant)
-        ended = (run.voltage < cutoff_v[active, None]) | (run.soc <= 0.0)
-        hit = ended.any(axis=1)
-        last = np.where(hit, ended.argmax(axis=1), m - 1)
-        flown = np.arange(m)[None, :] <= last[:, None]
-        peak[active] = np.maximum(peak[active], np.max(np.where(flown, run.temperature, -np.inf), axis=1))
-        end_step[active[hit]] = k0 + last[hit]
-        state[active] = run.final_state
-        active = active[~hit]
-        k0 += m
+    _held_current_to_cutoff_compiled(_VARIANT_CODE[variant], params, state, np.ascontiguousarray(dt, dtype=np.float64),
+                                     np.ascontiguousarray(current, dtype=np.float64),
+                                     np.ascontiguousarray(cutoff_v, dtype=np.float64), float(ambient_c),
+                                     float(kernel.DEFAULT_MAX_DT), end_step, peak)
     return end_step, peak
+
+
+@dataclass(frozen=True)
+class HeldCurrentInputs:
+    """What ``predict_packs_at_current`` reads from an estimator, copied: the packs' parameters,
+    state mean and the covariance a prediction starts from (capacity mismatch and model-mismatch
+    inflation applied), the held current, the motor parameters (their draws are part of the
+    rng's sequence), the ambient and the extended packs. The estimator moves on; these do not, so
+    the prediction can run later or on another thread with the same numbers."""
+
+    pack_names: tuple[str, ...]
+    params: np.ndarray        # (P, 12)
+    mean: np.ndarray          # (P, 4)
+    cov: np.ndarray           # (P, 4, 4)
+    current_a: np.ndarray     # (P,)
+    cutoff_v: np.ndarray      # (P,)
+    motor_params: np.ndarray  # (5,)
+    ambient_c: float
+    extended: ExtendedPacks | None
+
+
+def held_current_inputs(estimator, cutoff_v: np.ndarray, current_a: np.ndarray | None = None) -> HeldCurrentInputs:
+    """The estimator's present state as ``predict_packs_at_current`` reads it (copies)."""
+    packs = estimator.packs
+    base = np.array(packs.params, dtype=np.float64)
+    n_packs = base.shape[0]
+    cur = np.nan_to_num(np.array(estimator.pack_current if current_a is None else current_a, dtype=np.float64))
+    cov = np.array(packs.cov, dtype=np.float64)
+    soc = kernel.state_of_charge(base, packs.mean)
+    extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * base[:, kernel.I_CMAX]
+    cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    inflation = estimator.prediction_inflation()
+    cov *= inflation[:, None, None]  # wider while a pack does not match its model
+    return HeldCurrentInputs(
+        pack_names=tuple(estimator.pack_names), params=base, mean=np.array(packs.mean, dtype=np.float64), cov=cov,
+        current_a=cur, cutoff_v=np.array(np.broadcast_to(np.asarray(cutoff_v, dtype=np.float64), (n_packs,))),
+        motor_params=np.array(estimator.motors.params[0], dtype=np.float64), ambient_c=float(estimator.ambient_c),
+        extended=ExtendedPacks.of(estimator, inflation))
 
 
 def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.ndarray | None = None,
@@ -434,44 +521,79 @@ def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.n
                              n_samples: int = 100, param_rel_sigma: float = 0.08) -> PackCutoffPrediction:
     """Monte Carlo time to cut-off of every pack at a held current (the present draw by default):
     the current-driven counterpart of ``predict`` that needs no powertrain layout, so it serves any
-    vehicle description. All samples × packs are rows of one ``kernel.simulate_packs`` call."""
-    packs = estimator.packs
-    base = packs.params
+    vehicle description. All samples × packs are rows of one ``kernel.simulate_packs`` call.
+    ``held_current_inputs`` then ``predict_held_current``: a caller that predicts elsewhere (the
+    replay's trace, on a worker thread) takes the inputs now and predicts later."""
+    return predict_held_current(held_current_inputs(estimator, cutoff_v, current_a), horizon_s=horizon_s,
+                                step_s=step_s, rng=rng, n_samples=n_samples, param_rel_sigma=param_rel_sigma)
+
+
+def predict_held_current(inputs: HeldCurrentInputs, *, horizon_s: float = 3600.0, step_s: float = 5.0,
+                         rng: np.random.Generator, n_samples: int = 100,
+                         param_rel_sigma: float = 0.08) -> PackCutoffPrediction:
+    """``predict_packs_at_current`` from inputs taken earlier (reads nothing else)."""
+    samples = draw_held_current(inputs, horizon_s=horizon_s, step_s=step_s, rng=rng, n_samples=n_samples,
+                                param_rel_sigma=param_rel_sigma)
+    return samples.prediction(samples.fly())
+
+
+@dataclass(frozen=True)
+class HeldCurrentSamples:
+    """A held-current Monte Carlo's drawn rows (samples × packs, sample-major), ready to fly.
+
+    ``fly`` is the costly part and one compiled call per variant with the GIL released, so a
+    caller may run it on another thread while its own thread goes on (the replay's trace);
+    ``prediction`` turns its result into the quantiles."""
+
+    inputs: HeldCurrentInputs
+    n_samples: int
+    dt: np.ndarray                  # (steps,)
+    rows: tuple                     # per variant present: (variant, row indices, params, states)
+
+    def fly(self) -> tuple[np.ndarray, np.ndarray]:
+        """(first step below the cut-off or empty, -1 if none; peak temperature up to it) per row."""
+        n_rows = self.n_samples * self.inputs.params.shape[0]
+        end_step = np.full(n_rows, -1)
+        peak = np.full(n_rows, -np.inf)
+        rows_cur = np.tile(self.inputs.current_a, self.n_samples)
+        row_cutoff = np.tile(self.inputs.cutoff_v, self.n_samples)
+        for variant, sel, params, states in self.rows:
+            end_step[sel], peak[sel] = _held_current_to_cutoff(params, states, self.dt, rows_cur[sel], row_cutoff[sel],
+                                                               self.inputs.ambient_c, variant)
+        return end_step, peak
+
+    def prediction(self, flown: tuple[np.ndarray, np.ndarray]) -> PackCutoffPrediction:
+        end_step, peak = flown
+        n_packs = self.inputs.params.shape[0]
+        t_end = np.cumsum(self.dt)
+        ttc = np.where(end_step >= 0, t_end[end_step], np.inf).reshape(self.n_samples, n_packs)
+        peak = peak.reshape(self.n_samples, n_packs)
+        return PackCutoffPrediction(
+            pack_names=self.inputs.pack_names, current_a=self.inputs.current_a, horizon_s=float(t_end[-1]),
+            n_samples=self.n_samples, time_to_cutoff_s=np.quantile(ttc, QUANTILES, axis=0, method="nearest").T,
+            peak_temp_c=np.quantile(peak, QUANTILES, axis=0, method="nearest").T)
+
+
+def draw_held_current(inputs: HeldCurrentInputs, *, horizon_s: float = 3600.0, step_s: float = 5.0,
+                      rng: np.random.Generator, n_samples: int = 100,
+                      param_rel_sigma: float = 0.08) -> HeldCurrentSamples:
+    """The Monte Carlo's draws of ``predict_packs_at_current`` (states and parameters; the extended
+    packs' from their own filter), in the rng's order."""
+    base, cov, extended = inputs.params, inputs.cov, inputs.extended
     n_packs = base.shape[0]
-    cur = np.nan_to_num(np.asarray(estimator.pack_current if current_a is None else current_a, dtype=np.float64))
-    cov = packs.cov.copy()
-    soc = kernel.state_of_charge(base, packs.mean)
-    extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * base[:, kernel.I_CMAX]
-    cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
-    cov *= estimator.prediction_inflation()[:, None, None]  # wider while a pack does not match its model
-    pp, _ = sample_parameters((base, estimator.motors.params[0]), n_samples, rng, param_rel_sigma)
+    pp, _ = sample_parameters((base, inputs.motor_params), n_samples, rng, param_rel_sigma)
     chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
-    x0 = packs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n_samples, n_packs, kernel.N_PACK_STATE)))
+    x0 = inputs.mean[None] + np.einsum("bij,nbj->nbi", chol, rng.standard_normal((n_samples, n_packs, kernel.N_PACK_STATE)))
     x0 = restate(base, x0, pp)
     n_steps = max(1, int(math.ceil(horizon_s / step_s)))
-    dt = np.full(n_steps, horizon_s / n_steps)
-    rows_cur = np.tile(cur, n_samples)
-    row_cutoff = np.tile(np.broadcast_to(np.asarray(cutoff_v, dtype=np.float64), (n_packs,)), n_samples)
-    extended = ExtendedPacks.of(estimator, estimator.prediction_inflation())
     paper_rows = np.ones(n_samples * n_packs, dtype=bool)
+    rows = []
     if extended is not None:  # those packs fly the extended variant from their own filter's draws
         xe, ep = extended.sample(x0, n_samples, rng, param_rel_sigma)
         paper_rows = ~np.tile(extended.is_ext, n_samples)
-    end_step = np.full(n_samples * n_packs, -1)
-    peak = np.full(n_samples * n_packs, -np.inf)
     sel = np.flatnonzero(paper_rows)
-    end_step[sel], peak[sel] = _held_current_to_cutoff(
-        pp.reshape(-1, kernel.N_PACK_PARAMS)[sel], x0.reshape(-1, kernel.N_PACK_STATE)[sel], dt, rows_cur[sel],
-        row_cutoff[sel], estimator.ambient_c, "paper")
+    rows.append(("paper", sel, pp.reshape(-1, kernel.N_PACK_PARAMS)[sel], x0.reshape(-1, kernel.N_PACK_STATE)[sel]))
     if extended is not None:
         sel = np.flatnonzero(~paper_rows)
-        end_step[sel], peak[sel] = _held_current_to_cutoff(
-            ep.reshape(-1, kernel.N_EXT_PARAMS)[sel], xe.reshape(-1, kernel.N_EXT_STATE)[sel], dt, rows_cur[sel],
-            row_cutoff[sel], estimator.ambient_c, "extended")
-    t_end = np.cumsum(dt)
-    ttc = np.where(end_step >= 0, t_end[end_step], np.inf).reshape(n_samples, n_packs)
-    peak = peak.reshape(n_samples, n_packs)
-    return PackCutoffPrediction(
-        pack_names=tuple(estimator.pack_names), current_a=cur, horizon_s=float(t_end[-1]), n_samples=n_samples,
-        time_to_cutoff_s=np.quantile(ttc, QUANTILES, axis=0, method="nearest").T,
-        peak_temp_c=np.quantile(peak, QUANTILES, axis=0, method="nearest").T)
+        rows.append(("extended", sel, ep.reshape(-1, kernel.N_EXT_PARAMS)[sel], xe.reshape(-1, kernel.N_EXT_STATE)[sel]))
+    return HeldCurrentSamples(inputs, n_samples, np.full(n_steps, horizon_s / n_steps), tuple(rows))

@@ -60,13 +60,16 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError, MappingError) as exc:
         print(f"replay: bad mapping: {exc}", file=sys.stderr)
         return 2
-    if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
-        from gcs_pdm.logs.replay import print_replay
-        start_up_over()
-        return print_replay(args.file, consumer, as_json=args.json)
     start_up_over()
-    summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
-                          frame_consumer=consumer).to_dict()
+    try:
+        if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
+            from gcs_pdm.logs.replay import print_replay
+            return print_replay(args.file, consumer, as_json=args.json)
+        summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
+                              frame_consumer=consumer).to_dict()
+    finally:  # the trace's worker thread ends with the replay, however it ends
+        if consumer is not None:
+            consumer.close()
     # 2: nothing could be read; 1: read, but neither packs nor motors could be diagnosed.
     diagnosable = summary["frames_by_kind"].get("pack") or summary["frames_by_kind"].get("motor")
     status = 2 if not summary["readable"] else (0 if diagnosable else 1)

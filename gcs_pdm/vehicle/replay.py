@@ -10,6 +10,7 @@ flight, not only its last second.
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,8 @@ from gcs_pdm.vehicle.presets import PRESETS, is_paper_aircraft, resolve
 
 #: a pack is "drawing" (its time to cut-off is worth predicting) from this current, A
 DRAWING_CURRENT_A = 1.0
+#: Monte Carlo samples of each trace entry's time to cut-off
+TRACE_SAMPLES = 64
 
 
 def replay_vehicle(log: Path, spec: str | None) -> tuple[VehicleDescription | None, dict]:
@@ -49,9 +52,18 @@ def pipeline_for(desc: VehicleDescription | None, params=None, **kwargs):
 
 
 class TracedPipeline:
-    """A replay's frame consumer: the pipeline, with the estimate sampled every ``period_s``."""
+    """A replay's frame consumer: the pipeline, with the estimate sampled every ``period_s``.
 
-    def __init__(self, desc: VehicleDescription | None, about: dict, *, period_s: float = 30.0, seed: int = 0):
+    A sample's Monte Carlo time to cut-off only fills the trace, so with ``background`` its flight
+    runs on one worker thread while the frames go on: the sample copies what the prediction reads
+    (``prediction.held_current_inputs``), draws the samples on this thread (the rng's order stays
+    the frames' order) and submits their flight (``HeldCurrentSamples.fly``: one compiled call
+    with the GIL released, so it overlaps the frames' Python on the second core and takes the GIL
+    twice, not at every chunk); ``report`` reduces the flights to quantiles in order. The same
+    numbers as ``background=False`` (all on the calling thread)."""
+
+    def __init__(self, desc: VehicleDescription | None, about: dict, *, period_s: float = 30.0, seed: int = 0,
+                 background: bool = True):
         from gcs_pdm.vehicle.model_inputs import model_inputs
 
         self.pipeline = pipeline_for(desc)
@@ -61,6 +73,12 @@ class TracedPipeline:
         self.trace: list[dict] = []
         self._next_s = -math.inf
         self._rng = np.random.default_rng(seed)
+        #: (trace entry, which packs draw, the Monte Carlo's draws, their flight or its future) of
+        #: each sample that predicts
+        self._pending: list[tuple] = []
+        self._worker = None
+        if background:
+            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-trace")
 
     def __call__(self, frame) -> None:
         self.pipeline.consume(frame)
@@ -71,30 +89,58 @@ class TracedPipeline:
     consume = __call__
 
     def _sample(self, t: float) -> None:
-        from gcs_pdm.estimation.prediction import predict_packs_at_current
+        from gcs_pdm.estimation import prediction
 
         est = self.pipeline.estimator
         if not est.ready():
             return
         e = est.estimate()
         current = np.nan_to_num(np.asarray(est.pack_current, dtype=float))
-        ttc = None
-        if np.any(current >= DRAWING_CURRENT_A) and np.all(np.isfinite(e.soc)):
-            ttc = predict_packs_at_current(est, self.cutoff_v, rng=self._rng, n_samples=64).time_to_cutoff_s
 
-        def num(x):
-            return round(float(x), 4) if math.isfinite(x) else None
-
-        self.trace.append({
+        entry = {
             "time_s": round(t, 3),
-            "packs": {n: {"soc": num(e.soc[i]), "soc_sd": num(e.soc_sd[i]), "temperature_c": num(e.pack_temp_c[i]),
-                          "temperature_sd": num(e.pack_temp_sd[i]), "current_a": num(current[i]),
-                          "time_to_cutoff_s": None if ttc is None or current[i] < DRAWING_CURRENT_A
-                          else [num(v) for v in ttc[i]]}
+            "packs": {n: {"soc": _num(e.soc[i]), "soc_sd": _num(e.soc_sd[i]), "temperature_c": _num(e.pack_temp_c[i]),
+                          "temperature_sd": _num(e.pack_temp_sd[i]), "current_a": _num(current[i]),
+                          "time_to_cutoff_s": None}  # filled by _fill_trace while the pack draws
                       for i, n in enumerate(est.pack_names)},
-            "motors": {n: {"current_a": num(est.motor_current[i]), "rpm": num(est.motor_rpm[i])}
+            "motors": {n: {"current_a": _num(est.motor_current[i]), "rpm": _num(est.motor_rpm[i])}
                        for i, n in enumerate(est.motor_names)},
-        })
+        }
+        self.trace.append(entry)
+        drawing = current >= DRAWING_CURRENT_A
+        if np.any(drawing) and np.all(np.isfinite(e.soc)):
+            samples = prediction.draw_held_current(prediction.held_current_inputs(est, self.cutoff_v), rng=self._rng,
+                                                   n_samples=TRACE_SAMPLES)
+            flown = samples.fly() if self._worker is None else self._worker.submit(samples.fly)
+            self._pending.append((entry, drawing, samples, flown))
+
+    def _fill_trace(self) -> None:
+        """Each predicting sample's time to cut-off into its entry, in order: waits for the
+        worker; a prediction's exception is raised here, and the worker is stopped either way."""
+        try:
+            for entry, drawing, samples, flown in self._pending:
+                ttc = samples.prediction(flown.result() if isinstance(flown, Future) else flown).time_to_cutoff_s
+                for i, pack in enumerate(entry["packs"].values()):
+                    if drawing[i]:
+                        pack["time_to_cutoff_s"] = [_num(v) for v in ttc[i]]
+            self._pending = []
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Stop the worker (predictions not started are dropped, a running one is waited for);
+        samples after this predict on the calling thread. The replay command calls it on its
+        way out, whatever happened, so no worker outlives the replay."""
+        if self._worker is not None:
+            self._worker.shutdown(wait=True, cancel_futures=True)
+            self._worker = None
+        self._pending = [p for p in self._pending if not isinstance(p[3], Future)]
 
     def report(self) -> dict:
+        self._fill_trace()
         return {**self.pipeline.report(), "vehicle": self.about, "trace": self.trace}
+
+
+def _num(x) -> float | None:
+    """A trace value: rounded to 4 decimals, None where not finite."""
+    return round(float(x), 4) if math.isfinite(x) else None
