@@ -10,7 +10,7 @@ once, ~40 s, cached in the temp directory) replayed with diagnosis: the whole pr
 included, floor 60,000 msg/s) and in-process, beside pymavlink's ``recv_msg`` loop over the same
 file, with the CPU time of each stage of that replay (``replay_stages``). Every figure has wall
 and CPU time (the child's ``getrusage``) and the load average.
-Runs pinned to one CPU. Prints a line per measurement and, last, one JSON object.
+Runs pinned to one CPU after the whole-process figure (which may use every core). Prints a line per measurement and, last, one JSON object.
 """
 from __future__ import annotations
 
@@ -84,7 +84,8 @@ def replay_stages(path: Path) -> dict:
     imports): the one scan of the log (shared since issue 18's replay work), the provisional
     description (decoding its messages from that scan, deriving), the frame mapping, the replay
     with diagnosis, and within the latter the pack-health checks and the trace's cut-off Monte Carlo
-    (wrapped timers; the pack-health fits run on the calling thread here)."""
+    (wrapped timers; the pack-health fits and the trace's flights, which the command runs on other
+    threads, run on the calling thread here)."""
     import gcs_pdm.diagnosis.pack_health as pack_health
     import gcs_pdm.estimation.prediction as prediction
     from gcs_pdm.vehicle.replay import TracedPipeline, replay_vehicle
@@ -101,10 +102,11 @@ def replay_stages(path: Path) -> dict:
                 spent[key] += time.process_time() - c0
         return wrapped
 
-    check, predict, threads = (pack_health.PackHealthMonitor.check, prediction.predict_packs_at_current,
-                               pack_health.thread_map)
+    check, draw, fly, threads = (pack_health.PackHealthMonitor.check, prediction.draw_held_current,
+                                 prediction.HeldCurrentSamples.fly, pack_health.thread_map)
     pack_health.PackHealthMonitor.check = timing(check, "pack_health_check")
-    prediction.predict_packs_at_current = timing(predict, "trace_monte_carlo")
+    prediction.draw_held_current = timing(draw, "trace_monte_carlo")
+    prediction.HeldCurrentSamples.fly = timing(fly, "trace_monte_carlo")
     pack_health.thread_map = lambda fn, items: [fn(i) for i in items]
     try:
         c0 = time.process_time()
@@ -115,12 +117,13 @@ def replay_stages(path: Path) -> dict:
         replay_tlog(path, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)))
         c3 = time.process_time()
         scanned_tlog(path)  # the replay took the scan: keep it again for the diagnosed replay
-        consumer = TracedPipeline(desc, about)
+        consumer = TracedPipeline(desc, about, background=False)
         replay_tlog(path, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)), frame_consumer=consumer)
         json.dumps(consumer.report())
         c4 = time.process_time()
     finally:
-        pack_health.PackHealthMonitor.check, prediction.predict_packs_at_current = check, predict
+        pack_health.PackHealthMonitor.check, prediction.draw_held_current = check, draw
+        prediction.HeldCurrentSamples.fly = fly
         pack_health.thread_map = threads
     out = {"scan_cpu_s": c1 - c0, "provisional_description_cpu_s": c2 - c1, "frame_mapping_cpu_s": c3 - c2,
            "replay_diagnosed_cpu_s": c4 - c3, **{f"{k}_cpu_s": v for k, v in spent.items()}}
@@ -130,7 +133,9 @@ def replay_stages(path: Path) -> dict:
 
 
 def whole_process_replay(path: Path, repeat: int) -> dict:
-    """``gcs-pdm replay FILE --json`` in a child process (our PYTHONPATH), start-up included."""
+    """``gcs-pdm replay FILE --json`` in a child process (our PYTHONPATH), start-up included, on
+    every core this process may use (the command overlaps work on a second thread; issue 18
+    accepts both cores): wall is what a user waits, CPU what it costs."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     t = timed_process([sys.executable, "-m", "gcs_pdm.cli", "replay", str(path), "--json"], repeat, env)
     summary = json.loads(t["stdout"])
@@ -138,7 +143,8 @@ def whole_process_replay(path: Path, repeat: int) -> dict:
     return {"file": path.name, "messages": n, "frames": summary["frames"], "faults": len(summary["faults"]),
             "cpu_per_s": round(n / t["cpu_s"]), "wall_per_s": round(n / t["wall_s"]),
             "cpu_s": round(t["cpu_s"], 3), "wall_s": round(t["wall_s"], 3), "loadavg_1min": t["loadavg_1min"],
-            "in_process_elapsed_s": summary["elapsed_s"]}
+            "in_process_elapsed_s": summary["elapsed_s"],
+            "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()}
 
 
 def synthetic_telemetry_tlog(path: Path, seconds: int = 1500) -> None:
@@ -209,17 +215,18 @@ def main() -> int:
     if not paths:
         print(f"no tlogs given and none in {TLOG_DIR}", file=sys.stderr)
         return 2
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     logging.getLogger("gcs_pdm").setLevel(logging.ERROR)  # the corpus' bad CRCs are expected
     size = sum(Path(p).stat().st_size for p in paths)
     synthetic = Path(tempfile.mkdtemp()) / "all_mapped.tlog"
     synthetic_telemetry_tlog(synthetic)
     results = {}
     typical = typical_telemetry_tlog(Path(tempfile.gettempdir()) / "gcs_pdm_bench_typical_100k_v1.tlog")
-    whole = whole_process_replay(typical, args.repeat)
+    whole = whole_process_replay(typical, args.repeat)  # before the pinning: the command may use both cores
     print(f"{'gcs_pdm_replay_json_whole_process':<30} {whole['messages']:>7} messages: "
-          f"cpu {whole['cpu_per_s']:>8,} msg/s, wall {whole['wall_per_s']:>8,} msg/s (load {whole['loadavg_1min']})")
+          f"cpu {whole['cpu_per_s']:>8,} msg/s, wall {whole['wall_per_s']:>8,} msg/s on {whole['cores']} cores "
+          f"(load {whole['loadavg_1min']})")
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
     stages = replay_stages(typical)
     print("stages (CPU s, in-process): " + ", ".join(f"{k.removesuffix('_cpu_s')} {v}" for k, v in stages.items()))
     for name, fn in [("gcs_pdm_replay_diagnosed_in_process", lambda: ours_diagnosed([typical])),
@@ -241,7 +248,8 @@ def main() -> int:
     ours = results["gcs_pdm_replay_to_frames"]["messages_per_s"]
     summary = {
         "replay_json_whole_process": {**{k: v for k, v in whole.items()}, "floor_messages_per_s": 60_000,
-                                      "reached_cpu": whole["cpu_per_s"] >= 60_000},
+                                      "reached_cpu": whole["cpu_per_s"] >= 60_000,
+                                      "reached_wall": whole["wall_per_s"] >= 60_000},
         "replay_stages": stages,
         "benchmark": "bench_replay",
         "files": [Path(p).name for p in paths],
