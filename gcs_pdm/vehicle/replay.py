@@ -70,15 +70,15 @@ class TracedPipeline:
         self.about = about
         self.period_s = period_s
         self.cutoff_v = model_inputs(desc if desc is not None else PRESETS["edge540"]).pack_cutoff_v
+        #: the samples; a drawing pack's ``time_to_cutoff_s`` is filled in by ``report()``
         self.trace: list[dict] = []
         self._next_s = -math.inf
         self._rng = np.random.default_rng(seed)
         #: (trace entry, which packs draw, the Monte Carlo's draws, their flight or its future) of
         #: each sample that predicts
         self._pending: list[tuple] = []
-        self._worker = None
-        if background:
-            self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-trace")
+        # its thread starts at the first submission; close() (or report()) ends it
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-trace") if background else None
 
     def __call__(self, frame) -> None:
         self.pipeline.consume(frame)
