@@ -125,7 +125,8 @@ def map_scanned(mapper: FrameMapper, data: bytes, columns, start: int) -> Iterat
                                                payload_start, payload_end, slots))
             continue
         rows = plan.layout.unpack_many(raw, payload_start[positions], payload_end[positions])
-        streams += _type_streams(mapper, plan, rows, positions, times[positions], slots)
+        with np.errstate(all="ignore"):  # NaN, inf and overflow are values here, as in Python's floats
+            streams += _type_streams(mapper, plan, rows, positions, times[positions], slots)
     yield from _merged(streams, n, slots)
 
 
