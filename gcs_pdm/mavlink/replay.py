@@ -1,11 +1,15 @@
 """Replay a tlog through the live frame-mapping code, by message time.
 
 ``replay_tlog`` scans the file (``gcs_pdm.mavlink.tlog``; a file the provisional vehicle description
-has just read is not scanned again), feeds every CRC-valid packet to the
+has just read is not scanned again), maps every CRC-valid packet with the
 same :class:`~gcs_pdm.mavlink.mapping.FrameMapper` the live link uses, and hands each frame to
-an optional ``frame_consumer``. Pacing: as fast as possible (``speed=None``), or ×``speed`` real
-time following the tlog timestamps; ``udp_target`` re-sends every valid packet, unchanged, to a
-UDP address so other tools (QGroundControl, MAVProxy) can watch the replay.
+an optional ``frame_consumer``. As fast as possible (``speed=None``) the packets are fed one by one
+only until the mapper is settled (vehicle identified, clock running); the rest of the log is mapped
+a message type at a time over the scan's columns (``gcs_pdm.mavlink.frame_columns``: the same
+frames, in the same order, and the same counters). Pacing at ×``speed`` real time follows the
+tlog timestamps message by message; ``udp_target`` re-sends every valid packet, unchanged, to a
+UDP address so other tools (QGroundControl, MAVProxy) can watch the replay. A file above
+``SCAN_CACHE_MAX_BYTES`` is streamed and fed message by message.
 
 Hook for the estimator/diagnoser: a ``frame_consumer`` that also has a ``report()`` method
 returning a dict gets that dict into the summary under ``"consumer"``; a ``"faults"`` list in
@@ -22,9 +26,11 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
-from gcs_pdm.mavlink.mapping import FrameMapper
 from gcs_pdm.mavlink.frame_columns import map_scanned
+from gcs_pdm.mavlink.mapping import FrameMapper
 from gcs_pdm.mavlink.tlog import ScannedTlog, ScanStats, scan_tlog_bounds, scanned_tlog, take_kept_scan
 
 log = logging.getLogger(__name__)
@@ -189,7 +195,8 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
     if scanned is not None:
         data, stats = scanned.data, scanned.stats
         rows = zip(*scanned.columns)  # the columns straight into the mapping: no record objects
-        by_id.update(scanned.columns[1])
+        ids, counts = np.unique(np.frombuffer(scanned.columns[1], dtype=np.uint64), return_counts=True)
+        by_id.update(dict(zip(ids.tolist(), counts.tolist())))
     else:
         data, stats = path.read_bytes(), ScanStats()
         rows = _counted(scan_tlog_bounds(data, stats), by_id)
