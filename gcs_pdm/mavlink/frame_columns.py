@@ -14,10 +14,11 @@ maps the rest of the log with numpy instead of a Python call per message:
    columns, exactly as the compiled per-message builders do them (same operations in the same
    order on float64, so the same values and Python types);
 3. the frames made from the columns (``tolist()`` then the frame classes' constructors), merged
-   back into log order, a chunk of messages at a time (bounded memory).
+   back into log order, a chunk of messages at a time: the values stay numpy arrays until their
+   chunk is made, and a chunk's frames die young (memory and garbage collections bounded).
 
-A message type whose rules this module does not reproduce exactly — a 64-bit integer or a float
-key, a sum over integer and float fields together, a transform or text under the gate, a gate
+A message type whose rules this module does not reproduce exactly — a 64-bit integer field, a
+float key, a sum over integer and float fields together, a transform or text under the gate, a gate
 that depends on a message field — goes through the mapper's own compiled builder, message by
 message, in the same merge. Frames, their order and every counter are the per-message path's
 (``tests/test_frame_columns.py`` holds the two equal on real, fixture and damaged logs).
@@ -45,11 +46,47 @@ class _PerMessage(Exception):
     """A rule of a message type this module does not reproduce: map that type message by message."""
 
 
+class _Same:
+    """A constructor argument every frame of a stream gets alike (a key name, None)."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def take(self, lo: int, hi: int) -> list:
+        return [self.value] * (hi - lo)
+
+
+class _Listed:
+    """A constructor argument as Python objects already (text, a transform's results, frames)."""
+
+    def __init__(self, values: list):
+        self.values = values
+
+    def take(self, lo: int, hi: int) -> list:
+        return self.values[lo:hi]
+
+
+class _Numbers:
+    """A numeric constructor argument, kept as an array until its chunk is made (Python floats for a
+    whole log would hold 32 bytes a value); ``absent``: where the frame gets None (or None: nowhere)."""
+
+    def __init__(self, values: np.ndarray, absent: np.ndarray | None = None):
+        self.values = values
+        self.absent = absent if absent is not None and absent.any() else None
+
+    def take(self, lo: int, hi: int) -> list:
+        listed = self.values[lo:hi].tolist()
+        if self.absent is not None:
+            for j in np.flatnonzero(self.absent[lo:hi]).tolist():
+                listed[j] = None
+        return listed
+
+
 @dataclass
 class _Stream:
     """Frames of one source in log order: ``keys`` (message index × slots + the frame's place in
-    its message's output) and either a frame class with its constructor arguments as lists, or
-    (``cls`` None) the frames themselves in ``args[0]``."""
+    its message's output) and either a frame class with its constructor arguments (``_Same``,
+    ``_Listed``, ``_Numbers``), or (``cls`` None) the frames themselves, ``_Listed`` in ``args[0]``."""
 
     keys: np.ndarray
     cls: type | None
@@ -242,24 +279,25 @@ def _type_streams(mapper: FrameMapper, plan, rows: np.ndarray, positions: np.nda
             for inst in instances:
                 args = _instance_columns(lay, gated_counts, rule, inst, rows[index])
                 out.append(_Stream(positions[index] * slots + place[id(inst)], rule.frame_cls,
-                                   [times[index].tolist(), *args]))
+                                   [_Numbers(times[index]), *args]))
                 stats.frames_by_kind[rule.kind] += index.size
     return out
 
 
-def _instance_columns(lay, gated_counts, rule, inst, rows: np.ndarray) -> list[list]:
+def _instance_columns(lay, gated_counts, rule, inst, rows: np.ndarray) -> list:
     """The constructor arguments after ``time_s`` of one rule instance's frames from its ``rows``,
-    as lists, gated as the instance's ``make`` gates them (``gated_counts``: the gate's counter)."""
+    gated as the instance's ``make`` gates them (``gated_counts``: the gate's counter)."""
     names = [f.name for f in fields(rule.frame_cls)][1:]
     args: list = []
     numbers: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # field -> (values, absent), to gate
     for name, source in zip(names, inst.sources):
         if isinstance(source, Constant):
-            args.append([source.value] * rows.size)
+            args.append(_Same(source.value))
         elif source.how == "text":
-            args.append([b.split(b"\0", 1)[0].decode("utf-8", "replace") for b in _column(rows, lay, source.position).tolist()])
+            args.append(_Listed([b.split(b"\0", 1)[0].decode("utf-8", "replace")
+                                 for b in _column(rows, lay, source.position).tolist()]))
         elif source.how == "transform":
-            args.append(_transformed(rows, lay, source))
+            args.append(_Listed(_transformed(rows, lay, source)))
         else:
             numbers[name] = _numbers(rows, lay, source)
             args.append(name)  # filled in after the gate
@@ -279,11 +317,7 @@ def _instance_columns(lay, gated_counts, rule, inst, rows: np.ndarray) -> list[l
             numbers[name] = (values, absent | fails)
     for i, name in enumerate(names):
         if name in numbers:
-            values, absent = numbers[name]
-            listed = values.tolist()
-            for j in np.flatnonzero(absent).tolist():
-                listed[j] = None
-            args[i] = listed
+            args[i] = _Numbers(*numbers[name])
     return args
 
 
@@ -339,7 +373,7 @@ def _message_by_message(mapper: FrameMapper, plan, positions: np.ndarray, times:
         made = emit(t, values)
         frames += made
         keys += range(p * slots, p * slots + len(made))
-    return _Stream(np.array(keys, dtype=np.int64), None, [frames])
+    return _Stream(np.array(keys, dtype=np.int64), None, [_Listed(frames)])
 
 
 def _merged(streams: list[_Stream], n: int, slots: int) -> Iterator[list]:
@@ -351,8 +385,8 @@ def _merged(streams: list[_Stream], n: int, slots: int) -> Iterator[list]:
         for s, bound in zip(streams, bounds):
             lo, hi = bound[c], bound[c + 1]
             if hi > lo:
-                parts.append(list(map(s.cls, *(arg[lo:hi] for arg in s.args))) if s.cls is not None
-                             else s.args[0][lo:hi])
+                parts.append(list(map(s.cls, *(arg.take(lo, hi) for arg in s.args))) if s.cls is not None
+                             else s.args[0].take(lo, hi))
                 keys.append(s.keys[lo:hi])
         if len(parts) == 1:
             yield parts[0]
