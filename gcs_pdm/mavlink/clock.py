@@ -175,6 +175,7 @@ class VehicleClock:
                 t = self.on_time_boot(float(boot_s[i]), float(recv_s[i]), int(msgids[i]))
                 if t.__class__ is Verdict:
                     accepted[i] = False
+                    times[i] = float("nan")
                 else:
                     times[i] = t
                 i += 1

@@ -116,9 +116,9 @@ def map_scanned(mapper: FrameMapper, data: bytes, columns, start: int) -> Iterat
 
     # message times: timed messages through the clock, untimed ones "hold last" (or receive time)
     timed = np.flatnonzero(ours & np.isin(msgid, [m for m, p in plans.items() if p.time_offset is not None]))
-    synced = not clock.fallback
+    vehicle_time = not clock.fallback  # else receive time for good
     now_before_run = clock.now
-    if synced:
+    if vehicle_time:
         boot = _time_boot_s(raw, msgid[timed], payload_start[timed], payload_end[timed], plans)
         timed_t, accepted = clock.on_time_boots(boot, recv[timed], msgid[timed])
         now_after = np.maximum(now_before_run, np.maximum.accumulate(np.where(accepted, timed_t, -np.inf)))
@@ -135,7 +135,7 @@ def map_scanned(mapper: FrameMapper, data: bytes, columns, start: int) -> Iterat
 
     foreign = np.flatnonzero(~ours & (msgid == _HEARTBEAT) & (sysid != mapper.target_system))
     if foreign.size:
-        nows = now_at(foreign).tolist() if synced else [clock.now] * foreign.size
+        nows = now_at(foreign).tolist() if vehicle_time else [clock.now] * foreign.size
         for p, now in zip(foreign.tolist(), nows):
             mapper._note_foreign(int(sysid[p]), int(column[3][p]), data[int(payload_start[p]):int(payload_end[p])], now)
 
@@ -145,7 +145,7 @@ def map_scanned(mapper: FrameMapper, data: bytes, columns, start: int) -> Iterat
     usable[timed[accepted]] = True
     untimed = np.flatnonzero(ours & np.isin(msgid, [m for m, p in plans.items()
                                                      if p.time_offset is None and p.emit is not None]))
-    times[untimed] = now_at(untimed) if synced else recv[untimed]
+    times[untimed] = now_at(untimed) if vehicle_time else recv[untimed]
     usable[untimed] = True
 
     mapped = {m: p for m, p in plans.items() if p.emit is not None}
