@@ -143,6 +143,44 @@ class VehicleClock:
         self.synced = True
         return t
 
+    def on_time_boots(self, boot_s, recv_s, msgids):
+        """:meth:`on_time_boot` of many timed messages in turn (numpy arrays) on a clock that has
+        its time (``synced``): their message times and whether each was accepted (a synced clock
+        only rejects). The usual stream — each sample consistent with the accepted time so far —
+        is taken a run at a time; any other sample goes through :meth:`on_time_boot` itself."""
+        import numpy as np
+
+        if not self.synced or self.fallback:
+            raise ValueError("on_time_boots needs a clock that has its time")
+        n = len(boot_s)
+        times = np.empty(n)
+        accepted = np.ones(n, dtype=bool)
+        i, window = 0, 64
+        while i < n:
+            last = self._last_boot_s
+            seg = boot_s[i:i + window]
+            # the accepted time before each sample of a run: the latest so far (consistent samples only raise it)
+            ref = np.maximum.accumulate(np.concatenate(([last], seg[:-1])))
+            bad = np.flatnonzero(~((ref - self.REBOOT_BACKSTEP_S <= seg) & (seg <= ref + self.MAX_STEP_S)))
+            run = int(bad[0]) if bad.size else seg.size
+            if run:
+                times[i:i + run] = seg[:run] + self.epoch_s
+                self._last_boot_s = max(last, float(seg[:run].max()))
+                self.now = max(self.now, float(times[i:i + run].max()))
+                self._last_timed_recv_s = float(recv_s[i + run - 1])
+                self._candidate = None
+                i += run
+            window = window * 2 if not bad.size else 64
+            if bad.size:  # the odd one out: the clock's own rules (candidate, reboot, jump, reject)
+                t = self.on_time_boot(float(boot_s[i]), float(recv_s[i]), int(msgids[i]))
+                if t.__class__ is Verdict:
+                    accepted[i] = False
+                    times[i] = float("nan")
+                else:
+                    times[i] = t
+                i += 1
+        return times, accepted
+
     def untimed(self, recv_s: float) -> float | None:
         """Time for a message without a time field; None while waiting for the first timed one."""
         if self.synced:

@@ -134,15 +134,24 @@ TRANSFORMS: dict[str, tuple[tuple[str, ...], Callable[[dict[str, Any]], Any]]] =
 
 # --- compilation ---------------------------------------------------------------------------
 
-def _conversion_source(x: str, scale: float, offset: float) -> str:
-    """Source of ``x * scale + offset``; a scale of 1/N divides by N, so 85455938 * 1e-7 gives
-    8.5455938 exactly as printed rather than 8.545593799999999."""
+def conversion(scale: float, offset: float) -> tuple:
+    """How a raw value becomes the frame's: ``("identity",)`` (the raw value itself, its type kept),
+    ``("divide", N, offset)`` — a scale of 1/N divides by N, so 85455938 * 1e-7 gives 8.5455938
+    exactly as printed rather than 8.545593799999999 — or ``("multiply", scale, offset)``."""
     if scale == 1.0 and offset == 0.0:
-        return x
+        return ("identity",)
     divisor = round(1.0 / scale) if scale else 0
     if divisor > 1 and abs(divisor * scale - 1.0) < 1e-12:
-        return f"{x} / {divisor!r} + {offset!r}"
-    return f"{x} * {scale!r} + {offset!r}"
+        return ("divide", divisor, offset)
+    return ("multiply", scale, offset)
+
+
+def _conversion_source(x: str, scale: float, offset: float) -> str:
+    """Source of :func:`conversion` applied to ``x``."""
+    how = conversion(scale, offset)
+    if how[0] == "identity":
+        return x
+    return f"{x} {'/' if how[0] == 'divide' else '*'} {how[1]!r} + {how[2]!r}"
 
 
 class _Source:
@@ -157,8 +166,31 @@ class _Source:
         return name
 
 
-def _field_source(spec: dict, lay, element: int | None, src: _Source) -> str:
-    """The expression (over the unpacked payload tuple ``v``) of one frame field value."""
+@dataclass(frozen=True, slots=True)
+class Constant:
+    """A frame field every frame of a rule gets alike: its key (``pack``/``motor``), or None."""
+
+    value: Any
+
+
+@dataclass(frozen=True, slots=True)
+class FieldRule:
+    """Where one frame field comes from, resolved against the message's layout: positions in the
+    unpacked payload tuple (what the generated builders index, and what the replay's column
+    mapping, ``gcs_pdm.mavlink.frame_columns``, decodes)."""
+
+    how: str  # "field", "text" (NUL-terminated string), "sum" or "transform"
+    position: int = 0  # field, text
+    spans: tuple[tuple[int, int], ...] = ()  # sum: the [start, end) positions of each summed field
+    needed: tuple[tuple[str, int], ...] = ()  # transform: its inputs, (name, position)
+    fn: Callable | None = None  # transform
+    scale: float = 1.0
+    offset: float = 0.0
+    missing: frozenset = frozenset()  # raw values that mean "not available"
+
+
+def _resolve_field(spec: dict, lay, element: int | None) -> FieldRule:
+    """One frame field's spec (module docstring) against the message layout ``lay``."""
     scale = float(spec.get("scale", 1.0))
     offset = float(spec.get("offset", 0.0))
     if not (math.isfinite(scale) and math.isfinite(offset)):
@@ -169,29 +201,17 @@ def _field_source(spec: dict, lay, element: int | None, src: _Source) -> str:
             needed, fn = TRANSFORMS[spec["transform"]]
         except KeyError:
             raise MappingError(f"{lay.name}: unknown transform {spec['transform']!r}; known: {sorted(TRANSFORMS)}")
-        items = []
         for name in needed:
             if name not in lay.index:
                 raise MappingError(f"{lay.name}: transform {spec['transform']!r} needs field {name!r}")
-            items.append(f"{name!r}: v[{lay.index[name]}]")
-        return f"{src.bind(fn)}({{{', '.join(items)}}})"
+        return FieldRule("transform", needed=tuple((name, lay.index[name]) for name in needed), fn=fn)
     if "sum" in spec:
         spans = []
         for name in spec["sum"]:
             if name not in lay.index:
                 raise MappingError(f"{lay.name} has no field {name!r}")
             spans.append((lay.index[name], lay.index[name] + lay.count[name]))
-        convert = eval(f"lambda x: {_conversion_source('x', scale, offset)}")  # noqa: S307 - our own source
-
-        def summed(vals):
-            total, seen = 0, False
-            for a, b in spans:
-                for v in vals[a:b]:
-                    if v not in missing:
-                        total += v
-                        seen = True
-            return convert(total) if seen else None
-        return f"{src.bind(summed)}(v)"
+        return FieldRule("sum", spans=tuple(spans), scale=scale, offset=offset, missing=missing)
     name = spec.get("field")
     if name not in lay.index:
         raise MappingError(f"{lay.name} has no field {name!r}; fields: {sorted(lay.index)}")
@@ -202,14 +222,37 @@ def _field_source(spec: dict, lay, element: int | None, src: _Source) -> str:
         pos += element
     elif "index" in spec:
         pos += int(spec["index"])
-    if spec.get("text"):
+    return FieldRule("text" if spec.get("text") else "field", position=pos, scale=scale, offset=offset,
+                     missing=missing)
+
+
+def _field_source(rule: FieldRule, src: _Source) -> str:
+    """The expression (over the unpacked payload tuple ``v``) of one frame field value."""
+    if rule.how == "transform":
+        items = ", ".join(f"{name!r}: v[{pos}]" for name, pos in rule.needed)
+        return f"{src.bind(rule.fn)}({{{items}}})"
+    if rule.how == "sum":
+        spans, missing = rule.spans, rule.missing
+        convert = eval(f"lambda x: {_conversion_source('x', rule.scale, rule.offset)}")  # noqa: S307 - our own source
+
+        def summed(vals):
+            total, seen = 0, False
+            for a, b in spans:
+                for v in vals[a:b]:
+                    if v not in missing:
+                        total += v
+                        seen = True
+            return convert(total) if seen else None
+        return f"{src.bind(summed)}(v)"
+    pos = rule.position
+    if rule.how == "text":
         return f'v[{pos}].split(b"\\0", 1)[0].decode("utf-8", "replace")'
     x = f"_x{len(src.names)}"
     src.names[x] = None  # reserves the name (a local of the generated function)
     # raw values in ``missing``, and NaN (x != x), are "not available"
     assign = f"({x} := v[{pos}])"
-    absent = f"{assign} in {src.bind(missing)} or {x} != {x}" if missing else f"{assign} != {x}"
-    return f"(None if {absent} else {_conversion_source(x, scale, offset)})"
+    absent = f"{assign} in {src.bind(rule.missing)} or {x} != {x}" if rule.missing else f"{assign} != {x}"
+    return f"(None if {absent} else {_conversion_source(x, rule.scale, rule.offset)})"
 
 
 def _builders(lay, frame_fields: list[str], exprs: list[str], src: _Source, cls: type, gate: FrameGate | None,
@@ -247,6 +290,9 @@ class _Instance:
     element: int | None  # array index
     build: Callable[[tuple], tuple]
     make: Callable[[float, tuple], Any]
+    sources: tuple = ()  # per frame field after time_s: a FieldRule or a Constant
+    #: the gate's (field, low, high) tests of its frames (None: the gate tests every frame; (): none)
+    checks: tuple | None = ()
 
 
 @dataclass(slots=True)
@@ -280,19 +326,23 @@ def _compile_rule(message: str, rule: dict, gate: FrameGate | None) -> _Compiled
 
     def instance(raw_key, element: int | None, key_value: str | None) -> _Instance:
         src = _Source()
-        exprs = []
+        exprs, sources = [], []
         for name in frame_fields:
             if name == key_target:
                 exprs.append(src.bind(key_value))
+                sources.append(Constant(key_value))
             elif name in specs:
-                exprs.append(_field_source(specs[name], lay, element, src))
+                sources.append(_resolve_field(specs[name], lay, element))
+                exprs.append(_field_source(sources[-1], src))
             else:
                 exprs.append("None")
+                sources.append(Constant(None))
         # the gate looks a per-pack range up by the frame's field named after its kind: known
         # here unless a message field fills it
         gate_key = key_value if kind == key_target else None
         checks = None if kind in specs or gate is None else gate.ranges_for(cls, gate_key)
-        return _Instance(raw_key, key_value, element, *_builders(lay, frame_fields, exprs, src, cls, gate, checks))
+        return _Instance(raw_key, key_value, element, *_builders(lay, frame_fields, exprs, src, cls, gate, checks),
+                         tuple(sources), () if gate is None else checks)
 
     instances: list[_Instance] = []
     key_position = None
@@ -395,6 +445,13 @@ class _Dispatch:
     layout: Any = None
     rules: tuple = ()
 
+    def values(self, buf, start: int, end: int) -> tuple:
+        """The payload ``buf[start:end]`` unpacked, read in place when it has its full length."""
+        if end - start >= self.size:  # longer (a newer dialect's extensions): the fields known here
+            return self.unpack_from(buf, start)
+        # zero-truncated (MAVLink 2), or without extensions (MAVLink 1): the layout pads it
+        return self.layout.unpack(buf[start:end])
+
 
 def _dispatch_table(rules: dict[int, tuple[Any, list[_CompiledRule]]], stats: "MappingStats") -> dict[int, _Dispatch]:
     """msgid -> :class:`_Dispatch` for every timed or mapped message (others: untimed and unmapped)."""
@@ -447,6 +504,7 @@ def _matches(value, wanted) -> bool:
 _HEARTBEAT = MESSAGE_IDS_BY_NAME["HEARTBEAT"]
 _unpack_uint32 = struct.Struct("<I").unpack_from
 _EMPTY: tuple = ()
+_CLOCK_NOW = object()  # "the clock's time now"
 
 
 class FrameMapper:
@@ -492,8 +550,20 @@ class FrameMapper:
         self.rules = rules
         self._dispatch = dispatch  # what feed() reads
 
-    def _note_foreign(self, sysid: int, compid: int, payload) -> None:
-        """A heartbeat from a system that is not our vehicle: record it if it claims to be an autopilot."""
+    @property
+    def dispatch(self) -> dict[int, _Dispatch]:
+        """msgid -> how :meth:`feed` handles it (time field, unpacking, compiled rules)."""
+        return self._dispatch
+
+    def settled(self) -> bool:
+        """The vehicle is identified, the clock gives times (vehicle or receive time) and no frame
+        is held for one: from here on a message's frames depend only on it and on the clock, and
+        they never wait (what lets a replay map the rest of a log a message type at a time)."""
+        return self.locked and (self.clock.synced or self.clock.fallback) and not self._pending
+
+    def _note_foreign(self, sysid: int, compid: int, payload, now: Any = _CLOCK_NOW) -> None:
+        """A heartbeat from a system that is not our vehicle: record it if it claims to be an autopilot
+        (``now``: our vehicle's message time then; by default the clock's)."""
         lay = layout(_HEARTBEAT)
         try:
             autopilot = lay.unpack(payload)[lay.index["autopilot"]]
@@ -502,7 +572,8 @@ class FrameMapper:
         if autopilot == MAV_AUTOPILOT_INVALID:
             return  # ground stations, gimbals, cameras, routers: expected company
         seen = self.foreign_systems.get(sysid)
-        now = self.clock.now
+        if now is _CLOCK_NOW:
+            now = self.clock.now
         if seen is None:
             seen = self.foreign_systems[sysid] = ForeignSystem(sysid, compid, first_seen_s=now)
             log.warning("system %d (component %d) sends vehicle heartbeats on this link; it is NOT the tracked "
@@ -575,11 +646,7 @@ class FrameMapper:
         if emit is None:
             return released or _EMPTY
         try:
-            missing = plan.size - (end - start)
-            if missing <= 0:  # longer (a newer dialect's extensions): the fields known here
-                vals = plan.unpack_from(buf, start)
-            else:  # zero-truncated (MAVLink 2), or without extensions (MAVLink 1): the layout pads it
-                vals = plan.layout.unpack(buf[start:end])
+            vals = plan.values(buf, start, end)
         except Exception:  # noqa: BLE001 - a bad payload is counted, never fatal
             self.stats.undecodable += 1
             return released or _EMPTY

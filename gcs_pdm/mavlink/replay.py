@@ -1,11 +1,15 @@
 """Replay a tlog through the live frame-mapping code, by message time.
 
 ``replay_tlog`` scans the file (``gcs_pdm.mavlink.tlog``; a file the provisional vehicle description
-has just read is not scanned again), feeds every CRC-valid packet to the
+has just read is not scanned again), maps every CRC-valid packet with the
 same :class:`~gcs_pdm.mavlink.mapping.FrameMapper` the live link uses, and hands each frame to
-an optional ``frame_consumer``. Pacing: as fast as possible (``speed=None``), or ×``speed`` real
-time following the tlog timestamps; ``udp_target`` re-sends every valid packet, unchanged, to a
-UDP address so other tools (QGroundControl, MAVProxy) can watch the replay.
+an optional ``frame_consumer``. As fast as possible (``speed=None``) the packets are fed one by one
+only until the mapper is settled (vehicle identified, clock running); the rest of the log is mapped
+a message type at a time over the scan's columns (``gcs_pdm.mavlink.frame_columns``: the same
+frames, in the same order, and the same counters). Pacing at ×``speed`` real time follows the
+tlog timestamps message by message; ``udp_target`` re-sends every valid packet, unchanged, to a
+UDP address so other tools (QGroundControl, MAVProxy) can watch the replay. A file above
+``SCAN_CACHE_MAX_BYTES`` is streamed and fed message by message.
 
 Hook for the estimator/diagnoser: a ``frame_consumer`` that also has a ``report()`` method
 returning a dict gets that dict into the summary under ``"consumer"``; a ``"faults"`` list in
@@ -22,9 +26,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
+from gcs_pdm.mavlink.frame_columns import map_scanned
 from gcs_pdm.mavlink.mapping import FrameMapper
-from gcs_pdm.mavlink.tlog import ScanStats, scan_tlog_bounds, take_kept_scan
+from gcs_pdm.mavlink.tlog import ScannedTlog, ScanStats, scan_tlog_bounds, scanned_tlog, take_kept_scan
 
 log = logging.getLogger(__name__)
 
@@ -148,12 +155,39 @@ def _paced(rows, data: bytes, speed: float | None, sock):
         yield row
 
 
+def _frames_by_message(mapper: FrameMapper, rows, data: bytes):
+    """The frames of each record that makes any, a record at a time (``rows``: the scan's)."""
+    feed_from = mapper.feed_from
+    # each payload is read in place in the file's bytes, from its bounds
+    for ts_us, msgid, sysid, compid, payload_start, payload_end, _start, _end in rows:
+        frames = feed_from(ts_us / 1e6, msgid, sysid, compid, data, payload_start, payload_end)
+        if frames:
+            yield frames
+
+
+def _frames_by_type(mapper: FrameMapper, scanned: ScannedTlog):
+    """The frames of a scanned log: record by record until the mapper is settled (vehicle
+    identified, clock running, nothing held), then the rest a message type at a time
+    (``gcs_pdm.mavlink.frame_columns``), in chunks in log order; the same frames and counters."""
+    feed_from, data = mapper.feed_from, scanned.data
+    for index, (ts_us, msgid, sysid, compid, payload_start, payload_end, _s, _e) in enumerate(zip(*scanned.columns)):
+        if mapper.settled():
+            yield from map_scanned(mapper, data, scanned.columns, index)
+            return
+        frames = feed_from(ts_us / 1e6, msgid, sysid, compid, data, payload_start, payload_end)
+        if frames:
+            yield frames
+
+
 def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
                 frame_consumer: FrameConsumer | None = None, speed: float | None = None,
                 udp_target: str | None = None) -> ReplaySummary:
     """Replay ``path`` to its end; damaged data is skipped and counted, never raised."""
     path = Path(path)
     scanned = take_kept_scan(path)  # kept by the provisional description's pass, if it ran
+    if scanned is None and speed is None and not udp_target:
+        scanned = scanned_tlog(path)  # None above the size limit: streamed below
+        take_kept_scan(path)  # nothing stays kept after the replay
     mapper = mapper or FrameMapper()
     by_id: Counter = Counter()
     first_t = last_t = None
@@ -161,26 +195,27 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
     if scanned is not None:
         data, stats = scanned.data, scanned.stats
         rows = zip(*scanned.columns)  # the columns straight into the mapping: no record objects
-        by_id.update(scanned.columns[1])
+        ids, counts = np.unique(np.frombuffer(scanned.columns[1], dtype=np.uint64), return_counts=True)
+        by_id.update(dict(zip(ids.tolist(), counts.tolist())))
     else:
         data, stats = path.read_bytes(), ScanStats()
         rows = _counted(scan_tlog_bounds(data, stats), by_id)
     if speed is not None or udp_target:
         sock = _udp_sender(udp_target) if udp_target else None
         rows = _paced(rows, data, speed, sock)
-    feed_from = mapper.feed_from
     consume = frame_consumer
     started = time.perf_counter()
-    # each payload is read in place in the file's bytes, from its bounds
-    for ts_us, msgid, sysid, compid, payload_start, payload_end, _start, _end in rows:
-        frames = feed_from(ts_us / 1e6, msgid, sysid, compid, data, payload_start, payload_end)
-        if frames:
-            if first_t is None:
-                first_t = frames[0].time_s
-            last_t = frames[-1].time_s
-            if consume is not None:
-                for frame in frames:
-                    consume(frame)
+    if scanned is not None and sock is None and speed is None:  # the whole log at hand: by message type
+        batches = _frames_by_type(mapper, scanned)
+    else:
+        batches = _frames_by_message(mapper, rows, data)
+    for frames in batches:
+        if first_t is None:
+            first_t = frames[0].time_s
+        last_t = frames[-1].time_s
+        if consume is not None:
+            for frame in frames:
+                consume(frame)
     leftovers = mapper.flush()
     if frame_consumer is not None:
         for frame in leftovers:

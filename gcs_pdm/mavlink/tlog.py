@@ -446,10 +446,6 @@ def tlog_message_dicts(path: str | Path, names, *, system: int | None = None) ->
         yield lay.name, fields
 
 
-_NUMPY_CODES = {"b": "i1", "B": "u1", "h": "i2", "H": "u2", "i": "i4", "I": "u4", "q": "i8", "Q": "u8",
-                "f": "f4", "d": "f8"}
-
-
 def tlog_message_columns(path: str | Path, name: str, *, system: int | None = None) -> dict:
     """One message's CRC-valid packets of a tlog as numpy columns, all at once: field -> array in
     file order (arrays ``(n, count)``; zero-truncated payloads padded with the zeros they dropped),
@@ -471,29 +467,10 @@ def tlog_message_columns(path: str | Path, name: str, *, system: int | None = No
     if system is not None:
         picked &= columns[2] == system
     sysid = columns[2][picked].astype(np.int64)
-    start = columns[4][picked].astype(np.int64)
-    length = np.minimum(columns[5][picked].astype(np.int64) - start, lay.size)
-    raw = np.frombuffer(data, dtype=np.uint8)
-    offsets = np.arange(lay.size)
-    inside = offsets[None, :] < length[:, None]
-    payloads = np.where(inside, raw[np.where(inside, start[:, None] + offsets, 0)], 0).astype(np.uint8)
+    rows = lay.unpack_many(np.frombuffer(data, dtype=np.uint8), columns[4][picked].astype(np.int64),
+                           columns[5][picked].astype(np.int64))
     out = {"sysid": sysid}
-    fmt = _format_tokens(msgid)
-    position = 0
-    for field_name, (repeat, code) in zip(fmt[0], fmt[1]):
-        n = int(repeat) if repeat else 1
-        width = struct.calcsize("<" + code) * (1 if code == "s" else n)
-        if code in _NUMPY_CODES:
-            values = payloads[:, position:position + width].copy().view("<" + _NUMPY_CODES[code])
-            out[field_name] = values if repeat else values[:, 0]
-        position += width
+    for field_name, (code, _repeat) in lay.codes.items():
+        if code != "s":
+            out[field_name] = np.ascontiguousarray(rows[field_name])
     return out
-
-
-def _format_tokens(msgid: int) -> tuple[list[str], list[tuple[str, str]]]:
-    """A message's field names and struct format tokens (repeat, code), in wire order."""
-    from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
-    from gcs_pdm.mavlink.wire import _FORMAT_TOKEN
-
-    cls = MESSAGE_CLASSES[msgid]
-    return list(cls.ordered_fieldnames), _FORMAT_TOKEN.findall(cls.unpacker.format.lstrip("<"))

@@ -70,7 +70,7 @@ class PayloadLayout:
     so :meth:`unpack` pads short payloads with zeros (which is what the dropped bytes were).
     """
 
-    __slots__ = ("msgid", "name", "struct", "size", "index", "count", "_fields", "_as_dict")
+    __slots__ = ("msgid", "name", "struct", "size", "index", "count", "codes", "_fields", "_as_dict", "_dtype")
 
     def __init__(self, msgid: int):
         cls = MESSAGE_CLASSES[msgid]
@@ -80,13 +80,16 @@ class PayloadLayout:
         self.size = self.struct.size
         self.index: dict[str, int] = {}
         self.count: dict[str, int] = {}
+        self.codes: dict[str, tuple[str, str]] = {}  # name -> (struct code, repeat), in wire order
         tokens = _FORMAT_TOKEN.findall(cls.unpacker.format.lstrip("<"))
         position = 0
         for name, (repeat, code) in zip(cls.ordered_fieldnames, tokens):
             n = 1 if code == "s" or not repeat else int(repeat)
             self.index[name] = position
             self.count[name] = n
+            self.codes[name] = (code, repeat)
             position += n
+        self._dtype = None
         # (name, position, count, is text) in the message's field order, for :meth:`as_dict`
         text = {name for name, (_r, code) in zip(cls.ordered_fieldnames, tokens) if code == "s"}
         self._fields = tuple((name, self.index[name], self.count[name], name in text) for name in cls.fieldnames)
@@ -117,6 +120,49 @@ class PayloadLayout:
         decoded up to its NUL padding), without building a pymavlink message."""
         return self._as_dict(self.unpack(payload))
 
+    def field_at(self, position: int) -> tuple[str, int | None, str]:
+        """The field behind a position of the unpacked tuple: (name, element of an array field or
+        None, struct code)."""
+        for name, start in self.index.items():
+            if start <= position < start + self.count[name]:
+                code, repeat = self.codes[name]
+                return name, (position - start if repeat and code != "s" else None), code
+        raise IndexError(f"{self.name} has {sum(self.count.values())} values, not {position + 1}")
+
+    @property
+    def dtype(self):
+        """The payload as a numpy structured dtype (little-endian, packed: one record a payload;
+        array fields as sub-arrays, char[] as bytes)."""
+        if self._dtype is None:
+            import numpy as np
+
+            self._dtype = np.dtype([(name, f"S{repeat or 1}") if code == "s" else
+                                    ((name, "<" + _NUMPY_CODES[code], (int(repeat),)) if repeat else
+                                     (name, "<" + _NUMPY_CODES[code]))
+                                    for name, (code, repeat) in self.codes.items()])
+            assert self._dtype.itemsize == self.size, self.name
+        return self._dtype
+
+    def unpack_many(self, raw, start, end):
+        """The payloads ``raw[start[i]:end[i]]`` (``raw``: the bytes as a numpy uint8 array; ``start``,
+        ``end``: int64 arrays) as one structured array of :attr:`dtype`, all at once: what
+        :meth:`unpack` gives each of them (short payloads padded with zeros, longer ones cut)."""
+        import numpy as np
+
+        size = self.size
+        length = np.minimum(end - start, size)
+        if start.size and int(start.max()) + size > raw.size:  # a payload near the end of the data
+            raw = np.concatenate((raw, np.zeros(size, dtype=np.uint8)))
+        rows = np.lib.stride_tricks.sliding_window_view(raw, size)[start]  # one copy of each payload
+        short = length < size
+        if short.any():
+            rows[np.arange(size) >= length[:, None]] = 0
+        return rows.view(self.dtype).reshape(-1)
+
+
+#: struct code -> numpy type code (little-endian is added where used)
+_NUMPY_CODES = {"b": "i1", "B": "u1", "h": "i2", "H": "u2", "i": "i4", "I": "u4", "q": "i8", "Q": "u8",
+                "f": "f4", "d": "f8", "c": "S1", "?": "?"}
 
 _LAYOUTS: dict[int, PayloadLayout] = {}
 
