@@ -169,13 +169,14 @@ class PackFilterBank:
         self._h_v = np.stack([1.0 / p[:, kernel.I_CB], -1.0 / p[:, kernel.I_CCP], -1.0 / p[:, kernel.I_CS],
                               np.zeros(n_packs)], axis=1)
         self._h_t = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n_packs, 1))
-        # the compiled step's arguments other than the frame's, in its order: the arrays are updated in
-        # place, never replaced, so the tuple is built once
+        # ``ukf.pack_step_one``'s arguments other than the frame's, in its order: the arrays are updated
+        # in place, never replaced, so the tuple is built once
         c = self.config
-        self._step_args = (self.params, self.mean, self.cov, self._q, self._h_v, c.voltage_sigma_v ** 2,
-                           c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
-                           kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total, self.rejected_in_row,
-                           self.relocks, self.consistency.arrays)
+        self._step_args = (self.params, self.mean, self.cov, self._q, self._h_v,
+                           ukf.step_constants(c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate,
+                                              c.relock_after, c.relock_inflation, kernel.DEFAULT_MAX_DT),
+                           self.last_innovation, self.rejected_total, self.rejected_in_row, self.relocks,
+                           *self.consistency.arrays)
 
     # ---- initialisation -------------------------------------------------------------------------
     def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray,
@@ -222,8 +223,7 @@ class PackFilterBank:
         """``step`` for one pack and plain floats (a telemetry frame), without the array set-up
         (``ukf.pack_step_one``: the same compiled arithmetic). Returns how many of its consistency
         states flipped (0 nearly always)."""
-        a = self._step_args
-        return ukf.pack_step_one(a[0], a[1], a[2], b, dt, current, ambient, voltage, temperature, *a[3:])
+        return ukf.pack_step_one(*self._step_args, b, dt, current, ambient, voltage, temperature)
 
     def set_params(self, b: int, row: np.ndarray) -> None:
         """Adopt new parameters for pack ``b`` (e.g. a diagnosed capacity loss), keeping what the

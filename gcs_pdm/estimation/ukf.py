@@ -314,18 +314,35 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
     return flips
 
 
+#: ``pack_step_one``'s ``consts``: a bank's filter constants in one array (each argument of a compiled
+#: call costs its unboxing, on every telemetry frame)
+(C_R_V, C_R_T, C_GATE, C_RELOCK_AFTER, C_RELOCK_INFLATION, C_MAX_DT, N_CONSTS) = range(7)
+
+
+def step_constants(r_v: float, r_t: float, gate: float, relock_after: int, relock_inflation: float,
+                   max_dt: float) -> np.ndarray:
+    """``pack_step_one``'s ``consts`` array."""
+    out = np.empty(N_CONSTS)
+    out[[C_R_V, C_R_T, C_GATE, C_RELOCK_AFTER, C_RELOCK_INFLATION, C_MAX_DT]] = (
+        r_v, r_t, gate, relock_after, relock_inflation, max_dt)
+    return out
+
+
 @njit(**_JIT)
-def pack_step_one(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v,
-                  r_v, r_t, gate, relock_after, relock_inflation, max_dt,
-                  last_innovation, rejected_total, rejected_in_row, relocks, window):
+def pack_step_one(params, mean, cov, q, h_v, consts, last_innovation, rejected_total, rejected_in_row, relocks,
+                  w_buf, w_ints, w_sums, w_levels, b, dt, current, ambient, voltage, temperature):
     """``pack_step_rows`` for the one row ``b`` and plain floats (a telemetry frame): the same
-    arithmetic (``_pack_row``), without the five one-element arrays a frame would otherwise build."""
+    arithmetic (``_pack_row``), without the five one-element arrays a frame would otherwise build,
+    with the bank's constants in one array (``step_constants``) and its consistency window's four
+    arrays one by one (a tuple argument costs more to unbox than its arrays). The bank's arguments
+    come first, so its caller passes them as one prebuilt tuple."""
     n = _N
     h_t = np.zeros(n)
     h_t[n - 1] = 1.0
-    return _pack_row(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v, h_t, r_v, r_t, gate,
-                     relock_after, relock_inflation, max_dt, last_innovation, rejected_total, rejected_in_row,
-                     relocks, window, np.empty((n, n)), np.empty((2 * n, n)), np.empty(n))
+    return _pack_row(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v, h_t,
+                     consts[C_R_V], consts[C_R_T], consts[C_GATE], int(consts[C_RELOCK_AFTER]),
+                     consts[C_RELOCK_INFLATION], consts[C_MAX_DT], last_innovation, rejected_total, rejected_in_row,
+                     relocks, (w_buf, w_ints, w_sums, w_levels), np.empty((n, n)), np.empty((2 * n, n)), np.empty(n))
 
 
 _NX = kernel.N_EXT_STATE
