@@ -434,9 +434,24 @@ def motor_step_rows(params, mean, cov, idx, dt, current, ambient, temperature, p
                    relock_after, relock_inflation, rejected_total, rejected_in_row, relocks, h, innovation)
 
 
+#: ``motor_step_one``'s ``consts`` (``pack_step_one``'s, for the motors' thermal filter)
+(MC_PROCESS_VAR, MC_R, MC_GATE, MC_RELOCK_AFTER, MC_RELOCK_INFLATION, N_MOTOR_CONSTS) = range(6)
+
+
+def motor_step_constants(process_var: float, r: float, gate: float, relock_after: int,
+                         relock_inflation: float) -> np.ndarray:
+    """``motor_step_one``'s ``consts`` array."""
+    out = np.empty(N_MOTOR_CONSTS)
+    out[[MC_PROCESS_VAR, MC_R, MC_GATE, MC_RELOCK_AFTER, MC_RELOCK_INFLATION]] = (
+        process_var, r, gate, relock_after, relock_inflation)
+    return out
+
+
 @njit(**_JIT)
-def motor_step_one(params, mean, cov, q, dt, current, ambient, temperature, process_var, r, gate,
-                   relock_after, relock_inflation, rejected_total, rejected_in_row, relocks):
-    """``motor_step_rows`` for the one row ``q`` and plain floats (a telemetry frame)."""
-    _motor_row(params, mean, cov, q, dt, current, ambient, temperature, process_var, r, gate, relock_after,
-               relock_inflation, rejected_total, rejected_in_row, relocks, np.ones(1), np.empty((mean.shape[0], 1)))
+def motor_step_one(params, mean, cov, consts, rejected_total, rejected_in_row, relocks, q, dt, current, ambient,
+                   temperature):
+    """``motor_step_rows`` for the one row ``q`` and plain floats (a telemetry frame), the filter's
+    constants in one array (``motor_step_constants``); the bank's arguments first, as one prebuilt tuple."""
+    _motor_row(params, mean, cov, q, dt, current, ambient, temperature, consts[MC_PROCESS_VAR], consts[MC_R],
+               consts[MC_GATE], int(consts[MC_RELOCK_AFTER]), consts[MC_RELOCK_INFLATION], rejected_total,
+               rejected_in_row, relocks, np.ones(1), np.empty((mean.shape[0], 1)))
