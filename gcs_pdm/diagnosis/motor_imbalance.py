@@ -137,7 +137,7 @@ class EscImbalanceDetector:
             return []
         self.samples += 1
         events = []
-        full = cfg.window
+        full, raise_at = cfg.window, cfg.raise_threshold
         windows, debouncers = self._window, self._debounce
         for q, f in enumerate(self._magnitudes(power, bus_v)):
             win = windows[q]
@@ -145,8 +145,11 @@ class EscImbalanceDetector:
                 win.append(f)
             if len(win) < full:
                 continue
-            med = median_of_sorted(sorted(win))
             deb = debouncers[q]
+            if not deb.active and max(win) < raise_at and math.isnan(deb.pending_since):
+                # nothing to change: the median (≤ the window's largest) cannot raise, nothing is pending
+                continue
+            med = median_of_sorted(sorted(win))
             ev = deb.update(time_s, med >= cfg.raise_threshold, med < cfg.clear_threshold)
             if deb.active:
                 self._active_n[q] += 1
