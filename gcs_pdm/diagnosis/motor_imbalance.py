@@ -66,11 +66,13 @@ class EscImbalanceDetector:
         self.config = config
         self._rw = [float(r) for r in self.motors[:, kernel.M_RW]]
         self._i0 = [float(r) for r in self.motors[:, kernel.M_I0]]
-        self._window: dict[str, deque] = {n: deque(maxlen=config.window) for n in self.names}
-        self._debounce = {n: Debouncer(config.debounce) for n in self.names}
-        # the medians while active: their count and running sum (the reported magnitude is their mean)
-        self._active_n: dict[str, int] = {n: 0 for n in self.names}
-        self._active_sum: dict[str, float] = {n: 0.0 for n in self.names}
+        # per motor, in ``names`` order (lists, not dicts by name: read on every sample): its window of
+        # per-sample magnitudes, its debouncer, and while active the count and running sum of the
+        # medians (the reported magnitude is their mean)
+        self._window = [deque(maxlen=config.window) for _ in self.names]
+        self._debounce = [Debouncer(config.debounce) for _ in self.names]
+        self._active_n = [0] * len(self.names)
+        self._active_sum = [0.0] * len(self.names)
         self._faults: dict[str, Fault] = {}
         #: an active fault's latest (time, magnitude, median, currents) not yet folded into ``faults``
         self._latest: dict[str, tuple] = {}
@@ -98,10 +100,11 @@ class EscImbalanceDetector:
     def _magnitudes(self, power: list[float], bus_v: list[float]) -> list[float]:
         m = len(self.names)
         k = 1.0 / (m - 1)
-        order = sorted(range(m), key=power.__getitem__)
+        # two motors: the other's power is the median of the others (the general path's value)
+        order = sorted(range(m), key=power.__getitem__) if m > 2 else None
         out = [math.nan] * m
         for q in range(m):
-            p_o = median_of_sorted([power[i] for i in order if i != q])
+            p_o = power[1 - q] if order is None else median_of_sorted([power[i] for i in order if i != q])
             if not p_o > 0.0:
                 continue
             # the suspect's own no-load term is (1 - f) I_0 V: with A = V i - R_w i², c = I_0 V,
@@ -119,32 +122,43 @@ class EscImbalanceDetector:
         return out
 
     def update(self, time_s: float, currents, bus_v) -> list[tuple[str, Fault]]:
-        currents, bus_v = _floats(currents), _floats(bus_v, len(currents))
+        """One set of readings: each motor's current, A, and its bus voltage, V (a scalar: one bus)."""
+        currents = _floats(currents)
+        return self.update_floats(time_s, currents, _floats(bus_v, len(currents)))
+
+    def update_floats(self, time_s: float, currents: list[float], bus_v: list[float]) -> list[tuple[str, Fault]]:
+        """``update`` for lists of Python floats the detector may keep (the pipeline's per-sample
+        call: its readings are floats already)."""
         power = self._powers(currents, bus_v)
-        if not (all(map(math.isfinite, currents)) and sum(power) >= self.config.min_power_w):
+        cfg = self.config
+        isfinite = math.isfinite
+        if not (all(map(isfinite, currents)) and sum(power) >= cfg.min_power_w):
             self.low_power_skipped += 1
             return []
         self.samples += 1
         events = []
-        cfg = self.config
-        full = cfg.window
+        full, raise_at = cfg.window, cfg.raise_threshold
+        windows, debouncers = self._window, self._debounce
         for q, f in enumerate(self._magnitudes(power, bus_v)):
-            name = self.names[q]
-            win = self._window[name]
-            if math.isfinite(f):
+            win = windows[q]
+            if isfinite(f):
                 win.append(f)
             if len(win) < full:
                 continue
+            deb = debouncers[q]
+            if not deb.active and max(win) < raise_at and math.isnan(deb.pending_since):
+                # nothing to change: the median (≤ the window's largest) cannot raise, nothing is pending
+                continue
             med = median_of_sorted(sorted(win))
-            deb = self._debounce[name]
             ev = deb.update(time_s, med >= cfg.raise_threshold, med < cfg.clear_threshold)
             if deb.active:
-                self._active_n[name] += 1
-                self._active_sum[name] += med
-            if ev is None and not deb.active:
+                self._active_n[q] += 1
+                self._active_sum[q] += med
+            elif ev is None:
                 continue
-            n_active = self._active_n[name]
-            mag = min(max(self._active_sum[name] / n_active if n_active else med, 0.0), 1.0)
+            name = self.names[q]
+            n_active = self._active_n[q]
+            mag = min(max(self._active_sum[q] / n_active if n_active else med, 0.0), 1.0)
             if ev == "raise":
                 spread = float(np.std(win)) / math.sqrt(len(win)) + 1e-3
                 conf = 0.5 * (1.0 + math.erf((med - cfg.clear_threshold) / spread / math.sqrt(2.0)))
@@ -156,7 +170,7 @@ class EscImbalanceDetector:
                 # from its latest refinement (``faults`` folds it in)
                 self._faults[name] = self.faults[name].with_(active=False, cleared_s=time_s, confidence=0.0,
                                                               updated_s=time_s, evidence=_evidence(med, q, currents))
-                self._active_n[name], self._active_sum[name] = 0, 0.0
+                self._active_n[q], self._active_sum[q] = 0, 0.0
                 events.append(("clear", self._faults[name]))
             else:
                 self._latest[name] = (time_s, mag, med, q, currents)

@@ -74,6 +74,7 @@ class DiagnosisPipeline:
                                   for k in range(len(inputs.bus_parallel))]
             self._bus_parallel = [bool(x) for x in inputs.bus_parallel]
             self._bus_of_motor = [int(k) for k in inputs.bus_of_motor]
+        self._buses = list(zip(self._packs_of_bus, self._bus_parallel))
         self._faults: list[Fault] = []
         self._index: dict[tuple[str, str], int] = {}
         self.events: list[dict] = []
@@ -123,8 +124,8 @@ class DiagnosisPipeline:
         self._checks(t)
 
     def _motor_frame(self, frame: MotorFrame) -> None:
-        self.estimator.consume(frame)
-        if frame.motor in self._motor_set_of:
+        # every ESC frame (a tenth of a log): the estimator's motor step called directly
+        if self.estimator._motor(frame) >= 0:  # the motor's index, -1: unknown
             t = float(frame.time_s)
             if self._motor_diagnosed:
                 self._motors(t)
@@ -159,7 +160,7 @@ class DiagnosisPipeline:
         bus = []
         v_filter = None  # the filter's voltages only if a reading is stale (rare: spare the einsum)
         pack_v, pack_v_time, fresh_s = self._pack_v, self._pack_v_time, self.voltage_fresh_s
-        for packs, parallel in zip(self._packs_of_bus, self._bus_parallel):
+        for packs, parallel in self._buses:
             total = 0.0
             for b in packs:
                 if t - pack_v_time[b] <= fresh_s:
@@ -170,14 +171,18 @@ class DiagnosisPipeline:
                     total += v_filter[b]
             bus.append(total if not parallel else total / len(packs) if packs else math.nan)
         bus_of_motor = [bus[k] for k in self._bus_of_motor]
-        if not all(math.isfinite(x) for x in bus_of_motor):
+        isfinite = math.isfinite
+        if not all(map(isfinite, bus_of_motor)):
             return
         if self.vehicle is None:
-            heard = [r for r in rpms if math.isfinite(r)]  # np.nanmean, without its warnings
+            heard = [r for r in rpms if isfinite(r)]  # np.nanmean, without its warnings
             rpm = sum(heard) / len(heard) if heard else math.nan
             self._record(self.motor_power.update(t, currents[0], currents[1], bus_of_motor[0], bus_of_motor[1], rpm))
-        elif all(math.isfinite(i) for i in currents):
-            self._record(self.motor_power.update(t, currents, bus_of_motor))
+        elif all(map(isfinite, currents)):
+            # the estimator's list is its own: the detector keeps a copy (its latest evidence)
+            events = self.motor_power.update_floats(t, currents.copy(), bus_of_motor)
+            if events:
+                self._record(events)
 
     def readiness(self) -> dict[str, str]:
         """What the pipeline can do now and why not: the estimator's readiness plus motor diagnosis."""

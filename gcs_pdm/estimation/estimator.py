@@ -420,40 +420,49 @@ class StateEstimator:
         else:
             log.info("pack %s matches its model again at t=%.1f s", self.pack_names[b], t)
 
-    def _motor(self, f: MotorFrame) -> None:
+    def _motor(self, f: MotorFrame) -> int:
+        """One ESC frame (the per-frame path of a replay, like ``_pack``). Returns the motor's
+        index, -1 for an unknown motor (the diagnoser's per-frame work needs it)."""
         q = self._motor_index.get(f.motor)
         if q is None:
             self._skip("unknown_motor", f"motor frame for unknown motor {f.motor!r} skipped")
             self._advance_time(f.time_s)
-            return
+            return -1
         t = float(f.time_s)
         last = self._motor_time[q]
         if not t >= last:
             self._skip("out_of_order", f"motor {f.motor}: frame at {t} s older than the last ({last} s) skipped")
             self._advance_time(f.time_s)
-            return
+            return q
         keys = self._motor_keys[q]
-        cur = _num(f.current_a)
+        seen = self.seen
+        cur = f.current_a
+        if type(cur) is not float:  # None, or a number of another type: ``_num`` (a plain float is itself)
+            cur = _num(cur)
         if math.isfinite(cur):
-            self.seen[keys[0]] = t
+            seen[keys[0]] = t
             self._motor_current[q] = cur
             self._motor_current_time[q] = t
         else:
             # the string's pack currents are the motor's current
             packs = [b for b in self._packs_of_motor[q] if len(self._motors_of_pack[b]) == 1]
             fresh = [self._pack_current[b] for b in packs
-                     if t - self._pack_current_time[b] <= self.config.corroborate_within_s]
+                     if t - self._pack_current_time[b] <= self._within_s]
             cur = float(np.nanmedian(fresh)) if fresh and np.isfinite(fresh).any() else self._motor_current[q]
-        rpm = _num(f.rpm)
+        rpm = f.rpm
+        if type(rpm) is not float:
+            rpm = _num(rpm)
         if math.isfinite(rpm):
             self._motor_rpm[q] = rpm
-            self.seen[keys[1]] = t
-        temp = _num(f.temperature_c)
+            seen[keys[1]] = t
+        temp = f.temperature_c
+        if type(temp) is not float:
+            temp = _num(temp)
         if math.isfinite(temp):
-            self.seen[keys[2]] = t
+            seen[keys[2]] = t
         motors = self.motors
         initialised = motors.initialised[q]
-        if initialised and t - last > self.config.restart_after_s:
+        if initialised and t - last > self._restart_after_s:
             self._restart("motor", f.motor, t - last)
             motors.initialised[q] = initialised = False
         if not initialised:
@@ -465,11 +474,12 @@ class StateEstimator:
             elif math.isfinite(temp):
                 motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
                 self._motor_time[q] = t
-            self._advance_time(t)
-            return
-        motors.step_one(q, t - last, cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
-        self._motor_time[q] = t
-        self._advance_time(t)
+        else:
+            motors.step_one(q, t - last, cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
+            self._motor_time[q] = t
+        if t > self.time_s:
+            self.time_s = t
+        return q
 
     def adopt_pack_scales(self, pack: str, resistance_scale: float, capacity_scale: float) -> None:
         """Run pack ``pack`` on its parameter set's values with R_s, R_cp0 scaled by

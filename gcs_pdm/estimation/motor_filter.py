@@ -38,10 +38,12 @@ class MotorThermalFilter:
         # the compiled step's view of the counters: one channel per motor
         self._rejected_total_2d = self.rejected_total.reshape(-1, 1)
         self._rejected_in_row_2d = self.rejected_in_row.reshape(-1, 1)
-        # the compiled step's trailing arguments (arrays updated in place, never replaced)
+        # ``ukf.motor_step_one``'s arguments other than the frame's (arrays updated in place, never replaced)
         c = config
-        self._step_args = (c.process_sigma_c ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
-                           c.relock_inflation, self._rejected_total_2d, self._rejected_in_row_2d, self.relocks)
+        self._step_args = (self.params, self.mean, self.cov,
+                           ukf.motor_step_constants(c.process_sigma_c ** 2, c.temperature_sigma_c ** 2, c.gate,
+                                                    c.relock_after, c.relock_inflation),
+                           self._rejected_total_2d, self._rejected_in_row_2d, self.relocks)
 
     def initialise(self, idx: np.ndarray, temperature: np.ndarray, sigma: float | None = None) -> None:
         idx = np.atleast_1d(idx)
@@ -65,7 +67,7 @@ class MotorThermalFilter:
     def step_one(self, q: int, dt: float, current: float, ambient: float, temperature: float) -> None:
         """``step`` for one motor and plain floats (a telemetry frame), without the array set-up
         (``ukf.motor_step_one``: the same compiled arithmetic)."""
-        ukf.motor_step_one(self.params, self.mean, self.cov, q, dt, current, ambient, temperature, *self._step_args)
+        ukf.motor_step_one(*self._step_args, q, dt, current, ambient, temperature)
 
     def temperature(self) -> tuple[np.ndarray, np.ndarray]:
         return self.mean[:, 0].copy(), np.sqrt(np.maximum(self.cov[:, 0, 0], 0.0))

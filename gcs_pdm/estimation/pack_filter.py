@@ -115,6 +115,11 @@ class ConsistencyWindow:
                                  config.mismatch_settle_updates]] * 2)
         self.arrays = (self.buf, self.ints, self.sums, self.levels)
 
+    def adopt(self, buf: np.ndarray, ints: np.ndarray, sums: np.ndarray, levels: np.ndarray) -> None:
+        """Keep the window in these arrays (views into a filter bank's buffers), as they are."""
+        self.buf, self.ints, self.sums, self.levels = buf, ints, sums, levels
+        self.arrays = (buf, ints, sums, levels)
+
     @property
     def count(self) -> np.ndarray:
         """(rows, 2) updates in the window."""
@@ -169,13 +174,27 @@ class PackFilterBank:
         self._h_v = np.stack([1.0 / p[:, kernel.I_CB], -1.0 / p[:, kernel.I_CCP], -1.0 / p[:, kernel.I_CS],
                               np.zeros(n_packs)], axis=1)
         self._h_t = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (n_packs, 1))
-        # the compiled step's arguments other than the frame's, in its order: the arrays are updated in
-        # place, never replaced, so the tuple is built once
-        c = self.config
-        self._step_args = (self.params, self.mean, self.cov, self._q, self._h_v, c.voltage_sigma_v ** 2,
-                           c.temperature_sigma_c ** 2, c.gate, c.relock_after, c.relock_inflation,
-                           kernel.DEFAULT_MAX_DT, self.last_innovation, self.rejected_total, self.rejected_in_row,
-                           self.relocks, self.consistency.arrays)
+        # every array ``ukf.pack_step_one`` steps lives in the bank's two buffers (``ukf.pack_storage``:
+        # a telemetry frame's compiled call then takes two arrays, not twenty arguments)
+        c, w = self.config, self.consistency
+        consts = ukf.step_constants(c.voltage_sigma_v ** 2, c.temperature_sigma_c ** 2, c.gate, c.relock_after,
+                                    c.relock_inflation, kernel.DEFAULT_MAX_DT)
+        scratch = np.zeros(ukf.pack_shapes(n_packs, w.size)[ukf.PACK_FLOAT_ARRAYS.index("scratch")])
+        self._floats, self._ints = ukf.pack_storage(
+            (self.params, self.mean, self.cov, self._q, self._h_v, consts, self.last_innovation, w.buf, w.sums,
+             w.levels, np.eye(N_STATE)[-1], scratch, self.rejected_total, self.rejected_in_row, self.relocks, w.ints), w.size)
+        self._bind_views()
+
+    def _bind_views(self) -> None:
+        """The bank's arrays, and its consistency window's, as views into its two buffers."""
+        (self.params, self.mean, self.cov, self._q, self._h_v, _, self.last_innovation, w_buf, w_sums, w_levels, _, _,
+         self.rejected_total, self.rejected_in_row, self.relocks, w_ints) = ukf.pack_views(self._floats, self._ints)
+        self.consistency.adopt(w_buf, w_ints, w_sums, w_levels)
+
+    def __setstate__(self, state: dict) -> None:
+        # a copy (copy.deepcopy, pickle) copies each view apart from the buffers: bind them again
+        self.__dict__.update(state)
+        self._bind_views()
 
     # ---- initialisation -------------------------------------------------------------------------
     def initialise(self, idx: np.ndarray, voltage: np.ndarray, current: np.ndarray, temperature: np.ndarray,
@@ -222,8 +241,7 @@ class PackFilterBank:
         """``step`` for one pack and plain floats (a telemetry frame), without the array set-up
         (``ukf.pack_step_one``: the same compiled arithmetic). Returns how many of its consistency
         states flipped (0 nearly always)."""
-        a = self._step_args
-        return ukf.pack_step_one(a[0], a[1], a[2], b, dt, current, ambient, voltage, temperature, *a[3:])
+        return ukf.pack_step_one(self._floats, self._ints, b, dt, current, ambient, voltage, temperature)
 
     def set_params(self, b: int, row: np.ndarray) -> None:
         """Adopt new parameters for pack ``b`` (e.g. a diagnosed capacity loss), keeping what the

@@ -314,18 +314,104 @@ def pack_step_rows(params, mean, cov, idx, dt, current, ambient, voltage, temper
     return flips
 
 
+#: ``pack_step_one``'s ``consts``: a bank's filter constants in one array
+(C_R_V, C_R_T, C_GATE, C_RELOCK_AFTER, C_RELOCK_INFLATION, C_MAX_DT, N_CONSTS) = range(7)
+
+
+def step_constants(r_v: float, r_t: float, gate: float, relock_after: int, relock_inflation: float,
+                   max_dt: float) -> np.ndarray:
+    """``pack_step_one``'s ``consts`` array."""
+    out = np.empty(N_CONSTS)
+    out[[C_R_V, C_R_T, C_GATE, C_RELOCK_AFTER, C_RELOCK_INFLATION, C_MAX_DT]] = (
+        r_v, r_t, gate, relock_after, relock_inflation, max_dt)
+    return out
+
+
+# ---- a pack filter bank's storage ------------------------------------------------------------------
+#
+# A telemetry frame steps one pack, and each argument of a compiled call costs its unboxing on every
+# call: twenty arguments, eleven of them arrays, cost more than the step's arithmetic. So a bank
+# (``pack_filter.PackFilterBank``) keeps its arrays in one float64 and one int64 buffer, each array a
+# view into them, and ``pack_step_one`` takes the two buffers. The int buffer starts with a header:
+# the rows, the consistency window's length, then each array's offset in the orders below.
+
+#: the arrays in the float buffer, then those in the int buffer (``pack_shapes`` gives their shapes)
+PACK_FLOAT_ARRAYS = ("params", "mean", "cov", "q", "h_v", "consts", "last_innovation",
+                     "window_buf", "window_sums", "window_levels", "h_t", "scratch")
+PACK_INT_ARRAYS = ("rejected_total", "rejected_in_row", "relocks", "window_ints")
+(H_ROWS, H_WINDOW) = range(2)
+N_HEADER = 2 + len(PACK_FLOAT_ARRAYS) + len(PACK_INT_ARRAYS)
+
+
+def pack_shapes(n_rows: int, window: int) -> tuple[tuple[int, ...], ...]:
+    """The shapes of a bank's arrays, in the buffers' order (``pack_step_one`` carves the same)."""
+    n, s = n_rows, _N
+    return ((n, kernel.N_PACK_PARAMS), (n, s), (n, s, s), (s, s), (n, s), (N_CONSTS,), (n, 2),
+            (n, 2, 2, window), (n, 2, 2), (2, 5), (s,), (s * s + 2 * s * s + s,), (n, 2), (n, 2), (n,), (n, 2, 4))
+
+
+def pack_storage(arrays: tuple[np.ndarray, ...], window: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two buffers holding copies of a bank's ``arrays`` (in the orders above)."""
+    n_rows = arrays[0].shape[0]
+    shapes = pack_shapes(n_rows, window)
+    got = tuple(a.shape for a in arrays)
+    if got != shapes:
+        raise ValueError(f"pack_storage: arrays of shapes {got}, expected {shapes}")
+    n_float = len(PACK_FLOAT_ARRAYS)
+    sizes = [math.prod(sh) for sh in shapes]
+    offsets = [0] * len(shapes)
+    for k in range(1, len(shapes)):
+        offsets[k] = N_HEADER if k == n_float else offsets[k - 1] + sizes[k - 1]
+    floats = np.empty(offsets[n_float - 1] + sizes[n_float - 1])
+    ints = np.empty(offsets[-1] + sizes[-1], dtype=np.int64)
+    ints[:N_HEADER] = [n_rows, window, *offsets]
+    for view, a in zip(pack_views(floats, ints), arrays):
+        view[...] = a
+    return floats, ints
+
+
+def pack_views(floats: np.ndarray, ints: np.ndarray) -> list[np.ndarray]:
+    """A bank's arrays as views into its two buffers (``pack_storage``), in the buffers' order."""
+    shapes = pack_shapes(int(ints[H_ROWS]), int(ints[H_WINDOW]))
+    n_float = len(PACK_FLOAT_ARRAYS)
+    out = []
+    for k, (shape, o) in enumerate(zip(shapes, ints[2:N_HEADER].tolist())):
+        buf = floats if k < n_float else ints
+        out.append(buf[o:o + math.prod(shape)].reshape(shape))
+    return out
+
+
 @njit(**_JIT)
-def pack_step_one(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v,
-                  r_v, r_t, gate, relock_after, relock_inflation, max_dt,
-                  last_innovation, rejected_total, rejected_in_row, relocks, window):
+def pack_step_one(floats, ints, b, dt, current, ambient, voltage, temperature):
     """``pack_step_rows`` for the one row ``b`` and plain floats (a telemetry frame): the same
-    arithmetic (``_pack_row``), without the five one-element arrays a frame would otherwise build."""
-    n = _N
-    h_t = np.zeros(n)
-    h_t[n - 1] = 1.0
-    return _pack_row(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v, h_t, r_v, r_t, gate,
-                     relock_after, relock_inflation, max_dt, last_innovation, rejected_total, rejected_in_row,
-                     relocks, window, np.empty((n, n)), np.empty((2 * n, n)), np.empty(n))
+    arithmetic (``_pack_row``) on the same arrays, carved from the bank's two buffers
+    (``pack_storage``; the carving is ``pack_shapes``' in code), without the five one-element arrays
+    a frame would otherwise build, and with its scratch there too (``h_t``, the temperature row, stays
+    e_T; the scratch is written before it is read)."""
+    n, w, o = ints[H_ROWS], ints[H_WINDOW], ints[2:N_HEADER]
+    s, n_p = _N, kernel.N_PACK_PARAMS
+    params = floats[o[0]:o[0] + n * n_p].reshape((n, n_p))
+    mean = floats[o[1]:o[1] + n * s].reshape((n, s))
+    cov = floats[o[2]:o[2] + n * s * s].reshape((n, s, s))
+    q = floats[o[3]:o[3] + s * s].reshape((s, s))
+    h_v = floats[o[4]:o[4] + n * s].reshape((n, s))
+    consts = floats[o[5]:o[5] + N_CONSTS]
+    last_innovation = floats[o[6]:o[6] + n * 2].reshape((n, 2))
+    w_buf = floats[o[7]:o[7] + n * 4 * w].reshape((n, 2, 2, w))
+    w_sums = floats[o[8]:o[8] + n * 4].reshape((n, 2, 2))
+    w_levels = floats[o[9]:o[9] + 10].reshape((2, 5))
+    h_t = floats[o[10]:o[10] + s]
+    chol = floats[o[11]:o[11] + s * s].reshape((s, s))
+    pts = floats[o[11] + s * s:o[11] + 3 * s * s].reshape((2 * s, s))
+    x = floats[o[11] + 3 * s * s:o[11] + 3 * s * s + s]
+    rejected_total = ints[o[12]:o[12] + n * 2].reshape((n, 2))
+    rejected_in_row = ints[o[13]:o[13] + n * 2].reshape((n, 2))
+    relocks = ints[o[14]:o[14] + n]
+    w_ints = ints[o[15]:o[15] + n * 8].reshape((n, 2, 4))
+    return _pack_row(params, mean, cov, b, dt, current, ambient, voltage, temperature, q, h_v, h_t,
+                     consts[C_R_V], consts[C_R_T], consts[C_GATE], int(consts[C_RELOCK_AFTER]),
+                     consts[C_RELOCK_INFLATION], consts[C_MAX_DT], last_innovation, rejected_total, rejected_in_row,
+                     relocks, (w_buf, w_ints, w_sums, w_levels), chol, pts, x)
 
 
 _NX = kernel.N_EXT_STATE
@@ -417,9 +503,24 @@ def motor_step_rows(params, mean, cov, idx, dt, current, ambient, temperature, p
                    relock_after, relock_inflation, rejected_total, rejected_in_row, relocks, h, innovation)
 
 
+#: ``motor_step_one``'s ``consts`` (``pack_step_one``'s, for the motors' thermal filter)
+(MC_PROCESS_VAR, MC_R, MC_GATE, MC_RELOCK_AFTER, MC_RELOCK_INFLATION, N_MOTOR_CONSTS) = range(6)
+
+
+def motor_step_constants(process_var: float, r: float, gate: float, relock_after: int,
+                         relock_inflation: float) -> np.ndarray:
+    """``motor_step_one``'s ``consts`` array."""
+    out = np.empty(N_MOTOR_CONSTS)
+    out[[MC_PROCESS_VAR, MC_R, MC_GATE, MC_RELOCK_AFTER, MC_RELOCK_INFLATION]] = (
+        process_var, r, gate, relock_after, relock_inflation)
+    return out
+
+
 @njit(**_JIT)
-def motor_step_one(params, mean, cov, q, dt, current, ambient, temperature, process_var, r, gate,
-                   relock_after, relock_inflation, rejected_total, rejected_in_row, relocks):
-    """``motor_step_rows`` for the one row ``q`` and plain floats (a telemetry frame)."""
-    _motor_row(params, mean, cov, q, dt, current, ambient, temperature, process_var, r, gate, relock_after,
-               relock_inflation, rejected_total, rejected_in_row, relocks, np.ones(1), np.empty((mean.shape[0], 1)))
+def motor_step_one(params, mean, cov, consts, rejected_total, rejected_in_row, relocks, q, dt, current, ambient,
+                   temperature):
+    """``motor_step_rows`` for the one row ``q`` and plain floats (a telemetry frame), the filter's
+    constants in one array (``motor_step_constants``); the bank's arguments first, as one prebuilt tuple."""
+    _motor_row(params, mean, cov, q, dt, current, ambient, temperature, consts[MC_PROCESS_VAR], consts[MC_R],
+               consts[MC_GATE], int(consts[MC_RELOCK_AFTER]), consts[MC_RELOCK_INFLATION], rejected_total,
+               rejected_in_row, relocks, np.ones(1), np.empty((mean.shape[0], 1)))
