@@ -254,6 +254,92 @@ def _fit_warm(params, t, current, voltage, ambient, min_soc, iterations, fit_cap
                          float(theta0[0]), float(theta0[1]), fit_capacity, soc0=float(theta0[2]))
 
 
+#: the trust region of one Gauss–Newton step, and the finite-difference perturbations, per unknown
+_MAX_STEP = np.array([0.5, 0.15, 0.1])
+_EPS = np.array([0.02, 0.005, 0.005])
+#: a Gauss–Newton search stops when no unknown moves more than this
+_CONVERGED = 1e-4
+
+
+@njit(inline="always")
+def _py_max(a, b):
+    """Python's ``max(a, b)``: ``a`` unless ``b`` is greater (a NaN ``a`` stays)."""
+    return b if b > a else a
+
+
+@njit(inline="always")
+def _py_min(a, b):
+    """Python's ``min(a, b)``: ``a`` unless ``b`` is smaller."""
+    return b if b < a else a
+
+
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, perturbed, eps, max_step):
+    """A Gauss–Newton search's iterations in one compiled call (the Python loop spent as much on
+    array set-up, the kernel's wrapper and ``lstsq``'s as the kernel on the record): per iteration
+    the base and perturbed parameter rows (``_scaled``), their initial states
+    (``kernel.initial_pack_state``), one kernel run, ``_linearise``, the least-squares step (LAPACK's
+    ``gelsd`` as ``np.linalg.lstsq`` calls it, with its default ``rcond``), the trust region and the
+    bounds; the same operations in the same order as the numpy formulation, so the same numbers.
+    ``dt``, ``current``, ``ambient`` are (1, n) rows. Returns (ok, theta, step, r, jac, use, soc of the
+    base run); ok is False when fewer than 20 samples were usable."""
+    n = current.shape[1]
+    n_vec = 1 + perturbed.shape[0]
+    p = np.empty((n_vec, params.shape[0]))
+    x0 = np.empty((n_vec, kernel.N_PACK_STATE))
+    run_voltage = np.empty((n_vec, n))
+    run_temperature = np.empty((n_vec, n))
+    run_soc = np.empty((n_vec, n))
+    states = np.empty((1, 1, kernel.N_PACK_STATE))
+    final = np.empty((n_vec, kernel.N_PACK_STATE))
+    keep = np.ones(n, dtype=np.bool_)
+    theta = theta.copy()
+    step = np.zeros(3)
+    rcond_eps = np.finfo(np.float64).eps
+    r = np.empty(0)
+    jac = np.empty((0, 3))
+    use = np.empty(0, dtype=np.bool_)
+    for _ in range(iterations):
+        for v in range(n_vec):
+            th = theta.copy()
+            if v > 0:
+                th[perturbed[v - 1]] += eps[perturbed[v - 1]]
+            for i in range(params.shape[0]):
+                p[v, i] = params[i]
+            p[v, kernel.I_RS] *= th[0]
+            p[v, kernel.I_RCP0] *= th[0]
+            p[v, kernel.I_CB] *= th[1]
+            p[v, kernel.I_QMAX] *= th[1]
+            p[v, kernel.I_CMAX] *= th[1]
+            soc = th[2]
+            r_cp = p[v, kernel.I_RCP0] + p[v, kernel.I_RCP1] * np.exp(p[v, kernel.I_RCP2] * (1.0 - soc))
+            x0[v, kernel.S_QB] = p[v, kernel.I_QMAX] - (1.0 - soc) * p[v, kernel.I_CMAX]
+            x0[v, kernel.S_QCP] = current[0, 0] * r_cp * p[v, kernel.I_CCP]
+            x0[v, kernel.S_QS] = current[0, 0] * p[v, kernel.I_RS] * p[v, kernel.I_CS]
+            x0[v, kernel.S_T] = ambient[0, 0]
+        kernel._simulate_packs(p, x0, dt, current, ambient, kernel.DEFAULT_MAX_DT, run_voltage, run_temperature,
+                               run_soc, states, False, final)
+        r, jac, use, keep, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage, keep, perturbed, eps,
+                                                              min_soc)
+        if n_use < 20:
+            return False, theta, step, r, jac, use, run_soc[0].copy()
+        rcond = rcond_eps * max(a_used.shape[0], a_used.shape[1])
+        solution = np.linalg.lstsq(a_used, r_used, rcond=rcond)[0]
+        step = np.zeros(3)
+        for k in range(perturbed.shape[0]):
+            step[perturbed[k]] = solution[k]
+        # a trust region: the knee makes the first linearisation poor far from the answer
+        shrink = np.min(max_step / (np.abs(step) + 1e-12))
+        step = step * _py_min(1.0, shrink)
+        theta = theta + step
+        theta[0] = _py_max(theta[0], 0.05)
+        theta[1] = _py_min(_py_max(theta[1], 0.05), 2.0)
+        theta[2] = _py_min(_py_max(theta[2], 0.0), 1.1)  # above 1 only to stay unbiased near full
+        if np.all(np.abs(step) < _CONVERGED):
+            break
+    return True, theta, step, r, jac, use, run_soc[0].copy()
+
+
 def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale, fit_capacity,
                   soc0: float | None = None):
     free = np.array([True, fit_capacity, True])
@@ -264,32 +350,17 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
         v_b = voltage[0] + current[0] * r_scale * (params[kernel.I_RS] + r_cp)
         soc0 = float(kernel.soc_at_bulk_voltage(params, v_b))
     theta = np.array([r_scale, c_scale, min(max(soc0, 0.2), 1.0)])
-    max_step = np.array([0.5, 0.15, 0.1])
-    eps = np.array([0.02, 0.005, 0.005])
-    keep = np.ones(t.size, dtype=bool)
     # perturbed vectors for the free unknowns only: a held capacity needs no column of its own
     # (its column stays zero, and its step is zero)
     perturbed = np.flatnonzero(free)
-    for _ in range(iterations):
-        th = np.repeat(theta[None], 1 + perturbed.size, axis=0)
-        th[1 + np.arange(perturbed.size), perturbed] += eps[perturbed]
-        p = _scaled(params, th)
-        x0 = kernel.initial_pack_state(p, th[:, 2], float(ambient[0]), float(current[0]))
-        run = kernel.simulate_packs(p, x0, dt, current, ambient)
-        r, jac, use, keep, n_use, a_used, r_used = _linearise(run.voltage, run.soc[0], voltage, keep, perturbed, eps,
-                                                              min_soc)
-        if n_use < 20:
-            return None
-        step = np.zeros(3)
-        step[free], *_ = np.linalg.lstsq(a_used, r_used, rcond=None)
-        # a trust region: the knee makes the first linearisation poor far from the answer
-        step = step * min(1.0, float(np.min(max_step / (np.abs(step) + 1e-12))))
-        theta = theta + step
-        theta[0] = max(theta[0], 0.05)
-        theta[1] = min(max(theta[1], 0.05), 2.0)
-        theta[2] = min(max(theta[2], 0.0), 1.1)  # above 1 only to stay unbiased near full
-        if np.all(np.abs(step) < 1e-4):
-            break
+    row = lambda a: np.ascontiguousarray(a, dtype=np.float64)[None]
+    if np.any(dt < 0):
+        raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
+    ok, theta, step, r, jac, use, soc = _iterate(np.ascontiguousarray(params, dtype=np.float64), row(dt), row(current),
+                                                 row(ambient), voltage, min_soc, iterations, theta, perturbed, _EPS,
+                                                 _MAX_STEP)
+    if not ok:
+        return None
     res = r[use] - jac[use] @ step
     n = int(use.sum())
     sigma2 = float(res @ res) / max(n - int(free.sum()), 1)
@@ -301,7 +372,7 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     span = float(t[-1] - t[0])
     inflate = math.sqrt(max(n / max(span / 30.0, 1.0), 1.0))
     se = np.sqrt(np.maximum(np.diag(cov), 0.0)) * inflate
-    return theta, se, math.sqrt(float(res @ res) / n), n, run.soc[0]
+    return theta, se, math.sqrt(float(res @ res) / n), n, soc
 
 
 @dataclass
