@@ -67,6 +67,10 @@ class PackHealthConfig:
     warm_start: bool = True
     warm_rms_ratio: float = 1.2
     cold_every_checks: int = 10
+    #: a warm check first tries one step from the previous fit's kernel run carried on over the new
+    #: samples (``_fit_extended``: no simulation of the whole record), and fits afresh only when that
+    #: step leaves the range its Jacobian was taken over or the residual grew
+    extend_fits: bool = True
 
 
 @dataclass(frozen=True)
@@ -281,8 +285,9 @@ def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, 
     (``kernel.initial_pack_state``), one kernel run, ``_linearise``, the least-squares step (LAPACK's
     ``gelsd`` as ``np.linalg.lstsq`` calls it, with its default ``rcond``), the trust region and the
     bounds; the same operations in the same order as the numpy formulation, so the same numbers.
-    ``dt``, ``current``, ``ambient`` are (1, n) rows. Returns (ok, theta, step, r, jac, use, soc of the
-    base run); ok is False when fewer than 20 samples were usable."""
+    ``dt``, ``current``, ``ambient`` are (1, n) rows. Returns (ok, theta, step, r, jac, use, and the last
+    run: the theta it ran at, its parameter rows, voltages, SoCs and final states); ok is False when
+    fewer than 20 samples were usable."""
     n = current.shape[1]
     n_vec = 1 + perturbed.shape[0]
     p = np.empty((n_vec, params.shape[0]))
@@ -299,7 +304,9 @@ def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, 
     r = np.empty(0)
     jac = np.empty((0, 3))
     use = np.empty(0, dtype=np.bool_)
+    theta_run = theta.copy()
     for _ in range(iterations):
+        theta_run = theta.copy()
         for v in range(n_vec):
             th = theta.copy()
             if v > 0:
@@ -322,7 +329,7 @@ def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, 
         r, jac, use, keep, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage, keep, perturbed, eps,
                                                               min_soc)
         if n_use < 20:
-            return False, theta, step, r, jac, use, run_soc[0].copy()
+            return False, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final
         rcond = rcond_eps * max(a_used.shape[0], a_used.shape[1])
         solution = np.linalg.lstsq(a_used, r_used, rcond=rcond)[0]
         step = np.zeros(3)
@@ -337,7 +344,7 @@ def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, 
         theta[2] = _py_min(_py_max(theta[2], 0.0), 1.1)  # above 1 only to stay unbiased near full
         if np.all(np.abs(step) < _CONVERGED):
             break
-    return True, theta, step, r, jac, use, run_soc[0].copy()
+    return True, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final
 
 
 def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale, fit_capacity,
@@ -356,15 +363,23 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     row = lambda a: np.ascontiguousarray(a, dtype=np.float64)[None]
     if np.any(dt < 0):
         raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
-    ok, theta, step, r, jac, use, soc = _iterate(np.ascontiguousarray(params, dtype=np.float64), row(dt), row(current),
-                                                 row(ambient), voltage, min_soc, iterations, theta, perturbed, _EPS,
-                                                 _MAX_STEP)
+    ok, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final = _iterate(
+        np.ascontiguousarray(params, dtype=np.float64), row(dt), row(current), row(ambient), voltage, min_soc,
+        iterations, theta, perturbed, _EPS, _MAX_STEP)
     if not ok:
         return None
-    res = r[use] - jac[use] @ step
+    se, rms, n = _uncertainty(t, r, jac, use, step, free)
+    return theta, se, rms, n, run_soc[0], _Simulation(theta_run, p, perturbed, run_voltage, run_soc, final)
+
+
+def _uncertainty(t, r, jac, use, step, free):
+    """(standard errors, residual rms, samples used) of a fit's last linearisation (residual ``r``,
+    Jacobian ``jac``, samples ``use``) after its last ``step``."""
+    ju = jac[use]
+    res = r[use] - ju @ step
     n = int(use.sum())
     sigma2 = float(res @ res) / max(n - int(free.sum()), 1)
-    jf = jac[use][:, free]
+    jf = ju[:, free]
     cov = np.full((3, 3), np.inf)
     cov[np.ix_(free, free)] = sigma2 * np.linalg.pinv(jf.T @ jf)
     # residuals of a model mismatch are correlated over the R_cp–C_cp time constant and longer:
@@ -372,7 +387,66 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     span = float(t[-1] - t[0])
     inflate = math.sqrt(max(n / max(span / 30.0, 1.0), 1.0))
     se = np.sqrt(np.maximum(np.diag(cov), 0.0)) * inflate
-    return theta, se, math.sqrt(float(res @ res) / n), n, soc
+    return se, math.sqrt(float(res @ res) / n), n
+
+
+@dataclass
+class _Simulation:
+    """A fit's last kernel run over its record, kept so the next check can extend it instead of
+    simulating the record again: the theta it ran at (its SoC is the one at the run's first sample,
+    which may lie before the record's), the parameter rows (base, then one perturbed row per free
+    unknown), their voltages and SoCs at the record's samples, and their states after the last."""
+    theta: np.ndarray
+    params: np.ndarray
+    perturbed: np.ndarray
+    voltage: np.ndarray
+    soc: np.ndarray
+    final: np.ndarray
+
+
+def _fit_extended(params, t, current, voltage, ambient, min_soc, prev_t, sim: _Simulation):
+    """One Gauss–Newton step over the record ``t`` from the previous check's run ``sim`` over the
+    record ``prev_t`` (a warm check on the same record, which only slid): that run's rows are carried
+    on over the new samples (the kernel continues a run exactly), the samples that left the record
+    are dropped, and the step is taken from the run's theta with its own finite-difference Jacobian.
+    The record is not simulated again: a check costs the new samples' simulation and one
+    least-squares solve instead of two or three simulations of the whole record. The model differs from
+    a fresh fit's only in the state at the record's first sample (carried from the run's start
+    instead of settled at that sample's current: the R_cp–C_cp transient, ≈ 10 s of a 25-minute
+    record). Returns the fit as ``_gauss_newton`` does, or None where the step leaves the range the
+    Jacobian was taken over (any unknown moving more than its perturbation from the run's theta) or the
+    records do not line up: then the caller fits the record afresh."""
+    offset = int(np.searchsorted(prev_t, t[0]))
+    overlap = prev_t.size - offset
+    if not (0 < overlap <= t.size and prev_t[offset] == t[0] and np.array_equal(t[:overlap], prev_t[offset:])):
+        return None
+    run_voltage, run_soc, final = sim.voltage[:, offset:], sim.soc[:, offset:], sim.final
+    if overlap < t.size:
+        # the kernel's time convention: the first new sample's interval starts at the last old one
+        more = kernel.simulate_packs(sim.params, final, np.diff(t[overlap - 1:]), current[overlap:], ambient[overlap:])
+        run_voltage = np.concatenate([run_voltage, more.voltage], axis=1)
+        run_soc = np.concatenate([run_soc, more.soc], axis=1)
+        final = more.final_state
+    perturbed = sim.perturbed
+    r, jac, use, _, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage, np.ones(t.size, dtype=bool),
+                                                       perturbed, _EPS, min_soc)
+    if n_use < 20:
+        return None
+    step = np.zeros(3)
+    step[perturbed], *_ = np.linalg.lstsq(a_used, r_used, rcond=None)
+    if np.any(np.abs(step) > _EPS) or not np.all(np.isfinite(step)):
+        return None
+    theta = sim.theta + step
+    # the SoC along the record at the new theta, to first order (the Jacobian's runs): its first
+    # sample's is the fit's initial SoC
+    soc = run_soc[0].copy()
+    for k, j in enumerate(perturbed):
+        soc += step[j] * ((run_soc[1 + k] - run_soc[0]) / _EPS[j])
+    free = np.zeros(3, dtype=bool)
+    free[perturbed] = True
+    se, rms, n = _uncertainty(t, r, jac, use, step, free)
+    fitted = np.array([theta[0], theta[1], soc[0]])
+    return fitted, se, rms, n, soc, _Simulation(sim.theta, sim.params, perturbed, run_voltage, run_soc, final)
 
 
 @dataclass
@@ -384,6 +458,7 @@ class _PreviousFit:
     t: np.ndarray          # the record's times at that fit
     soc: np.ndarray        # the fitted run's SoC at those times
     warm_checks: int       # warm fits since the last cold one
+    simulation: _Simulation | None = None  # the fit's last kernel run (``_fit_extended``)
 
 
 class PackHealthMonitor:
@@ -405,7 +480,7 @@ class PackHealthMonitor:
         #: how the checks' fits ran (cold: the multi-start search; warm: one start from the last fit;
         #: warm_rejected: a warm fit whose residual grew, thrown away for the cold search;
         #: warm_unconfirmed: one whose verdict changed, re-done cold; both also counted as cold)
-        self.fit_counts = {"cold": 0, "warm": 0, "warm_rejected": 0, "warm_unconfirmed": 0}
+        self.fit_counts = {"cold": 0, "warm": 0, "extended": 0, "warm_rejected": 0, "warm_unconfirmed": 0}
 
     def _fit_record(self, b: int, arr: np.ndarray, fit_capacity: bool, cold: bool = False):
         """The check's fit of pack ``b``'s record: warm from the previous fit where it still applies,
@@ -418,7 +493,13 @@ class PackHealthMonitor:
         warm_ok = (not cold and cfg.warm_start and prev is not None and prev.fit_capacity == fit_capacity
                    and prev.warm_checks + 1 < cfg.cold_every_checks and prev.t[0] <= t[0] <= prev.t[-1])
         fit, kinds = None, ("cold",)
-        if warm_ok:
+        if warm_ok and cfg.extend_fits and prev.simulation is not None:
+            fit = _fit_extended(p, t, cur, v, amb, cfg.min_soc, prev.t, prev.simulation)
+            if fit is not None and fit[2] <= cfg.warm_rms_ratio * prev.rms:
+                kinds = ("warm", "extended")
+            else:
+                fit = None
+        if warm_ok and fit is None:
             theta0 = prev.theta.copy()
             theta0[2] = float(np.interp(t[0], prev.t, prev.soc))
             fit = _fit_warm(p, t, cur, v, amb, cfg.min_soc, 10, fit_capacity, theta0)
@@ -432,7 +513,7 @@ class PackHealthMonitor:
             self._previous[b] = None
             return None, kinds
         self._previous[b] = _PreviousFit(fit[0].copy(), fit[2], fit_capacity, t, fit[4],
-                                         prev.warm_checks + 1 if kinds == ("warm",) else 0)
+                                         prev.warm_checks + 1 if kinds[0] == "warm" else 0, fit[5])
         return fit[:4], kinds
 
     def _estimate(self, b: int, fit) -> PackHealthEstimate:
@@ -499,7 +580,7 @@ class PackHealthMonitor:
                 continue
             drawn, arr, fit_capacity, fit_b, kinds = fits[b]
             est = None if fit_b is None else self._estimate(b, fit_b)
-            if kinds == ("warm",) and self._verdicts(est, drawn) != self._verdict[b]:
+            if kinds[0] == "warm" and self._verdicts(est, drawn) != self._verdict[b]:
                 # a warm fit that would change what the debouncers are told is confirmed by the cold
                 # search: a fault's raise or clear never rests on a warm fit's change alone
                 fit_b, cold = self._fit_record(b, arr, fit_capacity, cold=True)
