@@ -347,6 +347,58 @@ def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, 
     return True, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final
 
 
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _extend(params, final, prev_voltage, prev_soc, offset, dt, current, ambient, voltage, min_soc, perturbed, eps):
+    """``_fit_extended``'s work in one compiled call: the previous run's rows (``params``, states
+    ``final`` after its last sample) carried on over the new samples (``dt``, ``current``,
+    ``ambient``: (1, m) rows) and joined to its voltages and SoCs from sample ``offset`` on, the
+    linearisation, the least-squares step (as ``np.linalg.lstsq``), and the SoC along the record at
+    the stepped theta to first order. Returns (ok, step, r, jac, use, voltages, SoCs, final states,
+    SoC); ok is False when fewer than 20 samples were usable or the step leaves the Jacobian's range
+    (an unknown moving more than its perturbation)."""
+    n_vec = params.shape[0]
+    m = current.shape[1]
+    old = prev_voltage.shape[1] - offset
+    run_voltage = np.empty((n_vec, old + m))
+    run_soc = np.empty((n_vec, old + m))
+    run_voltage[:, :old] = prev_voltage[:, offset:]
+    run_soc[:, :old] = prev_soc[:, offset:]
+    final = final.copy()
+    if m > 0:
+        more_voltage = np.empty((n_vec, m))
+        more_soc = np.empty((n_vec, m))
+        more_temperature = np.empty((n_vec, m))
+        x0 = final.copy()
+        kernel._simulate_packs(params, x0, dt, current, ambient, kernel.DEFAULT_MAX_DT, more_voltage,
+                               more_temperature, more_soc, np.empty((1, 1, kernel.N_PACK_STATE)), False, final)
+        run_voltage[:, old:] = more_voltage
+        run_soc[:, old:] = more_soc
+    r, jac, use, _, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage,
+                                                       np.ones(voltage.shape[0], dtype=np.bool_), perturbed, eps,
+                                                       min_soc)
+    step = np.zeros(3)
+    soc = run_soc[0].copy()
+    if n_use < 20:
+        return False, step, r, jac, use, run_voltage, run_soc, final, soc
+    rcond = np.finfo(np.float64).eps * max(a_used.shape[0], a_used.shape[1])
+    solution = np.linalg.lstsq(a_used, r_used, rcond=rcond)[0]
+    for k in range(perturbed.shape[0]):
+        step[perturbed[k]] = solution[k]
+    for j in range(3):
+        if not abs(step[j]) <= eps[j]:  # also a NaN step
+            return False, step, r, jac, use, run_voltage, run_soc, final, soc
+    for k in range(perturbed.shape[0]):
+        j = perturbed[k]
+        for i in range(soc.shape[0]):
+            soc[i] += step[j] * ((run_soc[1 + k, i] - run_soc[0, i]) / eps[j])
+    return True, step, r, jac, use, run_voltage, run_soc, final, soc
+
+
+def _row(a) -> np.ndarray:
+    """A profile as the kernel's (1, n) shared row."""
+    return np.ascontiguousarray(a, dtype=np.float64)[None]
+
+
 def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale, fit_capacity,
                   soc0: float | None = None):
     free = np.array([True, fit_capacity, True])
@@ -360,11 +412,10 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     # perturbed vectors for the free unknowns only: a held capacity needs no column of its own
     # (its column stays zero, and its step is zero)
     perturbed = np.flatnonzero(free)
-    row = lambda a: np.ascontiguousarray(a, dtype=np.float64)[None]
     if np.any(dt < 0):
         raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
     ok, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final = _iterate(
-        np.ascontiguousarray(params, dtype=np.float64), row(dt), row(current), row(ambient), voltage, min_soc,
+        np.ascontiguousarray(params, dtype=np.float64), _row(dt), _row(current), _row(ambient), voltage, min_soc,
         iterations, theta, perturbed, _EPS, _MAX_STEP)
     if not ok:
         return None
@@ -420,28 +471,14 @@ def _fit_extended(params, t, current, voltage, ambient, min_soc, prev_t, sim: _S
     overlap = prev_t.size - offset
     if not (0 < overlap <= t.size and prev_t[offset] == t[0] and np.array_equal(t[:overlap], prev_t[offset:])):
         return None
-    run_voltage, run_soc, final = sim.voltage[:, offset:], sim.soc[:, offset:], sim.final
-    if overlap < t.size:
-        # the kernel's time convention: the first new sample's interval starts at the last old one
-        more = kernel.simulate_packs(sim.params, final, np.diff(t[overlap - 1:]), current[overlap:], ambient[overlap:])
-        run_voltage = np.concatenate([run_voltage, more.voltage], axis=1)
-        run_soc = np.concatenate([run_soc, more.soc], axis=1)
-        final = more.final_state
-    perturbed = sim.perturbed
-    r, jac, use, _, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage, np.ones(t.size, dtype=bool),
-                                                       perturbed, _EPS, min_soc)
-    if n_use < 20:
-        return None
-    step = np.zeros(3)
-    step[perturbed], *_ = np.linalg.lstsq(a_used, r_used, rcond=None)
-    if np.any(np.abs(step) > _EPS) or not np.all(np.isfinite(step)):
+    # the kernel's time convention: the first new sample's interval starts at the last old one
+    ok, step, r, jac, use, run_voltage, run_soc, final, soc = _extend(
+        sim.params, sim.final, sim.voltage, sim.soc, offset, _row(np.diff(t[overlap - 1:])), _row(current[overlap:]),
+        _row(ambient[overlap:]), voltage, min_soc, sim.perturbed, _EPS)
+    if not ok:
         return None
     theta = sim.theta + step
-    # the SoC along the record at the new theta, to first order (the Jacobian's runs): its first
-    # sample's is the fit's initial SoC
-    soc = run_soc[0].copy()
-    for k, j in enumerate(perturbed):
-        soc += step[j] * ((run_soc[1 + k] - run_soc[0]) / _EPS[j])
+    perturbed = sim.perturbed
     free = np.zeros(3, dtype=bool)
     free[perturbed] = True
     se, rms, n = _uncertainty(t, r, jac, use, step, free)
