@@ -519,24 +519,45 @@ class PackHealthMonitor:
         #: warm_unconfirmed: one whose verdict changed, re-done cold; both also counted as cold)
         self.fit_counts = {"cold": 0, "warm": 0, "extended": 0, "warm_rejected": 0, "warm_unconfirmed": 0}
 
+    def _warm_applies(self, b: int, t: np.ndarray, fit_capacity: bool) -> bool:
+        """Whether pack ``b``'s previous fit may start this check's (record ``t``)."""
+        cfg, prev = self.config, self._previous[b]
+        return (cfg.warm_start and prev is not None and prev.fit_capacity == fit_capacity
+                and prev.warm_checks + 1 < cfg.cold_every_checks and prev.t[0] <= t[0] <= prev.t[-1])
+
+    def _keep(self, b: int, t: np.ndarray, fit, fit_capacity: bool, kinds: tuple):
+        """Remember pack ``b``'s fit for the next check's start; returns (the fit's estimate part, kinds)."""
+        if fit is None:
+            self._previous[b] = None
+            return None, kinds
+        prev = self._previous[b]
+        self._previous[b] = _PreviousFit(fit[0].copy(), fit[2], fit_capacity, t, fit[4],
+                                         prev.warm_checks + 1 if kinds[0] == "warm" else 0, fit[5])
+        return fit[:4], kinds
+
+    def _extend_record(self, b: int, arr: np.ndarray, fit_capacity: bool):
+        """The check's fit of pack ``b``'s record by extending the previous fit's run
+        (``_fit_extended``), as ``_fit_record`` returns it, or None where that does not apply or its
+        step is refused (then ``_fit_record`` fits the record)."""
+        cfg, prev = self.config, self._previous[b]
+        t = arr[:, 0]
+        if not (cfg.extend_fits and self._warm_applies(b, t, fit_capacity) and prev.simulation is not None):
+            return None
+        fit = _fit_extended(self.params[b], t, arr[:, 1], arr[:, 2], arr[:, 3], cfg.min_soc, prev.t, prev.simulation)
+        if fit is None or not fit[2] <= cfg.warm_rms_ratio * prev.rms:
+            return None
+        return self._keep(b, t, fit, fit_capacity, ("warm", "extended"))
+
     def _fit_record(self, b: int, arr: np.ndarray, fit_capacity: bool, cold: bool = False):
-        """The check's fit of pack ``b``'s record: warm from the previous fit where it still applies,
-        else (or when the warm fit looks trapped) the cold multi-start search. Returns the fit (or None)
-        and how it ran, for ``fit_counts`` (counted by the caller: the packs' fits run on threads)."""
+        """The check's fit of pack ``b``'s record afresh: warm from the previous fit where it still
+        applies, else (or when the warm fit looks trapped) the cold multi-start search. Returns the fit
+        (or None) and how it ran, for ``fit_counts`` (counted by the caller: the packs' fits run on threads)."""
         cfg = self.config
         p = self.params[b]
         t, cur, v, amb = arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3]
         prev = self._previous[b]
-        warm_ok = (not cold and cfg.warm_start and prev is not None and prev.fit_capacity == fit_capacity
-                   and prev.warm_checks + 1 < cfg.cold_every_checks and prev.t[0] <= t[0] <= prev.t[-1])
         fit, kinds = None, ("cold",)
-        if warm_ok and cfg.extend_fits and prev.simulation is not None:
-            fit = _fit_extended(p, t, cur, v, amb, cfg.min_soc, prev.t, prev.simulation)
-            if fit is not None and fit[2] <= cfg.warm_rms_ratio * prev.rms:
-                kinds = ("warm", "extended")
-            else:
-                fit = None
-        if warm_ok and fit is None:
+        if not cold and self._warm_applies(b, t, fit_capacity):
             theta0 = prev.theta.copy()
             theta0[2] = float(np.interp(t[0], prev.t, prev.soc))
             fit = _fit_warm(p, t, cur, v, amb, cfg.min_soc, 10, fit_capacity, theta0)
@@ -546,12 +567,7 @@ class PackHealthMonitor:
                 kinds, fit = ("warm_rejected", "cold"), None
         if fit is None:
             fit = _fit_cold(p, t, cur, v, amb, cfg.min_soc, 10, fit_capacity)
-        if fit is None:
-            self._previous[b] = None
-            return None, kinds
-        self._previous[b] = _PreviousFit(fit[0].copy(), fit[2], fit_capacity, t, fit[4],
-                                         prev.warm_checks + 1 if kinds[0] == "warm" else 0, fit[5])
-        return fit[:4], kinds
+        return self._keep(b, t, fit, fit_capacity, kinds)
 
     def _estimate(self, b: int, fit) -> PackHealthEstimate:
         p = self.params[b]
@@ -600,18 +616,29 @@ class PackHealthMonitor:
         self._last_check = time_s
         events = []
 
-        def fit(b: int):
+        def record(b: int):
             buf = self._buf[b]
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
                 return None
-            arr = buf.array().copy()  # the fits run on threads: a copy, whatever is appended meanwhile
+            arr = buf.array().copy()  # the next fit keeps its times: a copy, not a view of the buffer
             p = self.params[b]
             drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
-            fit_capacity = drawn >= self.config.min_drawn_for_capacity
-            return (drawn, arr, fit_capacity, *self._fit_record(b, arr, fit_capacity))
+            return drawn, arr, drawn >= self.config.min_drawn_for_capacity
 
-        # the packs' fits are independent: on the threads available (the kernel releases the GIL)
-        fits = thread_map(fit, range(len(self.names)))
+        records = [record(b) for b in range(len(self.names))]
+        # the extensions first, here (≈ 0.5 ms each: a thread's hand-off would cost a good part of
+        # that); the records they do not fit are fitted afresh, on the threads available when there
+        # are several (the compiled searches release the GIL)
+        fits: list[tuple | None] = [None] * len(self.names)
+        afresh = []
+        for b, rec in enumerate(records):
+            extended = None if rec is None else self._extend_record(b, rec[1], rec[2])
+            if extended is not None:
+                fits[b] = (*rec, *extended)
+            elif rec is not None:
+                afresh.append(b)
+        for b, fitted in zip(afresh, thread_map(lambda b: self._fit_record(b, records[b][1], records[b][2]), afresh)):
+            fits[b] = (*records[b], *fitted)
         for b, name in enumerate(self.names):
             if fits[b] is None:
                 continue
