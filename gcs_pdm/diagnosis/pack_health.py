@@ -15,7 +15,14 @@ standard errors above the clear one) at three checks in a row, and clears likewi
 A check after the first starts one search from the previous check's fit instead of the two or
 three cold starts (``PackHealthConfig.warm_start``: ≈ 5× fewer kernel calls per check); the cold search is
 kept for a new or restarted record, when the capacity becomes free, when the warm fit's residual
-grows, when its verdict would change, and every ``cold_every_checks`` checks.
+grows, when its verdict would change, and every ``cold_every_checks`` checks. A warm check first
+tries not to simulate the record at all (``PackHealthConfig.extend_fits``): the previous fit's last
+kernel run (base and perturbed rows) is carried on over the samples that arrived since, the samples
+that left the record are dropped, and one Gauss–Newton step is taken from that run's theta with its
+own Jacobian (``_fit_extended``); the step is kept when no unknown moves beyond its finite-difference
+perturbation and the residual did not grow, else the record is fitted afresh as above. A search's
+iterations (``_iterate``) and an extension (``_extend``) are each one compiled call that releases
+the GIL; the fits afresh of a check's packs run on threads.
 
 Thresholds sit above what an uncalibrated parameter set alone produces (≈15 % per parameter for
 the simulated vehicle); after the fitter has learned the real pack they can be tightened.
