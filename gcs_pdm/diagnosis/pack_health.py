@@ -485,6 +485,8 @@ def _fit_extended(params, t, current, voltage, ambient, min_soc, prev_t, sim: _S
     if not ok:
         return None
     theta = sim.theta + step
+    theta[0] = max(theta[0], 0.05)  # the search's bounds (a step within the perturbations rarely meets them)
+    theta[1] = min(max(theta[1], 0.05), 2.0)
     perturbed = sim.perturbed
     free = np.zeros(3, dtype=bool)
     free[perturbed] = True
