@@ -15,7 +15,14 @@ standard errors above the clear one) at three checks in a row, and clears likewi
 A check after the first starts one search from the previous check's fit instead of the two or
 three cold starts (``PackHealthConfig.warm_start``: ≈ 5× fewer kernel calls per check); the cold search is
 kept for a new or restarted record, when the capacity becomes free, when the warm fit's residual
-grows, when its verdict would change, and every ``cold_every_checks`` checks.
+grows, when its verdict would change, and every ``cold_every_checks`` checks. A warm check first
+tries not to simulate the record at all (``PackHealthConfig.extend_fits``): the previous fit's last
+kernel run (base and perturbed rows) is carried on over the samples that arrived since, the samples
+that left the record are dropped, and one Gauss–Newton step is taken from that run's theta with its
+own Jacobian (``_fit_extended``); the step is kept when no unknown moves beyond its finite-difference
+perturbation and the residual did not grow, else the record is fitted afresh as above. A search's
+iterations (``_iterate``) and an extension (``_extend``) are each one compiled call that releases
+the GIL; the fits afresh of a check's packs run on threads.
 
 Thresholds sit above what an uncalibrated parameter set alone produces (≈15 % per parameter for
 the simulated vehicle); after the fitter has learned the real pack they can be tightened.
@@ -67,6 +74,10 @@ class PackHealthConfig:
     warm_start: bool = True
     warm_rms_ratio: float = 1.2
     cold_every_checks: int = 10
+    #: a warm check first tries one step from the previous fit's kernel run carried on over the new
+    #: samples (``_fit_extended``: no simulation of the whole record), and fits afresh only when that
+    #: step leaves the range its Jacobian was taken over or the residual grew
+    extend_fits: bool = True
 
 
 @dataclass(frozen=True)
@@ -254,6 +265,147 @@ def _fit_warm(params, t, current, voltage, ambient, min_soc, iterations, fit_cap
                          float(theta0[0]), float(theta0[1]), fit_capacity, soc0=float(theta0[2]))
 
 
+#: the trust region of one Gauss–Newton step, and the finite-difference perturbations, per unknown
+_MAX_STEP = np.array([0.5, 0.15, 0.1])
+_EPS = np.array([0.02, 0.005, 0.005])
+#: a Gauss–Newton search stops when no unknown moves more than this
+_CONVERGED = 1e-4
+
+
+@njit(inline="always")
+def _py_max(a, b):
+    """Python's ``max(a, b)``: ``a`` unless ``b`` is greater (a NaN ``a`` stays)."""
+    return b if b > a else a
+
+
+@njit(inline="always")
+def _py_min(a, b):
+    """Python's ``min(a, b)``: ``a`` unless ``b`` is smaller."""
+    return b if b < a else a
+
+
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, perturbed, eps, max_step):
+    """A Gauss–Newton search's iterations in one compiled call (the Python loop spent as much on
+    array set-up, the kernel's wrapper and ``lstsq``'s as the kernel on the record): per iteration
+    the base and perturbed parameter rows (``_scaled``), their initial states
+    (``kernel.initial_pack_state``), one kernel run, ``_linearise``, the least-squares step (LAPACK's
+    ``gelsd`` as ``np.linalg.lstsq`` calls it, with its default ``rcond``), the trust region and the
+    bounds; the same operations in the same order as the numpy formulation, so the same numbers.
+    ``dt``, ``current``, ``ambient`` are (1, n) rows. Returns (ok, theta, step, r, jac, use, and the last
+    run: the theta it ran at, its parameter rows, voltages, SoCs and final states); ok is False when
+    fewer than 20 samples were usable."""
+    n = current.shape[1]
+    n_vec = 1 + perturbed.shape[0]
+    p = np.empty((n_vec, params.shape[0]))
+    x0 = np.empty((n_vec, kernel.N_PACK_STATE))
+    run_voltage = np.empty((n_vec, n))
+    run_temperature = np.empty((n_vec, n))
+    run_soc = np.empty((n_vec, n))
+    states = np.empty((1, 1, kernel.N_PACK_STATE))
+    final = np.empty((n_vec, kernel.N_PACK_STATE))
+    keep = np.ones(n, dtype=np.bool_)
+    theta = theta.copy()
+    step = np.zeros(3)
+    rcond_eps = np.finfo(np.float64).eps
+    r = np.empty(0)
+    jac = np.empty((0, 3))
+    use = np.empty(0, dtype=np.bool_)
+    theta_run = theta.copy()
+    for _ in range(iterations):
+        theta_run = theta.copy()
+        for v in range(n_vec):
+            th = theta.copy()
+            if v > 0:
+                th[perturbed[v - 1]] += eps[perturbed[v - 1]]
+            for i in range(params.shape[0]):
+                p[v, i] = params[i]
+            p[v, kernel.I_RS] *= th[0]
+            p[v, kernel.I_RCP0] *= th[0]
+            p[v, kernel.I_CB] *= th[1]
+            p[v, kernel.I_QMAX] *= th[1]
+            p[v, kernel.I_CMAX] *= th[1]
+            soc = th[2]
+            r_cp = p[v, kernel.I_RCP0] + p[v, kernel.I_RCP1] * np.exp(p[v, kernel.I_RCP2] * (1.0 - soc))
+            x0[v, kernel.S_QB] = p[v, kernel.I_QMAX] - (1.0 - soc) * p[v, kernel.I_CMAX]
+            x0[v, kernel.S_QCP] = current[0, 0] * r_cp * p[v, kernel.I_CCP]
+            x0[v, kernel.S_QS] = current[0, 0] * p[v, kernel.I_RS] * p[v, kernel.I_CS]
+            x0[v, kernel.S_T] = ambient[0, 0]
+        kernel._simulate_packs(p, x0, dt, current, ambient, kernel.DEFAULT_MAX_DT, run_voltage, run_temperature,
+                               run_soc, states, False, final)
+        r, jac, use, keep, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage, keep, perturbed, eps,
+                                                              min_soc)
+        if n_use < 20:
+            return False, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final
+        rcond = rcond_eps * max(a_used.shape[0], a_used.shape[1])
+        solution = np.linalg.lstsq(a_used, r_used, rcond=rcond)[0]
+        step = np.zeros(3)
+        for k in range(perturbed.shape[0]):
+            step[perturbed[k]] = solution[k]
+        # a trust region: the knee makes the first linearisation poor far from the answer
+        shrink = np.min(max_step / (np.abs(step) + 1e-12))
+        step = step * _py_min(1.0, shrink)
+        theta = theta + step
+        theta[0] = _py_max(theta[0], 0.05)
+        theta[1] = _py_min(_py_max(theta[1], 0.05), 2.0)
+        theta[2] = _py_min(_py_max(theta[2], 0.0), 1.1)  # above 1 only to stay unbiased near full
+        if np.all(np.abs(step) < _CONVERGED):
+            break
+    return True, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final
+
+
+@njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
+def _extend(params, final, prev_voltage, prev_soc, offset, dt, current, ambient, voltage, min_soc, perturbed, eps):
+    """``_fit_extended``'s work in one compiled call: the previous run's rows (``params``, states
+    ``final`` after its last sample) carried on over the new samples (``dt``, ``current``,
+    ``ambient``: (1, m) rows) and joined to its voltages and SoCs from sample ``offset`` on, the
+    linearisation, the least-squares step (as ``np.linalg.lstsq``), and the SoC along the record at
+    the stepped theta to first order. Returns (ok, step, r, jac, use, voltages, SoCs, final states,
+    SoC); ok is False when fewer than 20 samples were usable or the step leaves the Jacobian's range
+    (an unknown moving more than its perturbation)."""
+    n_vec = params.shape[0]
+    m = current.shape[1]
+    old = prev_voltage.shape[1] - offset
+    run_voltage = np.empty((n_vec, old + m))
+    run_soc = np.empty((n_vec, old + m))
+    run_voltage[:, :old] = prev_voltage[:, offset:]
+    run_soc[:, :old] = prev_soc[:, offset:]
+    final = final.copy()
+    if m > 0:
+        more_voltage = np.empty((n_vec, m))
+        more_soc = np.empty((n_vec, m))
+        more_temperature = np.empty((n_vec, m))
+        x0 = final.copy()
+        kernel._simulate_packs(params, x0, dt, current, ambient, kernel.DEFAULT_MAX_DT, more_voltage,
+                               more_temperature, more_soc, np.empty((1, 1, kernel.N_PACK_STATE)), False, final)
+        run_voltage[:, old:] = more_voltage
+        run_soc[:, old:] = more_soc
+    r, jac, use, _, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage,
+                                                       np.ones(voltage.shape[0], dtype=np.bool_), perturbed, eps,
+                                                       min_soc)
+    step = np.zeros(3)
+    soc = run_soc[0].copy()
+    if n_use < 20:
+        return False, step, r, jac, use, run_voltage, run_soc, final, soc
+    rcond = np.finfo(np.float64).eps * max(a_used.shape[0], a_used.shape[1])
+    solution = np.linalg.lstsq(a_used, r_used, rcond=rcond)[0]
+    for k in range(perturbed.shape[0]):
+        step[perturbed[k]] = solution[k]
+    for j in range(3):
+        if not abs(step[j]) <= eps[j]:  # also a NaN step
+            return False, step, r, jac, use, run_voltage, run_soc, final, soc
+    for k in range(perturbed.shape[0]):
+        j = perturbed[k]
+        for i in range(soc.shape[0]):
+            soc[i] += step[j] * ((run_soc[1 + k, i] - run_soc[0, i]) / eps[j])
+    return True, step, r, jac, use, run_voltage, run_soc, final, soc
+
+
+def _row(a) -> np.ndarray:
+    """A profile as the kernel's (1, n) shared row."""
+    return np.ascontiguousarray(a, dtype=np.float64)[None]
+
+
 def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations, r_scale, c_scale, fit_capacity,
                   soc0: float | None = None):
     free = np.array([True, fit_capacity, True])
@@ -264,36 +416,28 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
         v_b = voltage[0] + current[0] * r_scale * (params[kernel.I_RS] + r_cp)
         soc0 = float(kernel.soc_at_bulk_voltage(params, v_b))
     theta = np.array([r_scale, c_scale, min(max(soc0, 0.2), 1.0)])
-    max_step = np.array([0.5, 0.15, 0.1])
-    eps = np.array([0.02, 0.005, 0.005])
-    keep = np.ones(t.size, dtype=bool)
     # perturbed vectors for the free unknowns only: a held capacity needs no column of its own
     # (its column stays zero, and its step is zero)
     perturbed = np.flatnonzero(free)
-    for _ in range(iterations):
-        th = np.repeat(theta[None], 1 + perturbed.size, axis=0)
-        th[1 + np.arange(perturbed.size), perturbed] += eps[perturbed]
-        p = _scaled(params, th)
-        x0 = kernel.initial_pack_state(p, th[:, 2], float(ambient[0]), float(current[0]))
-        run = kernel.simulate_packs(p, x0, dt, current, ambient)
-        r, jac, use, keep, n_use, a_used, r_used = _linearise(run.voltage, run.soc[0], voltage, keep, perturbed, eps,
-                                                              min_soc)
-        if n_use < 20:
-            return None
-        step = np.zeros(3)
-        step[free], *_ = np.linalg.lstsq(a_used, r_used, rcond=None)
-        # a trust region: the knee makes the first linearisation poor far from the answer
-        step = step * min(1.0, float(np.min(max_step / (np.abs(step) + 1e-12))))
-        theta = theta + step
-        theta[0] = max(theta[0], 0.05)
-        theta[1] = min(max(theta[1], 0.05), 2.0)
-        theta[2] = min(max(theta[2], 0.0), 1.1)  # above 1 only to stay unbiased near full
-        if np.all(np.abs(step) < 1e-4):
-            break
-    res = r[use] - jac[use] @ step
+    if np.any(dt < 0):
+        raise ValueError("dt: time steps must be non-negative (sort and de-duplicate timestamps first)")
+    ok, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final = _iterate(
+        np.ascontiguousarray(params, dtype=np.float64), _row(dt), _row(current), _row(ambient), voltage, min_soc,
+        iterations, theta, perturbed, _EPS, _MAX_STEP)
+    if not ok:
+        return None
+    se, rms, n = _uncertainty(t, r, jac, use, step, free)
+    return theta, se, rms, n, run_soc[0], _Simulation(theta_run, p, perturbed, run_voltage, run_soc, final)
+
+
+def _uncertainty(t, r, jac, use, step, free):
+    """(standard errors, residual rms, samples used) of a fit's last linearisation (residual ``r``,
+    Jacobian ``jac``, samples ``use``) after its last ``step``."""
+    ju = jac[use]
+    res = r[use] - ju @ step
     n = int(use.sum())
     sigma2 = float(res @ res) / max(n - int(free.sum()), 1)
-    jf = jac[use][:, free]
+    jf = ju[:, free]
     cov = np.full((3, 3), np.inf)
     cov[np.ix_(free, free)] = sigma2 * np.linalg.pinv(jf.T @ jf)
     # residuals of a model mismatch are correlated over the R_cp–C_cp time constant and longer:
@@ -301,7 +445,54 @@ def _gauss_newton(params, t, dt, current, voltage, ambient, min_soc, iterations,
     span = float(t[-1] - t[0])
     inflate = math.sqrt(max(n / max(span / 30.0, 1.0), 1.0))
     se = np.sqrt(np.maximum(np.diag(cov), 0.0)) * inflate
-    return theta, se, math.sqrt(float(res @ res) / n), n, run.soc[0]
+    return se, math.sqrt(float(res @ res) / n), n
+
+
+@dataclass
+class _Simulation:
+    """A fit's last kernel run over its record, kept so the next check can extend it instead of
+    simulating the record again: the theta it ran at (its SoC is the one at the run's first sample,
+    which may lie before the record's), the parameter rows (base, then one perturbed row per free
+    unknown), their voltages and SoCs at the record's samples, and their states after the last."""
+    theta: np.ndarray
+    params: np.ndarray
+    perturbed: np.ndarray
+    voltage: np.ndarray
+    soc: np.ndarray
+    final: np.ndarray
+
+
+def _fit_extended(params, t, current, voltage, ambient, min_soc, prev_t, sim: _Simulation):
+    """One Gauss–Newton step over the record ``t`` from the previous check's run ``sim`` over the
+    record ``prev_t`` (a warm check on the same record, which only slid): that run's rows are carried
+    on over the new samples (the kernel continues a run exactly), the samples that left the record
+    are dropped, and the step is taken from the run's theta with its own finite-difference Jacobian.
+    The record is not simulated again: a check costs the new samples' simulation and one
+    least-squares solve instead of two or three simulations of the whole record. The model differs from
+    a fresh fit's only in the state at the record's first sample (carried from the run's start
+    instead of settled at that sample's current: the R_cp–C_cp transient, ≈ 10 s of a 25-minute
+    record). Returns the fit as ``_gauss_newton`` does, or None where the step leaves the range the
+    Jacobian was taken over (any unknown moving more than its perturbation from the run's theta) or the
+    records do not line up: then the caller fits the record afresh."""
+    offset = int(np.searchsorted(prev_t, t[0]))
+    overlap = prev_t.size - offset
+    if not (0 < overlap <= t.size and prev_t[offset] == t[0] and np.array_equal(t[:overlap], prev_t[offset:])):
+        return None
+    # the kernel's time convention: the first new sample's interval starts at the last old one
+    ok, step, r, jac, use, run_voltage, run_soc, final, soc = _extend(
+        sim.params, sim.final, sim.voltage, sim.soc, offset, _row(np.diff(t[overlap - 1:])), _row(current[overlap:]),
+        _row(ambient[overlap:]), voltage, min_soc, sim.perturbed, _EPS)
+    if not ok:
+        return None
+    theta = sim.theta + step
+    theta[0] = max(theta[0], 0.05)  # the search's bounds (a step within the perturbations rarely meets them)
+    theta[1] = min(max(theta[1], 0.05), 2.0)
+    perturbed = sim.perturbed
+    free = np.zeros(3, dtype=bool)
+    free[perturbed] = True
+    se, rms, n = _uncertainty(t, r, jac, use, step, free)
+    fitted = np.array([theta[0], theta[1], soc[0]])
+    return fitted, se, rms, n, soc, _Simulation(sim.theta, sim.params, perturbed, run_voltage, run_soc, final)
 
 
 @dataclass
@@ -313,6 +504,7 @@ class _PreviousFit:
     t: np.ndarray          # the record's times at that fit
     soc: np.ndarray        # the fitted run's SoC at those times
     warm_checks: int       # warm fits since the last cold one
+    simulation: _Simulation | None = None  # the fit's last kernel run (``_fit_extended``)
 
 
 class PackHealthMonitor:
@@ -334,20 +526,47 @@ class PackHealthMonitor:
         #: how the checks' fits ran (cold: the multi-start search; warm: one start from the last fit;
         #: warm_rejected: a warm fit whose residual grew, thrown away for the cold search;
         #: warm_unconfirmed: one whose verdict changed, re-done cold; both also counted as cold)
-        self.fit_counts = {"cold": 0, "warm": 0, "warm_rejected": 0, "warm_unconfirmed": 0}
+        self.fit_counts = {"cold": 0, "warm": 0, "extended": 0, "warm_rejected": 0, "warm_unconfirmed": 0}
+
+    def _warm_applies(self, b: int, t: np.ndarray, fit_capacity: bool) -> bool:
+        """Whether pack ``b``'s previous fit may start this check's (record ``t``)."""
+        cfg, prev = self.config, self._previous[b]
+        return (cfg.warm_start and prev is not None and prev.fit_capacity == fit_capacity
+                and prev.warm_checks + 1 < cfg.cold_every_checks and prev.t[0] <= t[0] <= prev.t[-1])
+
+    def _keep(self, b: int, t: np.ndarray, fit, fit_capacity: bool, kinds: tuple):
+        """Remember pack ``b``'s fit for the next check's start; returns (the fit's estimate part, kinds)."""
+        if fit is None:
+            self._previous[b] = None
+            return None, kinds
+        prev = self._previous[b]
+        self._previous[b] = _PreviousFit(fit[0].copy(), fit[2], fit_capacity, t, fit[4],
+                                         prev.warm_checks + 1 if kinds[0] == "warm" else 0, fit[5])
+        return fit[:4], kinds
+
+    def _extend_record(self, b: int, arr: np.ndarray, fit_capacity: bool):
+        """The check's fit of pack ``b``'s record by extending the previous fit's run
+        (``_fit_extended``), as ``_fit_record`` returns it, or None where that does not apply or its
+        step is refused (then ``_fit_record`` fits the record)."""
+        cfg, prev = self.config, self._previous[b]
+        t = arr[:, 0]
+        if not (cfg.extend_fits and self._warm_applies(b, t, fit_capacity) and prev.simulation is not None):
+            return None
+        fit = _fit_extended(self.params[b], t, arr[:, 1], arr[:, 2], arr[:, 3], cfg.min_soc, prev.t, prev.simulation)
+        if fit is None or not fit[2] <= cfg.warm_rms_ratio * prev.rms:
+            return None
+        return self._keep(b, t, fit, fit_capacity, ("warm", "extended"))
 
     def _fit_record(self, b: int, arr: np.ndarray, fit_capacity: bool, cold: bool = False):
-        """The check's fit of pack ``b``'s record: warm from the previous fit where it still applies,
-        else (or when the warm fit looks trapped) the cold multi-start search. Returns the fit (or None)
-        and how it ran, for ``fit_counts`` (counted by the caller: the packs' fits run on threads)."""
+        """The check's fit of pack ``b``'s record afresh: warm from the previous fit where it still
+        applies, else (or when the warm fit looks trapped) the cold multi-start search. Returns the fit
+        (or None) and how it ran, for ``fit_counts`` (counted by the caller: the packs' fits run on threads)."""
         cfg = self.config
         p = self.params[b]
         t, cur, v, amb = arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3]
         prev = self._previous[b]
-        warm_ok = (not cold and cfg.warm_start and prev is not None and prev.fit_capacity == fit_capacity
-                   and prev.warm_checks + 1 < cfg.cold_every_checks and prev.t[0] <= t[0] <= prev.t[-1])
         fit, kinds = None, ("cold",)
-        if warm_ok:
+        if not cold and self._warm_applies(b, t, fit_capacity):
             theta0 = prev.theta.copy()
             theta0[2] = float(np.interp(t[0], prev.t, prev.soc))
             fit = _fit_warm(p, t, cur, v, amb, cfg.min_soc, 10, fit_capacity, theta0)
@@ -357,12 +576,7 @@ class PackHealthMonitor:
                 kinds, fit = ("warm_rejected", "cold"), None
         if fit is None:
             fit = _fit_cold(p, t, cur, v, amb, cfg.min_soc, 10, fit_capacity)
-        if fit is None:
-            self._previous[b] = None
-            return None, kinds
-        self._previous[b] = _PreviousFit(fit[0].copy(), fit[2], fit_capacity, t, fit[4],
-                                         prev.warm_checks + 1 if kinds == ("warm",) else 0)
-        return fit[:4], kinds
+        return self._keep(b, t, fit, fit_capacity, kinds)
 
     def _estimate(self, b: int, fit) -> PackHealthEstimate:
         p = self.params[b]
@@ -411,24 +625,35 @@ class PackHealthMonitor:
         self._last_check = time_s
         events = []
 
-        def fit(b: int):
+        def record(b: int):
             buf = self._buf[b]
             if len(buf) < self.config.min_samples or buf[-1][0] - buf[0][0] < self.config.min_history_s:
                 return None
-            arr = buf.array().copy()  # the fits run on threads: a copy, whatever is appended meanwhile
+            arr = buf.array().copy()  # the next fit keeps its times: a copy, not a view of the buffer
             p = self.params[b]
             drawn = float(np.sum(arr[1:, 1] * np.diff(arr[:, 0]))) / p[kernel.I_CMAX]
-            fit_capacity = drawn >= self.config.min_drawn_for_capacity
-            return (drawn, arr, fit_capacity, *self._fit_record(b, arr, fit_capacity))
+            return drawn, arr, drawn >= self.config.min_drawn_for_capacity
 
-        # the packs' fits are independent: on the threads available (the kernel releases the GIL)
-        fits = thread_map(fit, range(len(self.names)))
+        records = [record(b) for b in range(len(self.names))]
+        # the extensions first, here (≈ 0.5 ms each: a thread's hand-off would cost a good part of
+        # that); the records they do not fit are fitted afresh, on the threads available when there
+        # are several (the compiled searches release the GIL)
+        fits: list[tuple | None] = [None] * len(self.names)
+        afresh = []
+        for b, rec in enumerate(records):
+            extended = None if rec is None else self._extend_record(b, rec[1], rec[2])
+            if extended is not None:
+                fits[b] = (*rec, *extended)
+            elif rec is not None:
+                afresh.append(b)
+        for b, fitted in zip(afresh, thread_map(lambda b: self._fit_record(b, records[b][1], records[b][2]), afresh)):
+            fits[b] = (*records[b], *fitted)
         for b, name in enumerate(self.names):
             if fits[b] is None:
                 continue
             drawn, arr, fit_capacity, fit_b, kinds = fits[b]
             est = None if fit_b is None else self._estimate(b, fit_b)
-            if kinds == ("warm",) and self._verdicts(est, drawn) != self._verdict[b]:
+            if kinds[0] == "warm" and self._verdicts(est, drawn) != self._verdict[b]:
                 # a warm fit that would change what the debouncers are told is confirmed by the cold
                 # search: a fault's raise or clear never rests on a warm fit's change alone
                 fit_b, cold = self._fit_record(b, arr, fit_capacity, cold=True)
