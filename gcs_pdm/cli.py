@@ -11,7 +11,7 @@ import importlib
 import logging
 import sys
 
-from gcs_pdm import process_gc
+from gcs_pdm import process_gc, process_threads
 
 #: subcommand -> (module with ``register(subparsers)``, the one line ``gcs-pdm --help`` shows). The
 #: lines live here so that ``gcs-pdm --help`` imports no command module (they import numpy, numba,
@@ -54,6 +54,7 @@ class _WithHelpLines:
 
 
 def main(argv: list[str] | None = None) -> int:
+    process_threads.one_blas_thread()  # before a command's module imports numpy
     with process_gc.command():
         return _main(list(sys.argv[1:] if argv is None else argv))
 
