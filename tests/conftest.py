@@ -6,12 +6,19 @@ estimator's, the diagnoser's and the kernel's under load. The browser tests run 
 service in a subprocess whose first telemetry frames would pay that compilation inside the tests'
 timeouts. One replay of a fixture flight before the session compiles (or, with a warm cache, only
 loads) what the live path uses, so every test sees the start-up a user sees after installing.
+
+The tests that call the library in this process get the commands' one BLAS thread
+(``process_threads``): set here, before any test module imports numpy.
 """
 from __future__ import annotations
 
 import subprocess
 import sys
 from pathlib import Path
+
+from gcs_pdm import process_threads
+
+process_threads.one_blas_thread()
 
 REPO = Path(__file__).resolve().parents[1]
 WARM_UP_TLOG = REPO / "fixtures" / "flights" / "fault_01.tlog"
