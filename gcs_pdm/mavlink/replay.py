@@ -179,7 +179,7 @@ def _frames_by_type(mapper: FrameMapper, scanned: ScannedTlog, consumed: frozens
     """The frames of a scanned log: record by record until the mapper is settled (vehicle
     identified, clock running, nothing held), then the rest a message type at a time
     (``gcs_pdm.mavlink.frame_columns``), in chunks in log order; the same frames and counters.
-    With ``consumed`` (frame classes) the column stretch comes as :class:`Chunk`\ s whose frames of
+    With ``consumed`` (frame classes) the column stretch comes as chunks (:class:`Chunk`) whose frames of
     other types are passed over."""
     feed_from, data = mapper.feed_from, scanned.data
     for index, (ts_us, msgid, sysid, compid, payload_start, payload_end, _s, _e) in enumerate(zip(*scanned.columns)):
