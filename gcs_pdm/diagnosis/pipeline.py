@@ -19,11 +19,17 @@ from gcs_pdm.diagnosis.pack_health import PackHealthConfig, PackHealthMonitor
 from gcs_pdm.diagnosis.prognosis import PrognosisConfig, PrognosisMonitor
 from gcs_pdm.estimation.estimator import MOTOR_OF_PACK, EstimatorConfig, StateEstimator
 from gcs_pdm.estimation.prediction import FutureLoad
-from gcs_pdm.frames import MotorFrame, PackFrame
+from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models.params import ParameterSet, default_set
 from gcs_pdm.models.powertrain import Limits
 
 log = logging.getLogger(__name__)
+
+#: the frame types that change the pipeline: the estimator's and the detectors' inputs. A frame of
+#: any other type only counts (``consume`` ends in the estimator's ``ignore_frame``), so a replay
+#: may pass such frames over and tell ``passed_over`` their number (tests/test_skip_frames.py
+#: holds this set to the handlers)
+CONSUMED_FRAME_TYPES = frozenset({PackFrame, MotorFrame, AmbientFrame})
 
 
 class DiagnosisPipeline:
@@ -85,6 +91,14 @@ class DiagnosisPipeline:
     def set_mission(self, load: FutureLoad, start_s: float | None = None) -> None:
         """The shaft-power load of the rest of the mission from message time ``start_s`` (default: now)."""
         self.prognosis.set_mission(load, self.estimator.time_s if start_s is None else start_s)
+
+    #: what a replay must hand over (``gcs_pdm.mavlink.replay``: the other frames are only counted)
+    consumed_frame_types = CONSUMED_FRAME_TYPES
+
+    def passed_over(self, count: int) -> None:
+        """``count`` frames of types outside ``consumed_frame_types`` went by without being handed
+        over: counted as ``consume`` would count them (it would do nothing else with them)."""
+        self.frames += count
 
     def consume(self, frame) -> None:
         self.frames += 1

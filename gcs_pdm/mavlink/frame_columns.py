@@ -91,6 +91,13 @@ class _Stream:
     keys: np.ndarray
     cls: type | None
     args: list
+    times: np.ndarray  # each frame's time_s (float64), to pass over frames without making them
+
+    def frame(self, i: int):
+        """Frame ``i`` of the stream alone (the values its chunk would make)."""
+        if self.cls is None:
+            return self.args[0].values[i]
+        return self.cls(*(arg.take(i, i + 1)[0] for arg in self.args))
 
 
 def map_scanned(mapper: FrameMapper, data: bytes, columns, start: int) -> Iterator[list]:
@@ -98,12 +105,26 @@ def map_scanned(mapper: FrameMapper, data: bytes, columns, start: int) -> Iterat
     of ``data``) as lists in log order, a chunk of messages at a time: what feeding each record to
     ``mapper.feed_from`` would give, leaving the mapper's counters, clock and foreign systems as
     that would. The mapper must be :meth:`~FrameMapper.settled`."""
+    yield from _merged(*_streams(mapper, data, columns, start))
+
+
+def map_scanned_for(mapper: FrameMapper, data: bytes, columns, start: int, consumed: frozenset) -> Iterator["Chunk"]:
+    """:func:`map_scanned` for a consumer of the frame types ``consumed`` alone: a :class:`Chunk`
+    at a time, whose frames of other types are passed over (their times and counts kept, each made
+    only if asked for). The mapper's counters, clock and foreign systems are :func:`map_scanned`'s."""
+    streams, n, slots = _streams(mapper, data, columns, start)
+    yield from _chunks(streams, n, slots, consumed)
+
+
+def _streams(mapper: FrameMapper, data: bytes, columns, start: int) -> tuple[list["_Stream"], int, int]:
+    """The streams of frames of records ``start:`` (see :func:`map_scanned`), the number of records
+    and the key slots per record; every counter of the mapper updated."""
     if not mapper.settled():
         raise ValueError("map_scanned needs a settled mapper (vehicle identified, clock running, nothing held)")
     column = [np.frombuffer(c, dtype=np.uint64)[start:] for c in columns[:6]]
     n = column[0].size
     if n == 0:
-        return
+        return [], 0, 1
     msgid = column[1].astype(np.int64)
     sysid = column[2].astype(np.int64)
     payload_start, payload_end = column[4].astype(np.int64), column[5].astype(np.int64)
@@ -164,7 +185,7 @@ def map_scanned(mapper: FrameMapper, data: bytes, columns, start: int) -> Iterat
         rows = plan.layout.unpack_many(raw, payload_start[positions], payload_end[positions])
         with np.errstate(all="ignore"):  # NaN, inf and overflow are values here, as in Python's floats
             streams += _type_streams(mapper, plan, rows, positions, times[positions], slots)
-    yield from _merged(streams, n, slots)
+    return streams, n, slots
 
 
 def _receive_seconds(stamp_us: np.ndarray) -> np.ndarray:
@@ -279,7 +300,7 @@ def _type_streams(mapper: FrameMapper, plan, rows: np.ndarray, positions: np.nda
             for inst in instances:
                 args = _instance_columns(lay, gated_counts, rule, inst, rows[index])
                 out.append(_Stream(positions[index] * slots + place[id(inst)], rule.frame_cls,
-                                   [_Numbers(times[index]), *args]))
+                                   [_Numbers(times[index]), *args], times[index]))
                 stats.frames_by_kind[rule.kind] += index.size
     return out
 
@@ -373,12 +394,102 @@ def _message_by_message(mapper: FrameMapper, plan, positions: np.ndarray, times:
         made = emit(t, values)
         frames += made
         keys += range(p * slots, p * slots + len(made))
-    return _Stream(np.array(keys, dtype=np.int64), None, [_Listed(frames)])
+    return _Stream(np.array(keys, dtype=np.int64), None, [_Listed(frames)],
+                   np.array([f.time_s for f in frames], dtype=np.float64))
 
 
 def _merged(streams: list[_Stream], n: int, slots: int) -> Iterator[list]:
     """The streams' frames in log order (by key), made and handed out a chunk of messages at a time."""
+    for frames, _keys in _merged_with_keys(streams, np.arange(0, n + CHUNK_MESSAGES, CHUNK_MESSAGES) * slots):
+        if frames:
+            yield frames
+
+class Chunk:
+    """A chunk of messages' frames for a consumer of some frame types (:func:`map_scanned_for`).
+
+    ``frames``: the consumed types' frames in log order. The other ``passed`` frames are passed
+    over: the chunk keeps their times in log order (``passed_times``) and makes one only when
+    asked (:meth:`passed_frame`). Gap ``g`` (0 … ``len(frames)``) holds the passed-over frames
+    between ``frames[g - 1]`` and ``frames[g]``: ``passed_times[gap_start[g]:gap_start[g + 1]]``,
+    the latest of them ``latest_in_gap[g]`` (-inf: none; NaN times never count, as ``t >= x`` is
+    False for them). ``first_time_s`` / ``last_time_s``: the times of the chunk's first and last
+    frames, whatever their type."""
+
+    __slots__ = ("frames", "passed", "first_time_s", "last_time_s", "passed_times", "_gap", "_streams", "_source",
+                 "_offset", "_gap_start", "_latest")
+
+    def __init__(self, frames: list, first_time_s: float, last_time_s: float, passed_times: np.ndarray,
+                 gap: np.ndarray, streams: list, source: np.ndarray, offset: np.ndarray):
+        self.frames = frames
+        self.passed = int(passed_times.size)
+        self.first_time_s, self.last_time_s = first_time_s, last_time_s
+        self.passed_times = passed_times
+        self._gap, self._streams, self._source, self._offset = gap, streams, source, offset
+        self._gap_start = self._latest = None
+
+    @property
+    def gap_start(self) -> list[int]:
+        if self._gap_start is None:
+            self._gap_start = np.searchsorted(self._gap, np.arange(len(self.frames) + 2)).tolist()
+        return self._gap_start
+
+    @property
+    def latest_in_gap(self) -> list[float]:
+        if self._latest is None:
+            latest = np.full(len(self.frames) + 1, -np.inf)
+            if self.passed:
+                gaps, first = np.unique(self._gap, return_index=True)
+                found = np.fmax.reduceat(self.passed_times, first)
+                latest[gaps] = np.where(np.isnan(found), -np.inf, found)
+            self._latest = latest.tolist()
+        return self._latest
+
+    def passed_frame(self, j: int):
+        """The ``j``-th passed-over frame of the chunk, made: the frame :func:`map_scanned` makes."""
+        return self._streams[int(self._source[j])].frame(int(self._offset[j]))
+
+
+def _chunks(streams: list[_Stream], n: int, slots: int, consumed: frozenset) -> Iterator[Chunk]:
+    """:func:`_merged` for a consumer of the ``consumed`` frame types: the others' frames passed over."""
+    wanted, others = [], []
+    for s in streams:
+        if s.cls is not None:
+            (wanted if s.cls in consumed else others).append(s)
+        else:  # frames made message by message: split by their types
+            frames = s.args[0].values
+            take = np.array([type(f) in consumed for f in frames], dtype=bool)
+            for part, into in ((take, wanted), (~take, others)):
+                if part.any():
+                    index = np.flatnonzero(part)
+                    into.append(_Stream(s.keys[index], None, [_Listed([frames[i] for i in index.tolist()])],
+                                        s.times[index]))
     edges = np.arange(0, n + CHUNK_MESSAGES, CHUNK_MESSAGES) * slots
+    other_bounds = [np.searchsorted(s.keys, edges).tolist() for s in others]
+    no_times, no_index = np.empty(0), np.empty(0, dtype=np.int64)
+    for c, (frames, keys) in enumerate(_merged_with_keys(wanted, edges)):
+        passed_keys, passed_times, source, offset = [], [], [], []
+        for k, (s, bound) in enumerate(zip(others, other_bounds)):
+            lo, hi = bound[c], bound[c + 1]
+            if hi > lo:
+                passed_keys.append(s.keys[lo:hi])
+                passed_times.append(s.times[lo:hi])
+                source.append(np.full(hi - lo, k))
+                offset.append(np.arange(lo, hi))
+        if not passed_keys:
+            if frames:
+                yield Chunk(frames, frames[0].time_s, frames[-1].time_s, no_times, no_index, others, no_index, no_index)
+            continue
+        passed_key = np.concatenate(passed_keys)
+        order = np.argsort(passed_key, kind="stable")
+        passed_key, times = passed_key[order], np.concatenate(passed_times)[order]
+        first = frames[0].time_s if frames and keys[0] < passed_key[0] else float(times[0])
+        last = frames[-1].time_s if frames and keys[-1] > passed_key[-1] else float(times[-1])
+        yield Chunk(frames, first, last, times, np.searchsorted(keys, passed_key), others,
+                    np.concatenate(source)[order], np.concatenate(offset)[order])
+
+
+def _merged_with_keys(streams: list[_Stream], edges: np.ndarray) -> Iterator[tuple[list, np.ndarray]]:
+    """Per chunk (between ``edges`` of keys), the streams' frames in log order and their keys."""
     bounds = [np.searchsorted(s.keys, edges).tolist() for s in streams]
     for c in range(len(edges) - 1):
         parts, keys = [], []
@@ -389,7 +500,10 @@ def _merged(streams: list[_Stream], n: int, slots: int) -> Iterator[list]:
                              else s.args[0].take(lo, hi))
                 keys.append(s.keys[lo:hi])
         if len(parts) == 1:
-            yield parts[0]
+            yield parts[0], keys[0]
         elif parts:
-            order = np.argsort(np.concatenate(keys), kind="stable").tolist()
-            yield list(operator.itemgetter(*order)([f for part in parts for f in part]))
+            key = np.concatenate(keys)
+            order = np.argsort(key, kind="stable")
+            yield list(operator.itemgetter(*order.tolist())([f for part in parts for f in part])), key[order]
+        else:
+            yield [], np.empty(0, dtype=np.int64)

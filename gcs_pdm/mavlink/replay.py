@@ -14,6 +14,16 @@ UDP address so other tools (QGroundControl, MAVProxy) can watch the replay. A fi
 Hook for the estimator/diagnoser: a ``frame_consumer`` that also has a ``report()`` method
 returning a dict gets that dict into the summary under ``"consumer"``; a ``"faults"`` list in
 it (``[{"time_s": …, "type": …, "magnitude": …}, …]``) is lifted to ``summary["faults"]``.
+
+A consumer that ignores most frames says so, and the column mapping then does not make them
+(two thirds of a log: position, air data, status, mission progress): ``consumed_frame_types``,
+the frame classes it must see every frame of, and ``passed_over(count)``, told how many other
+frames it was not handed (a pipeline counts them). Optionally ``next_due_s``: a frame of any type
+whose ``time_s`` reaches it is handed over all the same, at its place in the log (the trace's
+samples: ``gcs_pdm.vehicle.replay.TracedPipeline``); it is read again after every frame handed.
+Without ``consumed_frame_types`` (and in paced, UDP, streamed and not-yet-settled stretches) every
+frame is handed over, as the live link does. The summary is the same either way: the counts and
+the frame time span come from the columns (``tests/test_skip_frames.py``).
 """
 from __future__ import annotations
 
@@ -29,7 +39,7 @@ from typing import Any, Callable
 import numpy as np
 
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
-from gcs_pdm.mavlink.frame_columns import map_scanned
+from gcs_pdm.mavlink.frame_columns import Chunk, map_scanned, map_scanned_for
 from gcs_pdm.mavlink.mapping import FrameMapper
 from gcs_pdm.mavlink.tlog import ScannedTlog, ScanStats, scan_tlog_bounds, scanned_tlog, take_kept_scan
 
@@ -165,18 +175,57 @@ def _frames_by_message(mapper: FrameMapper, rows, data: bytes):
             yield frames
 
 
-def _frames_by_type(mapper: FrameMapper, scanned: ScannedTlog):
+def _frames_by_type(mapper: FrameMapper, scanned: ScannedTlog, consumed: frozenset | None = None):
     """The frames of a scanned log: record by record until the mapper is settled (vehicle
     identified, clock running, nothing held), then the rest a message type at a time
-    (``gcs_pdm.mavlink.frame_columns``), in chunks in log order; the same frames and counters."""
+    (``gcs_pdm.mavlink.frame_columns``), in chunks in log order; the same frames and counters.
+    With ``consumed`` (frame classes) the column stretch comes as chunks (:class:`Chunk`) whose frames of
+    other types are passed over."""
     feed_from, data = mapper.feed_from, scanned.data
     for index, (ts_us, msgid, sysid, compid, payload_start, payload_end, _s, _e) in enumerate(zip(*scanned.columns)):
         if mapper.settled():
-            yield from map_scanned(mapper, data, scanned.columns, index)
+            if consumed is None:
+                yield from map_scanned(mapper, data, scanned.columns, index)
+            else:
+                yield from map_scanned_for(mapper, data, scanned.columns, index, consumed)
             return
         frames = feed_from(ts_us / 1e6, msgid, sysid, compid, data, payload_start, payload_end)
         if frames:
             yield frames
+
+
+def _hand_consumed(chunk: Chunk, consume) -> None:
+    """A chunk's consumed frames to a consumer that wants no others."""
+    for frame in chunk.frames:
+        consume(frame)
+    if chunk.passed:
+        consume.passed_over(chunk.passed)
+
+
+def _hand_over(chunk: Chunk, consume) -> None:
+    """A chunk's consumed frames, and each passed-over frame whose time reaches the consumer's
+    ``next_due_s`` when it comes, in log order; the rest counted as passed over."""
+    handed = 0
+    latest = chunk.latest_in_gap
+    for g, frame in enumerate(chunk.frames):
+        if latest[g] >= consume.next_due_s:
+            handed += _hand_due(chunk, g, consume)
+        consume(frame)
+    if latest[-1] >= consume.next_due_s:
+        handed += _hand_due(chunk, len(chunk.frames), consume)
+    if chunk.passed > handed:
+        consume.passed_over(chunk.passed - handed)
+
+
+def _hand_due(chunk: Chunk, gap: int, consume) -> int:
+    """The passed-over frames of one gap that are due when they come, made and handed over."""
+    handed = 0
+    start, end = chunk.gap_start[gap], chunk.gap_start[gap + 1]
+    for j, t in enumerate(chunk.passed_times[start:end].tolist(), start):
+        if t >= consume.next_due_s:
+            consume(chunk.passed_frame(j))
+            handed += 1
+    return handed
 
 
 def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
@@ -204,12 +253,23 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
         sock = _udp_sender(udp_target) if udp_target else None
         rows = _paced(rows, data, speed, sock)
     consume = frame_consumer
+    consumed = getattr(frame_consumer, "consumed_frame_types", None)
     started = time.perf_counter()
     if scanned is not None and sock is None and speed is None:  # the whole log at hand: by message type
-        batches = _frames_by_type(mapper, scanned)
+        batches = _frames_by_type(mapper, scanned, None if consumed is None else frozenset(consumed))
     else:
         batches = _frames_by_message(mapper, rows, data)
+    dues = hasattr(frame_consumer, "next_due_s")
     for frames in batches:
+        if type(frames) is Chunk:
+            if first_t is None:
+                first_t = frames.first_time_s
+            last_t = frames.last_time_s
+            if dues:
+                _hand_over(frames, consume)
+            else:
+                _hand_consumed(frames, consume)
+            continue
         if first_t is None:
             first_t = frames[0].time_s
         last_t = frames[-1].time_s

@@ -72,7 +72,9 @@ class TracedPipeline:
         self.cutoff_v = model_inputs(desc if desc is not None else PRESETS["edge540"]).pack_cutoff_v
         #: the samples; a drawing pack's ``time_to_cutoff_s`` is filled in by ``report()``
         self.trace: list[dict] = []
-        self._next_s = -math.inf
+        #: message time of the next sample: taken after the first frame, of any type, reaching it
+        #: (a replay that passes frames over hands such a frame over all the same)
+        self.next_due_s = -math.inf
         self._rng = np.random.default_rng(seed)
         #: (trace entry, which packs draw, the Monte Carlo's draws, their flight or its future) of
         #: each sample that predicts
@@ -82,11 +84,20 @@ class TracedPipeline:
 
     def __call__(self, frame) -> None:
         self.pipeline.consume(frame)
-        if frame.time_s >= self._next_s:
-            self._next_s = frame.time_s + self.period_s
+        if frame.time_s >= self.next_due_s:
+            self.next_due_s = frame.time_s + self.period_s
             self._sample(frame.time_s)
 
     consume = __call__
+
+    @property
+    def consumed_frame_types(self) -> frozenset:
+        """The pipeline's: a frame of another type changes nothing a sample reads (the state after
+        it is the state after the last consumed frame), so only due ones need handing over."""
+        return self.pipeline.consumed_frame_types
+
+    def passed_over(self, count: int) -> None:
+        self.pipeline.passed_over(count)
 
     def _sample(self, t: float) -> None:
         from gcs_pdm.estimation import prediction
