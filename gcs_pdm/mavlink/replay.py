@@ -131,6 +131,15 @@ def undiagnosable(size_bytes: int, scan: dict, mapping: dict, vehicle: dict) -> 
     return out
 
 
+def _utc(timestamp_us: int) -> str | None:
+    """A tlog stamp as an ISO date, None when no calendar holds it: the 8-byte stamp lies outside
+    the packet's CRC, so a damaged one reaches here from an otherwise valid record."""
+    try:
+        return datetime.fromtimestamp(timestamp_us / 1e6, tz=timezone.utc).isoformat()
+    except (OverflowError, ValueError, OSError):
+        return None
+
+
 def _udp_sender(target: str):
     host, _, port = target.rpartition(":")
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -296,7 +305,7 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
     names = {msgid: (MESSAGE_CLASSES[msgid].msgname if msgid in MESSAGE_CLASSES else str(msgid)) for msgid in by_id}
     start_utc = duration = None
     if stats.first_timestamp_us is not None:
-        start_utc = datetime.fromtimestamp(stats.first_timestamp_us / 1e6, tz=timezone.utc).isoformat()
+        start_utc = _utc(stats.first_timestamp_us)
         duration = (stats.last_timestamp_us - stats.first_timestamp_us) / 1e6
     return ReplaySummary(
         path=str(path), size_bytes=len(data),
