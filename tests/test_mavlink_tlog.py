@@ -347,3 +347,16 @@ def test_consumer_report_hook_reaches_summary(tmp_path):
     summary = replay_tlog(path, frame_consumer=Diagnoser()).to_dict()
     assert summary["faults"] == [{"time_s": 1.2, "type": "motor", "magnitude": 0.3}]
     assert summary["consumer"]["frames"] == 7
+
+
+def test_signed_counts_the_signed_packets_handed_out_not_damaged_ones():
+    """``ScanStats.signed`` counts CRC-valid signed packets, as the whole-file scan does: a damaged
+    packet whose flag byte says signed is counted as bad CRC only."""
+    v2 = PacketFactory()
+    good, damaged = _signed(v2.hud()), bytearray(_signed(v2.hud()))
+    damaged[-14] ^= 0x55  # a CRC byte (13 signature bytes follow it)
+    data = b"".join(tlog_record(1_700_000_000_000_000 + 1000 * i, p)
+                    for i, p in enumerate([v2.heartbeat(), good, bytes(damaged), v2.heartbeat()]))
+    stats = ScanStats()
+    records = list(scan_tlog_bytes(data, stats))
+    assert len(records) == 3 and stats.bad_crc == 1 and stats.signed == 1
