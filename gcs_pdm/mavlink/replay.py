@@ -154,15 +154,23 @@ def _counted(rows, by_id: Counter):
         yield row
 
 
+#: a tlog stamp further than this ahead of the previous one (µs) is not waited for by a paced replay:
+#: the 8-byte stamp lies outside the packet's CRC, so a damaged one can be years ahead, and a log
+#: left recording between two flights holds hours of nothing
+PACE_MAX_GAP_US = 600 * 1_000_000
+
+
 def _paced(rows, data: bytes, speed: float | None, sock):
     """The rows at ×``speed`` real time by their tlog timestamps, each packet re-sent over UDP
-    (``sock``: socket and address) before it is mapped."""
-    pace_origin_ts = pace_origin_wall = None
+    (``sock``: socket and address) before it is mapped. A stamp more than ``PACE_MAX_GAP_US`` ahead
+    of the previous one, or behind it, starts the pacing afresh from itself (no wait)."""
+    pace_origin_ts = pace_origin_wall = previous_ts = None
     for row in rows:
         ts_us = row[0]
         if speed is not None:
-            if pace_origin_ts is None:
+            if pace_origin_ts is None or not previous_ts <= ts_us <= previous_ts + PACE_MAX_GAP_US:
                 pace_origin_ts, pace_origin_wall = ts_us, time.monotonic()
+            previous_ts = ts_us
             delay = (ts_us - pace_origin_ts) / 1e6 / speed - (time.monotonic() - pace_origin_wall)
             if delay > 0:
                 time.sleep(delay)
