@@ -54,3 +54,20 @@ def test_a_log_without_the_needed_streams_says_what_was_not_diagnosed(tmp_path):
     text = _replay(path)
     assert text.returncode == 1 and "not diagnosed: battery packs" in text.stdout
     assert "nothing could be diagnosed" in text.stdout
+
+
+def test_a_damaged_tlog_timestamp_beyond_any_date_is_no_crash(tmp_path):
+    # the record's 8-byte stamp is outside the packet's CRC: damage there leaves a valid packet
+    # whose time no calendar holds (2**63 µs ≈ year 294,247); the replay says the start is unknown
+    v = PacketFactory()
+    packets = [v.heartbeat()] + [v.position(1000 + 100 * k) for k in range(20)]
+    stamps = [2 ** 63] + [1_700_000_000_000_000 + 100_000 * k for k in range(1, len(packets))]
+    path = tmp_path / "bad_stamp.tlog"
+    path.write_bytes(b"".join(tlog_record(s, p) for s, p in zip(stamps, packets)))
+    from gcs_pdm.mavlink.replay import replay_tlog
+
+    summary = replay_tlog(path)
+    assert summary.messages == len(packets) and summary.tlog_start_utc is None
+    out = _replay(path, "--json")
+    assert "Traceback" not in out.stderr, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1])["tlog_start_utc"] is None

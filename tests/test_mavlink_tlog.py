@@ -347,3 +347,42 @@ def test_consumer_report_hook_reaches_summary(tmp_path):
     summary = replay_tlog(path, frame_consumer=Diagnoser()).to_dict()
     assert summary["faults"] == [{"time_s": 1.2, "type": "motor", "magnitude": 0.3}]
     assert summary["consumer"]["frames"] == 7
+
+
+def test_signed_counts_the_signed_packets_handed_out_not_damaged_ones():
+    """``ScanStats.signed`` counts CRC-valid signed packets, as the whole-file scan does: a damaged
+    packet whose flag byte says signed is counted as bad CRC only."""
+    v2 = PacketFactory()
+    good, damaged = _signed(v2.hud()), bytearray(_signed(v2.hud()))
+    damaged[-14] ^= 0x55  # a CRC byte (13 signature bytes follow it)
+    data = b"".join(tlog_record(1_700_000_000_000_000 + 1000 * i, p)
+                    for i, p in enumerate([v2.heartbeat(), good, bytes(damaged), v2.heartbeat()]))
+    stats = ScanStats()
+    records = list(scan_tlog_bytes(data, stats))
+    assert len(records) == 3 and stats.bad_crc == 1 and stats.signed == 1
+
+
+def test_a_paced_replay_does_not_wait_for_a_damaged_stamp(tmp_path):
+    """A record whose 8-byte stamp is damaged (outside the packet's CRC) far ahead of its
+    neighbours is not waited for, nor is the way back from it: the paced replay of a 6 ms log with
+    one stamp ~9 hours ahead still takes milliseconds, and the stamps around it are paced."""
+    import threading
+    import time
+
+    packets, _ = synthetic_tlog()
+    stamps = [1_700_000_000_000_000 + 1000 * i for i in range(len(packets))]
+    stamps[3] += 32_000 * 1_000_000  # ≈ 8.9 h ahead
+    path = tmp_path / "stamp.tlog"
+    path.write_bytes(b"".join(tlog_record(s, p) for s, p in zip(stamps, packets)))
+    done = threading.Event()
+    out = {}
+
+    def run():
+        started = time.monotonic()
+        out["summary"] = replay_tlog(path, speed=1.0)
+        out["elapsed"] = time.monotonic() - started
+        done.set()
+
+    threading.Thread(target=run, daemon=True).start()
+    assert done.wait(10.0), "the paced replay waited for the damaged stamp"
+    assert out["summary"].messages == len(packets) and out["elapsed"] >= 0.003 - 0.001

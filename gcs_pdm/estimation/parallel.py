@@ -17,6 +17,7 @@ R = TypeVar("R")
 #: the machine this runs on has two cores; more threads would only queue
 MAX_THREADS = 2
 _pool: ThreadPoolExecutor | None = None
+_making = threading.Lock()
 
 
 def available_threads() -> int:
@@ -36,8 +37,10 @@ def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
         return [fn(x) for x in items]
     global _pool
     if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=MAX_THREADS, thread_name_prefix="gcs-pdm-work",
-                                   initializer=_mark_worker)
+        with _making:  # two threads calling first (the service's telemetry and prediction) make one pool
+            if _pool is None:
+                _pool = ThreadPoolExecutor(max_workers=MAX_THREADS, thread_name_prefix="gcs-pdm-work",
+                                           initializer=_mark_worker)
     return list(_pool.map(fn, items))
 
 

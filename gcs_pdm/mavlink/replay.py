@@ -131,6 +131,15 @@ def undiagnosable(size_bytes: int, scan: dict, mapping: dict, vehicle: dict) -> 
     return out
 
 
+def _utc(timestamp_us: int) -> str | None:
+    """A tlog stamp as an ISO date, None when no calendar holds it: the 8-byte stamp lies outside
+    the packet's CRC, so a damaged one reaches here from an otherwise valid record."""
+    try:
+        return datetime.fromtimestamp(timestamp_us / 1e6, tz=timezone.utc).isoformat()
+    except (OverflowError, ValueError, OSError):
+        return None
+
+
 def _udp_sender(target: str):
     host, _, port = target.rpartition(":")
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -145,15 +154,23 @@ def _counted(rows, by_id: Counter):
         yield row
 
 
+#: a tlog stamp further than this ahead of the previous one (µs) is not waited for by a paced replay:
+#: the 8-byte stamp lies outside the packet's CRC, so a damaged one can be years ahead, and a log
+#: left recording between two flights holds hours of nothing
+PACE_MAX_GAP_US = 600 * 1_000_000
+
+
 def _paced(rows, data: bytes, speed: float | None, sock):
     """The rows at ×``speed`` real time by their tlog timestamps, each packet re-sent over UDP
-    (``sock``: socket and address) before it is mapped."""
-    pace_origin_ts = pace_origin_wall = None
+    (``sock``: socket and address) before it is mapped. A stamp more than ``PACE_MAX_GAP_US`` ahead
+    of the previous one, or behind it, starts the pacing afresh from itself (no wait)."""
+    pace_origin_ts = pace_origin_wall = previous_ts = None
     for row in rows:
         ts_us = row[0]
         if speed is not None:
-            if pace_origin_ts is None:
+            if pace_origin_ts is None or not previous_ts <= ts_us <= previous_ts + PACE_MAX_GAP_US:
                 pace_origin_ts, pace_origin_wall = ts_us, time.monotonic()
+            previous_ts = ts_us
             delay = (ts_us - pace_origin_ts) / 1e6 / speed - (time.monotonic() - pace_origin_wall)
             if delay > 0:
                 time.sleep(delay)
@@ -296,7 +313,7 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
     names = {msgid: (MESSAGE_CLASSES[msgid].msgname if msgid in MESSAGE_CLASSES else str(msgid)) for msgid in by_id}
     start_utc = duration = None
     if stats.first_timestamp_us is not None:
-        start_utc = datetime.fromtimestamp(stats.first_timestamp_us / 1e6, tz=timezone.utc).isoformat()
+        start_utc = _utc(stats.first_timestamp_us)
         duration = (stats.last_timestamp_us - stats.first_timestamp_us) / 1e6
     return ReplaySummary(
         path=str(path), size_bytes=len(data),

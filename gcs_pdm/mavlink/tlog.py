@@ -145,9 +145,9 @@ def _scan_records(data: bytes, stats: ScanStats | None, views: bool = False) -> 
             plen = data[p + 1]
             body_end = p + 10 + plen
             end = body_end + 2
-            if data[p + 2] & MAVLINK_IFLAG_SIGNED:
+            signed = data[p + 2] & MAVLINK_IFLAG_SIGNED
+            if signed:
                 end += SIGNATURE_LEN
-                st.signed += 1
             msgid = data[p + 7] | (data[p + 8] << 8) | (data[p + 9] << 16)
             sysid = data[p + 5]
             compid = data[p + 6]
@@ -162,7 +162,7 @@ def _scan_records(data: bytes, stats: ScanStats | None, views: bool = False) -> 
             msgid = data[p + 5]
             sysid = data[p + 3]
             compid = data[p + 4]
-            v2 = False
+            v2 = signed = False
         else:
             nxt = _find_magic(data, p + 1)
             if nxt < 0:
@@ -196,6 +196,7 @@ def _scan_records(data: bytes, stats: ScanStats | None, views: bool = False) -> 
             st.records += 1
             if v2:
                 st.mavlink2 += 1
+                st.signed += 1 if signed else 0  # a packet handed out, as the other counters
                 payload_start = p + 10
             else:
                 st.mavlink1 += 1
