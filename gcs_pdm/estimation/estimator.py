@@ -40,6 +40,10 @@ TEMPERATURE_RANGE_C = (-100.0, 100.0)
 #: noise to clip: a full pack read a little high is not a broken model, a SoC of 1.13 or -4.5 is
 RANGE_SIGMAS = 3.0
 SOC_SLACK = 0.05
+#: a pack filter whose re-locks leave a variance over this many times one re-lock's inflation of
+#: its initial value is restarted (``StateEstimator._relock_left_sane``): one re-lock from the
+#: initial state stays under it, compounded re-locks do not
+RELOCK_CEILING = 4.0
 
 
 @dataclass(frozen=True)
@@ -222,6 +226,16 @@ class StateEstimator:
         # per sensor channel: last message time it carried a value
         self.seen: dict[str, float] = {}
         self.counters: Counter = Counter()
+        self._failed_filters: set[str] = set()  # components whose filter failure was logged
+        # a pack filter's re-lock multiplies its covariance (the states the channel does not see
+        # too); re-locks that keep coming before updates shrink it again (a sensor flapping between
+        # two in-range readings) compound without bound. After each re-lock the row is checked
+        # against a ceiling of its initial variances (``_relock_left_sane``)
+        self._pack_relocks_seen = [0] * n_packs
+        self._ext_relocks_seen = [0] * len(self.ext_row)
+        self._pack_cov_ceiling = np.full((n_packs, self.packs.cov.shape[-1]), np.inf)
+        self._ext_cov_ceiling = np.full((len(self.ext_row), self.ext.cov.shape[-1] if self.ext is not None else 0),
+                                        np.inf)
         # model-consistency test per pack (pack_filter.ConsistencyWindow): whether it is raised and
         # the message time it was raised or cleared (a list of bools: read on every pack frame)
         self._mismatch_active = [False] * n_packs
@@ -374,9 +388,12 @@ class StateEstimator:
         if not initialised:
             if math.isfinite(v):  # else nothing to start from yet
                 packs.initialise(np.array([b]), np.array([v]), np.array([cur]), np.array([temp]), self.ambient_c)
+                self._pack_cov_ceiling[b] = np.diag(packs.cov[b]) * (RELOCK_CEILING * packs.config.relock_inflation)
                 if ext_row >= 0:
                     self.ext.initialise(np.array([ext_row]), np.array([v]), np.array([cur]), np.array([temp]),
                                         self.ambient_c)
+                    self._ext_cov_ceiling[ext_row] = (np.diag(self.ext.cov[ext_row])
+                                                      * (RELOCK_CEILING * self.ext.config.relock_inflation))
                 self._pack_time[b] = t
             if t > self.time_s:
                 self.time_s = t
@@ -395,9 +412,28 @@ class StateEstimator:
         i_used = cur if math.isfinite(cur) else 0.0
         ambient = self.ambient_c
         # the compiled steps say when a consistency state flipped (nearly never): only then is it read
-        flipped = packs.step_one(b, dt, i_used, ambient, v, temp)
-        if ext_row >= 0:
-            flipped = self.ext.step_one(ext_row, dt, i_used, ambient, v, temp)
+        try:
+            flipped = packs.step_one(b, dt, i_used, ambient, v, temp)
+            if ext_row >= 0:
+                flipped = self.ext.step_one(ext_row, dt, i_used, ambient, v, temp)
+            broken = None
+            if packs.relocks[b] != self._pack_relocks_seen[b] or (
+                    ext_row >= 0 and self.ext.relocks[ext_row] != self._ext_relocks_seen[ext_row]):
+                broken = self._relock_left_sane(b, ext_row, t - seen.get(keys[2], -math.inf) <= self.config.stale_after_s)
+        except np.linalg.LinAlgError as err:
+            broken = str(err)
+        if broken is not None:
+            # the filter's state cannot be trusted (re-locks compounded, or its covariance broke): it
+            # restarts from the next reading, as after a long silence
+            self._filter_failed("pack", f.pack, t, broken)
+            packs.initialised[b] = False
+            if ext_row >= 0:
+                self.ext.initialised[ext_row] = False
+            self._i_sum[b], self._i_n[b] = 0.0, 0
+            self._pack_time[b] = t
+            if t > self.time_s:
+                self.time_s = t
+            return b
         self._charge_c[b] += i_used * dt
         self._pack_time[b] = t
         if flipped or self._mismatch_active[b]:
@@ -475,7 +511,11 @@ class StateEstimator:
                 motors.initialise(np.array([q]), np.array([temp]), self.config.motor.temperature_sigma_c)
                 self._motor_time[q] = t
         else:
-            motors.step_one(q, t - last, cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
+            try:
+                motors.step_one(q, t - last, cur if math.isfinite(cur) else 0.0, self.ambient_c, temp)
+            except np.linalg.LinAlgError as err:  # as for a pack (``_pack``)
+                self._filter_failed("motor", f.motor, t, str(err))
+                motors.initialised[q] = False
             self._motor_time[q] = t
         if t > self.time_s:
             self.time_s = t
@@ -581,6 +621,39 @@ class StateEstimator:
     def _restart(self, kind: str, name: str, gap_s: float) -> None:
         self.counters["restarts"] += 1
         log.warning("%s %s: %.0f s without telemetry; its filter restarts from the next reading", kind, name, gap_s)
+
+    def _relock_left_sane(self, b: int, ext_row: int, temperature_measured: bool) -> str | None:
+        """After a re-lock of pack ``b``'s filter (and its extended row): None if its state is finite
+        and no variance is over its ceiling, else why not. The temperature's variance is judged only
+        while the pack's temperature is measured: unmeasured, nothing ever shrinks it, and each
+        voltage re-lock grows it (harmlessly: the model's temperature is all there is)."""
+        self._pack_relocks_seen[b] = int(self.packs.relocks[b])
+        rows = [(self.packs, b, self._pack_cov_ceiling[b])]
+        if ext_row >= 0:
+            self._ext_relocks_seen[ext_row] = int(self.ext.relocks[ext_row])
+            rows.append((self.ext, ext_row, self._ext_cov_ceiling[ext_row]))
+        for bank, row, ceiling in rows:
+            mean, cov = bank.mean[row], bank.cov[row]
+            if not (np.isfinite(mean).all() and np.isfinite(cov).all()):
+                return "its state is not finite after a re-lock"
+            over = np.diag(cov) > ceiling
+            if not temperature_measured:
+                over[kernel.S_T] = False  # the same column in both variants (S_T == X_T)
+            if over.any():
+                return (f"re-locks compounded its variances past {RELOCK_CEILING:g}x one re-lock's inflation "
+                        f"of their initial values (states {np.flatnonzero(over).tolist()}): a sensor flapping "
+                        f"between two readings?")
+        return None
+
+    def _filter_failed(self, kind: str, name: str, t: float, err: Exception | str) -> None:
+        """Count a filter whose step failed; warn on each component's first failure (a flapping
+        sensor can break it again every few minutes: the counter tells the rest)."""
+        self.counters["filter_failures"] += 1
+        key = f"{kind}:{name}"
+        if key not in self._failed_filters:
+            self._failed_filters.add(key)
+            log.warning("%s %s: its filter failed at t=%.1f s (%s); it restarts from the next reading "
+                        "(further failures counted in Estimate.counters['filter_failures'])", kind, name, t, err)
 
     def _skip(self, kind: str, message: str) -> None:
         """Count a skipped frame; warn on the first of each kind (the counters tell the rest)."""
