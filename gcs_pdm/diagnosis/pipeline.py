@@ -125,7 +125,9 @@ class DiagnosisPipeline:
         t = float(frame.time_s)
         if b >= 0:
             v = frame.voltage_v
-            if v is not None:
+            # a frame older than the pack's last (the estimator skipped it as out of order) must not
+            # put its older voltage and time back in the ESC detector's bus voltage
+            if v is not None and t >= self._pack_v_time[b]:
                 if math.isfinite(v):
                     self._pack_v[b] = v
                     self._pack_v_time[b] = t
