@@ -28,7 +28,8 @@ from gcs_pdm.models.kernel import (_JIT, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAI
                                    FAIL_POWER, FAIL_UNDERVOLTAGE, M_I0, M_RW, N_MOTOR_PARAMS, N_PACK_PARAMS,
                                    N_PACK_STATE, S_QB, S_T, PowertrainRun, _motor_current, _rows, _soc,
                                    _terminal_voltage)
-from gcs_pdm.models.kernel import (N_EXT_PARAMS, N_EXT_STATE, N_OCV_KNOTS, X_SOC, _ext_advance,  # extended block
+from gcs_pdm.models.kernel import (N_EXT_PARAMS, N_EXT_STATE, N_OCV_KNOTS, X_SOC, _ext_advance, _ext_decays,
+                                   _ext_substeps,  # extended block
                                    _ocv_knots)
 
 
@@ -129,6 +130,10 @@ def _simulate(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_
     ky = np.empty((n_packs, N_OCV_KNOTS))  # an extended pack's OCV knots and slopes
     kd = np.empty((n_packs, N_OCV_KNOTS))
     step_cache = np.empty((n_packs, kernel.N_STEP_CACHE))
+    # an extended pack's sub-steps and decays depend on the interval only: kept while it repeats
+    ext_dt = np.empty(n_packs)
+    ext_n_sub = np.empty(n_packs, dtype=np.int64)
+    ext_decay = np.empty((n_packs, 5))  # sub-step length, then the R1, R2, diffusion and thermal decays
     tm = np.empty(n_motors)
     motor_dt = np.empty(n_motors)
     motor_decay = np.empty(n_motors)
@@ -156,6 +161,7 @@ def _simulate(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_
             if is_ext[b]:
                 _ocv_knots(ep[b], ky[b], kd[b])
                 v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], 0.0, 0.0, np.nan, 0.0, max_dt)
+                ext_dt[b] = -1.0  # no interval seen yet
             else:
                 v[b] = _terminal_voltage(pp, b, x, b)
                 kernel._reset_step_cache(pp, b, step_cache, b)
@@ -205,7 +211,19 @@ def _simulate(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_
             for b in range(n_packs):
                 u = bus_of_pack[b]
                 i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
-                if is_ext[b]:
+                if is_ext[b] and h > 0.0:
+                    # _ext_advance's two halves, its decays computed once per interval
+                    if h != ext_dt[b]:
+                        n_sub, h_sub, d1, d2, dd, dtt = _ext_decays(ep[b], h, max_dt)
+                        ext_n_sub[b] = n_sub
+                        ext_decay[b, 0], ext_decay[b, 1], ext_decay[b, 2] = h_sub, d1, d2
+                        ext_decay[b, 3], ext_decay[b, 4] = dd, dtt
+                        ext_dt[b] = h
+                    v[b] = _ext_substeps(ep[b], ky[b], kd[b], x[b], i_b, ambient[ai, k], np.nan, ext_n_sub[b],
+                                         ext_decay[b, 0], ext_decay[b, 1], ext_decay[b, 2], ext_decay[b, 3],
+                                         ext_decay[b, 4])
+                    soc_b = x[b, X_SOC]
+                elif is_ext[b]:
                     v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], i_b, ambient[ai, k], np.nan, h, max_dt)
                     soc_b = x[b, X_SOC]
                 else:
