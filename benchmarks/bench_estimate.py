@@ -20,6 +20,9 @@ average when measured — on a shared machine CPU time is the figure to trust.
   the median trajectories; ``mc_100_30min_with_trajectories_ms`` with them) — floor 15 ms; from
   the estimator as the update figure leaves it (samples fail 1–360 s ahead), and
   ``mc_100_30min_from_flight_end_ms`` from the flight's end state (samples fly 390–710 s);
+  ``mc_100_30min_extended_ms`` the same prediction with every pack on the extended variant (the
+  default of a new fit, issue 15), from an estimator that followed 10 minutes of that model's own
+  flight (samples fly 890–1080 s) — floor 15 ms too;
 - progpy (if installed): ``progpy_pf_update_100_us`` — ParticleFilter over BatteryCircuit (one
   cell, 100 particles), one update; ``progpy_mc_100_30min_ms_est`` — its MonteCarlo predictor,
   measured on 10 samples and scaled ×10 (the full run takes tens of seconds).
@@ -112,6 +115,7 @@ def main() -> dict:
         at_flight_end.consume(fr)
     figures["mc_100_30min_from_flight_end_ms"] = figure(timed(lambda: predict_from_estimator(
         at_flight_end, load, rng=np.random.default_rng(0), n_samples=100, trajectories=False), 5, 3), 1e3, 15, "ms")
+    figures["mc_100_30min_extended_ms"] = figure(timed(extended_monte_carlo(), 5, 3), 1e3, 15, "ms")
     figures.update(progpy_reference())
     for name, f in figures.items():
         if isinstance(f, dict) and "cpu" in f:
@@ -119,6 +123,34 @@ def main() -> dict:
                   f"(load {f['loadavg_1min']})")
     return {"benchmark": "bench_estimate", "frames_per_flight": n, "flight_duration_s": round(flight.duration_s, 1),
             "figures": figures}
+
+
+def extended_monte_carlo():
+    """A 100-sample, 30-minute prediction of four packs on the extended variant (LiPo defaults),
+    from an estimator that followed 10 minutes of that model flown at 8-28 A: the call to time."""
+    import dataclasses
+
+    from gcs_pdm.frames import PackFrame
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.params import PACK_NAMES, extended_default
+
+    ps = default_set()
+    for n in PACK_NAMES:
+        ps = ps.with_pack(n, dataclasses.replace(ps.packs[n], model="extended", extended=extended_default("lipo")))
+    rng = np.random.default_rng(3)
+    current = np.repeat(rng.uniform(8.0, 16.0, 5), 120)
+    current[:60] = 28.0
+    ext = np.stack([ps.packs[n].extended_vector() for n in PACK_NAMES])
+    run = kernel.simulate_packs(ext, kernel.initial_extended_state(ext, 0.95, 20.0, 0.0), np.ones(current.size),
+                                current, 20.0, variant="extended")
+    est = StateEstimator(ps)
+    for k in range(current.size):
+        for b, n in enumerate(PACK_NAMES):
+            est.consume(PackFrame(float(k), n, voltage_v=float(run.voltage[b, k] + rng.normal(0, 0.03)),
+                                  current_a=float(current[k]), temperature_c=float(run.temperature[b, k])))
+    load = FutureLoad.constant(1000.0, 1800.0, 1.0)
+    return lambda: predict_from_estimator(est, load, rng=np.random.default_rng(0), n_samples=100,
+                                          trajectories=False)
 
 
 def pipeline_breakdown(ps, flight) -> dict:
