@@ -20,6 +20,9 @@ type when time went back to near zero (a reboot). A sample consistent with the a
 the candidate, so a sender injecting odd timestamps between the vehicle's own never wins while the
 vehicle is heard, however fast it floods (the vehicle's timed streams run at several Hz). Everything else is
 counted in ``rejected`` and its message gives no frame. The first time is acquired the same way.
+What this does not stop: a sample up to ``MAX_STEP_S`` ahead is consistent and taken at once (a
+short outage costs no frames), so an unsigned sender with the vehicle's ids can move time forward
+by that much per packet; only MAVLink signing stops it (docs/operations.md, "Safety").
 """
 from __future__ import annotations
 
