@@ -63,3 +63,55 @@ def test_capability_says_why_not():
     data["motors"][2]["readings"]["current"] = False
     ok, why = motor_diagnosis_capability(from_dict(data))
     assert not ok and "no ESC current from m3" in why
+
+
+def _quad_in_pipeline(currents_at, seconds=120.0):
+    """A quad-4s through the diagnoser at 10 Hz: ``currents_at(t)`` gives the four ESC currents."""
+    from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
+    from gcs_pdm.frames import MotorFrame, PackFrame
+
+    desc = PRESETS["quad-4s"]
+    pipe = DiagnosisPipeline(vehicle=desc)
+    names = [m.name for m in desc.motors]
+    for k in range(int(seconds * 10)):
+        t = round(0.1 * (k + 1), 2)
+        currents = currents_at(t)
+        pipe.consume(PackFrame(t, "battery", 15.2, sum(currents), 30.0))
+        for n, i in zip(names, currents):
+            pipe.consume(MotorFrame(t, n, i, 6000.0, 40.0))
+    return pipe, names
+
+
+def test_a_multirotors_unequal_healthy_shares_are_not_a_fault():
+    # centre of gravity a little aft: the rear motors (m2, m4) carry steadily more (15 vs 12.5 A);
+    # judged against equal shares that read as a 12 % power loss of both front motors, at confidence 1
+    pipe, names = _quad_in_pipeline(lambda t: [12.5, 15.0, 12.5, 15.0])
+    assert not [f for f in pipe.faults if f.type == "motor_power_loss"]
+    shares = pipe.motor_power.shares
+    assert shares is not None and shares[1] > shares[0] and abs(sum(shares) / 4 - 1.0) < 1e-12
+
+
+def test_a_loss_after_the_shares_are_learned_is_raised_against_the_motors_own_share():
+    def currents(t):
+        if t < 80.0:
+            return [12.5, 15.0, 12.5, 15.0]
+        return [13.3, 10.5, 13.3, 16.0]   # m2 loses ~30 % of its share, the others make it up
+    pipe, names = _quad_in_pipeline(currents)
+    raised = [f for f in pipe.faults if f.type == "motor_power_loss"]
+    assert [f.component for f in raised] == ["m2"]
+    assert raised[0].time_s > 80.0 and 0.2 < raised[0].magnitude < 0.5
+    assert "learned_share" in raised[0].evidence
+
+
+def test_a_gross_loss_from_take_off_is_raised_while_the_shares_are_learned():
+    pipe, names = _quad_in_pipeline(lambda t: [6.0, 15.0, 15.0, 15.0], seconds=20.0)
+    assert pipe.motor_power.shares is None  # still learning (its first 60 s with power)
+    assert [f.component for f in pipe.faults if f.type == "motor_power_loss"] == ["m1"]
+
+
+def test_a_loss_raised_while_learning_is_not_learned_away():
+    pipe, names = _quad_in_pipeline(lambda t: [6.0, 15.0, 15.0, 15.0], seconds=120.0)
+    shares = pipe.motor_power.shares
+    assert shares is not None and shares[0] == pytest.approx(1.0)   # the healthy motors' mean share
+    active = [f.component for f in pipe.faults if f.type == "motor_power_loss" and f.active]
+    assert active == ["m1"]

@@ -15,6 +15,18 @@ Like it, the per-sample value is noisy: a windowed median, then a debouncer per 
 
 ``motor_diagnosis_capability(desc)`` says whether a description's telemetry can show a motor's
 power loss at all, and if not, why — for the status the operator sees.
+
+**Unequal shares (multirotors).** The model's equal share is exact for motors on one shaft, not for
+a multirotor: a centre of gravity a few centimetres off, or a yaw trim between the two spin
+directions, makes healthy motors carry steadily different shares (17-20 % apart is common), which
+the equal-share formula reads as a power loss. With ``learn_shares`` the detector first learns each
+motor's own share — the median of its delivered power over the mean of all, over the first
+``share_learn_s`` seconds (message time) of samples with power — and then judges each motor against
+its learned share (its power divided by it). While it learns, only a loss of at least
+``uncalibrated_raise`` (0.35: beyond trim asymmetry) is raised, and a motor raised by then keeps
+the healthy motors' mean share (its loss is not learned away). The price: a loss smaller than that
+present from take-off is learned as the motor's share and not reported; the learned shares are in
+``shares`` and each fault's evidence.
 """
 from __future__ import annotations
 
@@ -58,7 +70,8 @@ class EscImbalanceDetector:
     mean from a running sum, and a fault's latest evidence built only when ``faults`` is read."""
 
     def __init__(self, motor_names: tuple[str, ...], motor_matrix: np.ndarray,
-                 config: MotorPowerConfig = SMALL_VEHICLE_CONFIG):
+                 config: MotorPowerConfig = SMALL_VEHICLE_CONFIG, *, learn_shares: bool = False,
+                 share_learn_s: float = 60.0, uncalibrated_raise: float = 0.35):
         if len(motor_names) < 2:
             raise ValueError("EscImbalanceDetector: needs at least two motors")
         self.names = tuple(motor_names)
@@ -78,13 +91,21 @@ class EscImbalanceDetector:
         self._latest: dict[str, tuple] = {}
         self.samples = 0
         self.low_power_skipped = 0
+        # the motors' own shares (module docstring): None while learning (or never, without
+        # learn_shares); the ratios gathered so far
+        self.learn_shares = learn_shares
+        self.share_learn_s = float(share_learn_s)
+        self._share_since = math.nan  # message time of the first sample learned from
+        self.uncalibrated_raise = float(uncalibrated_raise)
+        self.shares: list[float] | None = None
+        self._share_ratios: list[list[float]] = [[] for _ in self.names]
 
     @property
     def faults(self) -> dict[str, Fault]:
         """Every motor's fault in its latest state (the per-sample refinements folded in on reading)."""
         for name, (time_s, mag, med, q, currents) in self._latest.items():
             self._faults[name] = self._faults[name].with_(magnitude=mag, updated_s=time_s,
-                                                          evidence=_evidence(med, q, currents))
+                                                          evidence=_evidence(med, q, currents, self.shares))
         self._latest.clear()
         return self._faults
 
@@ -138,6 +159,12 @@ class EscImbalanceDetector:
         self.samples += 1
         events = []
         full, raise_at = cfg.window, cfg.raise_threshold
+        if self.learn_shares:
+            if self.shares is None:
+                raise_at = max(raise_at, self.uncalibrated_raise)
+                self._learn_share(time_s, power)
+            else:
+                power = [p / s for p, s in zip(power, self.shares)]
         windows, debouncers = self._window, self._debounce
         for q, f in enumerate(self._magnitudes(power, bus_v)):
             win = windows[q]
@@ -150,7 +177,7 @@ class EscImbalanceDetector:
                 # nothing to change: the median (≤ the window's largest) cannot raise, nothing is pending
                 continue
             med = median_of_sorted(sorted(win))
-            ev = deb.update(time_s, med >= cfg.raise_threshold, med < cfg.clear_threshold)
+            ev = deb.update(time_s, med >= raise_at, med < cfg.clear_threshold)
             if deb.active:
                 self._active_n[q] += 1
                 self._active_sum[q] += med
@@ -162,19 +189,41 @@ class EscImbalanceDetector:
             if ev == "raise":
                 spread = float(np.std(win)) / math.sqrt(len(win)) + 1e-3
                 conf = 0.5 * (1.0 + math.erf((med - cfg.clear_threshold) / spread / math.sqrt(2.0)))
-                self._faults[name] = Fault(MOTOR_POWER_LOSS, name, mag, time_s, conf, _evidence(med, q, currents),
+                self._faults[name] = Fault(MOTOR_POWER_LOSS, name, mag, time_s, conf, _evidence(med, q, currents, self.shares),
                                            updated_s=time_s)
                 self._latest.pop(name, None)
                 events.append(("raise", self._faults[name]))
             elif ev == "clear":
                 # from its latest refinement (``faults`` folds it in)
                 self._faults[name] = self.faults[name].with_(active=False, cleared_s=time_s, confidence=0.0,
-                                                              updated_s=time_s, evidence=_evidence(med, q, currents))
+                                                              updated_s=time_s, evidence=_evidence(med, q, currents, self.shares))
                 self._active_n[q], self._active_sum[q] = 0, 0.0
                 events.append(("clear", self._faults[name]))
             else:
                 self._latest[name] = (time_s, mag, med, q, currents)
         return events
+
+    def _learn_share(self, time_s: float, power: list[float]) -> None:
+        """One sample towards the motors' shares; after ``share_learn_s`` of them, the shares (each
+        motor's median ratio to the mean, normalised to a mean of 1; a motor raised meanwhile gets
+        the others' mean) replace the equal ones, and the windows restart on the new footing."""
+        mean = sum(power) / len(power)
+        for ratios, p in zip(self._share_ratios, power):
+            ratios.append(p / mean)
+        if math.isnan(self._share_since):
+            self._share_since = time_s
+        if time_s - self._share_since < self.share_learn_s:
+            return
+        shares = [median_of_sorted(sorted(r)) for r in self._share_ratios]
+        raised = [self._debounce[q].active for q in range(len(shares))]
+        healthy = [s for s, r in zip(shares, raised) if not r]
+        if healthy:
+            shares = [sum(healthy) / len(healthy) if r else s for s, r in zip(shares, raised)]
+        norm = sum(shares) / len(shares)
+        self.shares = [s / norm for s in shares]
+        self._share_ratios = [[] for _ in self.names]
+        for win in self._window:
+            win.clear()
 
     def fault_vector(self) -> np.ndarray:
         faults = self._faults  # magnitudes only change on update: no need to fold in the evidence
@@ -193,9 +242,12 @@ def _floats(x, n: int | None = None) -> list[float]:
     return [float(x)] * (1 if n is None else n)
 
 
-def _evidence(med: float, q: int, currents: list[float]) -> dict:
-    return {"median_f": round(med, 4), "current_a": round(currents[q], 2),
-            "other_currents_a": [round(c, 2) for k, c in enumerate(currents) if k != q]}
+def _evidence(med: float, q: int, currents: list[float], shares: list[float] | None = None) -> dict:
+    ev = {"median_f": round(med, 4), "current_a": round(currents[q], 2),
+          "other_currents_a": [round(c, 2) for k, c in enumerate(currents) if k != q]}
+    if shares is not None:  # judged against its own learned share of the power, not an equal one
+        ev["learned_share"] = round(shares[q], 3)
+    return ev
 
 
 class NoMotorDiagnosis:

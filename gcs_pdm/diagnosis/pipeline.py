@@ -51,7 +51,10 @@ class DiagnosisPipeline:
             self.params = None
             self.estimator = StateEstimator(config=estimator_config, vehicle=vehicle)
             diagnosable, self.motor_diagnosis = motor_diagnosis_capability(vehicle)
-            self.motor_power = (EscImbalanceDetector(self.estimator.motor_names, self.estimator.motors.params)
+            # a multirotor's healthy motors carry unequal shares (trim, centre of gravity): each is
+            # judged against its own, learned early in the flight (motor_imbalance's docstring)
+            self.motor_power = (EscImbalanceDetector(self.estimator.motor_names, self.estimator.motors.params,
+                                                     learn_shares=vehicle.airframe.type == "multirotor")
                                 if diagnosable else NoMotorDiagnosis(len(self.estimator.motor_names)))
         est = self.estimator
         self.pack_health = PackHealthMonitor(est.packs.params.copy(), pack_config, names=est.pack_names)
