@@ -201,6 +201,9 @@ class StateEstimator:
         self._pack_time = [-math.inf] * n_packs
         self._pack_current = [math.nan] * n_packs
         self._pack_current_time = [-math.inf] * n_packs
+        # message time of each pack's latest current that was read, its own or a mate's or motor's
+        # (not held over): a prediction needs a current that is still being read
+        self._current_read_time = [-math.inf] * n_packs
         self._reading = [math.nan] * n_packs
         self._reading_time = [-math.inf] * n_packs
         self._motor_time = [-math.inf] * n_motors
@@ -364,6 +367,8 @@ class StateEstimator:
             cur = ref if math.isfinite(ref) else self._pack_current[b]
             self.counters["current_held"] += 1
         cur_finite = math.isfinite(cur)
+        if measured or math.isfinite(ref):
+            self._current_read_time[b] = t
         if measured or cur_finite:
             self._pack_current[b] = cur
             self._pack_current_time[b] = t
@@ -747,6 +752,13 @@ class StateEstimator:
         state = "ready" if not waiting else "waiting for " + ", ".join(waiting)
         mismatch = self.estimate(details=False).mismatch if not waiting else ()
         prediction = state if not mismatch else "model mismatch: " + "; ".join(mismatch)
+        # the filters integrate a held current through a silence, but a prediction from it would be
+        # a guess: say whose current is not being read
+        held = [f"pack {n} current not read for {self.time_s - self._current_read_time[b]:.0f} s (held)"
+                for b, n in enumerate(self.pack_names)
+                if self.packs.initialised[b] and self.time_s - self._current_read_time[b] > self.config.stale_after_s]
+        if held and prediction == "ready":
+            prediction = "; ".join(held)
         heard = [n for n in self.motor_names if f"{n}.current" in self.seen or f"{n}.rpm" in self.seen]
         if not heard:
             motors = "no ESC telemetry"
