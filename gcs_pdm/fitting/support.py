@@ -19,13 +19,12 @@ from typing import Sequence
 import numpy as np
 
 #: a flight's initial SoC is supported ("rested") when a training flight started within half of this
-#: span of it, i.e. when it lies in an OCV span of at most this width around a training start. On the
-#: PyBaMM flights the unsupported cut-off test flights sit in spans of 0.05-0.06 between training
-#: starts (chen2020_03 in 0.82-0.88, marquis2019_12 in 0.94-0.99), and equally good fits put
-#: chen2020_03's start 0.005-0.02 apart there, i.e. 25-100 mV of RMSE; validation flights starting
-#: within ~0.01 of a training start are predicted to the fit's training accuracy. 0.03 keeps a
-#: supported flight within 0.015 of a training start: the extreme spread seen, against the ~0.03
-#: half-span of the spans that failed.
+#: span of it, i.e. when it lies in an OCV span of at most this width around a training start. In the
+#: learned set's SoC, on the PyBaMM flights (default fit, seeds 0-2; docs/fitting.md): the flights
+#: starting 0-0.007 from a training start are predicted to 25-50 mV, cut-off flights included; those
+#: starting 0.018-0.038 from the nearest include both cut-off flights that miss (49-126 mV), and equally
+#: good fits put chen2020_03's start 0.005-0.02 apart. 0.015 either side lies between the two groups
+#: and matches the spread seen between fits; 0.005 of SoC is 25-50 mV on a cut-off flight.
 SOC_SUPPORT_SPAN = 0.03
 
 SUPPORT_LEVELS = ("rested", "interpolated", "extrapolated")
