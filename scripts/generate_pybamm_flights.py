@@ -279,8 +279,8 @@ def main(argv: list[str] | None = None) -> int:
                                                   "planned_soc": round(float(soc[k0]), 4)}
                                                  for k, k0 in zip(shifted, at[p["name"]]) if k < m])
                 placed = ", ".join(f"{r['planned_soc']:.2f}" for r in entries[p["name"]]["rests"]) or "none"
-                print(f"{p['name']} with rests at SoC {placed}: {m} s{'  cut-off' if m < t_long.size - 1 else ''}",
-                      flush=True)
+                print(f"{p['name']} again from SoC {p['soc0']:.2f}, rests at SoC {placed}: {m} s"
+                      f"{'  cut-off' if m < t_long.size - 1 else ''}", flush=True)
             manifest["train_rests"] = {"per_flight": args.train_rests, "seconds": args.rest_s,
                                        "soc_range": list(args.rest_soc_range)}
             if args.train_start_socs is not None:
