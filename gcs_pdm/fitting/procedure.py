@@ -550,7 +550,7 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
                                                 model=s.model))
     support, support_warnings = support_report(starts, s.soc_support_span)
     for w in support_warnings:
-        log.info("battery fit: %s", w)  # the CLI prints result.warnings; a warning here would print twice
+        log.debug("battery fit: %s", w)  # the CLI prints result.warnings; at INFO they would print twice
     result = FitResult(
         component=BATTERY, pack=pack,
         parameters={k: float(v) for k, v in zip(kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS, final)},
