@@ -69,8 +69,9 @@ def initial_soc_support(flight: StartReading, training: Sequence[StartReading],
     near = [abs(t.soc - s) for t in (below, above) if t is not None]
     nearest = min(near) if near else None
     half = span / 2
-    head = (f"starts at SoC {s:.3f} (rest {flight.voltage_v:.2f} V, {flight.voltage_v / flight.cells:.3f} V/cell, "
-            f"{flight.current_a:.2f} A)")
+    # "settled", not "rest": a segment cut out of a flight by the cleaning may start under load
+    head = (f"starts at SoC {s:.3f} (settled at {flight.voltage_v:.2f} V, {flight.voltage_v / flight.cells:.3f} "
+            f"V/cell, {flight.current_a:.2f} A)")
     if not np.isfinite(s):
         level, reason = "extrapolated", f"{flight.flight}: its initial SoC could not be read ({s})"
     elif nearest is None:
