@@ -16,6 +16,18 @@ five; the pack temperature is the cell's volume-averaged temperature. Sensor noi
 current 0.05 A, temperature 0.1 K quantised to 0.1 K, ambient 0.2 K) and drop-outs (runs of missing
 voltage/temperature samples) are added after the simulation. Everything is seeded.
 
+Experiment (off by default, so the committed fixtures stay reproducible): ``--train-rests N`` gives
+the training flights N rests each (``--rest-s`` long, inserted in the cruise, the flight
+longer by as much), placed where the planned charge count reaches SoCs spread evenly over
+``--rest-soc-range`` across all training flights, so the
+open-circuit voltage is pinned across the SoC range and not only at the flights' starts. Every flight
+is first simulated exactly as without the option (same random draws, same splits, so the same
+validation and test flights; PyBaMM's solver on another machine may move a voltage by < 1 mV), then the training flights are simulated again with the rests
+(their noise from a separate seeded stream) and replace the plain ones; the manifest lists each
+training flight's rests. ``--train-start-socs LO HI`` (also off by default) instead re-flies the
+training flights from initial SoCs spread evenly over [LO, HI], so their starting rests cover that
+range evenly. docs/fitting.md ("Independent data") has what it showed.
+
 Output: ``<set>/<flight>.parquet`` (columns of gcs_pdm.fitting.tables: time_s, current_a, voltage_v,
 temperature_c, ambient_c at 1 Hz) and ``manifest.json`` (per flight: set, split, ambient, C-rate,
 initial SoC, whether it reached the cut-off; per set: cells in parallel, capacity).
@@ -103,6 +115,62 @@ def simulate_cell(pybamm, set_name: str, t: np.ndarray, cell_current: np.ndarray
     return ts, v, temp, float(pv["Lower voltage cut-off [V]"]), float(pv["Nominal cell capacity [A.h]"])
 
 
+def planned_soc(current_a: np.ndarray, soc0: float) -> np.ndarray:
+    """SoC at the start of each 1 s sample by the charge count on the nominal pack capacity."""
+    return soc0 - np.concatenate([[0.0], np.cumsum(current_a)[:-1]]) / (PACK_CAPACITY_AH * 3600.0)
+
+
+def cruise_span(current_a: np.ndarray) -> tuple[int, int]:
+    """(first, last + 1) sample of the profile's flight (non-zero current): rests are put inside it."""
+    on = np.flatnonzero(current_a > 0)
+    return int(on[0]), int(on[-1]) + 1
+
+
+def plan_rests(plans: list[dict], per_flight: int, rest_s: int, soc_range: tuple[float, float]) -> dict[str, list[int]]:
+    """Sample indices (in each plain profile) where each training flight rests: SoC targets spread
+    evenly over ``soc_range`` (per_flight x flights of them), each given to a flight that passes it
+    in its cruise (after the climb, until 120 s before the descent or the plain flight's cut-off) and
+    has the fewest rests so far. A target no flight passes is left out (the manifest lists the rests
+    placed). Never before take-off: PyBaMM 26.10's IDAKLU solve of a flight that opens with a 30 min
+    rest came out wrong for 7 of 16 training flights (no heating, volts off, no cut-off), while
+    flights with rests in the cruise match the plain ones to the noise outside the rests."""
+    n = per_flight * len(plans)
+    targets = np.linspace(soc_range[1], soc_range[0], n)
+    windows = {}
+    for p in plans:
+        cur = p["current"]
+        a, c = cruise_span(cur)
+        climb_end = a + int(np.argmax(cur[a:] < cur[a] - 1e-9))
+        descent = c - int(np.argmax(cur[:c][::-1] > cur[c - 1] + 1e-9))   # the throttled-back descent
+        end = min(p["samples"], descent) - 120
+        soc = planned_soc(p["current"], p["soc0"])
+        windows[p["name"]] = (climb_end, end, soc)
+    chosen: dict[str, list[int]] = {p["name"]: [] for p in plans}
+    for target in targets:
+        ok = []
+        for name, (lo, hi, soc) in windows.items():
+            if hi <= lo or len(chosen[name]) >= per_flight:
+                continue
+            if soc[hi] <= target <= soc[lo]:
+                k = lo + int(np.argmax(soc[lo:hi + 1] <= target))
+                if all(abs(k - j) > 120 for j in chosen[name]):  # two rests of one flight 2 min of flight apart
+                    ok.append((len(chosen[name]), name, k))
+        if ok:
+            _, name, k = min(ok)
+            chosen[name].append(k)
+    return {name: sorted(ks) for name, ks in chosen.items()}
+
+
+def with_rests(current_a: np.ndarray, at: list[int], rest_s: int) -> np.ndarray:
+    """The profile with a rest of ``rest_s`` inserted at each index in ``at`` (longer by as much: the
+    loaded part is the plain flight's, sample for sample)."""
+    parts, last = [], 0
+    for k in sorted(at):
+        parts += [current_a[last:k], np.zeros(rest_s)]
+        last = k
+    return np.concatenate(parts + [current_a[last:]])
+
+
 def add_sensor_effects(rng: np.random.Generator, cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     n = cols["time_s"].size
     out = dict(cols)
@@ -123,6 +191,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--flights", type=int, default=12, help="flights per parameter set (12: 8 train, 2 val, 2 test)")
     ap.add_argument("--duration", type=int, default=1800, help="planned flight length, s (cut-off flights end early)")
     ap.add_argument("--seed", type=int, default=15)
+    ap.add_argument("--train-rests", type=int, default=0, metavar="N",
+                    help="experiment: N relaxed rests per training flight (default 0: the committed fixtures)")
+    ap.add_argument("--rest-s", type=int, default=600, help="length of each such rest, s")
+    ap.add_argument("--rest-soc-range", type=float, nargs=2, default=(0.5, 0.95), metavar=("LO", "HI"),
+                    help="planned SoCs of the rests, spread evenly over this range")
+    ap.add_argument("--train-start-socs", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                    help="experiment: the training flights start at SoCs spread evenly over this range (in the "
+                         "order of their drawn ones) instead of the drawn ones (default: drawn, as committed)")
     args = ap.parse_args(argv)
 
     import pandas as pd
@@ -147,6 +223,7 @@ def main(argv: list[str] | None = None) -> int:
         c_rates = np.tile(C_RATES[set_name], n // 6 + 1)[:n]
         rng.shuffle(c_rates)
         rng.shuffle(ambients)
+        plans = []
         for k in range(n):
             name = f"{set_name.lower()}_{k + 1:02d}"
             ambient = float(ambients[k] + rng.uniform(-1.0, 1.0)).__round__(2)
@@ -169,8 +246,47 @@ def main(argv: list[str] | None = None) -> int:
                                         "cell_cutoff_v": v_cut, "seconds_to_simulate": round(time.perf_counter() - t0, 2)})
             print(f"{name}: {ambient:5.1f} C  {c_rate:.1f}C  SoC0 {soc0:.2f}  {m} s"
                   f"{'  cut-off' if cutoff else ''}", flush=True)
+            plans.append({"name": name, "t": t, "current": pack_i, "ambient": ambient, "soc0": soc0, "samples": m})
         split_rng = np.random.default_rng([args.seed, SETS.index(set_name)])
         assign_splits([f for f in manifest["flights"] if f["set"] == set_name], split_rng)
+        if args.train_rests > 0 or args.train_start_socs is not None:
+            # the experiment: the training flights again, with rests (docstring); a stream of their own,
+            # so nothing above changes
+            entries = {f["flight"]: f for f in manifest["flights"] if f["set"] == set_name}
+            train = [p for p in plans if entries[p["name"]]["split"] == "train"]
+            if args.train_start_socs is not None:
+                spread = np.linspace(*args.train_start_socs, len(train))
+                for rank, j in enumerate(np.argsort([p["soc0"] for p in train], kind="stable")):
+                    train[j]["soc0"] = float(spread[rank])
+                    entries[train[j]["name"]]["initial_soc"] = round(float(spread[rank]), 4)
+            at = (plan_rests(train, args.train_rests, args.rest_s, tuple(args.rest_soc_range)) if args.train_rests > 0
+                  else {p["name"]: [] for p in train})
+            rest_rng = np.random.default_rng([args.seed, 1000 + SETS.index(set_name)])
+            for p in train:
+                pack_i = with_rests(p["current"], at[p["name"]], args.rest_s)
+                t_long = np.arange(0.0, float(pack_i.size))
+                t0 = time.perf_counter()
+                ts, v_cell, temp, _, _ = simulate_cell(pybamm, set_name, t_long, pack_i / parallel,
+                                                       p["ambient"] + 273.15, p["soc0"])
+                m = ts.size
+                cols = {"time_s": ts, "current_a": pack_i[:m], "voltage_v": CELLS_SERIES * v_cell,
+                        "temperature_c": temp, "ambient_c": np.full(m, p["ambient"])}
+                pd.DataFrame(add_sensor_effects(rest_rng, cols)).astype("float32").to_parquet(
+                    out / set_name / f"{p['name']}.parquet", index=False)
+                soc = planned_soc(p["current"], p["soc0"])
+                shifted = [k + j * args.rest_s for j, k in enumerate(at[p["name"]])]
+                entries[p["name"]].update(samples=int(m), reached_cutoff=bool(m < t_long.size - 1),
+                                          seconds_to_simulate=round(time.perf_counter() - t0, 2),
+                                          rests=[{"start_s": k, "seconds": args.rest_s,
+                                                  "planned_soc": round(float(soc[k0]), 4)}
+                                                 for k, k0 in zip(shifted, at[p["name"]]) if k < m])
+                placed = ", ".join(f"{r['planned_soc']:.2f}" for r in entries[p["name"]]["rests"]) or "none"
+                print(f"{p['name']} again from SoC {p['soc0']:.2f}, rests at SoC {placed}: {m} s"
+                      f"{'  cut-off' if m < t_long.size - 1 else ''}", flush=True)
+            manifest["train_rests"] = {"per_flight": args.train_rests, "seconds": args.rest_s,
+                                       "soc_range": list(args.rest_soc_range)}
+            if args.train_start_socs is not None:
+                manifest["train_start_socs"] = list(args.train_start_socs)
     manifest["seconds"] = round(time.perf_counter() - t_all, 1)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return 0

@@ -94,3 +94,23 @@ def test_extended_variant_meets_the_issue_bounds_on_the_test_flights(fitted):
         assert v_ext <= 0.5 * v_base, (f"{set_name} {f.name}: voltage RMSE {v_ext * 1000:.1f} mV not half the "
                                        f"baseline's {v_base * 1000:.1f} mV")
         assert t_ext <= 0.8, f"{set_name} {f.name}: temperature RMSE {t_ext:.2f} K > 0.8 K"
+
+
+#: what the fit says of the cut-off test flights' starts (docs/fitting.md, "Initial-SoC support"): chen2020_03
+#: rests in a span no training flight started in (the diagnosis of its shortfall); marquis2019_12 near one
+CUTOFF_TEST_SUPPORT = {"chen2020_03": ("interpolated", "chen2020_10", "chen2020_06"),
+                       "marquis2019_12": ("rested", "marquis2019_08", "marquis2019_04")}
+
+
+def test_the_fit_reports_how_the_training_starts_support_each_test_flights_start(fitted):
+    set_name, result, _, test = fitted
+    support = {f["flight"]: f for f in result.to_dict()["initial_soc_support"]["flights"]}
+    assert set(support) == set(result.flights["validation"]) | set(result.flights["test"])
+    name = next(n for n in CUTOFF_TEST_SUPPORT if n in support)
+    level, below, above = CUTOFF_TEST_SUPPORT[name]
+    got = support[name]
+    assert (got["support"], got["nearest_below"]["flight"], got["nearest_above"]["flight"]) == (level, below, above)
+    # the neighbours' rest voltages bracket the flight's: the learned OCV is monotone
+    assert got["nearest_below"]["voltage_v"] < got["voltage_v"] < got["nearest_above"]["voltage_v"]
+    warned = [w for w in result.warnings if name in w]
+    assert bool(warned) == (level != "rested")

@@ -141,6 +141,8 @@ def _summary(res) -> dict:
     out = {"component": res.component, "pack": res.pack, "model": res.model, "seconds": round(res.seconds, 2)}
     if res.model is not None and not res.thermal.get("fitted", True):
         out["thermal_not_fitted"] = res.thermal.get("reason", "")
+    if res.initial_soc_support is not None:
+        out["initial_soc_support"] = {f["flight"]: f["support"] for f in res.initial_soc_support["flights"]}
     for which in ("learned", "reference"):
         t = e[which]["test"]["overall"]
         if "voltage" in t:
@@ -149,6 +151,12 @@ def _summary(res) -> dict:
         if rmse_f is not None and rmse_f == rmse_f:  # a log without pack temperature has none (NaN)
             out[f"{which}_test_temperature_rmse_f"] = round(t["temperature"]["rmse_f"], 3)
     return out
+
+
+def _print_warnings(res, label: str | None) -> None:
+    """The result's own warnings (e.g. poorly supported initial SoCs) on stderr, one a line."""
+    for w in res.warnings:
+        print(f"fit: warning: {label + ': ' if label else ''}{w}", file=sys.stderr)
 
 
 def run_vehicle(args: argparse.Namespace, settings) -> int:
@@ -187,6 +195,7 @@ def run_vehicle(args: argparse.Namespace, settings) -> int:
         return 2
     for name, res in results.items():
         write_outputs(res, args.out / name if len(results) > 1 else args.out, plots=not args.no_plots)
+        _print_warnings(res, name)
         warnings = (start_soc_warnings(res, next(p for p in desc.packs if p.name == name))
                     if args.fit_what == "battery" and settings.model == "paper" else [])
         for w in warnings:
@@ -255,6 +264,7 @@ def run(args: argparse.Namespace) -> int:
             out = args.out / pack if len(packs) > 1 else args.out
             write_outputs(res, out, plots=not args.no_plots)
             results[pack] = res
+            _print_warnings(res, pack)
             print(json.dumps(_summary(res)))
     except FlightDataError as exc:
         print(f"fit: {exc}", file=sys.stderr)
@@ -319,6 +329,7 @@ def run_set(args: argparse.Namespace) -> int:
         return 2
     for part, res in results.items():
         write_outputs(res, args.out / part, plots=not args.no_plots)
+        _print_warnings(res, part)
         print(json.dumps({"part": part, **_summary(res)}))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "parameters.json").write_text(merged.to_json(indent=2))

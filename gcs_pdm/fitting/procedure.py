@@ -31,6 +31,7 @@ from gcs_pdm.fitting.cleaning import CleaningReport, CleaningSettings, RejectedF
 from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
 from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenberg_marquardt,
                                    levenberg_marquardt_subset)
+from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import (PACK_NAMES, MotorParams, PackParams, ParameterSet, builtin, extended_default,
@@ -87,6 +88,9 @@ class FitSettings:
     #: the best) is not a fit of the data, yet its validation error can be the lowest by chance when
     #: every candidate misses a validation flight near the cut-off (docs/fitting.md, per-seed table)
     extended_train_tolerance: float = 1.5
+    #: a validation/test flight's initial SoC counts as supported when a training flight started within
+    #: half this SoC span of it (gcs_pdm.fitting.support; reported, never used in a choice)
+    soc_support_span: float = SOC_SUPPORT_SPAN
 
     def search_for(self, stage: str) -> SearchSettings:
         """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
@@ -103,6 +107,7 @@ class FitSettings:
                 "extended_polish_nfev": self.extended_polish_nfev,
                 "extended_ocv_refit_nfev": self.extended_ocv_refit_nfev,
                 "extended_train_tolerance": self.extended_train_tolerance,
+                "soc_support_span": self.soc_support_span,
                 "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range,
                 "extended_soc_offset_range": self.extended_soc_offset_range, "ocv_smoothing": self.ocv_smoothing,
                 "workers": self.workers,
@@ -187,6 +192,11 @@ class FitResult:
     base_pack: PackParams | None = None
     #: {"fitted": bool, "reason": str} of the thermal stage
     thermal: dict[str, Any] = field(default_factory=lambda: {"fitted": True, "reason": ""})
+    #: battery: how well the training flights' starts support each validation/test flight's initial
+    #: SoC (gcs_pdm.fitting.support); None for the motor
+    initial_soc_support: dict[str, Any] | None = None
+    #: things the user should know about this result (printed by the CLI), e.g. poorly supported starts
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def pack_params(self) -> PackParams | None:
@@ -220,6 +230,8 @@ class FitResult:
             "stages": [s.to_dict() for s in self.stages],
             "flights": self.flights,
             "initial_soc": {p.name: p.initial_soc for p in self.predictions if p.initial_soc is not None},
+            "initial_soc_support": self.initial_soc_support,
+            "warnings": list(self.warnings),
             "cleaning": [r.to_dict() for r in self.cleaning],
             "rejected": [r.to_dict() for r in self.rejected],
             "provenance": {"settings": self.settings.to_dict(), "seed": self.settings.search.seed,
@@ -521,9 +533,13 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     pairs_l: dict[str, list] = {}
     pairs_r: dict[str, list] = {}
     predictions: list[FlightPrediction] = []
+    starts: list[StartReading] = []
     for split in SPLITS:
         flights = splits[split]
         learned = _pack_traces(final, flights, s.init_samples, s.model)
+        for f, (_, _, soc) in zip(flights, learned):
+            pv = pb.prepare(f, "voltage", s.init_samples)
+            starts.append(StartReading(f.name, split, pv.init_voltage, pv.init_current, soc, fmt.cells))
         refs = _pack_traces(ref_vec, flights, s.init_samples)
         pairs_l[split] = [(f.name, {"voltage": (lv, f.voltage_v), "temperature": (lt, f.temperature_c)})
                           for f, (lv, lt, _) in zip(flights, learned)]
@@ -532,6 +548,9 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         for f, (lv, lt, soc), (rv, rt, _) in zip(flights, learned, refs):
             predictions.append(FlightPrediction(f.name, split, f.time_s, f.voltage_v, lv, f.temperature_c, lt, rv, rt, soc,
                                                 model=s.model))
+    support, support_warnings = support_report(starts, s.soc_support_span)
+    for w in support_warnings:
+        log.debug("battery fit: %s", w)  # the CLI prints result.warnings; at INFO they would print twice
     result = FitResult(
         component=BATTERY, pack=pack,
         parameters={k: float(v) for k, v in zip(kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS, final)},
@@ -540,7 +559,7 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         stages=stages, cleaning=reports, rejected=rejected,
         flights={k: [f.name for f in v] for k, v in splits.items()}, settings=settings,
         seconds=time.perf_counter() - t_start, predictions=predictions, model=s.model, base_pack=base_pack,
-        thermal=thermal)
+        thermal=thermal, initial_soc_support=support, warnings=support_warnings)
     stepper.report(1.0, "done")
     return result
 
