@@ -25,6 +25,7 @@ from typing import Callable, Iterable
 
 from gcs_pdm.mavlink.dialect import DIALECT, MESSAGE_IDS_BY_NAME, mavlink2, mavutil
 from gcs_pdm.mavlink.mapping import FrameMapper, ForeignSystem
+from gcs_pdm.mavlink.sequence import MAGIC_V2, SequenceMonitor
 from gcs_pdm.mavlink.tlog import TlogWriter
 from gcs_pdm.mavlink.wire import split_packet
 
@@ -192,6 +193,7 @@ class Link:
         self._stop = threading.Event()
         self.received = 0
         self.bad_data = 0
+        self.sequence = SequenceMonitor()  # whether one sender is behind each id (sequence numbers)
         self.sent = 0
         self.rcvbuf_effective: int | None = None
         # monotonic time of the tracked vehicle's last HEARTBEAT (for "link lost" decisions)
@@ -337,7 +339,10 @@ class Link:
         return {"target_system": self.mapper.target_system, "vehicle_silent_s": self.vehicle_silent_s(),
                 "foreign_systems": [f.to_dict() for f in self.foreign_systems],
                 "clock": self.mapper.clock.to_dict(), "time_rejected": stats.time_rejected,
-                "gated": stats.to_dict()["gated"], "bad_data": self.bad_data, "other_source": stats.other_source}
+                "gated": stats.to_dict()["gated"], "bad_data": self.bad_data, "other_source": stats.other_source,
+                "sequence": (None if (seq := self.sequence.stats(self.mapper.target_system,
+                                                                 self.mapper.target_component)) is None
+                             else seq.to_dict())}
 
     def wait_for_vehicle(self, timeout: float = 10.0) -> tuple[int, int]:
         """Block until the vehicle's heartbeat has been seen; its (system, component)."""
@@ -411,6 +416,7 @@ class Link:
             self.tlog.write_us(raw, recv_us)
         packet = split_packet(bytes(raw))
         if packet is not None:
+            self.sequence.note(packet.sysid, packet.compid, raw[4] if raw[0] == MAGIC_V2 else raw[2])
             frames = self.mapper.feed(recv_us / 1e6, packet.msgid, packet.sysid, packet.compid, packet.payload)
             if (packet.msgid == HEARTBEAT_ID and self.mapper.locked and packet.sysid == self.mapper.target_system
                     and packet.compid == self.mapper.target_component):

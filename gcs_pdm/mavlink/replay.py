@@ -27,6 +27,8 @@ the frame time span come from the columns (``tests/test_skip_frames.py``).
 """
 from __future__ import annotations
 
+from array import array
+
 import logging
 import socket
 import time
@@ -41,6 +43,7 @@ import numpy as np
 from gcs_pdm.mavlink.dialect import MESSAGE_CLASSES
 from gcs_pdm.mavlink.frame_columns import Chunk, map_scanned, map_scanned_for
 from gcs_pdm.mavlink.mapping import FrameMapper
+from gcs_pdm.mavlink.sequence import scan_sequence_numbers, sequence_stats
 from gcs_pdm.mavlink.tlog import ScannedTlog, ScanStats, scan_tlog_bounds, scanned_tlog, take_kept_scan
 
 log = logging.getLogger(__name__)
@@ -147,10 +150,15 @@ def _udp_sender(target: str):
     return sock, address
 
 
-def _counted(rows, by_id: Counter):
-    """The rows of a streamed scan, counting their message ids."""
+def _counted(rows, by_id: Counter, headers: tuple):
+    """The rows of a streamed scan, counting their message ids and keeping each packet's system,
+    component and start (``headers``: three arrays, for the sequence-number check)."""
+    systems, components, starts = headers
     for row in rows:
         by_id[row[1]] += 1
+        systems.append(row[2])
+        components.append(row[3])
+        starts.append(row[6])
         yield row
 
 
@@ -265,7 +273,8 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
         by_id.update(dict(zip(ids.tolist(), counts.tolist())))
     else:
         data, stats = path.read_bytes(), ScanStats()
-        rows = _counted(scan_tlog_bounds(data, stats), by_id)
+        headers = (array("Q"), array("Q"), array("Q"))
+        rows = _counted(scan_tlog_bounds(data, stats), by_id, headers)
     if speed is not None or udp_target:
         sock = _udp_sender(udp_target) if udp_target else None
         rows = _paced(rows, data, speed, sock)
@@ -315,12 +324,21 @@ def replay_tlog(path: str | Path, *, mapper: FrameMapper | None = None,
     if stats.first_timestamp_us is not None:
         start_utc = _utc(stats.first_timestamp_us)
         duration = (stats.last_timestamp_us - stats.first_timestamp_us) / 1e6
+    vehicle = {"system": mapper.target_system, "component": mapper.target_component,
+               "reboots": mapper.clock.reboots, "clock": "receive-time fallback" if mapper.clock.fallback else "vehicle"}
+    if mapper.target_system is not None:
+        systems, components, starts = (scanned.columns[2], scanned.columns[3], scanned.columns[6]) \
+            if scanned is not None else headers
+        seq = sequence_stats(np.frombuffer(systems, dtype=np.uint64), np.frombuffer(components, dtype=np.uint64),
+                             scan_sequence_numbers(data, starts), (mapper.target_system, mapper.target_component))
+        vehicle["sequence"] = seq.to_dict()
+        if seq.shared:
+            log.warning("%s: %s", path.name, seq.verdict)
     return ReplaySummary(
         path=str(path), size_bytes=len(data),
         messages_by_type=dict(sorted(((names[k], v) for k, v in by_id.items()), key=lambda kv: (-kv[1], kv[0]))),
         scan=stats.to_dict(), mapping=mapper.stats.to_dict(),
-        vehicle={"system": mapper.target_system, "component": mapper.target_component,
-                 "reboots": mapper.clock.reboots, "clock": "receive-time fallback" if mapper.clock.fallback else "vehicle"},
+        vehicle=vehicle,
         frame_time_span_s=(first_t, last_t) if first_t is not None else None,
         tlog_start_utc=start_utc, tlog_duration_s=duration, elapsed_s=elapsed,
         consumer=consumer_report, faults=faults,
