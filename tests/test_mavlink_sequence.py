@@ -44,7 +44,7 @@ def test_a_second_sender_on_the_vehicles_id_is_said(tmp_path, caplog):
     write_tlog(tmp_path / "two.tlog", mixed)
     with caplog.at_level(logging.WARNING, logger="gcs_pdm.mavlink.replay"):
         seq = replay_tlog(tmp_path / "two.tlog").to_dict()["vehicle"]["sequence"]
-    assert seq["shared"] and seq["out_of_sequence"] >= 0.4 * seq["packets"]
+    assert seq["shared"] and seq["shared_now"] and seq["out_of_sequence"] >= 0.4 * seq["packets"]
     assert "more than one sender uses system 1 component 1" in seq["verdict"]
     assert any("more than one sender" in r.getMessage() for r in caplog.records)
 
@@ -69,6 +69,23 @@ def test_the_live_monitor_counts_as_the_replay_does():
         live.note(1, 1, int(s))
     batch = sequence_stats(np.ones(seqs.size), np.ones(seqs.size), seqs, (1, 1))
     assert live.stats(1, 1) == batch and batch.shared
+
+
+def test_a_sender_that_starts_late_in_a_long_session_is_not_diluted():
+    ours = np.arange(20_000) % 256                      # an hour and more of one sender
+    other = (np.arange(300) + 77) % 256                 # then a second one on the same ids
+    seqs = np.concatenate([ours, np.ravel(np.column_stack([(np.arange(20_000, 20_300)) % 256, other]))])
+    live = SequenceMonitor()
+    for s in seqs:
+        live.note(1, 1, int(s))
+    st = live.stats(1, 1)
+    assert st.shared_now and st.out_of_sequence < 0.05 * st.packets   # diluted over the whole session
+    assert st == sequence_stats(np.ones(seqs.size), np.ones(seqs.size), seqs, (1, 1))
+    # and once it has gone, the latest window is clean again; the verdict says it was there
+    for s in (np.arange(20_300, 21_000) % 256):
+        live.note(1, 1, int(s))
+    st = live.stats(1, 1)
+    assert not st.shared_now and st.shared and "earlier" in st.verdict
 
 
 def test_the_live_links_trust_report_says_it():

@@ -101,7 +101,7 @@ class VehicleStatus(BaseModel):
     link_trust: dict[str, Any] = Field(default_factory=dict, description=(
         "what the link refused to believe (Link.trust_report): foreign_systems [{system, component, heartbeats, "
         "first_seen_s, last_seen_s}], time_rejected, gated values by field, bad_data, sequence (whether one sender is "
-        "behind the vehicle's id: packets, lost, out_of_sequence, shared, verdict; null before the vehicle is "
+        "behind the vehicle's id: packets, lost, out_of_sequence, window, shared_now, shared, verdict; null before the vehicle is "
         "identified); available: false without a link"))
     model_config = ConfigDict(extra="allow")
 

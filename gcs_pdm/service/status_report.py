@@ -32,6 +32,19 @@ def link_trust(service) -> dict:
     return {"available": True, **link.trust_report()}
 
 
+def trust_warnings(trust: dict) -> list[dict]:
+    """The operator's warnings from the link's trust report (``/status`` ``warnings``, one banner
+    each on the console): more than one sender on the vehicle's own id, whose readings are mixed
+    as the vehicle's (gcs_pdm.mavlink.sequence)."""
+    seq = trust.get("sequence") if trust.get("available") else None
+    if not seq or not seq.get("shared"):
+        return []
+    # now: the readings being mixed; earlier: some of what was estimated may have been another's
+    return [{"kind": "shared_vehicle_id", "level": "critical" if seq.get("shared_now") else "warning",
+             "title": "More than one sender on the vehicle's id" + ("" if seq.get("shared_now") else " (earlier)"),
+             "text": seq["verdict"]}]
+
+
 def model_mismatch_summary(model_checks: dict[str, dict]) -> dict | None:
     """``/status``'s top-level ``model_mismatch`` from the estimate's per-pack model checks
     (``Estimate.model_mismatch``): None while every pack matches its model (or is not judged

@@ -208,3 +208,39 @@ def test_fit_jobs_progress_results_cancel_and_activate(service, page):
     expect(page.locator('#paramsets [data-set="console_motor"]')).to_contain_text("active", timeout=10_000)
     assert next(p for p in service.get("/parameter-sets") if p["name"] == "console_motor")["active"]
     assert not requests.foreign(service.host), requests.foreign(service.host)
+
+
+@pytest.mark.timeout(120)
+def test_a_second_sender_on_the_vehicles_id_is_a_banner(service, page):
+    """A second sender using the vehicle's own system and component id (another vehicle or simulator
+    left on the same id): its readings cannot be told apart by the ids, so the console says so, from
+    the interleaved MAVLink sequence numbers (docs/operations.md, "One sender per id")."""
+    import socket
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parents[1] / "mavlink"))
+    from mavlink_builders import PacketFactory
+
+    sim = Sim(service).start()
+    try:
+        page.goto(service.url + "/")
+        expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+        expect(page.locator("#packs .card").first).to_contain_text("V", timeout=30_000)
+        expect(page.locator('[data-banner="status-shared_vehicle_id"]')).to_have_count(0)
+        other = PacketFactory(1, 1)
+        other.mav.seq = 131
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            for k in range(400):
+                sock.sendto(other.battery(0, [4000] * 5, 1500, 3000), ("127.0.0.1", service.udp_port))
+                other.mav.seq = (other.mav.seq + 1) % 256
+                time.sleep(0.01)
+        finally:
+            sock.close()
+        banner = page.locator('[data-banner="status-shared_vehicle_id"]')
+        expect(banner).to_have_count(1, timeout=15_000)
+        expect(banner).to_contain_text("More than one sender on the vehicle's id")
+        expect(banner).to_contain_text("system 1 component 1")
+    finally:
+        sim.stop()

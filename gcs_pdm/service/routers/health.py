@@ -6,7 +6,7 @@ from fastapi import APIRouter
 import gcs_pdm
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite
-from gcs_pdm.service.status_report import foreign_system_ids, link_trust
+from gcs_pdm.service.status_report import foreign_system_ids, link_trust, trust_warnings
 
 router = APIRouter()
 
@@ -15,6 +15,7 @@ router = APIRouter()
 def health(service: ServiceDep):
     link = service.state.get("link")
     reasons = [f"link lost: {link.get('reason')}"] if link.get("state") == "lost" else []
+    reasons += [w["text"] for w in trust_warnings(link_trust(service)) if w["level"] == "critical"]
     return S.Health(status="degraded" if reasons else "ok", reasons=reasons, version=gcs_pdm.__version__,
                     schema_version=service.store.schema_version,
                     link_connected=bool(link["connected"]), policy=service.policy,
@@ -26,7 +27,9 @@ def health(service: ServiceDep):
 
 @router.get("/status", response_model=S.VehicleStatus)
 def status(service: ServiceDep):
-    return finite({**service.state.snapshot(), "link_trust": link_trust(service)})
+    snapshot, trust = service.state.snapshot(), link_trust(service)
+    warnings = list(snapshot.get("warnings") or []) + trust_warnings(trust)
+    return finite({**snapshot, "link_trust": trust, **({"warnings": warnings} if warnings else {})})
 
 
 @router.get("/policy", response_model=S.PolicyIn)
