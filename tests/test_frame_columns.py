@@ -35,6 +35,8 @@ def _clock_state(clock: VehicleClock) -> str:
     state = dict(vars(clock))
     candidate = state.pop("_candidate")
     state["candidate"] = None if candidate is None else {k: getattr(candidate, k) for k in candidate.__slots__}
+    receive = state.pop("_receive", None)  # after the fallback: the receive-time clock, compared the same way
+    state["receive"] = None if receive is None else _clock_state(receive)
     return repr(sorted(state.items()))
 
 

@@ -64,6 +64,9 @@ class VehicleClock:
     ACQUIRE_SAMPLES = 2
     # A reboot is evident when time goes back to below this.
     NEAR_BOOT_S = 120.0
+    _REJECT_MESSAGE = "vehicle time_boot_ms %.3f s disagrees with the vehicle's time %.3f s: ignored (%d so far)"
+    _BACK_MESSAGE = "vehicle rebooted (time_boot_ms %.3f s -> %.3f s); time continues at %.3f s"
+    _JUMP_MESSAGE = "vehicle time jumped %.3f s -> %.3f s (confirmed by %d messages of %d types)"
 
     def __init__(self, sync_window_s: float = 30.0):
         self.sync_window_s = sync_window_s
@@ -78,6 +81,7 @@ class VehicleClock:
         self._last_timed_recv_s: float | None = None
         self._first_recv_s: float | None = None
         self._candidate: _Candidate | None = None
+        self._receive: _ReceiveClock | None = None  # after the fallback: receive time under the same rules
 
     def to_dict(self) -> dict:
         return {"synced": self.synced, "fallback": self.fallback, "now_s": self.now, "reboots": self.reboots,
@@ -103,8 +107,7 @@ class VehicleClock:
     def _reject(self, boot_s: float) -> Verdict:
         self.rejected += 1
         if self.rejected in (1, 10, 100) or self.rejected % 1000 == 0:
-            log.warning("vehicle time_boot_ms %.3f s disagrees with the vehicle's time %.3f s: ignored (%d so far)",
-                        boot_s, self._last_boot_s or 0.0, self.rejected)
+            log.warning(self._REJECT_MESSAGE, boot_s, self._last_boot_s or 0.0, self.rejected)
         return Verdict.REJECTED
 
     def on_time_boot(self, boot_s: float, recv_s: float, msgid=None) -> float | Verdict:
@@ -131,12 +134,10 @@ class VehicleClock:
                     gap = max(0.0, c.first_recv_s - (self._last_timed_recv_s or c.first_recv_s))
                     self.epoch_s = (self.now or 0.0) + gap - c.first_boot_s
                     self.reboots += 1
-                    log.warning("vehicle rebooted (time_boot_ms %.3f s -> %.3f s); time continues at %.3f s",
-                                last, c.first_boot_s, c.first_boot_s + self.epoch_s)
+                    log.warning(self._BACK_MESSAGE, last, c.first_boot_s, c.first_boot_s + self.epoch_s)
                 else:
                     self.jumps += 1
-                    log.warning("vehicle time jumped %.3f s -> %.3f s (confirmed by %d messages of %d types)",
-                                last, c.first_boot_s, c.count, len(c.types))
+                    log.warning(self._JUMP_MESSAGE, last, c.first_boot_s, c.count, len(c.types))
             self._last_boot_s = c.latest_boot_s
             self._candidate = None
         t = boot_s + self.epoch_s
@@ -184,17 +185,55 @@ class VehicleClock:
                 i += 1
         return times, accepted
 
-    def untimed(self, recv_s: float) -> float | None:
-        """Time for a message without a time field; None while waiting for the first timed one."""
+    def untimed(self, recv_s: float, msgid=None) -> float | Verdict | None:
+        """Time for a message without a time field; None while waiting for the first timed one;
+        after the fallback its receive time under the clock's rules (``receive_time``:
+        ``Verdict.REJECTED`` says drop it)."""
         if self.synced:
             return self.now
         if self.fallback:
-            return recv_s
+            return self.receive_time(recv_s, msgid)
         if self._first_recv_s is None:
             self._first_recv_s = recv_s
         elif recv_s - self._first_recv_s > self.sync_window_s:
             self.fallback = True
             log.warning("no time_boot_ms from the vehicle within %.1f s: stamping frames with receive time",
                         self.sync_window_s)
-            return recv_s
+            return self.receive_time(recv_s, msgid)
         return None
+
+    def receive_time(self, recv_s: float, msgid=None) -> float | Verdict:
+        """After the fallback: a vehicle message's time from its receive time (the tlog stamp in a
+        replay), under the vehicle time's rules — a stamp far ahead of the others or behind them (a
+        damaged tlog stamp, which lies outside the packet's CRC; a wall clock stepped back) is a
+        candidate, taken only when the next messages agree with it, and a step back then continues
+        the time from where it was (the epoch, as after a reboot), so it never runs backwards.
+        ``Verdict.REJECTED``: drop the message. Every vehicle message passes here, in order."""
+        r = self._receive
+        if r is None:
+            r = self._receive = _ReceiveClock(recv_s)
+        t = r.on_time_boot(recv_s, recv_s, msgid)
+        return Verdict.REJECTED if t.__class__ is Verdict else t
+
+    def receive_times(self, recv_s, msgids):
+        """:meth:`receive_time` of many messages in turn (numpy arrays): their times and whether each
+        was accepted."""
+        if self._receive is None:
+            raise ValueError("receive_times needs a clock that has fallen back to receive time")
+        return self._receive.on_time_boots(recv_s, recv_s, msgids)
+
+
+class _ReceiveClock(VehicleClock):
+    """Receive time under the vehicle clock's rules (``VehicleClock.receive_time``): every message
+    carries one, so one message type confirms a jump, and its own messages say what it is."""
+
+    CONFIRM_TYPES = 1
+    _REJECT_MESSAGE = "receive time %.3f s disagrees with the messages' time %.3f s: ignored (%d so far)"
+    _BACK_MESSAGE = "receive time stepped back (%.3f s -> %.3f s); message time continues at %.3f s"
+    _JUMP_MESSAGE = "receive time jumped %.3f s -> %.3f s (confirmed by %d messages of %d types)"
+
+    def __init__(self, recv_s: float):
+        super().__init__()
+        # seeded with its first time: the fallback itself was the wait for agreement
+        self._last_boot_s = self.now = self._last_timed_recv_s = recv_s
+        self.synced = True

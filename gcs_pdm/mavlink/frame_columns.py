@@ -143,9 +143,14 @@ def _streams(mapper: FrameMapper, data: bytes, columns, start: int) -> tuple[lis
         boot = _time_boot_s(raw, msgid[timed], payload_start[timed], payload_end[timed], plans)
         timed_t, accepted = clock.on_time_boots(boot, recv[timed], msgid[timed])
         now_after = np.maximum(now_before_run, np.maximum.accumulate(np.where(accepted, timed_t, -np.inf)))
-    else:  # receive time for good: the clock is not consulted
-        timed_t, accepted = recv[timed], np.ones(timed.size, dtype=bool)
-    stats.time_rejected += timed.size - int(np.count_nonzero(accepted))
+        stats.time_rejected += timed.size - int(np.count_nonzero(accepted))
+    else:  # receive time for good, under the clock's jump rules: every vehicle message passes, in order
+        fed = np.flatnonzero(ours)
+        fed_t, fed_ok = clock.receive_times(recv[fed], msgid[fed])
+        stats.time_rejected += fed.size - int(np.count_nonzero(fed_ok))
+        received_t, received_ok = np.full(n, np.nan), np.zeros(n, dtype=bool)
+        received_t[fed], received_ok[fed] = fed_t, fed_ok
+        timed_t, accepted = received_t[timed], received_ok[timed]
 
     def now_at(positions: np.ndarray) -> np.ndarray:
         """The clock's time when each of these messages arrived (after the timed ones before it)."""
@@ -166,8 +171,10 @@ def _streams(mapper: FrameMapper, data: bytes, columns, start: int) -> tuple[lis
     usable[timed[accepted]] = True
     untimed = np.flatnonzero(ours & np.isin(msgid, [m for m, p in plans.items()
                                                      if p.time_offset is None and p.emit is not None]))
-    times[untimed] = now_at(untimed) if vehicle_time else recv[untimed]
-    usable[untimed] = True
+    if vehicle_time:
+        times[untimed], usable[untimed] = now_at(untimed), True
+    else:
+        times[untimed], usable[untimed] = received_t[untimed], received_ok[untimed]
 
     mapped = {m: p for m, p in plans.items() if p.emit is not None}
     slots = 1 + max((sum(len(r.instances) for r in p.rules) for p in mapped.values()), default=0)

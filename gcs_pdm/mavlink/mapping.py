@@ -620,7 +620,10 @@ class FrameMapper:
         if plan is None:  # untimed and unmapped: it only dates frames held before the clock existed
             if clock.synced:
                 return self._release_pending(clock.now, recv_s) if self._pending else _EMPTY
-            t = clock.untimed(recv_s)
+            t = clock.untimed(recv_s, msgid)
+            if t is Verdict.REJECTED:  # a receive time the others disagree with (after the fallback)
+                self.stats.time_rejected += 1
+                return _EMPTY
             return self._release_pending(t, recv_s) if t is not None and self._pending else _EMPTY
         time_offset = plan.time_offset
         boot_s = released = None
@@ -632,14 +635,20 @@ class FrameMapper:
                 boot_s = int.from_bytes(buf[at:end], "little") / 1000.0
             t = clock.on_time_boot(boot_s, recv_s, msgid)
             if t.__class__ is Verdict:
+                if t is Verdict.FALLBACK:
+                    t = clock.receive_time(recv_s, msgid)
                 if t is Verdict.REJECTED:
                     self.stats.time_rejected += 1
                     return _EMPTY
-                t = recv_s if t is Verdict.FALLBACK else None  # else ACQUIRING: hold the frames
+                if t is Verdict.ACQUIRING:
+                    t = None  # hold the frames
             if t is not None and self._pending:
                 released = self._release_pending(t, recv_s)
         else:
-            t = clock.now if clock.synced else clock.untimed(recv_s)
+            t = clock.now if clock.synced else clock.untimed(recv_s, msgid)
+            if t is Verdict.REJECTED:
+                self.stats.time_rejected += 1
+                return _EMPTY
             if t is not None and self._pending:
                 released = self._release_pending(t, recv_s)
         emit = plan.emit
