@@ -442,13 +442,13 @@ def _split_errors(pairs: dict[str, list[tuple[str, dict[str, tuple[np.ndarray, n
 
 # ---- battery -----------------------------------------------------------------------------------------
 
-def _pack_traces(vec: np.ndarray, flights: Sequence[Flight], init_samples: int, model: str = "paper",
+def _pack_traces(vec: np.ndarray, prepared: Sequence[pb.Prepared], model: str = "paper",
                  ) -> list[tuple[np.ndarray, np.ndarray, float]]:
-    """(voltage, temperature, initial SoC) per flight for one full pack vector of variant ``model``
-    (a prediction: the model's own temperature drives the extended variant's resistances)."""
+    """(voltage, temperature, initial SoC) per prepared flight (``problem.prepare``) for one full pack
+    vector of variant ``model`` (a prediction: the model's own temperature drives the extended
+    variant's resistances)."""
     out = []
-    for f in flights:
-        pv = pb.prepare(f, "voltage", init_samples)
+    for pv in prepared:
         P = vec[None]
         if model == "extended":
             soc = kernel.extended_rest_soc(P, pv.init_voltage, pv.init_current, pv.init_temperature)
@@ -536,11 +536,12 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     starts: list[StartReading] = []
     for split in SPLITS:
         flights = splits[split]
-        learned = _pack_traces(final, flights, s.init_samples, s.model)
-        for f, (_, _, soc) in zip(flights, learned):
-            pv = pb.prepare(f, "voltage", s.init_samples)
+        # once per flight: the learned and the reference traces and the start readings all use it
+        prepared = [pb.prepare(f, "voltage", s.init_samples) for f in flights]
+        learned = _pack_traces(final, prepared, s.model)
+        for f, pv, (_, _, soc) in zip(flights, prepared, learned):
             starts.append(StartReading(f.name, split, pv.init_voltage, pv.init_current, soc, fmt.cells))
-        refs = _pack_traces(ref_vec, flights, s.init_samples)
+        refs = _pack_traces(ref_vec, prepared)
         pairs_l[split] = [(f.name, {"voltage": (lv, f.voltage_v), "temperature": (lt, f.temperature_c)})
                           for f, (lv, lt, _) in zip(flights, learned)]
         pairs_r[split] = [(f.name, {"voltage": (rv, f.voltage_v), "temperature": (rt, f.temperature_c)})
@@ -644,7 +645,8 @@ def evaluate_battery(vector: np.ndarray, flights: Sequence[Flight], settings: Fi
     """Errors of one pack vector ((12,) paper or (N_EXT_PARAMS,) extended, per ``model``) on flights, cleaned and
     initialised exactly as in a fit (so the errors of the true parameters compare with a fit's)."""
     usable, _, _ = clean_flights(list(flights), settings.cleaning)
-    traces = _pack_traces(np.asarray(vector, dtype=np.float64), usable, settings.init_samples, model)
+    traces = _pack_traces(np.asarray(vector, dtype=np.float64),
+                          [pb.prepare(f, "voltage", settings.init_samples) for f in usable], model)
     return _split_errors({"eval": [(f.name, {"voltage": (v, f.voltage_v), "temperature": (t, f.temperature_c)})
                                    for f, (v, t, _) in zip(usable, traces)]})["eval"]
 
