@@ -25,7 +25,7 @@ from typing import Callable, Iterable
 
 from gcs_pdm.mavlink.dialect import DIALECT, MESSAGE_IDS_BY_NAME, mavlink2, mavutil
 from gcs_pdm.mavlink.mapping import FrameMapper, ForeignSystem
-from gcs_pdm.mavlink.sequence import MAGIC_V2, SequenceMonitor
+from gcs_pdm.mavlink.sequence import SequenceMonitor
 from gcs_pdm.mavlink.tlog import TlogWriter
 from gcs_pdm.mavlink.wire import split_packet
 
@@ -416,7 +416,7 @@ class Link:
             self.tlog.write_us(raw, recv_us)
         packet = split_packet(bytes(raw))
         if packet is not None:
-            self.sequence.note(packet.sysid, packet.compid, raw[4] if raw[0] == MAGIC_V2 else raw[2])
+            self.sequence.note(packet.sysid, packet.compid, packet.seq)
             frames = self.mapper.feed(recv_us / 1e6, packet.msgid, packet.sysid, packet.compid, packet.payload)
             if (packet.msgid == HEARTBEAT_ID and self.mapper.locked and packet.sysid == self.mapper.target_system
                     and packet.compid == self.mapper.target_component):

@@ -27,11 +27,10 @@ the frame time span come from the columns (``tests/test_skip_frames.py``).
 """
 from __future__ import annotations
 
-from array import array
-
 import logging
 import socket
 import time
+from array import array
 from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime, timezone

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gcs_pdm.mavlink.wire import MAGIC_V2, SEQ_AT_V1, SEQ_AT_V2
+
 log = logging.getLogger(__name__)
 
 #: steps (consecutive packets of one id) per test window, and the share of them out of sequence
@@ -32,7 +34,9 @@ WINDOW = 500
 SHARED_FRACTION = 0.05
 #: a window is judged once it holds this many steps
 MIN_STEPS = 100
-MAGIC_V2 = 0xFD
+#: the largest step from one sender's packet to its next (modulo 256) read as packets lost, not as a
+#: step back: half the counter's range
+MAX_FORWARD_STEP = 128
 
 
 def _shared(out: int, steps: int) -> bool:
@@ -89,7 +93,7 @@ def sequence_stats(system: np.ndarray, component: np.ndarray, seq: np.ndarray, t
     if s.size < 2:
         return st
     steps = np.diff(s) % 256
-    forward = (steps >= 1) & (steps <= 128)
+    forward = (steps >= 1) & (steps <= MAX_FORWARD_STEP)
     out = ~forward
     st.lost = int(np.sum(steps[forward] - 1))
     st.out_of_sequence = int(np.count_nonzero(out))
@@ -106,13 +110,14 @@ def sequence_stats(system: np.ndarray, component: np.ndarray, seq: np.ndarray, t
 
 
 def scan_sequence_numbers(data: bytes, packet_starts) -> np.ndarray:
-    """Each packet's sequence number, from its header in ``data`` (byte 4 in MAVLink 2, 2 in 1)."""
+    """Each packet's sequence number, from its header in ``data`` (``wire.split_packet``'s ``seq``, for
+    a whole log at once)."""
     buf = np.frombuffer(data, dtype=np.uint8)
     starts = (packet_starts if isinstance(packet_starts, np.ndarray)
               else np.frombuffer(packet_starts, dtype=np.uint64)).astype(np.int64)
     if starts.size == 0:
         return np.empty(0, dtype=np.int64)
-    return buf[starts + np.where(buf[starts] == MAGIC_V2, 4, 2)].astype(np.int64)
+    return buf[starts + np.where(buf[starts] == MAGIC_V2, SEQ_AT_V2, SEQ_AT_V1)].astype(np.int64)
 
 
 class SequenceMonitor:
@@ -137,7 +142,7 @@ class SequenceMonitor:
         if last is None:
             return
         step = (seq - last) % 256
-        out = not 1 <= step <= 128
+        out = not 1 <= step <= MAX_FORWARD_STEP
         if out:
             st.out_of_sequence += 1
         else:

@@ -17,6 +17,7 @@ MAGIC_V1 = 0xFE
 MAGIC_V2 = 0xFD
 HEADER_LEN_V1 = 6  # magic len seq sysid compid msgid
 HEADER_LEN_V2 = 10  # magic len incompat compat seq sysid compid msgid(3)
+SEQ_AT_V1, SEQ_AT_V2 = 2, 4  # the sender's packet counter's byte in each header
 SIGNATURE_LEN = 13
 MAVLINK_IFLAG_SIGNED = 0x01
 
@@ -44,6 +45,7 @@ class Packet:
     compid: int
     payload: bytes
     version: int
+    seq: int  # the sender's packet counter, modulo 256 (gcs_pdm.mavlink.sequence)
 
 
 def split_packet(buf: bytes) -> Packet | None:
@@ -53,10 +55,10 @@ def split_packet(buf: bytes) -> Packet | None:
     if buf[0] == MAGIC_V2:
         plen = buf[1]
         return Packet(buf[7] | (buf[8] << 8) | (buf[9] << 16), buf[5], buf[6],
-                      bytes(buf[HEADER_LEN_V2:HEADER_LEN_V2 + plen]), 2)
+                      bytes(buf[HEADER_LEN_V2:HEADER_LEN_V2 + plen]), 2, buf[SEQ_AT_V2])
     if buf[0] == MAGIC_V1:
         plen = buf[1]
-        return Packet(buf[5], buf[3], buf[4], bytes(buf[HEADER_LEN_V1:HEADER_LEN_V1 + plen]), 1)
+        return Packet(buf[5], buf[3], buf[4], bytes(buf[HEADER_LEN_V1:HEADER_LEN_V1 + plen]), 1, buf[SEQ_AT_V1])
     return None
 
 
