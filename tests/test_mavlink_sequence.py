@@ -16,16 +16,6 @@ sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; te
 from mavlink_builders import PacketFactory, tlog_record  # noqa: E402
 
 
-class Sender(PacketFactory):
-    """A sender numbering its packets as a real one does (``MAVLink.send`` counts; ``pack`` alone
-    does not, which is all the shared factory calls)."""
-
-    def pack(self, msg) -> bytes:
-        out = super().pack(msg)
-        self.mav.seq = (self.mav.seq + 1) % 256
-        return out
-
-
 def write_tlog(path, packets):
     path.write_bytes(b"".join(tlog_record(1_700_000_000_000_000 + 100_000 * k, p) for k, p in enumerate(packets)))
 
@@ -38,7 +28,7 @@ def flight(vehicle, n=300):
 
 
 def test_a_second_sender_on_the_vehicles_id_is_said(tmp_path, caplog):
-    ours, other = Sender(1, 1), Sender(1, 1)
+    ours, other = PacketFactory(1, 1, numbered=True), PacketFactory(1, 1, numbered=True)
     other.mav.seq = 117  # its own counter, somewhere else
     mixed = [p for pair in zip(flight(ours), flight(other)) for p in pair]
     write_tlog(tmp_path / "two.tlog", mixed)
@@ -50,7 +40,7 @@ def test_a_second_sender_on_the_vehicles_id_is_said(tmp_path, caplog):
 
 
 def test_one_sender_losing_packets_is_one_sender(tmp_path):
-    packets = list(flight(Sender(1, 1)))
+    packets = list(flight(PacketFactory(1, 1, numbered=True)))
     rng = np.random.default_rng(0)
     kept = [p for p in packets if rng.random() > 0.2]  # a fifth of the packets lost
     write_tlog(tmp_path / "lossy.tlog", kept)
@@ -90,7 +80,7 @@ def test_a_sender_that_starts_late_in_a_long_session_is_not_diluted():
 
 def test_the_live_links_trust_report_says_it():
     link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))  # never opened: packets injected
-    ours, other = Sender(1, 1), Sender(1, 1)
+    ours, other = PacketFactory(1, 1, numbered=True), PacketFactory(1, 1, numbered=True)
     other.mav.seq = 117
     assert link.trust_report()["sequence"] is None  # no vehicle yet
     for a, b in zip(flight(ours, 100), flight(other, 100)):

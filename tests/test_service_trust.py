@@ -81,22 +81,13 @@ def test_foreign_vehicles_are_reported_in_status_health_events_and_log(service, 
     assert link.target_system == 1  # the vehicle, never an intruder
 
 
-class NumberedSender(PacketFactory):
-    """Numbers its packets as a real sender does (the shared factory's ``pack`` does not count)."""
-
-    def pack(self, msg) -> bytes:
-        out = super().pack(msg)
-        self.mav.seq = (self.mav.seq + 1) % 256
-        return out
-
-
 def test_a_second_sender_on_the_vehicles_id_degrades_health_and_warns_in_status(service):
     from gcs_pdm.mavlink.dialect import mavlink2
 
     link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))  # never opened: packets injected
     service.attach_loop(LinkOnlyLoop(link))
     client = TestClient(create_app(service))
-    ours, other = NumberedSender(1, 1), NumberedSender(1, 1)
+    ours, other = PacketFactory(1, 1, numbered=True), PacketFactory(1, 1, numbered=True)
     other.mav.seq = 99
     for k in range(80):
         for sender in (ours, other):
@@ -115,7 +106,7 @@ def test_one_sender_raises_no_warning(service):
     link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))
     service.attach_loop(LinkOnlyLoop(link))
     client = TestClient(create_app(service))
-    ours = NumberedSender(1, 1)
+    ours = PacketFactory(1, 1, numbered=True)
     for k in range(200):
         packet = ours.heartbeat() if k % 10 == 0 else ours.battery(0, [4000] * 4, 1500, 3000)
         link.handle_message(mavlink2.MAVLink(None).decode(bytearray(packet)))

@@ -9,14 +9,20 @@ from gcs_pdm.mavlink.dialect import mavlink2
 class PacketFactory:
     """Encodes messages as a given system/component, MAVLink 2 by default, 1 on request."""
 
-    def __init__(self, sysid: int = 1, compid: int = 1, mavlink1: bool = False):
+    def __init__(self, sysid: int = 1, compid: int = 1, mavlink1: bool = False, numbered: bool = False):
+        """``numbered``: count the packets' sequence numbers as a real sender does (pymavlink's
+        ``MAVLink.send`` counts, ``msg.pack`` alone does not: every packet then carries 0)."""
         dialect = mavlink2
         if mavlink1:
             from pymavlink.dialects.v10 import ardupilotmega as dialect
         self.mav = dialect.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.numbered = numbered
 
     def pack(self, msg) -> bytes:
-        return msg.pack(self.mav)
+        out = msg.pack(self.mav)
+        if self.numbered:
+            self.mav.seq = (self.mav.seq + 1) % 256
+        return out
 
     # Shorthands for the telemetry the service maps.
     def heartbeat(self, armed: bool = True, custom_mode: int = 10):
