@@ -42,24 +42,26 @@ from gcs_pdm.fitting.problem import prepare  # noqa: E402
 CELLS = 5
 T_REF_K = 298.15
 NAMES = ("R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "E_ct", "k_soc", "soc_knee", "b_ct", "i_ct",
-         "k_p", "tau_p", "k_n", "tau_n", "C_max")
-LO = np.array([1e-3, 1e-4, 1.0, 1e-4, 30.0, 100.0, 100.0, 1e-3, 0.01, 1e-3, 0.1, 0.1, 5.0, 0.1, 1.0, 0.7 * 28080])
+         "k_p", "tau_p", "k_n", "tau_n", "C_max", "E_d")
+LO = np.array([1e-3, 1e-4, 1.0, 1e-4, 30.0, 100.0, 100.0, 1e-3, 0.01, 1e-3, 0.1, 0.1, 5.0, 0.1, 1.0, 0.7 * 28080, 1.0])
 HI = np.array([0.2, 0.2, 100.0, 0.2, 3000.0, 8000.0, 8000.0, 10.0, 0.3, 1.0, 500.0, 3000.0, 20000.0, 3000.0, 2000.0,
-               1.4 * 28080])
-STRUCTURES = ("one_surface", "two_electrodes")
+               1.4 * 28080, 8000.0])
+STRUCTURES = ("one_surface", "two_electrodes", "two_electrodes_activated")
 
 
 @njit(cache=True)
-def simulate(p, two, soc0, dt, current, temperature, grid, pos, neg, window, out):
+def simulate(p, two, soc0, dt, current, temperature, grid, pos, neg, window, out, activated=False):
     """Terminal voltage (V, pack) of one flight; ``window`` = (x_0, x_100, y_0, y_100)."""
-    r0, r1, tau1, r2, tau2, e_r, e_ct, k_soc, knee, b_ct, i_ct, k_p, tau_p, k_n, tau_n, c_max = p
+    r0, r1, tau1, r2, tau2, e_r, e_ct, k_soc, knee, b_ct, i_ct, k_p, tau_p, k_n, tau_n, c_max, e_d = p
     x_0, x_100, y_0, y_100 = window
     soc, v1, v2, d_p, d_n = soc0, 0.0, 0.0, 0.0, 0.0
     for k in range(current.shape[0]):
         h, i, t_k = dt[k], current[k], temperature[k] + 273.15
         soc -= i * h / c_max
-        d_p = i * k_p / c_max + (d_p - i * k_p / c_max) * math.exp(-h / tau_p)
-        d_n = i * k_n / c_max + (d_n - i * k_n / c_max) * math.exp(-h / tau_n)
+        # solid diffusion slows in the cold: depth and time constant both scale with 1/D(T)
+        slow = math.exp(e_d * (1.0 / t_k - 1.0 / T_REF_K)) if activated else 1.0
+        d_p = i * k_p * slow / c_max + (d_p - i * k_p * slow / c_max) * math.exp(-h / (tau_p * slow))
+        d_n = i * k_n * slow / c_max + (d_n - i * k_n * slow / c_max) * math.exp(-h / (tau_n * slow))
         deep = soc - d_p
         if two:
             ocv = CELLS * (np.interp(y_0 + deep * (y_100 - y_0), grid, pos)
@@ -91,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--starts", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-nfev", type=int, default=400)
+    ap.add_argument("--structures", nargs="+", default=list(STRUCTURES), choices=STRUCTURES)
     args = ap.parse_args(argv)
     flights, curves, c = load(args.set)
     grid = np.array(curves["stoichiometry"])
@@ -105,9 +108,9 @@ def main(argv: list[str] | None = None) -> int:
         v = float(np.nanmean(pv.target[:n])) if whole else pv.init_voltage
         return float(np.interp(v, ocv, socs))
 
-    def trace(p, two, pv, soc0):
-        return simulate(p, two, soc0, pv.dt, pv.current, pv.drive_temperature, grid, pos, neg, window,
-                        np.empty(pv.current.size))
+    def trace(p, structure, pv, soc0):
+        return simulate(p, structure != "one_surface", soc0, pv.dt, pv.current, pv.drive_temperature, grid, pos, neg,
+                        window, np.empty(pv.current.size), structure == "two_electrodes_activated")
 
     def rmse(v, pv):
         return float(np.sqrt(np.mean((v[pv.mask] - pv.target[pv.mask]) ** 2)))
@@ -116,10 +119,10 @@ def main(argv: list[str] | None = None) -> int:
     lo, hi = np.log(LO), np.log(HI)
     rng = np.random.default_rng(args.seed)
     report = {"set": args.set, "structures": {}}
-    for two, structure in enumerate(STRUCTURES):
+    for structure in args.structures:
         def residuals(u):
             p = np.exp(lo + u * (hi - lo))
-            r = [np.where(pv.mask, trace(p, two, pv, rest_soc(pv, False)) - np.nan_to_num(pv.target), 0.0) for pv in train]
+            r = [np.where(pv.mask, trace(p, structure, pv, rest_soc(pv, False)) - np.nan_to_num(pv.target), 0.0) for pv in train]
             return np.nan_to_num(np.concatenate(r), nan=10.0, posinf=10.0, neginf=-10.0)
 
         runs = []
@@ -134,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 run["flights"][name] = {
                     "split": e["split"], "cutoff": e["reached_cutoff"],
-                    **{f"{label}_mv": round(1e3 * rmse(trace(p, two, pv, soc0), pv), 1) for label, soc0 in
+                    **{f"{label}_mv": round(1e3 * rmse(trace(p, structure, pv, soc0), pv), 1) for label, soc0 in
                        (("rest10", rest_soc(pv, False)), ("rest_all", rest_soc(pv, True)),
                         ("true_start", e["initial_soc"]))}}
             runs.append(run)

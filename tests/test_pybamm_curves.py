@@ -41,10 +41,10 @@ def test_every_flight_rests_on_its_cells_curve_at_its_initial_soc(set_name):
 CHEN_FITS = {
     "one_surface": dict(R_0=0.042751, R_1=0.048592, tau_1=49.247, R_2=0.019334, tau_2=3000.0, E_r=100.0, E_ct=8000.0,
                         k_soc=0.30796, soc_knee=0.036685, b_ct=0.13068, i_ct=1.4302, k_p=193.14, tau_p=173.82,
-                        k_n=0.16771, tau_n=215.18, C_max=31053.0),
+                        k_n=0.16771, tau_n=215.18, C_max=31053.0, E_d=1.0),
     "two_electrodes": dict(R_0=0.041478, R_1=0.027511, tau_1=19.912, R_2=0.0058327, tau_2=567.26, E_r=100.0,
                            E_ct=8000.0, k_soc=0.11897, soc_knee=0.12047, b_ct=0.14114, i_ct=3.3381, k_p=368.12,
-                           tau_p=107.97, k_n=66.222, tau_n=17.68, C_max=28747.0),
+                           tau_p=107.97, k_n=66.222, tau_n=17.68, C_max=28747.0, E_d=1.0),
 }
 
 
@@ -54,7 +54,7 @@ def test_on_chen2020_two_electrode_surfaces_fit_where_one_surface_cannot():
     pos, neg = np.array(c["positive_v"]), np.array(c["negative_v"])
     window = np.array([c["x_0"], c["x_100"], c["y_0"], c["y_100"]])
     rmse = {}
-    for two, structure in enumerate(diag.STRUCTURES):
+    for two, structure in enumerate(CHEN_FITS):  # E_d unused: diffusion not activated
         p = np.array([CHEN_FITS[structure][n] for n in diag.NAMES])
         for name, (entry, pv) in flights.items():
             v = diag.simulate(p, two, entry["initial_soc"], pv.dt, pv.current, pv.drive_temperature, grid, pos, neg,
