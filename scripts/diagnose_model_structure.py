@@ -49,7 +49,7 @@ HI = np.array([0.2, 0.2, 100.0, 0.2, 3000.0, 8000.0, 8000.0, 10.0, 0.3, 1.0, 500
 STRUCTURES = ("one_surface", "two_electrodes", "two_electrodes_activated")
 
 
-@njit(cache=True)
+@njit  # no cache: the test loads this file by path, where a cached entry cannot be rebuilt
 def simulate(p, two, soc0, dt, current, temperature, grid, pos, neg, window, out, activated=False):
     """Terminal voltage (V, pack) of one flight; ``window`` = (x_0, x_100, y_0, y_100)."""
     r0, r1, tau1, r2, tau2, e_r, e_ct, k_soc, knee, b_ct, i_ct, k_p, tau_p, k_n, tau_n, c_max, e_d = p
