@@ -114,3 +114,21 @@ def test_the_fit_reports_how_the_training_starts_support_each_test_flights_start
     assert got["nearest_below"]["voltage_v"] < got["voltage_v"] < got["nearest_above"]["voltage_v"]
     warned = [w for w in result.warnings if name in w]
     assert bool(warned) == (level != "rested")
+
+
+#: flights the fit should say leave the training conditions (docs/fitting.md, "Operating envelope"):
+#: chen2020_03 heats to 69.5 C (training: at most 62.8 C); marquis2019_10 flies in 35 C air (training:
+#: at most 32 C); every other validation and test flight stays inside
+OUTSIDE = {"chen2020_03": "pack temperature reaches 69.", "marquis2019_10": "pack temperature reaches 36."}
+
+
+def test_the_fit_says_which_flights_leave_the_training_conditions(fitted):
+    set_name, result, _, _ = fitted
+    envelope = {f["flight"]: f for f in result.to_dict()["operating_envelope"]["flights"]}
+    assert set(envelope) == set(result.flights["validation"]) | set(result.flights["test"])
+    for name, f in envelope.items():
+        if name in OUTSIDE:
+            assert not f["inside"] and any(r.startswith(OUTSIDE[name]) for r in f["outside"]), f
+            assert any(w.startswith(f"{f['split']} flight {name}: outside the training conditions") for w in result.warnings)
+        else:
+            assert f["inside"], f

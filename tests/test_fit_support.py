@@ -98,8 +98,17 @@ def test_cli_fit_reports_support_in_result_json_and_prints_the_warning(tmp_path,
     lead = pd.read_parquet(test)["voltage_v"].iloc[:10].mean()
     assert low["voltage_v"] == pytest.approx(lead, abs=0.02) and low["cell_voltage_v"] == pytest.approx(low["voltage_v"] / 5)
     assert low["soc"] == d["initial_soc"]["chen2020_11"] and abs(low["current_a"]) < 0.2
-    assert len(d["warnings"]) == 1 and "chen2020_11" in d["warnings"][0]
+    start_warnings = [w for w in d["warnings"] if "initial SoC" in w]
+    assert len(start_warnings) == 1 and "chen2020_11" in start_warnings[0]
+    # chen2020_11 also flies hotter and harder than the one training flight (6.8 C air, 1C): said too
+    envelope = {f["flight"]: f for f in d["operating_envelope"]["flights"]}
+    assert envelope["again_02"]["inside"] and not envelope["chen2020_11"]["inside"]
+    assert any(r.startswith("pack temperature reaches 44.") for r in envelope["chen2020_11"]["outside"])
+    assert [w for w in d["warnings"] if "outside the training conditions" in w] == [
+        w for w in d["warnings"] if w.startswith("test flight chen2020_11: outside")]
     assert "fit: warning: LLF20: test flight chen2020_11: initial SoC extrapolated" in captured.err
-    assert json.loads(captured.out.splitlines()[0])["initial_soc_support"] == {"again_02": "rested",
-                                                                                "chen2020_11": "extrapolated"}
+    summary = json.loads(captured.out.splitlines()[0])
+    assert summary["initial_soc_support"] == {"again_02": "rested", "chen2020_11": "extrapolated"}
+    assert summary["outside_training_conditions"] == ["chen2020_11"]
+    assert "fit: warning: LLF20: test flight chen2020_11: outside the training conditions" in captured.err
     assert np.isfinite(low["soc"])

@@ -143,6 +143,8 @@ def _summary(res) -> dict:
         out["thermal_not_fitted"] = res.thermal.get("reason", "")
     if res.initial_soc_support is not None:
         out["initial_soc_support"] = {f["flight"]: f["support"] for f in res.initial_soc_support["flights"]}
+    if res.operating_envelope is not None:
+        out["outside_training_conditions"] = [f["flight"] for f in res.operating_envelope["flights"] if not f["inside"]]
     for which in ("learned", "reference"):
         t = e[which]["test"]["overall"]
         if "voltage" in t:

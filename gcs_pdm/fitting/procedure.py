@@ -31,6 +31,7 @@ from gcs_pdm.fitting.cleaning import CleaningReport, CleaningSettings, RejectedF
 from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
 from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenberg_marquardt,
                                    levenberg_marquardt_subset)
+from gcs_pdm.fitting.envelope import FlightConditions, envelope_report
 from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
@@ -195,6 +196,9 @@ class FitResult:
     #: battery: how well the training flights' starts support each validation/test flight's initial
     #: SoC (gcs_pdm.fitting.support); None for the motor
     initial_soc_support: dict[str, Any] | None = None
+    #: battery: whether each validation/test flight stays inside the training flights' temperatures and
+    #: currents (gcs_pdm.fitting.envelope); None for the motor
+    operating_envelope: dict[str, Any] | None = None
     #: things the user should know about this result (printed by the CLI), e.g. poorly supported starts
     warnings: list[str] = field(default_factory=list)
 
@@ -231,6 +235,7 @@ class FitResult:
             "flights": self.flights,
             "initial_soc": {p.name: p.initial_soc for p in self.predictions if p.initial_soc is not None},
             "initial_soc_support": self.initial_soc_support,
+            "operating_envelope": self.operating_envelope,
             "warnings": list(self.warnings),
             "cleaning": [r.to_dict() for r in self.cleaning],
             "rejected": [r.to_dict() for r in self.rejected],
@@ -534,6 +539,7 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     pairs_r: dict[str, list] = {}
     predictions: list[FlightPrediction] = []
     starts: list[StartReading] = []
+    conditions: list[FlightConditions] = []
     for split in SPLITS:
         flights = splits[split]
         # once per flight: the learned and the reference traces and the start readings all use it
@@ -541,6 +547,7 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         learned = _pack_traces(final, prepared, s.model)
         for f, pv, (_, _, soc) in zip(flights, prepared, learned):
             starts.append(StartReading(f.name, split, pv.init_voltage, pv.init_current, soc, fmt.cells))
+            conditions.append(FlightConditions.of(f.name, split, f.temperature_c, f.ambient_c, f.current_a))
         refs = _pack_traces(ref_vec, prepared)
         pairs_l[split] = [(f.name, {"voltage": (lv, f.voltage_v), "temperature": (lt, f.temperature_c)})
                           for f, (lv, lt, _) in zip(flights, learned)]
@@ -549,8 +556,10 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         for f, (lv, lt, soc), (rv, rt, _) in zip(flights, learned, refs):
             predictions.append(FlightPrediction(f.name, split, f.time_s, f.voltage_v, lv, f.temperature_c, lt, rv, rt, soc,
                                                 model=s.model))
-    support, support_warnings = support_report(starts, s.soc_support_span)
-    for w in support_warnings:
+    support, start_warnings = support_report(starts, s.soc_support_span)
+    envelope, envelope_warnings = envelope_report(conditions)
+    fit_warnings = start_warnings + envelope_warnings
+    for w in fit_warnings:
         log.debug("battery fit: %s", w)  # the CLI prints result.warnings; at INFO they would print twice
     result = FitResult(
         component=BATTERY, pack=pack,
@@ -560,7 +569,7 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         stages=stages, cleaning=reports, rejected=rejected,
         flights={k: [f.name for f in v] for k, v in splits.items()}, settings=settings,
         seconds=time.perf_counter() - t_start, predictions=predictions, model=s.model, base_pack=base_pack,
-        thermal=thermal, initial_soc_support=support, warnings=support_warnings)
+        thermal=thermal, initial_soc_support=support, operating_envelope=envelope, warnings=fit_warnings)
     stepper.report(1.0, "done")
     return result
 
