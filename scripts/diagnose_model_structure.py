@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from gcs_pdm.fitting.cleaning import clean_flights  # noqa: E402
 from gcs_pdm.fitting.logs import read_table  # noqa: E402
-from gcs_pdm.fitting.problem import prepare  # noqa: E402
+from gcs_pdm.fitting.problem import STEADY_CURRENT_A, prepare  # noqa: E402
 
 CELLS = 5
 T_REF_K = 298.15
@@ -63,11 +63,8 @@ def simulate(p, two, soc0, dt, current, temperature, grid, pos, neg, window, out
         d_p = i * k_p * slow / c_max + (d_p - i * k_p * slow / c_max) * math.exp(-h / (tau_p * slow))
         d_n = i * k_n * slow / c_max + (d_n - i * k_n * slow / c_max) * math.exp(-h / (tau_n * slow))
         deep = soc - d_p
-        if two:
-            ocv = CELLS * (np.interp(y_0 + deep * (y_100 - y_0), grid, pos)
-                           - np.interp(x_0 + (soc - d_n) * (x_100 - x_0), grid, neg))
-        else:
-            ocv = CELLS * (np.interp(y_0 + deep * (y_100 - y_0), grid, pos) - np.interp(x_0 + deep * (x_100 - x_0), grid, neg))
+        shallow = soc - d_n if two else deep   # one surface: both electrodes read at the deep one
+        ocv = CELLS * (np.interp(y_0 + deep * (y_100 - y_0), grid, pos) - np.interp(x_0 + shallow * (x_100 - x_0), grid, neg))
         rho = 1.0 + k_soc * math.exp(-max(deep, 0.0) / knee)
         f = math.exp(e_r * (1.0 / t_k - 1.0 / T_REF_K)) * rho
         g = math.exp(e_ct * (1.0 / t_k - 1.0 / T_REF_K)) * rho
@@ -75,6 +72,17 @@ def simulate(p, two, soc0, dt, current, temperature, grid, pos, neg, window, out
         v2 = i * r2 * f + (v2 - i * r2 * f) * math.exp(-h / tau2)
         out[k] = ocv - i * r0 * f - b_ct * (t_k / T_REF_K) * math.asinh(i * g / i_ct) - v1 - v2
     return out
+
+
+def pack_ocv(c: dict, grid: np.ndarray, soc: np.ndarray) -> np.ndarray:
+    """Open-circuit voltage (V, pack) at ``soc`` of one set's curves ``c`` (a ``curves.json`` set)."""
+    return CELLS * (np.interp(c["y_0"] + soc * (c["y_100"] - c["y_0"]), grid, c["positive_v"])
+                    - np.interp(c["x_0"] + soc * (c["x_100"] - c["x_0"]), grid, c["negative_v"]))
+
+
+def leading_rest(pv) -> int:
+    """Samples before the current first leaves rest (the product's steady-current threshold)."""
+    return int(np.argmax(np.abs(pv.current) > STEADY_CURRENT_A))
 
 
 def load(set_name: str) -> tuple[dict, dict, dict]:
@@ -100,12 +108,11 @@ def main(argv: list[str] | None = None) -> int:
     pos, neg = np.array(c["positive_v"]), np.array(c["negative_v"])
     window = np.array([c["x_0"], c["x_100"], c["y_0"], c["y_100"]])
     socs = np.linspace(-0.05, 1.05, 4401)
-    ocv = CELLS * (np.interp(c["y_0"] + socs * (c["y_100"] - c["y_0"]), grid, pos)
-                   - np.interp(c["x_0"] + socs * (c["x_100"] - c["x_0"]), grid, neg))
+    ocv = pack_ocv(c, grid, socs)
 
     def rest_soc(pv, whole: bool) -> float:
-        n = int(np.argmax(np.abs(pv.current) > 0.5)) if whole else 0
-        v = float(np.nanmean(pv.target[:n])) if whole else pv.init_voltage
+        # the first 10 rest samples, as the product reads them (prepare), or the whole leading rest
+        v = float(np.nanmean(pv.target[:leading_rest(pv)])) if whole else pv.init_voltage
         return float(np.interp(v, ocv, socs))
 
     def trace(p, structure, pv, soc0):
@@ -116,13 +123,15 @@ def main(argv: list[str] | None = None) -> int:
         return float(np.sqrt(np.mean((v[pv.mask] - pv.target[pv.mask]) ** 2)))
 
     train = [pv for e, pv in flights.values() if e["split"] == "train"]
+    train_starts = [rest_soc(pv, False) for pv in train]   # the curves are held: the starts do not move
     lo, hi = np.log(LO), np.log(HI)
     rng = np.random.default_rng(args.seed)
     report = {"set": args.set, "structures": {}}
     for structure in args.structures:
         def residuals(u):
             p = np.exp(lo + u * (hi - lo))
-            r = [np.where(pv.mask, trace(p, structure, pv, rest_soc(pv, False)) - np.nan_to_num(pv.target), 0.0) for pv in train]
+            r = [np.where(pv.mask, trace(p, structure, pv, soc0) - np.nan_to_num(pv.target), 0.0)
+                 for pv, soc0 in zip(train, train_starts)]
             return np.nan_to_num(np.concatenate(r), nan=10.0, posinf=10.0, neginf=-10.0)
 
         runs = []

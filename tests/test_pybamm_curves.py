@@ -16,22 +16,17 @@ diag = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(diag)
 
 
-def pack_ocv(c: dict, grid: np.ndarray, soc: np.ndarray) -> np.ndarray:
-    return diag.CELLS * (np.interp(c["y_0"] + soc * (c["y_100"] - c["y_0"]), grid, c["positive_v"])
-                         - np.interp(c["x_0"] + soc * (c["x_100"] - c["x_0"]), grid, c["negative_v"]))
-
-
 @pytest.mark.parametrize("set_name", ["Chen2020", "Marquis2019"])
 def test_every_flight_rests_on_its_cells_curve_at_its_initial_soc(set_name):
     flights, curves, c = diag.load(set_name)
     grid = np.array(curves["stoichiometry"])
-    assert np.all(np.diff(pack_ocv(c, grid, np.linspace(0.0, 1.0, 1001))) > 0), "the cell's curve rises with SoC"
+    assert np.all(np.diff(diag.pack_ocv(c, grid, np.linspace(0.0, 1.0, 1001))) > 0), "the cell's curve rises with SoC"
     miss = []
     for name, (entry, pv) in flights.items():
-        rest = int(np.argmax(np.abs(pv.current) > 0.5))
+        rest = diag.leading_rest(pv)
         assert rest >= 20, f"{name}: a rest before take-off"
         measured = float(np.nanmean(pv.target[:rest]))
-        miss.append(measured - float(pack_ocv(c, grid, np.array([entry["initial_soc"]]))[0]))
+        miss.append(measured - float(diag.pack_ocv(c, grid, np.array([entry["initial_soc"]]))[0]))
     # 10 mV of noise over 30-60 rest samples: the mean within ~2 mV; the generator's SoC is rounded to 1e-4
     assert np.max(np.abs(miss)) < 0.010, miss
     assert np.mean(np.abs(miss)) < 0.004, miss
