@@ -110,6 +110,17 @@ def motor_fit_request(save_as: str, starts: int = 2) -> dict:
             "settings": {"search": {"starts": starts, "sa_generations": 6, "lm_max_nfev": 4}, "workers": 1}}
 
 
+def battery_fit_request(save_as: str) -> dict:
+    """A small paper-variant battery fit on PyBaMM flights whose test flight (chen2020_11) starts below the
+    one training flight's start and flies hotter and harder: the fit warns about both (a few seconds)."""
+    flights = REPO / "fixtures" / "pybamm" / "Chen2020"
+    return {"component": "battery", "packs": ["LLF20"], "save_as": save_as,
+            "flights": {"train": [{"path": str(flights / "chen2020_02.parquet")}],
+                        "validation": [{"path": str(flights / "chen2020_02.parquet")}],
+                        "test": [{"path": str(flights / "chen2020_11.parquet")}]},
+            "settings": {"model": "paper", "search": {"starts": 2, "sa_generations": 4, "lm_max_nfev": 4}, "workers": 1}}
+
+
 @dataclass
 class Sim:
     """``gcs-pdm sim`` flying the Table III mission with the demo's motor fault."""

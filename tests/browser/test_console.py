@@ -14,7 +14,7 @@ import pytest
 from playwright.sync_api import expect, sync_playwright
 
 from gcs_pdm.service.console_routes import TILE_URL_ENV
-from console_harness import RequestLog, Service, Sim, launch, motor_fit_request
+from console_harness import RequestLog, Service, Sim, battery_fit_request, launch, motor_fit_request
 
 pytestmark = pytest.mark.slow
 
@@ -208,6 +208,21 @@ def test_fit_jobs_progress_results_cancel_and_activate(service, page):
     expect(page.locator('#paramsets [data-set="console_motor"]')).to_contain_text("active", timeout=10_000)
     assert next(p for p in service.get("/parameter-sets") if p["name"] == "console_motor")["active"]
     assert not requests.foreign(service.host), requests.foreign(service.host)
+
+
+@pytest.mark.timeout(120)
+def test_a_battery_fit_job_shows_what_its_fit_extrapolates(service, page):
+    page.goto(service.url + "/")
+    expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+    done = service.send("POST", "/jobs/fit", battery_fit_request("console_battery"))["id"]
+    job = page.locator(f'[data-job="{done}"]')
+    expect(job).to_have_attribute("data-status", "succeeded", timeout=90_000)
+    warnings = job.locator("ul.fit-warnings li")
+    stored = service.get(f"/jobs/{done}/result")["fits"]["LLF20"]["warnings"]
+    assert any("initial SoC extrapolated" in w for w in stored) and any("outside the training conditions" in w for w in stored)
+    expect(warnings).to_have_count(len(stored))
+    expect(warnings.filter(has_text="LLF20: test flight chen2020_11: initial SoC extrapolated")).to_have_count(1)
+    expect(warnings.filter(has_text="LLF20: test flight chen2020_11: outside the training conditions")).to_have_count(1)
 
 
 @pytest.mark.timeout(120)

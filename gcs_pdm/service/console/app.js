@@ -521,13 +521,20 @@ function renderJobs() {
     if (j.status === "succeeded" && res) {
       const plots = Object.keys(res.plots || {});
       body = `<div>${res.saved_as ? `saved as <b>${esc(res.saved_as)}</b>` : res.save_error ? `<span class="bad">not saved: ${esc(res.save_error)}</span>` : "not saved (no name given)"}</div>
-        ${errorsTable(res)}${plots.map((p) => `<img alt="${esc(p)}" src="/jobs/${encodeURIComponent(j.id)}/plots/${encodeURIComponent(p)}">`).join("")}`;
+        ${errorsTable(res)}${fitWarnings(res)}${plots.map((p) => `<img alt="${esc(p)}" src="/jobs/${encodeURIComponent(j.id)}/plots/${encodeURIComponent(p)}">`).join("")}`;
     }
     return `<div class="job" data-job="${esc(j.id)}" data-status="${esc(j.status)}">
       <div><b>${esc(j.request && j.request.component || "fit")}</b> ${esc(j.id.slice(0, 8))} — ${esc(j.status)} ${j.stage ? "· " + esc(j.stage) : ""}</div>
       ${running ? `<progress max="1" value="${num(j.progress) ? j.progress : 0}"></progress><button data-cancel="${esc(j.id)}">cancel</button>` : ""}
       ${j.error ? `<div class="bad">${esc(j.error)}</div>` : ""}${body}</div>`;
   }).join("");
+}
+function fitWarnings(res) {
+  // each fit's own warnings (docs/fitting.md): starts its training flights do not support, flights outside
+  // their temperatures and currents. Before activating the set, the operator reads what it extrapolates.
+  const items = Object.entries(res.fits || {}).flatMap(([name, fit]) =>
+    ((fit && fit.warnings) || []).map((w) => `<li>${esc(name)}: ${esc(w)}</li>`));
+  return items.length ? `<ul class="fit-warnings bad">${items.join("")}</ul>` : "";
 }
 function errorsTable(res) {
   // result.fits[name].errors[learned|reference][split].overall[quantity].rmse (docs/fitting.md)
