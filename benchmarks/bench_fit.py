@@ -75,6 +75,20 @@ def _timed_fit(train, val, test, settings, **kw):
     return res, round(time.perf_counter() - t0, 2), round(time.process_time() - c0, 2)
 
 
+def _agreement(res) -> dict:
+    """Per validation/test flight: the near-best candidates' spread and the chosen one's error, in mV
+    (docs/fitting.md, "Candidate agreement"); {"measured": False} when only one candidate fitted."""
+    record = res.candidate_agreement
+    if not record["measured"]:
+        return {"measured": False}
+    err = {e["flight"]: e["voltage"]["rmse"] for split in ("validation", "test")
+           for e in res.errors["learned"][split]["flights"]}
+    return {"measured": True, "threshold_mv": round(1000 * record["threshold_v"], 1),
+            "flights": {f["flight"]: {"split": f["split"], "determined": f["determined"],
+                                      "spread_mv": None if f["spread_v"] is None else round(1000 * f["spread_v"], 1),
+                                      "error_mv": round(1000 * err[f["flight"]], 1)} for f in record["flights"]}}
+
+
 def _independent(extra_seeds: tuple[int, ...] = ()) -> dict:
     """Extended, paper and baseline on the PyBaMM fixture flights, per parameter set and test flight;
     the extended variant also at the search seeds ``extra_seeds`` (its figures are one draw of the
@@ -116,6 +130,7 @@ def _independent(extra_seeds: tuple[int, ...] = ()) -> dict:
             row["baseline_t_k"] = round(float(np.sqrt(np.mean((base.temperature(f)[okt] - f.temperature_c[okt]) ** 2))), 2)
             table.append(row)
         entry["test_flights"] = table
+        entry["extended_agreement"] = _agreement(fits["extended"])
         by_seed = {}
         for seed in extra_seeds:
             default = FitSettings()
@@ -124,7 +139,8 @@ def _independent(extra_seeds: tuple[int, ...] = ()) -> dict:
             by_seed[str(seed)] = {"cpu_s": cpu, "wall_s": wall, "load_average_1min": round(os.getloadavg()[0], 2),
                                   "test_flights": [{"flight": e["flight"], "extended_v_mv": round(1000 * e["voltage"]["rmse"], 1),
                                                     "extended_t_k": round(e["temperature"]["rmse"], 2)}
-                                                   for e in res.errors["learned"]["test"]["flights"]]}
+                                                   for e in res.errors["learned"]["test"]["flights"]],
+                                  "agreement": _agreement(res)}
         if by_seed:
             entry["extended_by_seed"] = by_seed
         entry["load_average_1min_after"] = round(os.getloadavg()[0], 2)

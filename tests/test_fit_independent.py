@@ -7,16 +7,14 @@ flights. The paper variant's figures are in docs/fitting.md (benchmarks/bench_fi
 produces the whole table).
 
 Issue 15's bounds are at most 50 mV, at most half the baseline's voltage RMSE and at most 0.8 K on
-every test flight. At the library default (search seed 0) the extended variant meets all three on
-the test flights that land normally, and "half the baseline" and 0.8 K on the test flights that run
-into the cut-off, but not 50 mV on chen2020_03 (57 mV; marquis2019_12: 42 mV). The fit is not yet
-robust over its random starts: over seeds 0-4 chen2020_03 is 57-266 mV and marquis2019_12 38-115 mV
-(docs/fitting.md, "Independent data", the per-seed table; the choice among training-equivalent
-candidates, extended_train_tolerance, fixed marquis2019_12's seed-1 draw, 114 -> 38 mV, and cannot
-fix chen2020_03, where no candidate of seeds 2-4 comes within 70 mV): a cut-off flight's initial
-SoC is read from its rest voltage through the learned OCV, in a range where no training flight
-rested, and 0.005 of SoC there is 25-50 mV of RMSE. The cut-off test flights are held to 75 mV here
-(CUTOFF_GUARD_V), a guard against regressions at the library default, not the issue's bound - a known shortfall, reported.
+every test flight. At the library default (search seed 0, on this machine) the extended variant meets
+all three on all four test flights (chen2020_03 48.7 mV, marquis2019_12 47.6 mV). The fit is not yet
+robust over its random starts: over seeds 0-4 chen2020_03 is 49-260 mV and marquis2019_12 38-115 mV
+(docs/fitting.md, "Independent data", the per-seed table), and the rounding of one Jacobian column
+moves a cut-off flight by tens of mV, so another machine's seed 0 is another draw (57 mV has been
+measured). The fit says so itself: its near-best candidates part on both cut-off flights
+("Candidate agreement"). The cut-off test flights are held to 75 mV here (CUTOFF_GUARD_V), a guard
+against regressions at the library default, not the issue's bound - a known shortfall, reported.
 The fit sees only the training flights and chooses on the validation flights; nothing is tuned to
 the test flights.
 """
@@ -132,3 +130,48 @@ def test_the_fit_says_which_flights_leave_the_training_conditions(fitted):
             assert any(w.startswith(f"{f['split']} flight {name}: outside the training conditions") for w in result.warnings)
         else:
             assert f["inside"], f
+
+
+#: test flights the near-best candidates part on at the library default (docs/fitting.md, "Candidate
+#: agreement"): on Chen2020 they are 67 mV apart on chen2020_03 (the hot cut-off flight) against a 51 mV
+#: threshold and 32 mV apart on chen2020_04; on Marquis2019 one start of four fits (the others end at
+#: 3-4x its training error), so nothing is measured
+UNDETERMINED_TESTS = {"Chen2020": {"chen2020_03"}, "Marquis2019": None}
+
+
+def test_the_fit_says_which_flights_its_training_flights_do_not_determine(fitted):
+    from gcs_pdm.fitting.procedure import evaluate_battery
+    from gcs_pdm.models import kernel
+
+    set_name, result, _, test = fitted
+    record = result.to_dict()["candidate_agreement"]
+    flights = {f["flight"]: f for f in record["flights"]}
+    assert set(flights) == set(result.flights["validation"]) | set(result.flights["test"])
+    electrical = result.stages[0]
+    assert record["candidates"][0] == electrical.chosen
+    assert record["threshold_v"] == pytest.approx(1.5 * electrical.candidates[electrical.chosen].lm_rmse)
+    expected = UNDETERMINED_TESTS[set_name]
+    if expected is None:
+        assert not record["measured"] and all(f["determined"] is None for f in flights.values())
+        assert not [w for w in result.warnings if "not determined" in w]
+        return
+    assert record["measured"]
+    assert {n for n, f in flights.items() if f["split"] == "test" and not f["determined"]} == expected
+    for name, f in flights.items():
+        warned = [w for w in result.warnings if w.startswith(f"{f['split']} flight {name}: not determined")]
+        assert len(warned) == (0 if f["determined"] else 1)
+    # the spread is what the siblings predict, measured independently: two predictions whose errors differ
+    # by d are at least d apart (triangle inequality on the RMS)
+    chosen_errors = {e["flight"]: e["voltage"]["rmse"] for split in ("validation", "test")
+                     for e in result.errors["learned"][split]["flights"]}
+    vector = np.array([result.parameters[k] for k in kernel.EXT_PACK_PARAMS])
+    evaluated = result.flights["validation"] + result.flights["test"]
+    splits = load(set_name)
+    logs = [f for split in ("validation", "test") for f in splits[split]]
+    for c in record["candidates"][1:]:
+        sibling = vector.copy()
+        for n, v in electrical.candidates[c].values.items():
+            sibling[kernel.EXT_PACK_PARAMS.index(n)] = v
+        errs = {e["flight"]: e["voltage"]["rmse"] for e in evaluate_battery(sibling, logs, SETTINGS, "extended")["flights"]}
+        for name in evaluated:
+            assert flights[name]["spread_v"] >= abs(errs[name] - chosen_errors[name]) - 1e-6, (name, c)

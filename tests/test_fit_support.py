@@ -111,4 +111,12 @@ def test_cli_fit_reports_support_in_result_json_and_prints_the_warning(tmp_path,
     assert summary["initial_soc_support"] == {"again_02": "rested", "chen2020_11": "extrapolated"}
     assert summary["outside_training_conditions"] == ["chen2020_11"]
     assert "fit: warning: LLF20: test flight chen2020_11: outside the training conditions" in captured.err
+    # candidate agreement: in result.json, and in the summary as a list, or null when nothing was compared
+    agreement = d["candidate_agreement"]
+    assert {f["flight"] for f in agreement["flights"]} == {"again_02", "chen2020_11"}
+    undetermined = [f["flight"] for f in agreement["flights"] if f["determined"] is False]
+    assert summary["undetermined_flights"] == (undetermined if agreement["measured"] else None)
+    for name in undetermined:
+        assert f"fit: warning: LLF20: {next(f['split'] for f in agreement['flights'] if f['flight'] == name)} " \
+               f"flight {name}: not determined" in captured.err
     assert np.isfinite(low["soc"])

@@ -145,6 +145,10 @@ def _summary(res) -> dict:
         out["initial_soc_support"] = {f["flight"]: f["support"] for f in res.initial_soc_support["flights"]}
     if res.operating_envelope is not None:
         out["outside_training_conditions"] = [f["flight"] for f in res.operating_envelope["flights"] if not f["inside"]]
+    if res.candidate_agreement is not None:
+        # None when only one candidate fitted well enough to compare: unknown, not "all determined"
+        out["undetermined_flights"] = ([f["flight"] for f in res.candidate_agreement["flights"] if f["determined"] is False]
+                                       if res.candidate_agreement["measured"] else None)
     for which in ("learned", "reference"):
         t = e[which]["test"]["overall"]
         if "voltage" in t:

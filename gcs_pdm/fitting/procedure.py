@@ -31,6 +31,7 @@ from gcs_pdm.fitting.cleaning import CleaningReport, CleaningSettings, RejectedF
 from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
 from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenberg_marquardt,
                                    levenberg_marquardt_subset)
+from gcs_pdm.fitting.agreement import AGREEMENT_FACTOR, AGREEMENT_TOLERANCE, agreement_report, near_best
 from gcs_pdm.fitting.envelope import FlightConditions, envelope_report
 from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
@@ -92,6 +93,12 @@ class FitSettings:
     #: a validation/test flight's initial SoC counts as supported when a training flight started within
     #: half this SoC span of it (gcs_pdm.fitting.support; reported, never used in a choice)
     soc_support_span: float = SOC_SUPPORT_SPAN
+    #: candidate agreement (gcs_pdm.fitting.agreement; reported, never used in a choice): the electrical
+    #: candidates within this factor of the best training RMSE are compared on each validation/test
+    #: flight, and a flight is undetermined when they are more than ``agreement_factor`` times the
+    #: chosen candidate's training RMSE apart
+    agreement_tolerance: float = AGREEMENT_TOLERANCE
+    agreement_factor: float = AGREEMENT_FACTOR
 
     def search_for(self, stage: str) -> SearchSettings:
         """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
@@ -109,6 +116,7 @@ class FitSettings:
                 "extended_ocv_refit_nfev": self.extended_ocv_refit_nfev,
                 "extended_train_tolerance": self.extended_train_tolerance,
                 "soc_support_span": self.soc_support_span,
+                "agreement_tolerance": self.agreement_tolerance, "agreement_factor": self.agreement_factor,
                 "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range,
                 "extended_soc_offset_range": self.extended_soc_offset_range, "ocv_smoothing": self.ocv_smoothing,
                 "workers": self.workers,
@@ -199,6 +207,9 @@ class FitResult:
     #: battery: whether each validation/test flight stays inside the training flights' temperatures and
     #: currents (gcs_pdm.fitting.envelope); None for the motor
     operating_envelope: dict[str, Any] | None = None
+    #: battery: whether the near-best electrical candidates agree on each validation/test flight
+    #: (gcs_pdm.fitting.agreement); None for the motor
+    candidate_agreement: dict[str, Any] | None = None
     #: things the user should know about this result (printed by the CLI), e.g. poorly supported starts
     warnings: list[str] = field(default_factory=list)
 
@@ -236,6 +247,7 @@ class FitResult:
             "initial_soc": {p.name: p.initial_soc for p in self.predictions if p.initial_soc is not None},
             "initial_soc_support": self.initial_soc_support,
             "operating_envelope": self.operating_envelope,
+            "candidate_agreement": self.candidate_agreement,
             "warnings": list(self.warnings),
             "cleaning": [r.to_dict() for r in self.cleaning],
             "rejected": [r.to_dict() for r in self.rejected],
@@ -540,6 +552,17 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     predictions: list[FlightPrediction] = []
     starts: list[StartReading] = []
     conditions: list[FlightConditions] = []
+    # the near-best electrical candidates as full vectors (the chosen one's thermal values): the
+    # training flights cannot tell them apart, so where they part on a flight it is undetermined
+    names = kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS
+    siblings = near_best([c.lm_rmse for c in st_el.candidates], [c.start for c in st_el.candidates],
+                         st_el.chosen, s.agreement_tolerance)
+    sibling_vectors = {c: final.copy() for c in siblings[1:]}
+    for c, vec in sibling_vectors.items():
+        for n, v in st_el.candidates[c].values.items():
+            vec[names.index(n)] = v
+    agreement_flights: list[tuple[str, str]] = []
+    agreement_voltages: dict[int, list[np.ndarray]] = {c: [] for c in siblings}
     for split in SPLITS:
         flights = splits[split]
         # once per flight: the learned and the reference traces and the start readings all use it
@@ -549,6 +572,11 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
             starts.append(StartReading(f.name, split, pv.init_voltage, pv.init_current, soc, fmt.cells))
             conditions.append(FlightConditions.of(f.name, split, f.temperature_c, f.ambient_c, f.current_a))
         refs = _pack_traces(ref_vec, prepared)
+        if split != "train":
+            agreement_flights += [(f.name, split) for f in flights]
+            agreement_voltages[st_el.chosen] += [v for v, _, _ in learned]
+            for c, vec in sibling_vectors.items():
+                agreement_voltages[c] += [v for v, _, _ in _pack_traces(vec, prepared, s.model)]
         pairs_l[split] = [(f.name, {"voltage": (lv, f.voltage_v), "temperature": (lt, f.temperature_c)})
                           for f, (lv, lt, _) in zip(flights, learned)]
         pairs_r[split] = [(f.name, {"voltage": (rv, f.voltage_v), "temperature": (rt, f.temperature_c)})
@@ -558,7 +586,10 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
                                                 model=s.model))
     support, start_warnings = support_report(starts, s.soc_support_span)
     envelope, envelope_warnings = envelope_report(conditions)
-    fit_warnings = start_warnings + envelope_warnings
+    agreement, agreement_warnings = agreement_report(agreement_flights, agreement_voltages, st_el.chosen,
+                                                     st_el.candidates[st_el.chosen].lm_rmse,
+                                                     s.agreement_tolerance, s.agreement_factor)
+    fit_warnings = start_warnings + envelope_warnings + agreement_warnings
     for w in fit_warnings:
         log.debug("battery fit: %s", w)  # the CLI prints result.warnings; at INFO they would print twice
     result = FitResult(
@@ -569,7 +600,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
         stages=stages, cleaning=reports, rejected=rejected,
         flights={k: [f.name for f in v] for k, v in splits.items()}, settings=settings,
         seconds=time.perf_counter() - t_start, predictions=predictions, model=s.model, base_pack=base_pack,
-        thermal=thermal, initial_soc_support=support, operating_envelope=envelope, warnings=fit_warnings)
+        thermal=thermal, initial_soc_support=support, operating_envelope=envelope,
+        candidate_agreement=agreement, warnings=fit_warnings)
     stepper.report(1.0, "done")
     return result
 
