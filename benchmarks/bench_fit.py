@@ -1,14 +1,15 @@
 """Benchmark: the full learning procedure for one pack on 8 + 2 + 2 thirty-minute 1 Hz flights.
 
     python benchmarks/bench_fit.py [--pack LLF20] [--seed 0] [--skip-compare] [--skip-independent]
-                                   [--independent-seeds 1,2]
+                                   [--independent-seeds 1,2] [--independent-root DIR]
 
 Two data sets: the paper model's own synthetic flights (fitted with the paper variant, errors beside
 the true parameters', and with the default extended variant, timed against issue 18's 20 s floor),
 and the independent PyBaMM flights of fixtures/pybamm (per parameter set: the extended variant,
 timed against the floor, the paper variant and the one-RC polynomial-OCV baseline of
 tests/baseline_one_rc.py, with test voltage and temperature RMSE per flight: the table of
-docs/fitting.md).
+docs/fitting.md). ``--independent-root`` points it at flights generated for other PyBaMM parameter
+sets (``scripts/generate_pybamm_flights.py --sets ...``), cells no fit was tuned on.
 
 Full procedure = cleaning, electrical stage (10 annealing starts, 10 LM runs, selection on
 validation), thermal stage (same), test errors of the learned, reference and true parameters.
@@ -89,7 +90,7 @@ def _agreement(res) -> dict:
                                       "error_mv": round(1000 * err[f["flight"]], 1)} for f in record["flights"]}}
 
 
-def _independent(extra_seeds: tuple[int, ...] = ()) -> dict:
+def _independent(extra_seeds: tuple[int, ...] = (), root: str | None = None) -> dict:
     """Extended, paper and baseline on the PyBaMM fixture flights, per parameter set and test flight;
     the extended variant also at the search seeds ``extra_seeds`` (its figures are one draw of the
     random starts: docs/fitting.md, the per-seed table)."""
@@ -100,7 +101,7 @@ def _independent(extra_seeds: tuple[int, ...] = ()) -> dict:
 
     from gcs_pdm.fitting.logs import read_table
 
-    root = os.path.join(os.path.dirname(__file__), "..", "fixtures", "pybamm")
+    root = root or os.path.join(os.path.dirname(__file__), "..", "fixtures", "pybamm")
     manifest = json.load(open(os.path.join(root, "manifest.json")))
     out = {}
     for set_name in sorted({f["set"] for f in manifest["flights"]}):
@@ -156,6 +157,8 @@ def main() -> None:
     ap.add_argument("--skip-independent", action="store_true", help="skip the PyBaMM flights")
     ap.add_argument("--independent-seeds", default="", help="also fit the extended variant on the PyBaMM flights at "
                     "these search seeds, comma-separated (e.g. 1,2; seed 0 is the main table)")
+    ap.add_argument("--independent-root", default=None, help="PyBaMM flights to use instead of fixtures/pybamm "
+                    "(a directory with manifest.json, as scripts/generate_pybamm_flights.py writes)")
     args = ap.parse_args()
     truth = synthetic_truth(seed=7)
     t0 = time.perf_counter()
@@ -194,7 +197,8 @@ def main() -> None:
         "model": ext.model, "wall_s": ext_wall, "cpu_s": ext_cpu, "floor_s": FLOOR_S, "under_floor_cpu": ext_cpu <= FLOOR_S,
         "load_average_1min": round(os.getloadavg()[0], 2), "test": figs(ext.errors["learned"]["test"]["overall"])}
     if not args.skip_independent:
-        out["independent_pybamm"] = _independent(tuple(int(x) for x in args.independent_seeds.split(",") if x.strip()))
+        out["independent_pybamm"] = _independent(tuple(int(x) for x in args.independent_seeds.split(",") if x.strip()),
+                                                 args.independent_root)
     if not args.skip_compare:
         out["sa_choice"] = _compare(fl[:8], builtin("previous_si").pack_matrix()[i])
     print(json.dumps(out))

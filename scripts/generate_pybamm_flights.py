@@ -52,6 +52,10 @@ SETS = ("Chen2020", "Marquis2019")
 C_RATES = {"Chen2020": (1.0, 1.2, 1.4, 1.6, 1.8, 2.0), "Marquis2019": (1.0, 1.4, 1.8, 2.2, 2.6, 3.0)}
 #: highest C-rate of a climb burst per set
 BURST_CAP = {"Chen2020": 2.2, "Marquis2019": 4.0}
+#: another of PyBaMM's parameter sets (``--sets``, an experiment: a check on cells no fit was tuned on)
+#: cruises at Chen2020's modest rates unless listed above
+DEFAULT_C_RATES = C_RATES["Chen2020"]
+DEFAULT_BURST_CAP = BURST_CAP["Chen2020"]
 #: per parameter set: 2 validation and 2 test flights, the rest train
 N_VALIDATION = N_TEST = 2
 
@@ -191,6 +195,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--flights", type=int, default=12, help="flights per parameter set (12: 8 train, 2 val, 2 test)")
     ap.add_argument("--duration", type=int, default=1800, help="planned flight length, s (cut-off flights end early)")
     ap.add_argument("--seed", type=int, default=15)
+    ap.add_argument("--sets", nargs="+", default=list(SETS), metavar="SET",
+                    help="PyBaMM parameter sets to fly (default: the committed fixtures' two; another set is an "
+                         "experiment, its random draws are those of the first set's position)")
     ap.add_argument("--train-rests", type=int, default=0, metavar="N",
                     help="experiment: N relaxed rests per training flight (default 0: the committed fixtures)")
     ap.add_argument("--rest-s", type=int, default=600, help="length of each such rest, s")
@@ -212,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
                 "noise": {"voltage_v": 0.010, "current_a": 0.05, "temperature_c": "0.1 K, quantised 0.1 K",
                           "ambient_c": 0.2}, "sets": {}, "flights": []}
     t_all = time.perf_counter()
-    for set_name in SETS:
+    for position, set_name in enumerate(args.sets):
         (out / set_name).mkdir(parents=True, exist_ok=True)
         cell_ah = float(pybamm.ParameterValues(set_name)["Nominal cell capacity [A.h]"])
         parallel = PACK_CAPACITY_AH / cell_ah
@@ -220,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
         n = args.flights
         # spread the conditions over the flights, then shuffle which flight lands in which split
         ambients = np.linspace(0.0, 35.0, n)
-        c_rates = np.tile(C_RATES[set_name], n // 6 + 1)[:n]
+        c_rates = np.tile(C_RATES.get(set_name, DEFAULT_C_RATES), n // 6 + 1)[:n]
         rng.shuffle(c_rates)
         rng.shuffle(ambients)
         plans = []
@@ -231,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
             c_rate = float(c_rates[k])
             soc0 = float(rng.uniform(0.75, 1.0))
             t = np.arange(0.0, float(args.duration))
-            pack_i = flight_profile(rng, c_rate, args.duration, BURST_CAP[set_name])
+            pack_i = flight_profile(rng, c_rate, args.duration, BURST_CAP.get(set_name, DEFAULT_BURST_CAP))
             t0 = time.perf_counter()
             ts, v_cell, temp, v_cut, _ = simulate_cell(pybamm, set_name, t, pack_i / parallel, ambient + 273.15, soc0)
             m = ts.size
@@ -247,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name}: {ambient:5.1f} C  {c_rate:.1f}C  SoC0 {soc0:.2f}  {m} s"
                   f"{'  cut-off' if cutoff else ''}", flush=True)
             plans.append({"name": name, "t": t, "current": pack_i, "ambient": ambient, "soc0": soc0, "samples": m})
-        split_rng = np.random.default_rng([args.seed, SETS.index(set_name)])
+        split_rng = np.random.default_rng([args.seed, position])
         assign_splits([f for f in manifest["flights"] if f["set"] == set_name], split_rng)
         if args.train_rests > 0 or args.train_start_socs is not None:
             # the experiment: the training flights again, with rests (docstring); a stream of their own,
@@ -261,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
                     entries[train[j]["name"]]["initial_soc"] = round(float(spread[rank]), 4)
             at = (plan_rests(train, args.train_rests, args.rest_s, tuple(args.rest_soc_range)) if args.train_rests > 0
                   else {p["name"]: [] for p in train})
-            rest_rng = np.random.default_rng([args.seed, 1000 + SETS.index(set_name)])
+            rest_rng = np.random.default_rng([args.seed, 1000 + position])
             for p in train:
                 pack_i = with_rests(p["current"], at[p["name"]], args.rest_s)
                 t_long = np.arange(0.0, float(pack_i.size))
