@@ -33,6 +33,7 @@ from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenb
                                    levenberg_marquardt_subset)
 from gcs_pdm.fitting.agreement import AGREEMENT_FACTOR, AGREEMENT_TOLERANCE, agreement_report, near_best
 from gcs_pdm.fitting.envelope import FlightConditions, envelope_report
+from gcs_pdm.fitting.misfit import MISFIT_PER_CELL_V, misfit_warnings
 from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
@@ -99,6 +100,9 @@ class FitSettings:
     #: chosen candidate's training RMSE apart
     agreement_tolerance: float = AGREEMENT_TOLERANCE
     agreement_factor: float = AGREEMENT_FACTOR
+    #: a training flight the chosen set misses by more than this RMS per cell (V) is warned about
+    #: (gcs_pdm.fitting.misfit; reported, never used in a choice)
+    misfit_per_cell_v: float = MISFIT_PER_CELL_V
 
     def search_for(self, stage: str) -> SearchSettings:
         """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
@@ -117,6 +121,7 @@ class FitSettings:
                 "extended_train_tolerance": self.extended_train_tolerance,
                 "soc_support_span": self.soc_support_span,
                 "agreement_tolerance": self.agreement_tolerance, "agreement_factor": self.agreement_factor,
+                "misfit_per_cell_v": self.misfit_per_cell_v,
                 "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range,
                 "extended_soc_offset_range": self.extended_soc_offset_range, "ocv_smoothing": self.ocv_smoothing,
                 "workers": self.workers,
@@ -589,14 +594,16 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     agreement, agreement_warnings = agreement_report(agreement_flights, agreement_voltages, st_el.chosen,
                                                      st_el.candidates[st_el.chosen].lm_rmse,
                                                      s.agreement_tolerance, s.agreement_factor)
-    fit_warnings = start_warnings + envelope_warnings + agreement_warnings
+    learned_errors = _split_errors(pairs_l)
+    misfits = misfit_warnings(learned_errors["train"]["flights"], fmt.cells, s.misfit_per_cell_v)
+    fit_warnings = misfits + start_warnings + envelope_warnings + agreement_warnings
     for w in fit_warnings:
         log.debug("battery fit: %s", w)  # the CLI prints result.warnings; at INFO they would print twice
     result = FitResult(
         component=BATTERY, pack=pack,
         parameters={k: float(v) for k, v in zip(kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS, final)},
         learned=sum((st.free for st in stages), ()), reference=settings.reference,
-        errors={"learned": _split_errors(pairs_l), "reference": _split_errors(pairs_r)},
+        errors={"learned": learned_errors, "reference": _split_errors(pairs_r)},
         stages=stages, cleaning=reports, rejected=rejected,
         flights={k: [f.name for f in v] for k, v in splits.items()}, settings=settings,
         seconds=time.perf_counter() - t_start, predictions=predictions, model=s.model, base_pack=base_pack,
