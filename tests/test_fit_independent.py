@@ -9,7 +9,7 @@ produces the whole table).
 Issue 15's bounds are at most 50 mV, at most half the baseline's voltage RMSE and at most 0.8 K on
 every test flight. At the library default (search seed 0, on this machine) the extended variant meets
 all three on all four test flights (chen2020_03 48.7 mV, marquis2019_12 47.6 mV). The fit is not yet
-robust over its random starts: over seeds 0-4 chen2020_03 is 49-260 mV and marquis2019_12 38-115 mV
+robust over its random starts: over seeds 0-4 chen2020_03 is 49-260 mV and marquis2019_12 38-66 mV
 (docs/fitting.md, "Independent data", the per-seed table), and the rounding of one Jacobian column
 moves a cut-off flight by tens of mV, so another machine's seed 0 is another draw (57 mV has been
 measured). The fit says so itself: its near-best candidates part on both cut-off flights

@@ -49,3 +49,55 @@ def test_a_fit_that_cannot_draw_its_training_flights_says_so():
     warned = [w for w in result.warnings if w.startswith("training flight ")]
     assert sorted(w.split(":")[0].removeprefix("training flight ") for w in warned) == sorted(missed)
     assert np.isfinite(list(errors.values())).all()
+
+
+def test_flights_to_leave_out_are_far_beyond_the_others_and_never_most_of_them():
+    from gcs_pdm.fitting.misfit import flights_to_leave_out
+
+    # OKane2022's draw (docs/fitting.md): one cold climb holds most of the error
+    okane = {"01": .116, "02": .062, "03": .089, "05": .103, "06": .633, "07": .099, "09": .106, "10": .051}
+    assert flights_to_leave_out(okane, cells=5) == ["06"]
+    # over the per-cell limit but not far beyond the others: the circuit is poor everywhere, none stands out
+    assert flights_to_leave_out({"a": .150, "b": .200, "c": .250, "d": .180}, cells=5) == []
+    # far beyond the others but within the per-cell limit: a good fit's worst flight stays
+    assert flights_to_leave_out({"a": .010, "b": .012, "c": .011, "d": .090}, cells=5) == []
+    # worst first, and never more than half (nor fewer than two kept)
+    many = {"a": .02, "b": .02, "c": .02, "d": .02, "e": .8, "f": .9, "g": .7}
+    assert flights_to_leave_out(many, cells=5) == ["f", "e", "g"]
+    assert flights_to_leave_out(many, cells=5, keep_at_least=0.8) == ["f"]
+    assert flights_to_leave_out({"a": .02, "b": .9}, cells=5) == []          # too few to judge
+    assert flights_to_leave_out({"a": .02, "b": float("nan"), "c": .02, "d": .03, "e": .5}, cells=5) == ["e"]
+
+
+def _mixed_pack_fit(**changes):
+    # four Chen2020 flights and one flight of another cell (Marquis2019): no one circuit draws both
+    import dataclasses
+
+    manifest = json.loads((ROOT / "manifest.json").read_text())
+    logs = {f["flight"]: read_table(ROOT / f["file"], "battery", f["flight"]) for f in manifest["flights"]}
+    train = [logs[n] for n in ("chen2020_02", "chen2020_05", "chen2020_07", "chen2020_08", "marquis2019_03")]
+    settings = dataclasses.replace(FitSettings(), extended_search=SearchSettings(starts=2, sa_generations=15, lm_max_nfev=20),
+                                   extended_polish_nfev=0, extended_thermal_generations=3, **changes)
+    seen = []
+    result = fit_battery(train, [logs["chen2020_12"]], [logs["chen2020_04"]], settings,
+                         progress=lambda fraction, stage: seen.append(fraction))
+    return result, seen
+
+
+def test_a_fit_is_repeated_without_the_training_flight_it_cannot_draw():
+    result, progress = _mixed_pack_fit()
+    assert [x["flight"] for x in result.left_out] == ["marquis2019_03"]
+    left = result.left_out[0]
+    assert left["first_fit_rmse_v"] > 0.100 and left["final_rmse_v"] > left["first_fit_rmse_v"]
+    assert result.flights["train"] == ["chen2020_02", "chen2020_05", "chen2020_07", "chen2020_08"]
+    assert result.warnings[0].startswith("training flight marquis2019_03: left out of the fit")
+    d = result.to_dict()
+    assert d["left_out"][0]["flight"] == "marquis2019_03" and d["provenance"]["settings"]["leave_out_misfits"]
+    # the Chen flights are fitted better without it than with it
+    again, _ = _mixed_pack_fit(leave_out_misfits=False)
+    kept = {e["flight"]: e["voltage"]["rmse"] for e in result.errors["learned"]["train"]["flights"]}
+    mixed = {e["flight"]: e["voltage"]["rmse"] for e in again.errors["learned"]["train"]["flights"]}
+    assert not again.left_out and "marquis2019_03" in mixed
+    assert np.mean(list(kept.values())) < np.mean([mixed[n] for n in kept])
+    # one progress bar over both passes: never back, ends at 1
+    assert progress == sorted(progress) and progress[-1] == 1.0

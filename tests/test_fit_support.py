@@ -110,6 +110,7 @@ def test_cli_fit_reports_support_in_result_json_and_prints_the_warning(tmp_path,
     summary = json.loads(captured.out.splitlines()[0])
     assert summary["initial_soc_support"] == {"again_02": "rested", "chen2020_11": "extrapolated"}
     assert summary["outside_training_conditions"] == ["chen2020_11"]
+    assert summary["left_out_training_flights"] == [] and d["left_out"] == []   # one training flight: nothing to judge
     assert "fit: warning: LLF20: test flight chen2020_11: outside the training conditions" in captured.err
     # candidate agreement: in result.json, and in the summary as a list, or null when nothing was compared
     agreement = d["candidate_agreement"]

@@ -33,7 +33,7 @@ from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenb
                                    levenberg_marquardt_subset)
 from gcs_pdm.fitting.agreement import AGREEMENT_FACTOR, AGREEMENT_TOLERANCE, agreement_report, near_best
 from gcs_pdm.fitting.envelope import FlightConditions, envelope_report
-from gcs_pdm.fitting.misfit import MISFIT_PER_CELL_V, misfit_warnings
+from gcs_pdm.fitting.misfit import MISFIT_PER_CELL_V, flights_to_leave_out, misfit_warnings
 from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
@@ -103,6 +103,9 @@ class FitSettings:
     #: a training flight the chosen set misses by more than this RMS per cell (V) is warned about
     #: (gcs_pdm.fitting.misfit; reported, never used in a choice)
     misfit_per_cell_v: float = MISFIT_PER_CELL_V
+    #: repeat a battery fit without the training flights it cannot draw (misfit.flights_to_leave_out):
+    #: one such flight otherwise holds most of the training error and spoils the fit of the others
+    leave_out_misfits: bool = True
 
     def search_for(self, stage: str) -> SearchSettings:
         """Search settings of a battery stage ("electrical" | "thermal") of this fit's variant."""
@@ -121,7 +124,7 @@ class FitSettings:
                 "extended_train_tolerance": self.extended_train_tolerance,
                 "soc_support_span": self.soc_support_span,
                 "agreement_tolerance": self.agreement_tolerance, "agreement_factor": self.agreement_factor,
-                "misfit_per_cell_v": self.misfit_per_cell_v,
+                "misfit_per_cell_v": self.misfit_per_cell_v, "leave_out_misfits": self.leave_out_misfits,
                 "init_samples": self.init_samples, "soc_offset_range": self.soc_offset_range,
                 "extended_soc_offset_range": self.extended_soc_offset_range, "ocv_smoothing": self.ocv_smoothing,
                 "workers": self.workers,
@@ -215,6 +218,9 @@ class FitResult:
     #: battery: whether the near-best electrical candidates agree on each validation/test flight
     #: (gcs_pdm.fitting.agreement); None for the motor
     candidate_agreement: dict[str, Any] | None = None
+    #: battery: training flights (segments) a first fit could not draw and the final fit was repeated
+    #: without: [{"flight", "first_fit_rmse_v", "final_rmse_v"}] (gcs_pdm.fitting.misfit)
+    left_out: list[dict[str, Any]] = field(default_factory=list)
     #: things the user should know about this result (printed by the CLI), e.g. poorly supported starts
     warnings: list[str] = field(default_factory=list)
 
@@ -253,6 +259,7 @@ class FitResult:
             "initial_soc_support": self.initial_soc_support,
             "operating_envelope": self.operating_envelope,
             "candidate_agreement": self.candidate_agreement,
+            "left_out": [dict(x) for x in self.left_out],
             "warnings": list(self.warnings),
             "cleaning": [r.to_dict() for r in self.cleaning],
             "rejected": [r.to_dict() for r in self.rejected],
@@ -491,7 +498,55 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
 
     The values not learned come from ``base_set`` if given (any set, e.g. a user's or a vehicle's,
     whose packs may have any names), else from the built-in ``settings.base``. ``pack_format`` (a
-    pack other than the paper's 5S 7.8 Ah) scales the search ranges and the reference pack to it."""
+    pack other than the paper's 5S 7.8 Ah) scales the search ranges and the reference pack to it.
+
+    With ``settings.leave_out_misfits``, a fit that misses some training flights far beyond the
+    others (``misfit.flights_to_leave_out``) is repeated without them, and the result says which and
+    by how much the final set misses them (``FitResult.left_out``, a warning each)."""
+    fmt = pack_format or pb.PAPER_PACK
+    kw = dict(pack=pack, should_stop=should_stop, base_set=base_set, pack_format=pack_format)
+    if not settings.leave_out_misfits:
+        return _fit_battery_once(train, val, test, settings, progress=progress, **kw)
+    first = _fit_battery_once(train, val, test, settings, progress=_progress_span(progress, 0.0, 0.55), **kw)
+    train_rmse = {e["flight"]: e["voltage"]["rmse"] for e in first.errors["learned"]["train"]["flights"]}
+    leave = flights_to_leave_out(train_rmse, fmt.cells, settings.misfit_per_cell_v)
+    # a segment's flight (cleaning names segments "<flight>#<k>") leaves whole
+    sources = {n.rsplit("#", 1)[0] if "#" in n and n.rsplit("#", 1)[1].isdigit() else n for n in leave}
+    kept = [f for f in train if f.name not in sources]
+    if not leave or len(kept) == len(train):
+        if progress is not None:
+            progress(1.0, "done")
+        return first
+    log.info("battery fit: repeated without %s (missed by %s)", ", ".join(sorted(sources)),
+             ", ".join(f"{train_rmse[n] * 1000:.0f} mV" for n in leave))
+    final = _fit_battery_once(kept, val, test, settings, progress=_progress_span(progress, 0.55, 1.0), **kw)
+    names = kernel.EXT_PACK_PARAMS if final.model == "extended" else kernel.PACK_PARAMS
+    vector = np.array([final.parameters[k] for k in names])
+    again = {e["flight"]: e["voltage"]["rmse"] for e in
+             evaluate_battery(vector, [f for f in train if f.name in sources], settings, final.model)["flights"]}
+    final.left_out = [{"flight": n, "first_fit_rmse_v": train_rmse[n], "final_rmse_v": again.get(n)} for n in leave]
+    final.warnings = [
+        f"training flight {n}: left out of the fit: the circuit missed it by {train_rmse[n] * 1000:.0f} mV RMS with it "
+        f"in the training set, far beyond the other training flights, and the fit was repeated without it "
+        f"(the final set misses it by {'?' if again.get(n) is None else f'{again[n] * 1000:.0f}'} mV): the model does "
+        f"not draw what this pack did on it, and its predictions in such conditions are not supported"
+        for n in leave] + final.warnings
+    final.seconds += first.seconds
+    return final
+
+
+def _progress_span(progress: Progress | None, a: float, b: float) -> Progress | None:
+    """``progress`` for one pass of a fit that runs in [a, b] of the whole."""
+    if progress is None:
+        return None
+    return lambda fraction, stage: progress(a + (b - a) * fraction, stage)
+
+
+def _fit_battery_once(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
+                      settings: FitSettings, *, pack: str | None, progress: Progress | None,
+                      should_stop: ShouldStop | None, base_set: ParameterSet | None,
+                      pack_format: pb.PackFormat | None) -> FitResult:
+    """One pass of ``fit_battery`` on the given training flights."""
     t_start = time.perf_counter()
     stepper = _Stepper(progress, should_stop)
     stepper.report(0.0, "cleaning")
