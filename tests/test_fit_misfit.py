@@ -3,6 +3,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from gcs_pdm.fitting.misfit import misfit_warnings
 from gcs_pdm.fitting.procedure import FitSettings, fit_battery
@@ -101,3 +102,54 @@ def test_a_fit_is_repeated_without_the_training_flight_it_cannot_draw():
     assert np.mean(list(kept.values())) < np.mean([mixed[n] for n in kept])
     # one progress bar over both passes: never back, ends at 1
     assert progress == sorted(progress) and progress[-1] == 1.0
+
+
+def test_a_log_cut_into_segments_leaves_whole_and_never_empties_the_training_set():
+    from gcs_pdm.fitting.misfit import training_segments_to_leave_out
+
+    # A was cut into three segments, B into two; A#2 and B#1 are missed far beyond the others
+    rmse = {"A#1": .03, "A#2": .9, "A#3": .03, "B#1": .8, "B#2": .03, "C": .03, "D": .03, "E": .03}
+    log_of = {"A#1": "A", "A#2": "A", "A#3": "A", "B#1": "B", "B#2": "B"}
+    # both logs leave whole: 5 of 8 segments, fewer than half would remain -> no repeat
+    assert training_segments_to_leave_out(rmse, log_of, cells=5) == []
+    # with more clean logs, the flagged segments and their siblings leave, worst first
+    more = rmse | {"F": .03, "G": .03, "H": .03, "I": .03}
+    assert training_segments_to_leave_out(more, log_of, cells=5) == ["A#2", "B#1", "A#1", "A#3", "B#2"]
+    # a segment whose log is not known is its own log
+    assert training_segments_to_leave_out({"x#2": .9, "y": .03, "z": .03, "w": .03}, {}, cells=5) == ["x#2"]
+    # nothing flagged: nothing leaves
+    assert training_segments_to_leave_out({"a": .03, "b": .03, "c": .03}, {}, cells=5) == []
+
+
+def test_a_paper_fits_siblings_are_the_models_that_earned_their_training_error():
+    # the paper variant's q_max follows its C_b (problem.pack_vectors_with): a sibling built by copying its
+    # values into the chosen vector would keep the chosen one's full charge and read every start wrong.
+    # The reported spread must be the distance between the chosen prediction and the siblings' own.
+    from gcs_pdm.fitting import problem as pb
+    from gcs_pdm.fitting.cleaning import clean_flights
+    from gcs_pdm.fitting.procedure import _pack_traces
+    from gcs_pdm.models import kernel
+
+    manifest = json.loads((ROOT / "manifest.json").read_text())
+    logs = {f["flight"]: read_table(ROOT / f["file"], "battery", f["flight"]) for f in manifest["flights"]
+            if f["set"] == "Chen2020"}
+    train = [logs[n] for n in ("chen2020_02", "chen2020_05", "chen2020_07", "chen2020_08")]
+    val, test = [logs["chen2020_12"]], [logs["chen2020_04"]]
+    settings = FitSettings(model="paper", search=SearchSettings(starts=4, sa_generations=6, lm_max_nfev=8),
+                           agreement_tolerance=10.0, leave_out_misfits=False)
+    result = fit_battery(train, val, test, settings)
+    record = result.candidate_agreement
+    assert record["measured"] and len(record["candidates"]) >= 2
+    chosen = np.array([result.parameters[k] for k in kernel.PACK_PARAMS])
+    electrical = result.stages[0]
+    prepared = [pb.prepare(f, "voltage", settings.init_samples) for f in clean_flights(val + test)[0]]
+    ours = [v for v, _, _ in _pack_traces(chosen, prepared)]
+    apart = {}
+    for c in record["candidates"][1:]:
+        values = electrical.candidates[c].values
+        sibling = pb.pack_vectors_with(chosen, list(values), np.array([list(values.values())]))[0]
+        for j, (v, _, _) in enumerate(_pack_traces(sibling, prepared)):
+            d = v - ours[j]
+            apart.setdefault(j, []).append(float(np.sqrt(np.mean(d[np.isfinite(d)] ** 2))))
+    for j, f in enumerate(record["flights"]):
+        assert f["spread_v"] == pytest.approx(max(apart[j]), rel=1e-6, abs=1e-9), f

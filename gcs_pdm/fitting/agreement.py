@@ -23,8 +23,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 #: a candidate counts as "about as good" when its training RMSE is within this factor of the best
-#: one's (the extended variant's choice uses the same factor: these are the candidates validation
-#: could have chosen)
+#: one's (the extended variant's default choice, extended_train_tolerance, uses the same factor; the
+#: paper variant's validation chooses among all its candidates)
 AGREEMENT_TOLERANCE = 1.5
 #: a flight is undetermined when the near-best candidates' predictions are further apart (RMS, V) than
 #: this multiple of the chosen candidate's training RMSE: further apart than the fit's own error on

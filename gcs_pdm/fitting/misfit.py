@@ -65,3 +65,19 @@ def flights_to_leave_out(train_rmse: dict[str, float], cells: int, per_cell_v: f
     worst = sorted((n for n, r in finite.items() if r > limit), key=lambda n: -finite[n])
     room = max(0, min(len(finite) - 2, int(math.floor(len(finite) * (1.0 - keep_at_least)))))
     return worst[:room]
+
+
+def training_segments_to_leave_out(train_rmse: dict[str, float], log_of: dict[str, str], cells: int,
+                                   per_cell_v: float = MISFIT_PER_CELL_V, over_median: float = LEAVE_OUT_OVER_MEDIAN,
+                                   keep_at_least: float = KEEP_AT_LEAST) -> list[str]:
+    """Every training segment to repeat the fit without: those ``flights_to_leave_out`` picks, and the
+    other segments of their logs (``log_of``: segment -> log; a segment absent is its own log), since
+    a log leaves whole. Empty when that would keep fewer than ``keep_at_least`` of the segments, or
+    fewer than two."""
+    picked = flights_to_leave_out(train_rmse, cells, per_cell_v, over_median, keep_at_least)
+    logs = {log_of.get(n, n) for n in picked}
+    out = picked + [n for n in train_rmse if n not in picked and log_of.get(n, n) in logs]
+    kept = len(train_rmse) - len(out)
+    if not picked or kept < 2 or kept < keep_at_least * len(train_rmse):
+        return []
+    return out

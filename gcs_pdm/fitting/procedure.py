@@ -33,7 +33,7 @@ from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenb
                                    levenberg_marquardt_subset)
 from gcs_pdm.fitting.agreement import AGREEMENT_FACTOR, AGREEMENT_TOLERANCE, agreement_report, near_best
 from gcs_pdm.fitting.envelope import FlightConditions, envelope_report
-from gcs_pdm.fitting.misfit import MISFIT_PER_CELL_V, flights_to_leave_out, misfit_warnings
+from gcs_pdm.fitting.misfit import MISFIT_PER_CELL_V, misfit_warnings, training_segments_to_leave_out
 from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
@@ -507,24 +507,29 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     kw = dict(pack=pack, should_stop=should_stop, base_set=base_set, pack_format=pack_format)
     if not settings.leave_out_misfits:
         return _fit_battery_once(train, val, test, settings, progress=progress, **kw)
-    first = _fit_battery_once(train, val, test, settings, progress=_progress_span(progress, 0.0, 0.55), **kw)
+    first = _fit_battery_once(train, val, test, settings, progress=_progress_span(progress, 0.0, 0.55, "checked"),
+                              **kw)
     train_rmse = {e["flight"]: e["voltage"]["rmse"] for e in first.errors["learned"]["train"]["flights"]}
-    leave = flights_to_leave_out(train_rmse, fmt.cells, settings.misfit_per_cell_v)
-    # a segment's flight (cleaning names segments "<flight>#<k>") leaves whole
-    sources = {n.rsplit("#", 1)[0] if "#" in n and n.rsplit("#", 1)[1].isdigit() else n for n in leave}
-    kept = [f for f in train if f.name not in sources]
-    if not leave or len(kept) == len(train):
+    # cleaning may have cut a log into segments: a flagged segment's log leaves whole
+    log_of = {seg: rep.name for rep in first.cleaning for seg in rep.segments if seg in train_rmse}
+    leave = training_segments_to_leave_out(train_rmse, log_of, fmt.cells, settings.misfit_per_cell_v)
+    logs_out = {log_of.get(n, n) for n in leave}
+    kept = [f for f in train if f.name not in logs_out]
+    if not leave or not kept:
         if progress is not None:
             progress(1.0, "done")
         return first
-    log.info("battery fit: repeated without %s (missed by %s)", ", ".join(sorted(sources)),
+    log.info("battery fit: repeated without %s (missed by %s)", ", ".join(sorted(logs_out)),
              ", ".join(f"{train_rmse[n] * 1000:.0f} mV" for n in leave))
     final = _fit_battery_once(kept, val, test, settings, progress=_progress_span(progress, 0.55, 1.0), **kw)
     names = kernel.EXT_PACK_PARAMS if final.model == "extended" else kernel.PACK_PARAMS
     vector = np.array([final.parameters[k] for k in names])
     again = {e["flight"]: e["voltage"]["rmse"] for e in
-             evaluate_battery(vector, [f for f in train if f.name in sources], settings, final.model)["flights"]}
-    final.left_out = [{"flight": n, "first_fit_rmse_v": train_rmse[n], "final_rmse_v": again.get(n)} for n in leave]
+             evaluate_battery(vector, [f for f in train if f.name in logs_out], settings, final.model)["flights"]}
+    final.left_out = [{"flight": n, "log": log_of.get(n, n), "first_fit_rmse_v": train_rmse[n],
+                       "final_rmse_v": again.get(n)} for n in leave]
+    # the left-out logs' cleaning stays on record
+    final.cleaning = [r for r in first.cleaning if r.name in logs_out] + final.cleaning
     final.warnings = [
         f"training flight {n}: left out of the fit: the circuit missed it by {train_rmse[n] * 1000:.0f} mV RMS with it "
         f"in the training set, far beyond the other training flights, and the fit was repeated without it "
@@ -535,11 +540,12 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
     return final
 
 
-def _progress_span(progress: Progress | None, a: float, b: float) -> Progress | None:
-    """``progress`` for one pass of a fit that runs in [a, b] of the whole."""
+def _progress_span(progress: Progress | None, a: float, b: float, done: str = "done") -> Progress | None:
+    """``progress`` for one pass of a fit that runs in [a, b] of the whole; the pass's own "done" reads
+    ``done`` (a first pass is not the end of the fit)."""
     if progress is None:
         return None
-    return lambda fraction, stage: progress(a + (b - a) * fraction, stage)
+    return lambda fraction, stage: progress(a + (b - a) * fraction, done if stage == "done" else stage)
 
 
 def _fit_battery_once(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[Flight],
@@ -617,10 +623,14 @@ def _fit_battery_once(train: Sequence[Flight], val: Sequence[Flight], test: Sequ
     names = kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS
     siblings = near_best([c.lm_rmse for c in st_el.candidates], [c.start for c in st_el.candidates],
                          st_el.chosen, s.agreement_tolerance)
-    sibling_vectors = {c: final.copy() for c in siblings[1:]}
-    for c, vec in sibling_vectors.items():
-        for n, v in st_el.candidates[c].values.items():
-            vec[names.index(n)] = v
+    # each sibling as its own problem built it (the paper variant's q_max and C_max follow its C_b), with
+    # the chosen set's thermal values
+    thermal_idx = [names.index(n) for st in stages[1:] for n in st.free]
+    sibling_vectors = {}
+    for c in siblings[1:]:
+        vec = prob_el.pack_vectors(np.array([[st_el.candidates[c].values[n] for n in prob_el.space.names]]))[0]
+        vec[thermal_idx] = final[thermal_idx]
+        sibling_vectors[c] = vec
     agreement_flights: list[tuple[str, str]] = []
     agreement_voltages: dict[int, list[np.ndarray]] = {c: [] for c in siblings}
     for split in SPLITS:
@@ -735,7 +745,8 @@ def merge_results(base: ParameterSet, batteries: Mapping[str, FitResult], motor:
 
 
 def _fit_provenance(res: FitResult) -> dict:
-    return {"learned": list(res.learned), "flights": res.flights, "seed": res.settings.search.seed,
+    return {"learned": list(res.learned), "flights": res.flights, "left_out": [dict(x) for x in res.left_out],
+            "seed": res.settings.search.seed,
             "seconds": round(res.seconds, 2), "settings": res.settings.search.to_dict(),
             "test_errors": res.errors["learned"]["test"]["overall"],
             "reference_test_errors": res.errors["reference"]["test"]["overall"], "reference": res.reference}
