@@ -145,7 +145,7 @@ def _summary(res) -> dict:
         out["initial_soc_support"] = {f["flight"]: f["support"] for f in res.initial_soc_support["flights"]}
     if res.operating_envelope is not None:
         out["outside_training_conditions"] = [f["flight"] for f in res.operating_envelope["flights"] if not f["inside"]]
-    if res.component == "battery":
+    if res.model is not None:  # a battery fit
         out["left_out_training_flights"] = [x["flight"] for x in res.left_out]
     if res.candidate_agreement is not None:
         # None when only one candidate fitted well enough to compare: unknown, not "all determined"

@@ -45,6 +45,15 @@ def misfit_warnings(training_flights: Sequence[dict], cells: int,
     return out
 
 
+def left_out_warning(flight: str, first_fit_rmse_v: float, final_rmse_v: float | None) -> str:
+    """The warning for a training flight (segment) the fit was repeated without."""
+    final = "?" if final_rmse_v is None else f"{final_rmse_v * 1000:.0f}"
+    return (f"training flight {flight}: left out of the fit: the circuit missed it by {first_fit_rmse_v * 1000:.0f} mV "
+            f"RMS with it in the training set, far beyond the other training flights, and the fit was repeated "
+            f"without it (the final set misses it by {final} mV): the model does not draw what this pack did on it, "
+            f"and its predictions in such conditions are not supported")
+
+
 #: a flight is left out only when it is also this many times the median training flight's RMSE: on
 #: cells the circuit draws badly everywhere, no flight stands out and none is left out
 LEAVE_OUT_OVER_MEDIAN = 2.0

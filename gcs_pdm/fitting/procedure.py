@@ -33,7 +33,8 @@ from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenb
                                    levenberg_marquardt_subset)
 from gcs_pdm.fitting.agreement import AGREEMENT_FACTOR, AGREEMENT_TOLERANCE, agreement_report, near_best
 from gcs_pdm.fitting.envelope import FlightConditions, envelope_report
-from gcs_pdm.fitting.misfit import MISFIT_PER_CELL_V, misfit_warnings, training_segments_to_leave_out
+from gcs_pdm.fitting.misfit import (MISFIT_PER_CELL_V, left_out_warning, misfit_warnings,
+                                   training_segments_to_leave_out)
 from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
 from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
@@ -530,12 +531,8 @@ def fit_battery(train: Sequence[Flight], val: Sequence[Flight], test: Sequence[F
                        "final_rmse_v": again.get(n)} for n in leave]
     # the left-out logs' cleaning stays on record
     final.cleaning = [r for r in first.cleaning if r.name in logs_out] + final.cleaning
-    final.warnings = [
-        f"training flight {n}: left out of the fit: the circuit missed it by {train_rmse[n] * 1000:.0f} mV RMS with it "
-        f"in the training set, far beyond the other training flights, and the fit was repeated without it "
-        f"(the final set misses it by {'?' if again.get(n) is None else f'{again[n] * 1000:.0f}'} mV): the model does "
-        f"not draw what this pack did on it, and its predictions in such conditions are not supported"
-        for n in leave] + final.warnings
+    final.warnings = [left_out_warning(x["flight"], x["first_fit_rmse_v"], x["final_rmse_v"])
+                      for x in final.left_out] + final.warnings
     final.seconds += first.seconds
     return final
 
@@ -666,7 +663,7 @@ def _fit_battery_once(train: Sequence[Flight], val: Sequence[Flight], test: Sequ
         log.debug("battery fit: %s", w)  # the CLI prints result.warnings; at INFO they would print twice
     result = FitResult(
         component=BATTERY, pack=pack,
-        parameters={k: float(v) for k, v in zip(kernel.EXT_PACK_PARAMS if extended else kernel.PACK_PARAMS, final)},
+        parameters={k: float(v) for k, v in zip(names, final)},
         learned=sum((st.free for st in stages), ()), reference=settings.reference,
         errors={"learned": learned_errors, "reference": _split_errors(pairs_r)},
         stages=stages, cleaning=reports, rejected=rejected,

@@ -530,8 +530,9 @@ function renderJobs() {
   }).join("");
 }
 function fitWarnings(res) {
-  // each fit's own warnings (docs/fitting.md): starts its training flights do not support, flights outside
-  // their temperatures and currents. Before activating the set, the operator reads what it extrapolates.
+  // each fit's own warnings (docs/fitting.md): training flights it left out or cannot draw, starts its
+  // training flights do not support, flights outside their temperatures and currents, flights its equally
+  // good candidates disagree on. Before activating the set, the operator reads what it cannot support.
   const items = Object.entries(res.fits || {}).flatMap(([name, fit]) =>
     ((fit && fit.warnings) || []).map((w) => `<li>${esc(name)}: ${esc(w)}</li>`));
   return items.length ? `<ul class="fit-warnings bad">${items.join("")}</ul>` : "";
