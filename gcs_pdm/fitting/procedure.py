@@ -742,7 +742,11 @@ def merge_results(base: ParameterSet, batteries: Mapping[str, FitResult], motor:
 
 
 def _fit_provenance(res: FitResult) -> dict:
+    # the training envelope and the fit's warnings travel with the set: the service checks the vehicle
+    # in flight against the conditions its packs were fitted on (service.fit_envelope)
+    training = (res.operating_envelope or {}).get("training")
     return {"learned": list(res.learned), "flights": res.flights, "left_out": [dict(x) for x in res.left_out],
+            **({"training_envelope": dict(training)} if training else {}), "warnings": list(res.warnings),
             "seed": res.settings.search.seed,
             "seconds": round(res.seconds, 2), "settings": res.settings.search.to_dict(),
             "test_errors": res.errors["learned"]["test"]["overall"],

@@ -62,6 +62,7 @@ class LiveState:
             "parameter_set": None,
             "failed": None,
             "model_mismatch": None,
+            "fit_envelope": None,
             "model_variants": None,
             # what the service can and cannot do now, and why (the pipeline's readiness)
             "readiness": {"state": "no vehicle link", "prediction": "no vehicle link",

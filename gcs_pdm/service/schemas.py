@@ -98,6 +98,11 @@ class VehicleStatus(BaseModel):
         "packs that no longer behave like their model (the estimator's normalised-innovation test; "
         "each pack's evidence is in packs.<name>.model_mismatch): packs, reason with the refit suggestion, "
         "since_s; null while every pack matches"))
+    fit_envelope: dict[str, Any] | None = Field(None, description=(
+        "each pack of the active set that a fit learned, against the conditions of its training flights "
+        "(pack and air temperature, 60-s mean current; docs/service.md, 'Fit envelope'): packs.<name>.state "
+        "inside | outside | unknown with the reasons, outside, reason; null when no pack of the set carries a "
+        "training envelope (the paper's values, a set fitted before envelopes were stored)"))
     link_trust: dict[str, Any] = Field(default_factory=dict, description=(
         "what the link refused to believe (Link.trust_report): foreign_systems [{system, component, heartbeats, "
         "first_seen_s, last_seen_s}], time_rejected, gated values by field, bad_data, sequence (whether one sender is "

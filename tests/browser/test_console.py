@@ -225,6 +225,40 @@ def test_a_battery_fit_job_shows_what_its_fit_extrapolates(service, page):
     expect(warnings.filter(has_text="LLF20: test flight chen2020_11: outside the training conditions")).to_have_count(1)
 
 
+@pytest.mark.timeout(150)
+def test_flying_outside_the_conditions_a_set_was_fitted_on_is_a_banner(service, page):
+    """The set a battery fit saved (its one training flight in 6-8 °C air) activated, the simulated
+    vehicle flying in warmer air: the console says its predictions extrapolate (docs/service.md,
+    "Fit envelope"), from the training envelope the set carries."""
+    done = service.send("POST", "/jobs/fit", battery_fit_request("cold_battery"))["id"]
+    deadline = time.monotonic() + 90
+    while service.get(f"/jobs/{done}")["status"] != "succeeded":
+        assert time.monotonic() < deadline, service.get(f"/jobs/{done}")
+        time.sleep(0.5)
+    stored = next(p for p in service.get("/parameter-sets") if p["name"] == "cold_battery")
+    training = stored["provenance"]["packs"]["LLF20"]["training_envelope"]
+    assert training["ambient_c"][1] < 10.0
+    service.send("POST", "/parameter-sets/cold_battery/activate", {})
+    sim = Sim(service).start()
+    try:
+        page.goto(service.url + "/")
+        expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
+        banner = page.locator('[data-banner="status-outside_fit_envelope"]')
+        expect(banner).to_have_count(1, timeout=30_000)
+        expect(banner).to_contain_text("Outside the conditions the model was fitted on: LLF20")
+        expect(banner).to_contain_text("predictions extrapolate")
+        # on the pack's own card, and only there: the other packs kept the paper's values
+        row = page.locator('#packs [data-pack="LLF20"] .row.envelope')
+        expect(row).to_contain_text("fitted conditions")
+        expect(row).to_contain_text("outside: air temperature reaches")
+        expect(page.locator("#packs .row.envelope")).to_have_count(1)
+        status = service.get("/status")
+        assert status["fit_envelope"]["outside"] == ["LLF20"]
+        assert set(status["fit_envelope"]["packs"]) == {"LLF20"}   # the packs the fit did not learn: not judged
+    finally:
+        sim.stop()
+
+
 @pytest.mark.timeout(120)
 def test_a_second_sender_on_the_vehicles_id_is_a_banner(service, page):
     """A second sender using the vehicle's own system and component id (another vehicle or simulator

@@ -300,6 +300,16 @@ function modelText(m) {
   if (m.state === "matches") return `<span class="ok">matches</span> (statistic ${f(m.statistic, 2)}, bound ${f(m.bound, 2)})`;
   return unknown(m.reason || "not judged yet");
 }
+// the pack against the conditions its fit was trained on (docs/service.md, "Fit envelope"); no row
+// for a pack no fit learned (the paper's values: nothing to compare with)
+function envelopeRow(e) {
+  if (!e) return "";
+  let text;
+  if (e.state === "outside") text = `<span class="bad">outside</span>: ${esc(e.outside.join("; "))}; predictions extrapolate`;
+  else if (e.state === "inside") text = `<span class="ok">inside</span>` + (e.not_judged.length ? ` (not judged: ${esc(e.not_judged.join(", "))})` : "");
+  else text = unknown(`not judged: no ${e.not_judged.join(", ")}`);
+  return `<div class="row envelope"><span>fitted conditions</span><span class="v">${text}</span></div>`;
+}
 function renderPacks() {
   const st = S.status; if (!st) return;
   const lim = (S.settings && S.settings.limits) || {};
@@ -322,7 +332,8 @@ function renderPacks() {
       `<div class="row"><span>state of charge</span><span class="v">${num(p.soc) ? `${(100 * p.soc).toFixed(1)} %` + (num(p.soc_sd) ? ` ± ${(100 * p.soc_sd).toFixed(1)} %` : "") : unknown(socWhy(st))}</span></div>
        <div class="row"><span>temperature</span><span class="v">${pm(p.temperature_c, p.temperature_sd, 1, " °C", num(p.temperature_raw_c) ? `estimate not ready; sensor says ${p.temperature_raw_c.toFixed(1)} °C` : "no temperature received")}</span></div>
        <div class="row"><span>time to cut-off</span><span class="v">${cutoffText(p, st)}</span></div>
-       <div class="row model"><span>model</span><span class="v">${modelText(p.model_mismatch)}</span></div>`;
+       <div class="row model"><span>model</span><span class="v">${modelText(p.model_mismatch)}</span></div>
+       ${envelopeRow(((st.fit_envelope || {}).packs || {})[name])}`;
     plot(card.querySelector("canvas.soc"), S.series["pack-soc-" + name], {min: 0, max: 1, fmt: (v) => `${(100 * v).toFixed(0)}%`,
       limits: [{value: lim.landing_reserve_soc || 0, label: "landing reserve"}]});
     plot(card.querySelector("canvas.temp"), S.series["pack-temp-" + name], {fmt: (v) => `${v.toFixed(0)}°`, color: "#c2410c", band: "rgba(194,65,12,.18)",

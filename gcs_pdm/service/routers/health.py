@@ -6,6 +6,7 @@ from fastapi import APIRouter
 import gcs_pdm
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite
+from gcs_pdm.service.fit_envelope import fit_envelope_warnings
 from gcs_pdm.service.status_report import foreign_system_ids, link_trust, trust_warnings
 
 router = APIRouter()
@@ -28,7 +29,8 @@ def health(service: ServiceDep):
 @router.get("/status", response_model=S.VehicleStatus)
 def status(service: ServiceDep):
     snapshot, trust = service.state.snapshot(), link_trust(service)
-    warnings = list(snapshot.get("warnings") or []) + trust_warnings(trust)
+    warnings = (list(snapshot.get("warnings") or []) + trust_warnings(trust)
+                + fit_envelope_warnings(snapshot.get("fit_envelope")))
     return finite({**snapshot, "link_trust": trust, **({"warnings": warnings} if warnings else {})})
 
 
