@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from gcs_pdm.fitting.envelope import (CURRENT_MARGIN_REL, SUSTAINED_SAMPLES, TEMPERATURE_MARGIN_K, FlightConditions,
-                                      envelope_report)
+from gcs_pdm.fitting.envelope import (CURRENT_MARGIN_REL, SUSTAINED_S, TEMPERATURE_MARGIN_K, FlightConditions,
+                                      envelope_report, sustained_current)
 
 
 def flight(name, split, t_pack=(20.0, 40.0), ambient=20.0, current=10.0, n=600, spike=None):
@@ -14,7 +14,7 @@ def flight(name, split, t_pack=(20.0, 40.0), ambient=20.0, current=10.0, n=600, 
     cur = np.full(n, current)
     if spike is not None:
         cur[n // 2] = spike
-    return FlightConditions.of(name, split, temps, np.full(n, ambient), cur)
+    return FlightConditions.of(name, split, temps, np.full(n, ambient), cur, np.arange(n, dtype=float))
 
 
 TRAIN = [flight("a", "train", (5.0, 30.0), 5.0, 8.0), flight("b", "train", (25.0, 55.0), 25.0, 15.0),
@@ -56,11 +56,30 @@ def test_a_current_spike_is_not_a_sustained_current():
     spiky = flight("spiky", "test", current=10.0, spike=200.0)
     record, _ = report(spiky)
     assert record["flights"][0]["inside"]
-    assert record["flights"][0]["sustained_current_a"] == pytest.approx((10.0 * (SUSTAINED_SAMPLES - 1) + 200.0) / SUSTAINED_SAMPLES)
+    # 1 Hz: the spike's sample adds (200 - 10) A over two half-seconds to one minute's charge
+    assert record["flights"][0]["sustained_current_a"] == pytest.approx((10.0 * SUSTAINED_S + 190.0) / SUSTAINED_S)
+
+
+def test_sustained_means_seconds_whatever_the_logs_rate():
+    # a 2-minute climb at 30 A inside a 10-minute cruise at 10 A, logged at 1 Hz and at 10 Hz (and
+    # with a gap): the highest one-minute mean is the climb's either way
+    for hz in (1.0, 10.0):
+        t = np.arange(0.0, 600.0, 1.0 / hz)
+        i = np.where((t >= 200.0) & (t < 320.0), 30.0, 10.0)
+        assert sustained_current(t, i) == pytest.approx(30.0, abs=0.2)
+        keep = (t < 400.0) | (t > 450.0)
+        assert sustained_current(t[keep], i[keep]) == pytest.approx(30.0, abs=0.2)
+    # a burst shorter than the window is averaged with what is around it
+    t = np.arange(0.0, 600.0)
+    assert sustained_current(t, np.where((t >= 200) & (t < 230), 30.0, 10.0)) == pytest.approx(20.0, abs=0.4)
+    # a log shorter than the window: its mean; nothing finite: None
+    assert sustained_current(np.arange(30.0), np.full(30, 7.0)) == pytest.approx(7.0)
+    assert sustained_current(np.arange(3.0), np.full(3, np.nan)) is None
 
 
 def test_missing_temperatures_are_not_judged_and_the_record_is_json():
-    no_sensor = FlightConditions.of("blind", "test", np.full(300, np.nan), np.full(300, 20.0), np.full(300, 9.0))
+    no_sensor = FlightConditions.of("blind", "test", np.full(300, np.nan), np.full(300, 20.0), np.full(300, 9.0),
+                                    np.arange(300.0))
     record, warnings = report(no_sensor)
     (f,) = record["flights"]
     assert f["pack_temperature_c"] is None and f["inside"] and not warnings

@@ -147,6 +147,8 @@ class StateEstimator:
     def __init__(self, params: ParameterSet | None = None, config: EstimatorConfig = EstimatorConfig(), *,
                  vehicle=None):
         self.params = params
+        #: the vehicle description the packs and motors come from (None: the paper's aircraft)
+        self.vehicle = vehicle
         self.config = config
         ext_rows: dict[int, str] = {}
         if vehicle is not None:
@@ -291,6 +293,8 @@ class StateEstimator:
     motor_current = _ArrayCopy("_motor_current")
     motor_current_time = _ArrayCopy("_motor_current_time")
     motor_rpm = _ArrayCopy("_motor_rpm")
+    current_read_time = _ArrayCopy("_current_read_time", "(packs,) message time of each pack's latest current "
+                                   "read (its own, a string-mate's or its motor's; not a held one).")
     charge_c = _ArrayCopy("_charge_c", "(packs,) charge drawn from each pack since its filter started "
                                        "(cleaned current × dt), C.")
 

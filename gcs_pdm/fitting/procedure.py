@@ -637,7 +637,8 @@ def _fit_battery_once(train: Sequence[Flight], val: Sequence[Flight], test: Sequ
         learned = _pack_traces(final, prepared, s.model)
         for f, pv, (_, _, soc) in zip(flights, prepared, learned):
             starts.append(StartReading(f.name, split, pv.init_voltage, pv.init_current, soc, fmt.cells))
-            conditions.append(FlightConditions.of(f.name, split, f.temperature_c, f.ambient_c, f.current_a))
+            conditions.append(FlightConditions.of(f.name, split, f.temperature_c, f.ambient_c, f.current_a,
+                                                  f.time_s))
         refs = _pack_traces(ref_vec, prepared)
         if split != "train":
             agreement_flights += [(f.name, split) for f in flights]

@@ -10,84 +10,130 @@ equally good on the training flights part by 50-260 mV: docs/fitting.md). It is 
 (``fit_envelope``, and a warning banner), never acted on: the predictions are the same, the
 operator knows what they rest on and that a refit with such flights would help.
 
-No I/O: the telemetry intake feeds it the estimate and the active set's provenance.
+The envelopes are those of the values the estimator flies (:func:`flown_envelopes`), not of the
+set activated since: activation applies to planning at once, to the filters at the next start.
+No I/O: the telemetry intake feeds it the estimator.
 """
 from __future__ import annotations
 
 import math
 from collections import deque
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
-from gcs_pdm.fitting.envelope import SUSTAINED_SAMPLES, outside_training
+import numpy as np
 
-#: message seconds of a "sustained" current: the fit's SUSTAINED_SAMPLES at the logs' 1 Hz
-SUSTAINED_S = float(SUSTAINED_SAMPLES)
-#: a window this much shorter than SUSTAINED_S still counts (status ticks are not exactly 1 s apart)
-WINDOW_SLACK = 0.9
+from gcs_pdm.fitting.envelope import SUSTAINED_S, outside_training, training_envelopes
+
+#: a window this much shorter than SUSTAINED_S is accepted (status ticks are not exactly 1 s apart)
+WINDOW_ACCEPT = 0.95
+#: message seconds without a sample of a pack's charge, or without its current being read, after
+#: which its history starts again (a link silence, a current gone): a mean across that is not a
+#: sustained current. Shorter drop-outs (telemetry loses seconds of BATTERY_STATUS) are counted with
+#: the estimator's held current
+MAX_GAP_S = 15.0
+#: an air temperature this old still stands for the air (it changes slowly; some links send it every
+#: 10 s); older, or never heard, it is not judged (the estimator's default is not a reading)
+AMBIENT_STALE_S = 30.0
+
+#: each criterion of fitting.envelope.CRITERIA and the reading it judges
+_READING = {"pack_temperature_high": "pack temperature", "pack_temperature_low": "pack temperature",
+            "ambient_high": "air temperature", "ambient_low": "air temperature", "current": "current"}
 
 
-def training_envelopes(provenance: Mapping[str, Any] | None) -> dict[str, dict]:
-    """Each learned pack's training envelope from a parameter set's provenance ({} for a set no fit
-    made: the paper's, an import without one)."""
-    packs = (provenance or {}).get("packs") or {}
-    return {name: dict(p["training_envelope"]) for name, p in packs.items()
-            if isinstance(p, Mapping) and isinstance(p.get("training_envelope"), Mapping)}
+def flown_envelopes(estimator) -> dict[str, dict]:
+    """Per pack of ``estimator``: the training envelope of the fit that made the values it flies; {}
+    when none did. The paper's aircraft flies its set's packs by name; a described vehicle flies
+    each pack's ``parameters`` reference (its current scaled with the values: vehicle.model_inputs)."""
+    vehicle = getattr(estimator, "vehicle", None)
+    if vehicle is not None:
+        from gcs_pdm.vehicle.model_inputs import pack_training_envelope
+
+        found = {spec.name: pack_training_envelope(spec, f"packs[{i}]") for i, spec in enumerate(vehicle.packs)}
+        return {name: env for name, env in found.items() if env is not None}
+    params = getattr(estimator, "params", None)
+    envelopes = training_envelopes(getattr(params, "provenance", None))
+    return {name: env for name, env in envelopes.items() if name in estimator.pack_names}
 
 
 class FitEnvelopeWatch:
-    """Per pack: the charge drawn over the last minute (its sustained current) and whether it was
-    outside at the last check (it is cleared only back inside the training span itself)."""
+    """Per pack: the charge drawn over the last minute (its sustained current) and the criteria it
+    was outside at the last look (each cleared only back inside the training span itself, and held
+    while its reading is missing)."""
 
-    def __init__(self, window_s: float = SUSTAINED_S) -> None:
+    def __init__(self, envelopes: Mapping[str, Mapping], window_s: float = SUSTAINED_S) -> None:
+        self.envelopes = {name: dict(env) for name, env in envelopes.items()}
         self.window_s = float(window_s)
         self._charge: dict[str, deque[tuple[float, float]]] = {}
-        self._outside: dict[str, bool] = {}
+        self._outside: dict[str, dict[str, str]] = {}
 
-    def sustained_current(self, pack: str, t: float, charge_c: float) -> float | None:
+    def sustained_current(self, pack: str, t: float, charge_c: float | None) -> float | None:
         """Mean current of ``pack`` over the last ``window_s`` of message time, A; None until that
-        much has been seen (or after message time went backwards: its history is dropped)."""
+        much has been seen since the history last started (a gap, message time going backwards, a
+        current not being read: ``charge_c`` None)."""
         hist = self._charge.setdefault(pack, deque())
-        if not math.isfinite(charge_c) or (hist and t < hist[-1][0]):
+        if charge_c is None or not math.isfinite(charge_c) or (hist and not 0.0 <= t - hist[-1][0] <= MAX_GAP_S):
             hist.clear()
-            return None
+            if charge_c is None or not math.isfinite(charge_c):
+                return None
         hist.append((t, charge_c))
-        # keep the newest sample at least window_s old, and everything after it
-        while len(hist) >= 2 and t - hist[1][0] >= self.window_s * WINDOW_SLACK:
+        # the oldest sample kept is the newest one at least window_s old
+        while len(hist) >= 2 and t - hist[1][0] >= self.window_s:
             hist.popleft()
         t0, q0 = hist[0]
-        if t - t0 < self.window_s * WINDOW_SLACK:
+        if t - t0 < self.window_s * WINDOW_ACCEPT:
             return None
         return (charge_c - q0) / (t - t0)
 
-    def update(self, t: float, envelopes: Mapping[str, Mapping], pack_names: Sequence[str],
-               pack_temperature_c: Sequence[float], ambient_c: float, charge_c: Sequence[float]) -> dict | None:
-        """The ``/status`` ``fit_envelope`` record at message time ``t``; None when no pack of the
-        active set has a training envelope (nothing to compare with)."""
-        judged = {n: i for i, n in enumerate(pack_names) if n in envelopes}
-        if not judged:
+    def update(self, t: float, pack_names, pack_temperature_c, ambient_c: float | None,
+               charge_c, temperature_modelled=()) -> dict | None:
+        """The ``/status`` ``fit_envelope`` record at message time ``t``; None when no pack has a
+        training envelope (nothing to compare with). ``ambient_c`` None: no air temperature is being
+        read; ``charge_c[i]`` None: pack i's current is not being read."""
+        if not self.envelopes:
             return None
         air = float(ambient_c) if ambient_c is not None and math.isfinite(ambient_c) else None
         packs: dict[str, dict] = {}
-        for name, i in judged.items():
+        for i, name in enumerate(pack_names):
+            if name not in self.envelopes:
+                continue
             temp = float(pack_temperature_c[i])
             temp = temp if math.isfinite(temp) else None
-            current = self.sustained_current(name, t, float(charge_c[i]))
-            training = envelopes[name]
-            was_outside = self._outside.get(name, False)
-            reasons = outside_training(training, (temp, temp) if temp is not None else None,
-                                       (air, air) if air is not None else None, current,
-                                       margin_scale=0.0 if was_outside else 1.0)
-            unknown = [what for what, v in (("pack temperature", temp), ("air temperature", air),
-                                            (f"{self.window_s:.0f}-s current", current)) if v is None]
-            self._outside[name] = bool(reasons)
-            state = "outside" if reasons else ("unknown" if len(unknown) == 3 else "inside")
-            packs[name] = {"state": state, "outside": reasons, "not_judged": unknown, "training": dict(training),
-                           "now": {"pack_temperature_c": temp, "ambient_c": air, "sustained_current_a": current}}
+            current = self.sustained_current(name, t, charge_c[i])
+            now = {"pack temperature": temp, "air temperature": air, "current": current}
+            before = self._outside.get(name, {})
+            reasons = outside_training(self.envelopes[name], None if temp is None else (temp, temp),
+                                       None if air is None else (air, air), current, held=before)
+            # a criterion whose reading is missing now keeps its last verdict
+            reasons |= {c: why for c, why in before.items() if now[_READING[c]] is None}
+            self._outside[name] = reasons
+            not_judged = [what if what != "current" else f"{self.window_s:.0f}-s current"
+                          for what, v in now.items() if v is None]
+            state = "outside" if reasons else ("unknown" if len(not_judged) == len(now) else "inside")
+            packs[name] = {"state": state, "outside": list(reasons.values()), "not_judged": not_judged,
+                           "training": dict(self.envelopes[name]),
+                           "now": {"pack_temperature_c": temp, "ambient_c": air, "sustained_current_a": current,
+                                   **({"pack_temperature_source": "model"} if name in temperature_modelled else {})}}
+        if not packs:
+            return None
         out = sorted(n for n, p in packs.items() if p["state"] == "outside")
         reason = ("; ".join(f"pack {n}: {', '.join(packs[n]['outside'])}" for n in out)
                   + ". Its model was learned on flights that did not go there: predictions extrapolate the "
                   "learned circuit (refit with flights that do)") if out else None
         return {"packs": packs, "outside": out, "reason": reason}
+
+
+def estimator_readings(estimator, estimate) -> dict[str, Any]:
+    """What :meth:`FitEnvelopeWatch.update` judges, from the estimator and its estimate: the air
+    temperature only while an ambient sensor is heard (the estimator's default stands in for it
+    otherwise), each pack's charge only while its current is read (``AMBIENT_STALE_S``, ``MAX_GAP_S``)."""
+    t = estimate.time_s
+    heard = t - estimator.seen.get("ambient", -math.inf) <= AMBIENT_STALE_S
+    read = t - estimator.current_read_time <= MAX_GAP_S
+    charge = estimator.charge_c
+    return {"t": t, "pack_names": estimator.pack_names, "pack_temperature_c": np.asarray(estimate.pack_temp_c),
+            "ambient_c": estimate.ambient_c if heard else None,
+            "charge_c": [float(q) if ok else None for q, ok in zip(charge, read)],
+            "temperature_modelled": estimate.modelled_temperature}
 
 
 def fit_envelope_warnings(record: Mapping | None) -> list[dict]:

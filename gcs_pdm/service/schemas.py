@@ -99,9 +99,9 @@ class VehicleStatus(BaseModel):
         "each pack's evidence is in packs.<name>.model_mismatch): packs, reason with the refit suggestion, "
         "since_s; null while every pack matches"))
     fit_envelope: dict[str, Any] | None = Field(None, description=(
-        "each pack of the active set that a fit learned, against the conditions of its training flights "
+        "each pack the estimator flies on fitted values, against the conditions of its training flights "
         "(pack and air temperature, 60-s mean current; docs/service.md, 'Fit envelope'): packs.<name>.state "
-        "inside | outside | unknown with the reasons, outside, reason; null when no pack of the set carries a "
+        "inside | outside | unknown with the reasons, outside, reason; null when no such pack carries a "
         "training envelope (the paper's values, a set fitted before envelopes were stored)"))
     link_trust: dict[str, Any] = Field(default_factory=dict, description=(
         "what the link refused to believe (Link.trust_report): foreign_systems [{system, component, heartbeats, "

@@ -29,7 +29,7 @@ from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
 from gcs_pdm.service import adapters
 from gcs_pdm.service.flight_phase import FlightPhase, flight_phase
 from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
-from gcs_pdm.service.fit_envelope import FitEnvelopeWatch, training_envelopes
+from gcs_pdm.service.fit_envelope import FitEnvelopeWatch, estimator_readings, flown_envelopes
 from gcs_pdm.service.status_report import model_mismatch_summary
 
 log = logging.getLogger(__name__)
@@ -55,8 +55,9 @@ class TelemetryIntake:
         self.diagnoser = diagnoser
         # The pipeline feeds its own estimator; feeding it twice would double-count every frame.
         self._feed_estimator = feed_estimator
-        #: the packs against the conditions the active set's packs were fitted on (fit_envelope)
-        self.fit_envelope = FitEnvelopeWatch()
+        #: the packs against the conditions their values were fitted on (fit_envelope), per estimator
+        self.fit_envelope = FitEnvelopeWatch({})
+        self._envelope_of = None
         self._frames: queue.Queue = queue.Queue(maxsize=50_000)
         self.frames_dropped = 0
         self.frames_seen = 0
@@ -194,9 +195,7 @@ class TelemetryIntake:
                                  model_mismatch=est.model_mismatch.get(n))
             # same keys every time, so LiveState's one-level merge replaces it whole
             st.update(model_mismatch=model_mismatch_summary(est.model_mismatch))
-            st.update(fit_envelope=self.fit_envelope.update(
-                est.time_s, training_envelopes(getattr(self.service.params, "provenance", None)),
-                self.estimator.pack_names, est.pack_temp_c, est.ambient_c, self.estimator.charge_c))
+            st.update(fit_envelope=self._envelope_watch().update(**estimator_readings(self.estimator, est)))
             for i, n in enumerate(self.estimator.motor_names):
                 st.update_nested("motors", n, temperature_c=float(est.motor_temp_c[i]),
                                  temperature_sd=float(est.motor_temp_sd[i]))
@@ -204,6 +203,18 @@ class TelemetryIntake:
                         "received": self.link.received, "frames": self.frames_seen,
                         "frames_dropped": self.frames_dropped,
                         "vehicle": [self.link.target_system, self.link.target_component]})
+
+    def _envelope_watch(self) -> FitEnvelopeWatch:
+        """The fit-envelope watch of the estimator now running (a new one when it is replaced: the
+        envelopes are those of the values it flies)."""
+        if self._envelope_of is not self.estimator:
+            try:
+                envelopes = flown_envelopes(self.estimator)
+            except Exception:  # noqa: BLE001 - a set that cannot be read again must not stop the estimate
+                log.exception("the fitted packs' training envelopes could not be read; not checked")
+                envelopes = {}
+            self.fit_envelope, self._envelope_of = FitEnvelopeWatch(envelopes), self.estimator
+        return self.fit_envelope
 
     def _pass_messages(self) -> None:
         """The tracked vehicle's mission-related messages to ``on_message``, at the latest message

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gcs_pdm.fitting.envelope import training_envelopes
 from gcs_pdm.models.pack_scaling import scale_pack_vector
 from gcs_pdm.models.params import (BUILTIN_SETS, CELLS_PER_PACK, PACK_CAPACITY_C, ParameterError, ParameterSet,
                                    motor_vector, pack_vector)
@@ -78,10 +79,9 @@ def _parameter_set(ref: str) -> ParameterSet:
         raise VehicleError(f"parameter set {ref!r}: {exc}") from None
 
 
-def pack_parameters(spec: PackSpec, where: str = "pack") -> np.ndarray:
-    """One pack's parameter vector (kernel.PACK_PARAMS order) from its ``parameters`` reference."""
+def _source(spec: PackSpec, where: str) -> tuple[ParameterSet, str, bool]:
+    """(set, pack name in it, scaled to this pack?) of a pack's ``parameters`` reference."""
     ref = spec.parameters
-    full_cell = spec.full_cell_v
     if ref.set == "chemistry-default":
         set_name, pack_name, scale = *CHEMISTRY_DEFAULT_SOURCE, True
     else:
@@ -90,15 +90,40 @@ def pack_parameters(spec: PackSpec, where: str = "pack") -> np.ndarray:
     if pack_name not in ps.packs:
         raise VehicleError(f"{where}.parameters.pack: no pack {pack_name!r} in set {set_name!r}; "
                            f"have {', '.join(ps.packs)}")
+    return ps, pack_name, scale
+
+
+def _source_format(ps: ParameterSet, pack_name: str) -> tuple[int, float]:
+    """(cells in series, capacity C) of a set's pack: a vehicle's fitted set (gcs-pdm fit --vehicle)
+    says each pack's format; the built-in and paper-layout sets hold the paper's 5S 7.8 Ah packs."""
+    fmt = (ps.provenance.get("pack_formats") or {}).get(pack_name)
+    return ((int(fmt["cells_series"]), float(fmt["capacity_mah"]) * 3.6) if fmt
+            else (CELLS_PER_PACK, PACK_CAPACITY_C))
+
+
+def pack_parameters(spec: PackSpec, where: str = "pack") -> np.ndarray:
+    """One pack's parameter vector (kernel.PACK_PARAMS order) from its ``parameters`` reference."""
+    ps, pack_name, scale = _source(spec, where)
     v = pack_vector(ps.packs[pack_name])
     if not scale:
         return v
-    # a vehicle's fitted set (gcs-pdm fit --vehicle) says each pack's format; the built-in and
-    # paper-layout sets hold the paper's 5S 7.8 Ah packs
-    fmt = (ps.provenance.get("pack_formats") or {}).get(pack_name)
-    ref_cells, ref_capacity = ((int(fmt["cells_series"]), float(fmt["capacity_mah"]) * 3.6) if fmt
-                               else (CELLS_PER_PACK, PACK_CAPACITY_C))
-    return scale_pack_vector(v, ref_cells, ref_capacity, spec.cells_series, spec.capacity_c, full_cell)
+    ref_cells, ref_capacity = _source_format(ps, pack_name)
+    return scale_pack_vector(v, ref_cells, ref_capacity, spec.cells_series, spec.capacity_c, spec.full_cell_v)
+
+
+def pack_training_envelope(spec: PackSpec, where: str = "pack") -> dict | None:
+    """The training envelope of the fit that made the values this pack flies (fitting.envelope), its
+    current in this pack's amps when the values are scaled to it; None when no fit made them: a set
+    without one, or an extended pack (a description flies a pack's paper values, which an extended
+    fit does not learn)."""
+    ps, pack_name, scale = _source(spec, where)
+    envelope = training_envelopes(ps.provenance).get(pack_name)
+    if envelope is None or ps.packs[pack_name].model != "paper":
+        return None
+    if scale and envelope.get("sustained_current_a") is not None:
+        # the same C-rate on this pack's capacity (temperatures are the cells', unscaled)
+        envelope["sustained_current_a"] *= spec.capacity_c / _source_format(ps, pack_name)[1]
+    return envelope
 
 
 def model_inputs(desc: VehicleDescription) -> ModelInputs:
