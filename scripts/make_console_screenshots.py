@@ -3,7 +3,8 @@
 Runs ``gcs-pdm serve`` (advise policy) fed by ``gcs-pdm sim`` with the demo's motor fault on free
 loopback ports, opens the console in the system's Chromium, and saves into docs/console/:
 the proposal waiting for the operator, the confirmed upload, the stale link after the vehicle goes
-silent, Swagger UI served offline, and a finished fit job. About a minute:
+silent, Swagger UI served offline, a finished fit job, and a vehicle flying outside the conditions
+its active set was fitted on (the service restarted on a battery fit's set). About two minutes:
 
     python scripts/make_console_screenshots.py [--out docs/console] [--speedup 40]
 """
@@ -19,7 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "browser"))
 sys.path.insert(0, str(REPO))
 
-from console_harness import RequestLog, Service, Sim, launch, motor_fit_request  # noqa: E402
+from console_harness import RequestLog, Service, Sim, battery_fit_request, launch, motor_fit_request  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,6 +70,17 @@ def main(argv: list[str] | None = None) -> int:
             path = out / "5_fit_job.png"
             page.locator("#fits-panel").screenshot(path=str(path))
             shots.append(str(path.relative_to(REPO) if path.is_relative_to(REPO) else path))
+            # a battery fit's set (its one training flight in 6-8 °C air), the service restarted on it
+            job = service.send("POST", "/jobs/fit", battery_fit_request("cold_battery"))["id"]
+            expect(page.locator(f'[data-job="{job}"]')).to_have_attribute("data-status", "succeeded", timeout=120_000)
+            service.send("POST", "/parameter-sets/cold_battery/activate", {})
+            service.stop()
+            service.start()
+            sim = Sim(service, speedup=args.speedup).start()
+            page.goto(service.url + "/")
+            expect(page.locator('[data-banner="status-outside_fit_envelope"]')).to_have_count(1, timeout=60_000)
+            page.wait_for_timeout(3000)
+            shot("6_outside_fit_envelope.png", full_page=False)
             foreign = requests.foreign(service.host)
             if foreign:
                 raise SystemExit(f"the console asked other hosts: {foreign}")

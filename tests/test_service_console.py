@@ -149,3 +149,17 @@ def test_an_install_carries_the_console(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     for name in SHIPPED:
         assert (tmp_path / "gcs_pdm" / "service" / "console" / name).is_file(), name
+
+
+def test_the_console_says_what_every_fault_kinds_magnitude_means():
+    """app.js keeps its own copy of the fault vocabulary (a browser cannot import Python): every type
+    the diagnoser can raise has a wording there, and its advisories are the diagnoser's (a model
+    mismatch is told as a warning, not a red fault, and its statistic is not a 'power lost')."""
+    from gcs_pdm.diagnosis.faults import ADVISORY_TYPES, FAULT_TYPES
+
+    app = (REPO / "gcs_pdm" / "service" / "console" / "app.js").read_text()
+    table = app[app.index("const FAULT_MAGNITUDE = {"):app.index("};", app.index("const FAULT_MAGNITUDE = {"))]
+    assert set(re.findall(r"^\s+(\w+): \(m\) =>", table, re.M)) == set(FAULT_TYPES)
+    advisory = re.search(r"const ADVISORY_FAULTS = new Set\(\[(.*?)\]\)", app).group(1)
+    assert set(re.findall(r'"(\w+)"', advisory)) == set(ADVISORY_TYPES)
+    assert table.count("power lost") == 1

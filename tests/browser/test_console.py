@@ -255,6 +255,14 @@ def test_flying_outside_the_conditions_a_set_was_fitted_on_is_a_banner(service, 
         expect(row).to_contain_text("fitted conditions")
         expect(row).to_contain_text("outside: air temperature reaches")
         expect(page.locator("#packs .row.envelope")).to_have_count(1)
+        # this vehicle's LLF20 is not the fitted cell: the model check says so, as an advisory (a
+        # warning with its statistic, not a red fault with a "power lost")
+        advisory = page.locator('[data-banner^="fault-"]', has_text="model mismatch on LLF20")
+        expect(advisory).to_have_count(1, timeout=60_000)
+        expect(advisory).to_have_class(re.compile(r"\bwarning\b"))
+        expect(advisory).to_contain_text("Advisory: model mismatch on LLF20")
+        expect(advisory).to_contain_text("statistic")
+        expect(advisory).not_to_contain_text("power lost")
         status = service.get("/status")
         assert status["fit_envelope"]["outside"] == ["LLF20"]
         assert set(status["fit_envelope"]["packs"]) == {"LLF20"}   # the packs the fit did not learn: not judged

@@ -290,6 +290,23 @@ function cutoffText(p, st) {
   return `<span class="ok">no cut-off predicted${num(hz) ? ` within ${(hz / 60).toFixed(0)} min` : " within the prediction horizon"}</span>`;
 }
 // the estimator's model-consistency test (docs/estimation.md): matches, not judged yet, or the evidence and what to do
+// what a fault's magnitude means, per kind (gcs_pdm.diagnosis.faults.MAGNITUDE_MEANING): only a
+// motor's is a power loss
+const FAULT_MAGNITUDE = {
+  motor_power_loss: (m) => `${(100 * m).toFixed(0)} % power lost`,
+  pack_capacity_loss: (m) => `${(100 * m).toFixed(0)} % capacity lost`,
+  pack_resistance_rise: (m) => `resistance ${m >= 0 ? "+" : "−"}${(100 * Math.abs(m)).toFixed(0)} %`,
+  predicted_limit_violation: (m) => `${(100 * m).toFixed(0)} % probability of failing before the mission ends`,
+  degradation_rate_deviation: (m) => `rate ${(100 * m).toFixed(0)} % off its prediction`,
+  model_mismatch: (m) => `statistic ${m.toFixed(2)} (1 = as variable as the filter expects)`,
+};
+// kinds that tell the operator something but are no reason to re-plan (faults.ADVISORY_TYPES)
+const ADVISORY_FAULTS = new Set(["model_mismatch"]);
+function faultMagnitude(f) {
+  if (!num(f.magnitude)) return "magnitude unknown";
+  const say = FAULT_MAGNITUDE[f.kind];
+  return say ? say(f.magnitude) : `magnitude ${f.magnitude.toFixed(3)}`;
+}
 function modelText(m) {
   if (!m) return unknown("no model check yet");
   const f = (v, d) => fmt(v, d) ?? "?";
@@ -428,9 +445,10 @@ function computeBanners() {
     }
   }
   for (const f of S.faults) {
-    const mag = num(f.magnitude) ? `${(100 * f.magnitude).toFixed(0)} % power lost` : "magnitude unknown";
-    out.push({id: `fault-${f.id}`, level: "critical", title: `Fault: ${f.kind.replace(/_/g, " ")} on ${f.target ?? "?"}`,
-              why: `${mag}; ${f.source}${num(f.time_s) ? ", since t=" + f.time_s.toFixed(0) + " s" : ""}`});
+    const advisory = ADVISORY_FAULTS.has(f.kind);
+    out.push({id: `fault-${f.id}`, level: advisory ? "warning" : "critical",
+              title: `${advisory ? "Advisory" : "Fault"}: ${f.kind.replace(/_/g, " ")} on ${f.target ?? "?"}`,
+              why: `${faultMagnitude(f)}; ${f.source}${num(f.time_s) ? ", since t=" + f.time_s.toFixed(0) + " s" : ""}`});
   }
   if (S.mismatch && Date.now() / 1000 - S.mismatch.wall_time < RECENT_WARNING_S) {
     const d = S.mismatch.data;
