@@ -111,7 +111,7 @@ def outside_training(training: Mapping, pack_temperature_c: tuple[float, float] 
     flight (``service.fit_envelope``). The criteria in ``held`` (the live check's, outside at its
     last look) have no margin: a warning clears only back inside the training span itself, so a
     temperature that hovers at the margin does not make it flicker."""
-    margins = {c: 0.0 if c in held else TEMPERATURE_MARGIN_K for c in CRITERIA}
+    margins = {c: 0.0 if c in held else TEMPERATURE_MARGIN_K for c in CRITERIA if c != "current"}
     out = (_beyond("pack temperature", "°C", pack_temperature_c, training.get("pack_temperature_c"), margins,
                    "pack_temperature")
            | _beyond("air temperature", "°C", ambient_c, training.get("ambient_c"), margins, "ambient"))

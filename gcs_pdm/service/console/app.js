@@ -289,7 +289,6 @@ function cutoffText(p, st) {
   const hz = st.prediction.horizon_s;
   return `<span class="ok">no cut-off predicted${num(hz) ? ` within ${(hz / 60).toFixed(0)} min` : " within the prediction horizon"}</span>`;
 }
-// the estimator's model-consistency test (docs/estimation.md): matches, not judged yet, or the evidence and what to do
 // what a fault's magnitude means, per kind (gcs_pdm.diagnosis.faults.MAGNITUDE_MEANING): only a
 // motor's is a power loss
 const FAULT_MAGNITUDE = {
@@ -307,6 +306,7 @@ function faultMagnitude(f) {
   const say = FAULT_MAGNITUDE[f.kind];
   return say ? say(f.magnitude) : `magnitude ${f.magnitude.toFixed(3)}`;
 }
+// the estimator's model-consistency test (docs/estimation.md): matches, not judged yet, or the evidence and what to do
 function modelText(m) {
   if (!m) return unknown("no model check yet");
   const f = (v, d) => fmt(v, d) ?? "?";
