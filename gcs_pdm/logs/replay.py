@@ -1,11 +1,17 @@
 """``gcs-pdm replay LOG.bin|LOG.ulg``: an autopilot's own log through the same frames as live.
 
 The frames (:func:`gcs_pdm.logs.series.frames`) go, in message-time order, to the same consumer
-a tlog replay feeds (the estimator/diagnoser pipeline), and the summary says what the log lacked.
+a tlog replay feeds (the estimator/diagnoser pipeline, with the estimate traced), named by the
+vehicle description the replay diagnoses: battery instance → its pack, ESC instance → its motor
+(:func:`gcs_pdm.logs.series.described_names`). The summary says what the log lacked, what it had
+that the description does not name, and what could not be diagnosed; the exit status is a tlog
+replay's (docs/mavlink.md, "Replay").
 """
 from __future__ import annotations
 
 import json
+import logging
+import math
 import time
 from collections import Counter
 from pathlib import Path
@@ -13,48 +19,113 @@ from pathlib import Path
 from gcs_pdm.fitting.tables import FlightDataError
 from gcs_pdm.frames import FRAME_KIND_OF
 
+log = logging.getLogger(__name__)
 
-def replay_log(path: str | Path, frame_consumer=None) -> dict:
+
+def replay_log(path: str | Path, frame_consumer=None, vehicle=None) -> dict:
+    """Replay ``path`` into ``frame_consumer``; ``vehicle`` (a description) names the packs and
+    motors by instance, None keeps the paper aircraft's names (battery instance i = pack i).
+    Raises FlightDataError when the file cannot be read."""
     from gcs_pdm.logs.reader import read_log
-    from gcs_pdm.logs.series import frames
+    from gcs_pdm.logs.series import described_names, frames
 
     started = time.perf_counter()
     series = read_log(path)
-    out = frames(series)
+    if vehicle is not None:
+        pack_names, motor_names, unnamed = described_names(series, vehicle)
+        for what, why in unnamed.items():
+            log.warning("replay: %s: %s left out: %s", Path(path).name, what, why)
+    else:
+        pack_names = {i: series.pack_name(i) for i in series.batteries}
+        motor_names = {i: f"esc{i}" for i in series.escs}
+        unnamed = {}
+    out = frames(series, pack_names, motor_names)
     if frame_consumer is not None:
-        for frame in out:
-            frame_consumer(frame)
+        _hand_over(out, frame_consumer)
     report = getattr(frame_consumer, "report", None)
     consumer_report = report() if callable(report) else None
     faults = list(consumer_report.get("faults", [])) if isinstance(consumer_report, dict) else []
     kinds = Counter(FRAME_KIND_OF[type(f)] for f in out)
+    packs = {pack_names[i]: {"instance": i, "samples": int(b.time_s.size), "cells": b.cells}
+             for i, b in sorted(series.batteries.items()) if i in pack_names}
     return {
-        "path": str(path), "autopilot": series.autopilot, "frames": len(out),
+        "path": str(path), "autopilot": series.autopilot, "readable": True, "frames": len(out),
         "frames_by_kind": dict(sorted(kinds.items())),
         "frame_time_span_s": (out[0].time_s, out[-1].time_s) if out else None,
-        "packs": {name: {"instance": b.instance, "samples": int(b.time_s.size), "cells": b.cells}
-                  for name, b in series.packs().items()},
-        "escs": sorted(series.escs), "modes": series.modes, "missing": series.missing,
+        "packs": packs, "escs": sorted(series.escs),
+        "motors": {motor_names[i]: i for i in sorted(series.escs) if i in motor_names},
+        "left_out": unnamed, "modes": series.modes, "missing": series.missing,
+        "not_diagnosed": _not_diagnosed(series, kinds, vehicle),
         "elapsed_s": time.perf_counter() - started, "consumer": consumer_report, "faults": faults,
     }
 
 
-def print_replay(path: Path, frame_consumer=None, as_json: bool = False) -> int:
+def _hand_over(frames: list, consume) -> None:
+    """Every frame to ``consume``, except, as a tlog replay does (gcs_pdm.mavlink.replay), frames of
+    types outside its ``consumed_frame_types`` that are not due for its ``next_due_s``: those are
+    counted (``passed_over``) instead."""
+    consumed = getattr(consume, "consumed_frame_types", None)
+    if consumed is None:
+        for frame in frames:
+            consume(frame)
+        return
+    passed = 0
+    for frame in frames:
+        if type(frame) in consumed or frame.time_s >= getattr(consume, "next_due_s", math.inf):
+            consume(frame)
+        else:
+            passed += 1
+    if passed:
+        consume.passed_over(passed)
+
+
+def _not_diagnosed(series, kinds: Counter, vehicle) -> list[str]:
+    """What could not be diagnosed and why, one sentence each (as a tlog replay's summary says it)."""
+    out = []
+    named = f"the description {vehicle.name}'s" if vehicle is not None else "the"
+    if not kinds.get("pack"):
+        out.append("packs: no battery messages in the log" if not series.batteries else
+                   f"packs: none of the log's battery instances ({sorted(series.batteries)}) is one of {named} packs")
+    if not kinds.get("motor"):
+        out.append("motors: no ESC telemetry in the log" if not series.escs else
+                   f"motors: none of the log's ESC instances ({sorted(series.escs)}) is one of {named} motors")
+    if series.ambient is None:
+        out.append("ambient temperature: none in the log")
+    return out
+
+
+def exit_status(summary: dict) -> int:
+    """0: diagnosed; 1: read, but neither packs nor motors could be diagnosed (docs/mavlink.md)."""
+    kinds = summary["frames_by_kind"]
+    return 0 if kinds.get("pack") or kinds.get("motor") else 1
+
+
+def print_replay(path: Path, frame_consumer=None, as_json: bool = False, vehicle=None) -> int:
+    """Replay and print; returns the exit status: 2 unreadable, 1 nothing diagnosable, 0 success."""
     import sys
 
+    from gcs_pdm.vehicle.replay import print_estimate
+
     try:
-        summary = replay_log(path, frame_consumer)
+        summary = replay_log(path, frame_consumer, vehicle)
     except FlightDataError as exc:
         print(f"replay: {exc}", file=sys.stderr)
         return 2
+    status = exit_status(summary)
     if as_json:
         print(json.dumps(summary, default=str))
-        return 0
+        return status
     print(f"{summary['path']}: {summary['autopilot']} log, {summary['frames']} frames in {summary['elapsed_s']:.3f} s; "
           f"frame time span {summary['frame_time_span_s']}")
     print("  frames by kind: " + ", ".join(f"{k}={v}" for k, v in summary["frames_by_kind"].items()))
-    print(f"  packs: {summary['packs']}; ESC instances: {summary['escs']}")
+    print(f"  packs: {summary['packs']}; motors by ESC instance: {summary['motors']}")
+    for what, why in summary["left_out"].items():
+        print(f"  left out: {what}: {why}")
     for what, why in summary["missing"].items():
         print(f"  missing: {what}: {why}")
-    print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}")
-    return 0
+    print_estimate(summary["consumer"])
+    for reason in summary["not_diagnosed"]:
+        print(f"  not diagnosed: {reason}")
+    print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}"
+          + ("" if status == 0 else " (nothing could be diagnosed: see above)"))
+    return status

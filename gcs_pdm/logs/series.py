@@ -114,17 +114,32 @@ def _opt(v: float) -> float | None:
     return None if not np.isfinite(v) else float(v)
 
 
-def frames(series: LogSeries) -> list:
-    """The log as the telemetry frames live MAVLink produces, in time order (``gcs_pdm.frames``)."""
+def frames(series: LogSeries, pack_names: dict[int, str] | None = None,
+           motor_names: dict[int, str] | None = None) -> list:
+    """The log as the telemetry frames live MAVLink produces, in time order (``gcs_pdm.frames``).
+
+    ``pack_names`` / ``motor_names`` name the frames of each battery / ESC instance (a vehicle
+    description's packs and motors, :func:`described_names`); an instance they leave out gives no
+    frames. Without them, battery instance i is the paper's pack i and ESC instance i is ``esc<i>``."""
     from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, MotorFrame, PackFrame,
                                 PositionFrame, StatusTextFrame)
 
+    if pack_names is None:
+        pack_names = {i: series.pack_name(i) for i in series.batteries}
+    if motor_names is None:
+        motor_names = {i: f"esc{i}" for i in series.escs}
     out: list = []
-    for name, b in series.packs().items():
+    for inst, b in sorted(series.batteries.items()):
+        if inst not in pack_names:
+            continue
+        name = pack_names[inst]
         out += [PackFrame(float(t), name, _opt(v), _opt(i), _opt(c))
                 for t, v, i, c in zip(b.time_s, b.voltage_v, b.current_a, b.temperature_c)]
     for inst, e in sorted(series.escs.items()):
-        out += [MotorFrame(float(t), f"esc{inst}", _opt(i), _opt(r), _opt(c))
+        if inst not in motor_names:
+            continue
+        name = motor_names[inst]
+        out += [MotorFrame(float(t), name, _opt(i), _opt(r), _opt(c))
                 for t, i, r, c in zip(e.time_s, e.current_a, e.rpm, e.temperature_c)]
     if series.ambient:
         out += [AmbientFrame(float(t), _opt(c)) for t, c in zip(*series.ambient)]
@@ -139,3 +154,20 @@ def frames(series: LogSeries) -> list:
     out += [StatusTextFrame(float(t), 6, text) for t, text in series.texts]  # MSG carries no severity
     out.sort(key=lambda f: f.time_s)
     return out
+
+
+def described_names(series: LogSeries, vehicle) -> tuple[dict[int, str], dict[int, str], dict[str, str]]:
+    """A vehicle description's packs and motors by the log's instances: (pack name by battery
+    instance, motor name by ESC instance, what the log has that the description does not name and
+    why it is left out). A pack is its ``dataflash_instance`` (default: its MAVLink battery id, which
+    is the instance ArduPilot and PX4 stream as BATTERY_STATUS.id); a motor is its ESC index."""
+    packs = {(p.dataflash_instance if p.dataflash_instance is not None else p.mavlink_battery_id): p.name
+             for p in vehicle.packs}
+    motors = {m.esc_index: m.name for m in vehicle.motors}
+    unnamed = {f"battery instance {i}": f"{series.batteries[i].time_s.size} samples; the description "
+               f"{vehicle.name} names no pack for it (its packs are instances {sorted(packs)})"
+               for i in sorted(series.batteries) if i not in packs}
+    unnamed.update({f"ESC instance {i}": f"{series.escs[i].time_s.size} samples; the description "
+                    f"{vehicle.name} names no motor for it (its motors are ESC indices {sorted(motors)})"
+                    for i in sorted(series.escs) if i not in motors})
+    return packs, motors, unnamed

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"replay: no such file: {args.file}", file=sys.stderr)
         return 2
     consumer = desc = None
-    if not args.no_diagnose:
+    if not args.no_diagnose or args.vehicle:  # a given vehicle names the packs even undiagnosed
         from gcs_pdm.vehicle.description import VehicleError
         from gcs_pdm.vehicle.replay import TracedPipeline, replay_vehicle
 
@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
         except VehicleError as exc:
             print(f"replay: --vehicle: {exc}", file=sys.stderr)
             return 2
+    if not args.no_diagnose:
         if desc is None:
             logging.getLogger(__name__).warning("replay: %s; diagnosing as the paper's aircraft (edge540): "
                                                 "give --vehicle", about["why"])
@@ -64,12 +65,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
             from gcs_pdm.logs.replay import print_replay
-            return print_replay(args.file, consumer, as_json=args.json)
+            return print_replay(args.file, consumer, as_json=args.json, vehicle=desc)
         summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
                               frame_consumer=consumer).to_dict()
     finally:  # the trace's worker thread ends with the replay, however it ends
         if consumer is not None:
             consumer.close()
+    from gcs_pdm.vehicle.replay import print_estimate
+
     # 2: nothing could be read; 1: read, but neither packs nor motors could be diagnosed.
     diagnosable = summary["frames_by_kind"].get("pack") or summary["frames_by_kind"].get("motor")
     status = 2 if not summary["readable"] else (0 if diagnosable else 1)
@@ -93,28 +96,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"    {name:<28} {count}")
     print(f"  time: {summary['mapping']['time_rejected']} messages with a rejected timestamp; "
           f"values outside the physical envelope: {summary['mapping']['gated'] or 'none'}")
-    about = (summary["consumer"] or {}).get("vehicle")
-    if about:
-        if about["source"] == "none":
-            print(f"  vehicle: none ({about['why']}); diagnosed as the paper's aircraft")
-        else:
-            print(f"  vehicle description: {about['name']} ({about['source']})")
-            for note in about["notes"]:
-                print(f"    provisional: {note}")
-            if about.get("save"):
-                print(f"    save and correct it: {about['save']}")
-    trace = (summary["consumer"] or {}).get("trace") or []
-    for sample in trace[::max(1, len(trace) // 8)]:
-        packs = "; ".join(f"{n} SoC {_f(p['soc'])}, {_f(p['temperature_c'])} °C, {_f(p['current_a'])} A"
-                          + (f", cut-off in {_f(p['time_to_cutoff_s'][1])} s" if p["time_to_cutoff_s"] else "")
-                          for n, p in sample["packs"].items())
-        print(f"  t={sample['time_s']:.0f} s: {packs}")
+    print_estimate(summary["consumer"])
     for reason in summary["not_diagnosed"]:
         print(f"  not diagnosed: {reason}")
     print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}"
           + ("" if diagnosable else " (nothing could be diagnosed: see above)"))
     return status
-
-
-def _f(x) -> str:
-    return "?" if x is None else f"{x:.3g}"

@@ -1,7 +1,8 @@
 """The vehicle a replay diagnoses, and the estimate sampled through it.
 
 ``replay_vehicle`` picks the description: the one given (``--vehicle``), else the provisional one
-derived from the whole log (what ``gcs-pdm vehicle init --from LOG`` would write). ``TracedPipeline``
+derived from the whole log, a tlog or an autopilot's ``.bin``/``.ulg`` alike (what
+``gcs-pdm vehicle init --from LOG`` would write). ``TracedPipeline``
 is the replay's frame consumer: the diagnosis pipeline on that description plus, every
 ``period_s`` of message time, each pack's SoC, temperature, current and Monte Carlo time to
 cut-off at the present draw, and each motor's current and rpm, so a replay's summary shows the
@@ -29,13 +30,10 @@ def replay_vehicle(log: Path, spec: str | None) -> tuple[VehicleDescription | No
     if spec:
         desc = resolve(spec)
         return desc, {"name": desc.name, "source": "given", "provisional": desc.provisional, "notes": []}
-    if log.suffix.lower() != ".tlog":
-        return None, {"source": "none", "why": f"no --vehicle, and a provisional description is derived from "
-                                               f"tlogs only ({log.suffix} given)"}
-    from gcs_pdm.vehicle.provisional import observe_tlog
+    from gcs_pdm.vehicle.from_log import observe_file  # one derivation: tlog, DataFlash .bin, ULog .ulg
 
     try:
-        desc, notes = observe_tlog(log)
+        desc, notes = observe_file(log)
     except VehicleError as exc:
         return None, {"source": "none", "why": f"no --vehicle, and none could be derived from the log: {exc}"}
     return desc, {"name": desc.name, "source": "provisional", "provisional": True, "notes": notes,
@@ -73,7 +71,8 @@ class TracedPipeline:
         #: the samples; a drawing pack's ``time_to_cutoff_s`` is filled in by ``report()``
         self.trace: list[dict] = []
         #: message time of the next sample: taken after the first frame, of any type, reaching it
-        #: (a replay that passes frames over hands such a frame over all the same)
+        #: once the estimator is ready (a replay that passes frames over hands such a frame over
+        #: all the same)
         self.next_due_s = -math.inf
         self._rng = np.random.default_rng(seed)
         #: (trace entry, which packs draw, the Monte Carlo's draws, their flight or its future) of
@@ -84,9 +83,8 @@ class TracedPipeline:
 
     def __call__(self, frame) -> None:
         self.pipeline.consume(frame)
-        if frame.time_s >= self.next_due_s:
+        if frame.time_s >= self.next_due_s and self._sample(frame.time_s):
             self.next_due_s = frame.time_s + self.period_s
-            self._sample(frame.time_s)
 
     consume = __call__
 
@@ -99,12 +97,14 @@ class TracedPipeline:
     def passed_over(self, count: int) -> None:
         self.pipeline.passed_over(count)
 
-    def _sample(self, t: float) -> None:
+    def _sample(self, t: float) -> bool:
+        """Sample the estimate at ``t``; False (nothing sampled, the next frame tries again) while
+        the estimator is not ready, so a short log's first sample is not lost to its first frame."""
         from gcs_pdm.estimation import prediction
 
         est = self.pipeline.estimator
         if not est.ready():
-            return
+            return False
         e = est.estimate()
         current = np.nan_to_num(np.asarray(est.pack_current, dtype=float))
 
@@ -124,6 +124,7 @@ class TracedPipeline:
                                                    n_samples=TRACE_SAMPLES)
             flown = samples.fly() if self._worker is None else self._worker.submit(samples.fly)
             self._pending.append((entry, drawing, samples, flown))
+        return True
 
     def _fill_trace(self) -> None:
         """Each predicting sample's time to cut-off into its entry, in order: waits for the
@@ -150,6 +151,30 @@ class TracedPipeline:
     def report(self) -> dict:
         self._fill_trace()
         return {**self.pipeline.report(), "vehicle": self.about, "trace": self.trace}
+
+
+def print_estimate(consumer_report: dict | None) -> None:
+    """The replay's vehicle and a few of its trace samples, for the replay CLIs (tlog and autopilot log)."""
+    about = (consumer_report or {}).get("vehicle")
+    if about:
+        if about["source"] == "none":
+            print(f"  vehicle: none ({about['why']}); diagnosed as the paper's aircraft")
+        else:
+            print(f"  vehicle description: {about['name']} ({about['source']})")
+            for note in about["notes"]:
+                print(f"    provisional: {note}")
+            if about.get("save"):
+                print(f"    save and correct it: {about['save']}")
+    trace = (consumer_report or {}).get("trace") or []
+    for sample in trace[::max(1, len(trace) // 8)]:
+        packs = "; ".join(f"{n} SoC {_f(p['soc'])}, {_f(p['temperature_c'])} °C, {_f(p['current_a'])} A"
+                          + (f", cut-off in {_f(p['time_to_cutoff_s'][1])} s" if p["time_to_cutoff_s"] else "")
+                          for n, p in sample["packs"].items())
+        print(f"  t={sample['time_s']:.0f} s: {packs}")
+
+
+def _f(x) -> str:
+    return "?" if x is None else f"{x:.3g}"
 
 
 def _num(x) -> float | None:
