@@ -22,6 +22,7 @@ from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, EnvSettingsSource, PydanticBaseSettingsSource, SettingsConfigDict
 from pydantic_settings.sources.utils import parse_env_vars
 
+from gcs_pdm.mavlink.stream_requests import DEFAULT_RATES_HZ as DEFAULT_STREAM_RATES_HZ, StreamPolicy
 from gcs_pdm.planning.planners import SERVICE_PLANNERS
 
 ENV_PREFIX = "GCS_PDM_"
@@ -81,6 +82,11 @@ class ServiceConfig(BaseSettings):
     target_system: Annotated[int, Field(ge=1, le=255)] | Literal["auto"] = Field(1, description="the vehicle's system id; auto: the first autopilot heard")
     source_component: int = Field(195, ge=1, le=255, description="our MAVLink component id (MAV_COMP_ID_PATHPLANNER)")
     signing_key_file: str | None = Field(None, description="MAVLink 2 signing key file")
+    request_streams: bool = Field(True, description="ask the vehicle for the telemetry streams it does not send "
+                                  "(SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM for older firmware; /status.streams)")
+    stream_rates_hz: dict[str, float] = Field(default_factory=lambda: dict(DEFAULT_STREAM_RATES_HZ), description=(
+        "rate asked for each stream the vehicle does not send by itself, Hz (0: never ask): battery, position, "
+        "airspeed, esc, wind, ambient, landed"))
     http_host: str = Field("127.0.0.1", description="HTTP bind address; localhost unless told")
     http_port: int = Field(8000, ge=0, le=65535)
 
@@ -129,6 +135,13 @@ class ServiceConfig(BaseSettings):
         if not all(k in url for k in ("{z}", "{x}", "{y}")):
             raise ValueError("must hold {z}, {x} and {y} (a tile URL template)")
         return url
+
+    @field_validator("stream_rates_hz")
+    @classmethod
+    def _stream_rates(cls, rates: dict[str, float]) -> dict[str, float]:
+        merged = {**DEFAULT_STREAM_RATES_HZ, **rates}  # a setting names the streams it changes
+        StreamPolicy(rates_hz=merged)  # ValueError names the unknown stream or the bad rate
+        return merged
 
     @field_validator("api_token")
     @classmethod

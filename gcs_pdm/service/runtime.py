@@ -51,6 +51,7 @@ class Service:
         self.limits = None
         self.loop = None
         self.foreign_watch = None  # status_report.ForeignSystemWatcher, once a link is attached
+        self.stream_watch = None  # stream_watch.StreamWatch: asks for the streams the vehicle does not send
         self.state.update(policy=self.policy, parameter_set=self.params.name,
                           model_variants=model_variant_report(self.params))
         #: the vehicle description (``vehicle`` in the config); None: the live loop derives a
@@ -71,6 +72,12 @@ class Service:
         self.state.update(link={"url": self.config.mavlink_url})
         if getattr(loop, "link", None) is not None:
             self.foreign_watch = ForeignSystemWatcher(self, loop.link).start()
+            if self.config.request_streams and hasattr(loop.link, "subscribe"):
+                from gcs_pdm.mavlink.stream_requests import StreamPolicy
+                from gcs_pdm.service.stream_watch import StreamWatch
+
+                policy = StreamPolicy(rates_hz=self.config.stream_rates_hz)
+                self.stream_watch = StreamWatch(self, loop.link, policy).start()
 
     def describe_vehicle(self, desc, source: str, notes: list[str] | tuple = (), waiting: str | None = None) -> None:
         """Say in /status which description is in use (and its packs and motors by name)."""
@@ -100,6 +107,8 @@ class Service:
     def close(self) -> None:
         if self.foreign_watch is not None:
             self.foreign_watch.stop()
+        if self.stream_watch is not None:
+            self.stream_watch.stop()
         if self.loop is not None:
             self.loop.stop()
         self.runner.shutdown()

@@ -103,6 +103,11 @@ class VehicleStatus(BaseModel):
         "(pack and air temperature, 60-s mean current; docs/service.md, 'Fit envelope'): packs.<name>.state "
         "inside | outside | unknown with the reasons, outside, reason; null when no such pack carries a "
         "training envelope (the paper's values, a set fitted before envelopes were stored)"))
+    streams: dict[str, Any] | None = Field(None, description=(
+        "the telemetry streams the service reads (battery, position, airspeed, esc, wind, ambient, landed): per stream "
+        "its message, state (receiving | waiting | asked N time(s), not come | stopped), rate asked for and measured, "
+        "asks sent; missing; the vehicle's answers to SET_MESSAGE_INTERVAL (docs/mavlink.md, 'Asking for streams'); "
+        "null without a link or with request_streams off"))
     link_trust: dict[str, Any] = Field(default_factory=dict, description=(
         "what the link refused to believe (Link.trust_report): foreign_systems [{system, component, heartbeats, "
         "first_seen_s, last_seen_s}], time_rejected, gated values by field, bad_data, sequence (whether one sender is "

@@ -112,6 +112,8 @@ def stop_mavlink(service: Service) -> None:
     if loop is None:
         return
     loop.stop()
+    if getattr(service, "stream_watch", None) is not None:
+        service.stream_watch.stop()  # before the link closes: nothing is sent on a closed link
     loop.link.close()
     path = loop.link.config.tlog_path
     if path:
