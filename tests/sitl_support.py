@@ -100,9 +100,10 @@ def copter_frame_json(path: Path, pack: CopterPack) -> Path:
     return path
 
 
-#: no stream until a ground station asks (serial0's SR0_* rates at 0), as the issue found ArduCopter
-SILENT_STREAMS = {f"SR0_{k}": 0 for k in ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA1",
-                                          "EXTRA2", "EXTRA3", "PARAMS", "ADSB")}
+#: no stream until a ground station asks: serial0's stream rates at 0 (ArduCopter's default; ArduPlane
+#: streams by default). This firmware names them MAV1_* (MAVLink channel 1 = serial0; SR0_* before 4.7)
+SILENT_STREAMS = {f"MAV1_{k}": 0 for k in ("RAW_SENS", "EXT_STAT", "RC_CHAN", "RAW_CTRL", "POSITION", "EXTRA1",
+                                           "EXTRA2", "EXTRA3", "PARAMS", "ADSB")}
 
 
 @dataclass

@@ -2,7 +2,7 @@
 5 Ah pack plugged in partly charged (15.60 V at rest: 68 % by the simulator's own LiPo table), and
 no vehicle description given.
 
-Firm, today: ArduCopter streams nothing on its serial port until asked (its SR0_* rates are 0), so
+Firm, today: ArduCopter streams nothing on its serial port until asked (its serial0 stream rates are 0), so
 the service must ask (``/status.streams``), the battery stream must come, a provisional description
 must be derived from it (4 cells), the estimator must start, and the copter, commanded through the
 service's own link (GUIDED, arm, take off), must fly with the service following it.
@@ -128,6 +128,7 @@ def test_arducopter_alone_beside_the_service_partly_charged(tmp_path):
     assert figures["max_alt_m"] > 10.0 and figures["flight_s"] >= FLIGHT_S
     assert 0.1 < figures["drawn_ah"] < 2.0
     assert figures["soc_null_samples"] < figures["samples"]
+    assert figures["prediction"]["flying"] is True  # the service knows it flies (EXTENDED_SYS_STATE, asked for)
     # issue 29's bound: held once the estimator (items 1-3) reaches it; until then measured and said
     err = figures["soc_error_at_end"]
     if err is None or err > SOC_BOUND:
