@@ -157,7 +157,19 @@ def wait_for(cond, what: str, timeout: float, sitl: Sitl | None = None, poll: fl
 # --- commanding the vehicle through the service's link ------------------------------------------------
 
 MAV_CMD_DO_SET_MODE, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_NAV_TAKEOFF = 176, 400, 22
-COPTER_GUIDED, PLANE_AUTO = 4, 10
+COPTER_GUIDED, COPTER_AUTO, PLANE_AUTO = 4, 3, 10
+
+
+def square_mission(home, side_m: float, alt_m: float, laps: int = 1) -> list:
+    """Home, take-off to ``alt_m``, then a square of ``side_m`` about home ``laps`` times."""
+    from gcs_pdm import missions as M
+    from gcs_pdm.geo import geodetic_from_enu
+
+    lat, lon = home[0], home[1]
+    corners = [geodetic_from_enu(e, n, lat, lon) for e, n in ((0, side_m), (side_m, side_m), (side_m, 0), (0, 0))]
+    items = [M.waypoint(lat, lon, 0.0, frame=0), M.takeoff(lat, lon, alt_m)]
+    items += [M.waypoint(a, o, alt_m) for a, o in corners * laps]
+    return M.renumber(items)
 
 
 class Commander:

@@ -25,8 +25,6 @@ FLIGHT_S = 90.0
 
 
 def fly_plane(tmp_path, flight_s: float = FLIGHT_S, speedup: float = SPEEDUP) -> dict:
-    from gcs_pdm import missions as M
-    from gcs_pdm.geo import geodetic_from_enu
     from gcs_pdm.mavlink.mission_client import MissionClient
     from gcs_pdm.service.config import load_config
     from gcs_pdm.service.runtime import Service
@@ -55,11 +53,7 @@ def fly_plane(tmp_path, flight_s: float = FLIGHT_S, speedup: float = SPEEDUP) ->
                           "airframe": svc.vehicle.airframe.type, "motors": [m.esc_index for m in svc.vehicle.motors]}
         S.wait_for(lambda: loop.estimator.ready(), "the estimator ready", 60, sitl)
         S.wait_for(lambda: loop.home is not None, "home (the service's read of the mission)", 180, sitl)
-        lat, lon, _alt = loop.home
-        square = [geodetic_from_enu(e, n, lat, lon) for e, n in ((0, 600), (600, 600), (600, 0), (0, 0))]
-        items = [M.waypoint(lat, lon, 0.0, frame=0), M.takeoff(lat, lon, 60.0)]
-        items += [M.waypoint(a, o, 80.0) for a, o in square * 3]
-        MissionClient(loop.link).upload(M.renumber(items))
+        MissionClient(loop.link).upload(S.square_mission(loop.home, side_m=600.0, alt_m=80.0, laps=3))
         truth = S.BatteryTruth(loop.link, loop.telemetry)
         commander = S.Commander(loop.link)
         commander.until_accepted(S.MAV_CMD_COMPONENT_ARM_DISARM, 1, what="arming", timeout=180, sitl=sitl)

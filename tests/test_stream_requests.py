@@ -12,7 +12,7 @@ from gcs_pdm.mavlink.stream_requests import (ACCEPTED, EXTRA3, SET_MESSAGE_INTER
                                              StreamRequests)
 
 ONLY_BATTERY = {"battery": 2.0, "position": 0.0, "airspeed": 0.0, "esc": 0.0, "wind": 0.0, "ambient": 0.0,
-                "landed": 0.0}
+                "landed": 0.0, "mission": 0.0}
 
 
 def test_nothing_is_asked_before_the_vehicle_is_heard_nor_within_the_grace():

@@ -55,11 +55,13 @@ STREAMS: tuple[Stream, ...] = (
     Stream("wind", "WIND", 168, (EXTRA3,), "wind (recorded in the tlog for fits and replays)"),
     Stream("ambient", "SCALED_PRESSURE", 29, (RAW_SENSORS,), "air temperature for the thermal models"),
     Stream("landed", "EXTENDED_SYS_STATE", 245, (EXTENDED_STATUS,), "landed or in air: flight phase of a multirotor"),
+    Stream("mission", "MISSION_CURRENT", 42, (EXTENDED_STATUS,),
+           "mission progress, and a changed mission on board (the service reads it again)"),
 )
 STREAM_NAMES = tuple(s.name for s in STREAMS)
 #: default rates, Hz (``stream_rates_hz`` in the service's settings; 0 = never ask)
 DEFAULT_RATES_HZ: dict[str, float] = {"battery": 2.0, "position": 2.0, "airspeed": 4.0, "esc": 2.0, "wind": 1.0,
-                                      "ambient": 1.0, "landed": 1.0}
+                                      "ambient": 1.0, "landed": 1.0, "mission": 1.0}
 
 
 @dataclass(frozen=True)

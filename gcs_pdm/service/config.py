@@ -86,7 +86,7 @@ class ServiceConfig(BaseSettings):
                                   "(SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM for older firmware; /status.streams)")
     stream_rates_hz: dict[str, float] = Field(default_factory=lambda: dict(DEFAULT_STREAM_RATES_HZ), description=(
         "rate asked for each stream the vehicle does not send by itself, Hz (0: never ask): battery, position, "
-        "airspeed, esc, wind, ambient, landed"))
+        "airspeed, esc, wind, ambient, landed, mission"))
     http_host: str = Field("127.0.0.1", description="HTTP bind address; localhost unless told")
     http_port: int = Field(8000, ge=0, le=65535)
 

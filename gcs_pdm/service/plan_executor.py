@@ -289,7 +289,8 @@ class PlanExecutor:
             else:
                 log.warning("the vehicle's home item is (%s, %s): no GPS fix yet; home %s", h.lat_deg, h.lon_deg,
                             "unknown" if self.home is None else "kept from an earlier read")
-        if self.catalogue is None and items:
+        # not only at the first read: one before any mission was uploaded (home alone) gives no waypoint
+        if not self.catalogue and items:
             self.catalogue = catalogue_from_items(items, reward=1.0)
             log.info("no mission objectives configured: each of the %d waypoints is worth 1", len(self.catalogue))
         self.service.state.update(mission={"count": len(items)})

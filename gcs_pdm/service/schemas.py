@@ -104,7 +104,8 @@ class VehicleStatus(BaseModel):
         "inside | outside | unknown with the reasons, outside, reason; null when no such pack carries a "
         "training envelope (the paper's values, a set fitted before envelopes were stored)"))
     streams: dict[str, Any] | None = Field(None, description=(
-        "the telemetry streams the service reads (battery, position, airspeed, esc, wind, ambient, landed): per stream "
+        "the telemetry streams the service reads (battery, position, airspeed, esc, wind, ambient, landed, mission): per "
+        "stream "
         "its message, state (receiving | waiting | asked N time(s), not come | stopped), rate asked for and measured, "
         "asks sent; missing; the vehicle's answers to SET_MESSAGE_INTERVAL (docs/mavlink.md, 'Asking for streams'); "
         "null without a link or with request_streams off"))
