@@ -103,3 +103,24 @@ def test_an_unreadable_autopilot_log_exits_2(tmp_path):
     status, summary, err = _replay(str(bad), "--vehicle", "plane-3s", timeout=120)
     assert status == 2 and summary is None
     assert "not an ArduPilot DataFlash log" in err
+
+
+@needs_logs
+def test_fit_on_a_dataflash_log_without_a_vehicle_fits_the_vehicle_derived_from_it(tmp_path):
+    """One derivation for replay, fit and vehicle init: the fit writes the derived description beside
+    the parameter set, and fits the log's pack under its own name (not the paper's LLF20)."""
+    b = str(BIN)
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
+    run = subprocess.run([sys.executable, "-m", "gcs_pdm.cli", "fit", "battery", "--train", b, "--val", b, "--test", b,
+                          "--out", str(tmp_path), "--starts", "1", "--sa-generations", "3", "--lm-max-nfev", "20",
+                          "--quiet", "--no-plots"], capture_output=True, text=True, cwd=REPO, timeout=900, env=env)
+    assert run.returncode == 0, run.stderr
+    summary = json.loads(run.stdout.strip().splitlines()[-1])
+    assert summary["pack"] == "battery0" and summary["vehicle"] == "provisional-arduplane_sitl_stock"
+    assert "3 cells" in run.stderr and "BATT_CAPACITY" in run.stderr  # the derivation's notes, said
+    from gcs_pdm.vehicle.description import load
+
+    desc = load(tmp_path / "vehicle.toml")
+    assert [(p.name, p.cells_series, p.capacity_mah) for p in desc.packs] == [("battery0", 3, 3300.0)]
+    assert json.loads((tmp_path / "parameters.json").read_text())["packs"].keys() == {"battery0"}

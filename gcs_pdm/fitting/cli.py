@@ -10,8 +10,9 @@
 Flight files are CSV/Parquet tables (one pack or the motors) or tlogs (all four packs and the
 motors). With tlogs, ``--pack all`` fits every pack into ``DIR/<pack>/`` and writes the merged
 learned set to ``DIR/parameters.json``. An autopilot's own log (ArduPilot DataFlash ``.bin``, PX4
-ULog ``.ulg``; gcs_pdm.logs) holds the batteries it has: ``--pack all`` fits those (instance i is
-pack i, as BATTERY_STATUS id i in tlogs).
+ULog ``.ulg``; gcs_pdm.logs) names its vehicle: without ``--vehicle`` the description is derived
+from the first training log (as ``gcs-pdm vehicle init --from LOG`` derives it) and its packs are
+fitted by battery instance, as with ``--vehicle``.
 """
 from __future__ import annotations
 
@@ -167,9 +168,10 @@ def _print_warnings(res, label: str | None) -> None:
         print(f"fit: warning: {label + ': ' if label else ''}{w}", file=sys.stderr)
 
 
-def run_vehicle(args: argparse.Namespace, settings) -> int:
+def run_vehicle(args: argparse.Namespace, settings, desc=None) -> int:
     """``fit battery --vehicle X``: each of the description's packs (or ``--pack``), a parameter set of
-    its packs and the description pointing at it (gcs_pdm/vehicle/fit.py)."""
+    its packs and the description pointing at it (gcs_pdm/vehicle/fit.py). ``desc``: a description
+    already at hand (derived from an autopilot log) instead of ``--vehicle``."""
     from gcs_pdm.fitting.logs import read_flights, write_outputs
     from gcs_pdm.fitting.tables import BATTERY, MOTOR, FlightDataError
     from gcs_pdm.vehicle.description import VehicleError
@@ -177,7 +179,7 @@ def run_vehicle(args: argparse.Namespace, settings) -> int:
     from gcs_pdm.vehicle.presets import resolve
 
     try:
-        desc = resolve(args.vehicle)
+        desc = desc if desc is not None else resolve(args.vehicle)
     except VehicleError as exc:
         print(f"fit: {exc}", file=sys.stderr)
         return 2
@@ -220,7 +222,7 @@ def run_vehicle(args: argparse.Namespace, settings) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from gcs_pdm.fitting.logs import AUTOPILOT_LOG_SUFFIXES, log_packs, read_flights, write_outputs
+    from gcs_pdm.fitting.logs import AUTOPILOT_LOG_SUFFIXES, read_flights, write_outputs
     from gcs_pdm.fitting.procedure import fit_battery, fit_motor, merge_results
     from gcs_pdm.fitting.tables import FlightDataError
     from gcs_pdm.models.params import builtin
@@ -234,20 +236,27 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if getattr(args, "vehicle", None) is not None:
         return run_vehicle(args, settings)
+    if args.train[0].suffix.lower() in AUTOPILOT_LOG_SUFFIXES:
+        # an autopilot's own log names its vehicle: derived as replay and `vehicle init` derive it
+        # (one derivation for tlog, .bin and .ulg), its packs by battery instance
+        from gcs_pdm.vehicle.description import VehicleError
+        from gcs_pdm.vehicle.from_log import observe_file
+
+        try:
+            desc, notes = observe_file(args.train[0])
+        except VehicleError as exc:
+            print(f"fit: no --vehicle, and none could be derived from {args.train[0]}: {exc}", file=sys.stderr)
+            return 2
+        for note in notes:
+            print(f"fit: vehicle (derived from {args.train[0].name}): {note}", file=sys.stderr)
+        return run_vehicle(args, settings, desc)
     pack_arg = getattr(args, "pack", None)
-    if pack_arg not in (None, "all") + PACK_NAMES and args.train[0].suffix.lower() not in AUTOPILOT_LOG_SUFFIXES:
+    if pack_arg not in (None, "all") + PACK_NAMES:
         print(f"fit: --pack {pack_arg}: expected one of {', '.join(PACK_NAMES)} or all (another vehicle's packs: "
               "--vehicle FILE|PRESET)", file=sys.stderr)
         return 2
     any_tlog = any(p.suffix.lower() == ".tlog" for p in args.train + args.val + args.test)
-    autopilot_log = args.train[0].suffix.lower() in AUTOPILOT_LOG_SUFFIXES
-    if kind == "battery" and autopilot_log and pack_arg in (None, "all"):
-        try:  # an autopilot's log has its own batteries (instance i = pack i): fit those it has
-            packs = log_packs(args.train[0])
-        except FlightDataError as exc:
-            print(f"fit: {exc}", file=sys.stderr)
-            return 2
-    elif kind == "battery":
+    if kind == "battery":
         packs = (PACK_NAMES if pack_arg in (None, "all") else (pack_arg,)) if any_tlog else (pack_arg or "LLF20",)
         if not any_tlog and "all" in packs:
             print("fit: a table holds one pack; name it with --pack (or give tlogs for --pack all)", file=sys.stderr)

@@ -225,13 +225,6 @@ def _described_pack_flight(series, spec) -> Flight:
                                source={**flight.source, "pack": spec.name})
 
 
-def log_packs(path: str | Path) -> tuple[str, ...]:
-    """The packs an autopilot log (``.bin``/``.ulg``) has, by the project's pack names."""
-    from gcs_pdm.logs.reader import read_log
-
-    return tuple(read_log(path).packs())
-
-
 def write_table(flight: Flight, path: str | Path) -> Path:
     """A flight as a CSV or Parquet table with the standard columns."""
     import pandas as pd
