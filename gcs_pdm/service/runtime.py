@@ -72,12 +72,6 @@ class Service:
         self.state.update(link={"url": self.config.mavlink_url})
         if getattr(loop, "link", None) is not None:
             self.foreign_watch = ForeignSystemWatcher(self, loop.link).start()
-            if self.config.request_streams and hasattr(loop.link, "subscribe"):
-                from gcs_pdm.mavlink.stream_requests import StreamPolicy
-                from gcs_pdm.service.stream_watch import StreamWatch
-
-                policy = StreamPolicy(rates_hz=self.config.stream_rates_hz)
-                self.stream_watch = StreamWatch(self, loop.link, policy).start()
 
     def describe_vehicle(self, desc, source: str, notes: list[str] | tuple = (), waiting: str | None = None) -> None:
         """Say in /status which description is in use (and its packs and motors by name)."""

@@ -104,6 +104,11 @@ def start_mavlink(service: Service):
     loop = LiveLoop(service, link, MissionClient(link), discover=desc is None)
     service.attach_loop(loop)
     loop.start()
+    if cfg.request_streams:  # ask for what the vehicle does not send (service/stream_watch.py)
+        from gcs_pdm.mavlink.stream_requests import StreamPolicy
+        from gcs_pdm.service.stream_watch import StreamWatch
+
+        service.stream_watch = StreamWatch(service, link, StreamPolicy(rates_hz=cfg.stream_rates_hz)).start()
     return loop
 
 

@@ -35,7 +35,7 @@ class StreamWatch:
 
     def start(self) -> "StreamWatch":
         types = {s.message for s in STREAMS} | {"HEARTBEAT", "COMMAND_ACK"}
-        self._sub = self.link.subscribe(types, maxsize=5000)
+        self._sub = self.link.subscribe(types)
         self._thread.start()
         return self
 
@@ -45,6 +45,7 @@ class StreamWatch:
             self._thread.join(timeout=2.0)
         if self._sub is not None:
             self._sub.close()
+            self._sub = None  # stopped twice (stop_mavlink, then Service.close): closed once
 
     def _run(self) -> None:
         while not self._stop.wait(self.period_s):
@@ -56,7 +57,7 @@ class StreamWatch:
     def step(self, now: float) -> None:
         """Fold the messages received since the last step, send what is due, publish the report."""
         target = (self.link.target_system, self.link.target_component)
-        while True:
+        while self._sub is not None:
             msg = self._sub.get(timeout=0)
             if msg is None:
                 break
