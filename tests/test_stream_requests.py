@@ -35,6 +35,17 @@ def test_a_stream_that_comes_by_itself_is_never_asked_for():
     assert rep["rate_hz_asked"] is None
 
 
+def test_a_stream_set_to_come_slowly_is_not_taken_for_a_stopped_one():
+    req = StreamRequests(StreamPolicy(rates_hz=ONLY_BATTERY, grace_s=0.0, stale_s=5.0))
+    req.on_vehicle(0.0)
+    req.on_message("BATTERY_STATUS", 0.0)
+    for k in range(1, 6):  # every 8 s: slower than the 2 Hz setting, and than stale_s
+        req.on_message("BATTERY_STATUS", 8.0 * k)
+        assert req.due(8.0 * k + 7.9) == []
+    assert req.report(47.9)["streams"]["battery"]["state"] == "receiving"
+    assert req.report(40.0 + 3 * 8.0 + 0.1)["streams"]["battery"]["state"] == "stopped"  # three periods silent
+
+
 def test_asks_back_off_and_start_over_when_a_stream_that_came_stops():
     req = StreamRequests(StreamPolicy(rates_hz=ONLY_BATTERY, grace_s=0.0, retry_s=2.0, max_retry_s=16.0))
     req.on_vehicle(0.0)

@@ -16,7 +16,7 @@ A stream that does not come is asked again after ``retry_s``, doubling up to ``m
 (a vehicle without ESC telemetry is asked now and then, never flooded); one that came and stopped
 for ``stale_s`` (or three of its periods, whichever is longer) is asked again from the start. A
 stream that comes by itself (the vehicle's configured rates, another ground station's asks) is
-never asked for: rates that someone set are not overridden.
+never asked for, however slowly it comes: rates that someone set are not overridden.
 
 Time: the shell's receive clock (monotonic seconds). A stream that is missing has no message time
 of its own, and the vehicle's clock may not be heard at all before the first asked stream comes.
@@ -84,7 +84,7 @@ class StreamPolicy:
     #: first wait before asking again, doubled after each ask up to ``max_retry_s``
     retry_s: float = 2.0
     max_retry_s: float = 60.0
-    #: a stream silent this long (or three of its periods, if longer) has stopped
+    #: a stream silent this long (or three of its periods, asked or measured, if longer) has stopped
     stale_s: float = 5.0
 
     def __post_init__(self):
@@ -159,8 +159,14 @@ class StreamRequests:
         return float(self.policy.rates_hz.get(name, 0.0))
 
     def _stale_after(self, name: str) -> float:
-        rate = self.rate_hz(name)
-        return max(self.policy.stale_s, 3.0 / rate) if rate > 0 else self.policy.stale_s
+        """Silence after which a stream has stopped: ``stale_s``, or three periods of the rate asked
+        for or of the rate it came at (a vehicle set to send it slowly is not taken for a silent one,
+        so rates someone set are not overridden), whichever is longest."""
+        periods = [1.0 / self.rate_hz(name)] if self.rate_hz(name) > 0 else []
+        r = self._state[name].recent
+        if len(r) >= 2:  # its mean period so far (from the second arrival on)
+            periods.append((r[-1] - r[0]) / (len(r) - 1))
+        return max([self.policy.stale_s] + [3.0 * p for p in periods])
 
     def receiving(self, name: str, now: float) -> bool:
         st = self._state[name]
