@@ -1,7 +1,8 @@
 """The service beside a vehicle it was never told about, behind MAVProxy (as an operator's set-up has
 it): the simulated vehicle flies a quad whose 4S pack is off every preset (4.2 Ah, not 5 or 10; its
 circuit a perturbed reading of the paper's, ±30 %, not the chemistry default the service derives),
-plugged in at 70 % charge. The service gets no --vehicle.
+plugged in at 70 % charge, waiting on the ground until armed and started (through the service's
+link, as an operator would once connected). The service gets no --vehicle.
 
 Firm, today: through MAVProxy the streams come, a provisional description is derived (4 cells,
 the capacity the autopilot reports), the estimator follows the flight. Measured against the truth
@@ -21,6 +22,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from mavlink_peers import free_udp_port  # noqa: E402
 from test_mavlink_mavproxy import MAVPROXY  # noqa: E402
+from sitl_support import MAV_CMD_COMPONENT_ARM_DISARM, Commander  # noqa: E402
+
+MAV_CMD_MISSION_START = 300
 
 pytestmark = [pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy not installed (test extra)"), pytest.mark.slow]
 
@@ -53,7 +57,10 @@ def test_unknown_quad_with_an_off_preset_pack_behind_mavproxy(tmp_path):
 
     desc = _off_preset_quad(tmp_path)
     legs = [(400, 0, 40), (400, 400, 40), (0, 400, 40), (0, 0, 40)] * 3
-    cfg = vehicle_config(desc, mission=tuple(mission_from_enu(legs, takeoff_alt_m=40)), initial_soc=START_SOC)
+    # on the ground until told: plugged in, the service connected, then armed and started (no race
+    # between the service's first readings and the take-off)
+    cfg = vehicle_config(desc, mission=tuple(mission_from_enu(legs, takeoff_alt_m=40)), initial_soc=START_SOC,
+                         autostart=False)
     master, out = free_udp_port(), free_udp_port()
     svc = Service(load_config(env={}, data_dir=str(tmp_path / "service"), api_token="mavproxy-token-0123456789",
                               mavlink_url=f"udpin:127.0.0.1:{out}", record_tlog=False))
@@ -71,11 +78,19 @@ def test_unknown_quad_with_an_off_preset_pack_behind_mavproxy(tmp_path):
         while svc.vehicle is None or not loop.estimator.ready():
             assert time.monotonic() < deadline, f"no description/estimate: {svc.state.get('vehicle')}"
             time.sleep(0.2)
+        ready_vehicle_s = vehicle.state.time_s  # the simulated clock when the service's estimate started
         figures["vehicle"] = {"cells": [p.cells_series for p in svc.vehicle.packs],
                               "capacity_mah": [p.capacity_mah for p in svc.vehicle.packs],
                               "airframe": svc.vehicle.airframe.type}
+        commander = Commander(loop.link)
+        try:
+            commander.until_accepted(MAV_CMD_COMPONENT_ARM_DISARM, 1, what="arming", timeout=30)
+            commander.until_accepted(MAV_CMD_MISSION_START, 0, 0, what="mission start", timeout=30)
+        finally:
+            commander.close()
         vehicle.wait_for(lambda s: not s.on_ground, timeout=120)
         take_off_vehicle_s = vehicle.state.time_s
+        figures["estimate_started_s_before_take_off"] = round(take_off_vehicle_s - ready_vehicle_s, 1)
         pack = svc.vehicle.packs[0].name
         trace = []
         asked_plan_at = plan_wall_s = None
