@@ -54,7 +54,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench_sitl_") as tmp:
         copter = fly_copter(Path(tmp) / "copter", S.CopterPack(voltage=args.voltage), args.flight_s, args.speedup)
         result["arducopter"] = _summary(copter)
-        print(f"arducopter: SoC {copter['soc_at_end']:.3f} vs truth {copter['truth_at_end']:.3f} after "
+        soc = "withheld" if copter["soc_at_end"] is None else f"{copter['soc_at_end']:.3f}"
+        print(f"arducopter: SoC {soc} vs truth {copter['truth_at_end']:.3f} after "
               f"{copter['flight_s']:.0f} s (error {copter['soc_error_at_end']}), {copter['wall_s']} s wall")
         if not args.no_plane and S.available("arduplane"):
             plane = fly_plane(Path(tmp) / "plane", args.flight_s, args.speedup)
