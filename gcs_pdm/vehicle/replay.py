@@ -71,8 +71,7 @@ class TracedPipeline:
         #: the samples; a drawing pack's ``time_to_cutoff_s`` is filled in by ``report()``
         self.trace: list[dict] = []
         #: message time of the next sample: taken after the first frame, of any type, reaching it
-        #: once the estimator is ready (a replay that passes frames over hands such a frame over
-        #: all the same)
+        #: (a replay that passes frames over hands such a frame over all the same)
         self.next_due_s = -math.inf
         self._rng = np.random.default_rng(seed)
         #: (trace entry, which packs draw, the Monte Carlo's draws, their flight or its future) of
@@ -83,8 +82,9 @@ class TracedPipeline:
 
     def __call__(self, frame) -> None:
         self.pipeline.consume(frame)
-        if frame.time_s >= self.next_due_s and self._sample(frame.time_s):
+        if frame.time_s >= self.next_due_s:
             self.next_due_s = frame.time_s + self.period_s
+            self._sample(frame.time_s)
 
     consume = __call__
 
@@ -98,8 +98,7 @@ class TracedPipeline:
         self.pipeline.passed_over(count)
 
     def _sample(self, t: float) -> bool:
-        """Sample the estimate at ``t``; False (nothing sampled, the next frame tries again) while
-        the estimator is not ready, so a short log's first sample is not lost to its first frame."""
+        """Sample the estimate at ``t``; False (nothing sampled) while the estimator is not ready."""
         from gcs_pdm.estimation import prediction
 
         est = self.pipeline.estimator
@@ -149,6 +148,12 @@ class TracedPipeline:
         self._pending = [p for p in self._pending if not isinstance(p[3], Future)]
 
     def report(self) -> dict:
+        est_time = getattr(self.pipeline.estimator, "time_s", None)
+        if not self.trace and est_time is not None and math.isfinite(est_time):
+            # a log shorter than its first due sample (the estimator not ready at the first frame,
+            # the next due after the log's end): its last state, at the estimator's own time (the
+            # same whether or not frames it ignores were handed over), so the trace is not empty
+            self._sample(est_time)
         self._fill_trace()
         return {**self.pipeline.report(), "vehicle": self.about, "trace": self.trace}
 
