@@ -119,7 +119,10 @@ def crossing(fit: WearFit | None, ratio: float, label: str, *, draws: int = 2000
     b = np.clip(sample[:, 2], *B_RANGE)
     ns = n_cross(a, b)
     lo_q, hi_q = (1 - INTERVAL) / 2, 1 - (1 - INTERVAL) / 2
-    lo, hi = np.quantile(ns, [lo_q, hi_q])
+    beyond = 10.0 * horizon  # a draw that never crosses within the horizon: past any finite quantile
+    lo, hi = np.quantile(np.where(np.isfinite(ns), ns, beyond), [lo_q, hi_q])
+    lo = lo if lo <= horizon else math.inf
+    hi = hi if hi <= horizon else math.inf
     if not math.isfinite(central):
         return Forecast(label, None, float(lo) if math.isfinite(lo) else None, None,
                         f"no {label} within {horizon:.0f} equivalent cycles on the trend so far")
