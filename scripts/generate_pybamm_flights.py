@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -210,7 +209,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ageing", action="store_true",
                     help="instead: one ageing cell per set (--ageing-sets), flown from cycle 1 to --cycles with its "
                          "true C/20 capacity at each flight (fixtures/pybamm_ageing; see AGEING_SETS)")
-    ap.add_argument("--cycles", type=int, default=44, help="with --ageing: flights (cycles) per ageing set")
+    ap.add_argument("--cycles", type=int, default=44,
+                    help="with --ageing: flights (cycles) per ageing set, unless AGEING_SETS gives its own")
     ap.add_argument("--ageing-sets", nargs="+", default=list(AGEING_SETS), metavar="SET")
     args = ap.parse_args(argv)
     if args.ageing:
@@ -320,7 +320,7 @@ AGEING_SETS = {
     # Chen et al. 2020 (LG M50): solvent-diffusion-limited SEI growth only
     "Chen2020": {"options": {"SEI": "solvent-diffusion limited"},
                  "accelerate": {"SEI solvent diffusivity [m2.s-1]": 8000.0, "SEI resistivity [Ohm.m]": 3.0},
-                 "cruise_c": (1.2, 1.8), "charge_c": 1.0},
+                 "cruise_c": (1.2, 1.8), "charge_c": 1.0, "cycles": 64},
 }
 #: the planned depth of discharge of a fresh cell's flight (deeper as it ages: the profile is fixed)
 AGEING_FLIGHT_DOD = 0.6
@@ -345,7 +345,13 @@ def fresh_electrodes(pybamm, pv) -> dict:
     """The fresh cell's electrodes (what a chemistry's datasheet-level model gives): each electrode's
     potential on a stoichiometry grid at 25 °C, their capacities (Ah) and the cell's stoichiometry
     windows; a capacity estimate that reads lithium loss needs them (docs/packs.md)."""
-    from pybamm_curves import electrode_potential
+    def electrode_potential(pybamm, values, name, sto):
+        fn = values[name]
+        try:
+            expr = fn(pybamm.Scalar(sto))
+        except TypeError:  # parameter sets whose potentials take the temperature too
+            expr = fn(pybamm.Scalar(sto), pybamm.Scalar(298.15))
+        return float(np.asarray(values.evaluate(expr)).ravel()[0])
 
     grid = np.round(np.linspace(0.001, 0.999, 333), 6)
     param = pybamm.LithiumIonParameters()
@@ -368,7 +374,6 @@ def ageing_main(args) -> int:
     import pandas as pd
     import pybamm
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent))  # scripts/pybamm_curves.py
     out = Path(args.out)
     rng = np.random.default_rng(args.seed)
     manifest = {"generator": "scripts/generate_pybamm_flights.py --ageing", "pybamm": pybamm.__version__,
@@ -379,14 +384,16 @@ def ageing_main(args) -> int:
                 "sets": {}, "flights": []}
     t_all = time.perf_counter()
     for set_name in args.ageing_sets:
+        rng = np.random.default_rng(args.seed)  # each set its own stream: a set is remade alone, the same
         spec = AGEING_SETS[set_name]
         pv = pybamm.ParameterValues(set_name)
         pv.update({k: pv[k] * f for k, f in spec["accelerate"].items()})
         pv.update({"Ambient temperature [K]": 298.15, "Initial temperature [K]": 298.15})
         model = pybamm.lithium_ion.SPM(options=spec["options"])
+        electrodes = fresh_electrodes(pybamm, pv)
         cap = float(pv["Nominal cell capacity [A.h]"])
         vmax, vmin = float(pv["Upper voltage cut-off [V]"]), float(pv["Lower voltage cut-off [V]"])
-        profiles = [ageing_profile(rng, cap, *spec["cruise_c"]) for _ in range(args.cycles)]
+        profiles = [ageing_profile(rng, cap, *spec["cruise_c"]) for _ in range(spec.get("cycles", args.cycles))]
         steps = []
         for prof in profiles:
             drive = pybamm.step.current(np.column_stack([np.arange(prof.size, dtype=float), prof]))
@@ -400,7 +407,7 @@ def ageing_main(args) -> int:
         (out / set_name).mkdir(parents=True, exist_ok=True)
         set_entry = {"options": spec["options"], "accelerate": spec["accelerate"], "nominal_cell_capacity_ah": cap,
                      "upper_cutoff_v": vmax, "lower_cutoff_v": vmin, "cycles": len(sol.cycles),
-                     "electrodes": fresh_electrodes(pybamm, pv)}
+                     "electrodes": electrodes}
         for k, cycle in enumerate(sol.cycles):
             if len(cycle.steps) < 5:  # the experiment stopped in this cycle (a step hit a voltage limit)
                 print(f"{set_name}: cycle {k + 1} incomplete, the cell's life ends there", flush=True)
@@ -458,6 +465,13 @@ def ageing_main(args) -> int:
         manifest["sets"][set_name] = set_entry
     manifest["seconds"] = round(time.perf_counter() - t_all, 1)
     out.mkdir(parents=True, exist_ok=True)
+    previous = out / "manifest.json"
+    if previous.exists():  # the sets not made in this run stay as they were
+        old = json.loads(previous.read_text())
+        for name, entry in old.get("sets", {}).items():
+            if name not in manifest["sets"]:
+                manifest["sets"][name] = entry
+                manifest["flights"] += [f for f in old["flights"] if f["set"] == name]
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return 0
 

@@ -18,6 +18,26 @@ from gcs_pdm.service.live import LiveLoop
 from gcs_pdm.service.runtime import Service
 
 TOKEN = "packs-api-test-token-0123456789"
+
+
+class FakeLink:
+    def __init__(self):
+        from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+        self.mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=195)
+        self.sent, self.received = [], 0
+        self.target_system, self.target_component = 1, 1
+
+    def add_frame_listener(self, cb):
+        pass
+
+    def send(self, msg):
+        self.sent.append(msg)
+
+
+class NoMissions:
+    def download(self):
+        return []
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
@@ -65,8 +85,6 @@ def test_packs_over_http_with_trend_and_assignments(tmp_path):
 def test_a_live_flight_leaves_a_health_point_for_the_assigned_pack(tmp_path):
     """quad-4s (one 4S pack, 5 Ah in its description): rested, armed, a climb and a cruise, disarmed,
     rested 11 minutes; the operator said pack Q-1 is in the slot."""
-    from tests.test_flights import FakeLink, NoMissions
-
     svc = service(tmp_path, vehicle="quad-4s")
     spec = svc.vehicle.packs[0]
     svc.packs.assign(spec.name, "Q-1")

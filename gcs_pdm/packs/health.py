@@ -88,28 +88,28 @@ class ElectrodeCurves:
         s, v = np.asarray(self.stoichiometry), np.asarray(self.positive_v)
         return np.interp(-np.asarray(u_p_v), -v, s)
 
-    def rested_state(self, v0: float, v1: float, drawn_ah: float):
-        """(x0, y0) at the first rest: on the curve through ``v0`` (cell OCV), and ``drawn_ah`` later
-        at ``v1``; None when no state explains both."""
+    def consistent_states(self, v0: float, v1: float, drawn_ah: float, tolerance_v: float) -> np.ndarray:
+        """Every negative stoichiometry x0 at the first rest (on the curve through ``v0``, cell OCV)
+        from which ``drawn_ah`` later the cell rests within ``tolerance_v`` of ``v1``. The
+        electrodes' plateaus make this a band, not a point: near a full cell the graphite's stage
+        plateau leaves the split between the electrodes loosely pinned."""
         x0 = np.linspace(0.05, 0.999, 4000)
         y0 = self.y_at(v0 + self.u_n(x0))
         x1 = x0 - drawn_ah / self.negative_ah
         y1 = y0 + drawn_ah / self.positive_ah
         ok = (x1 > 0.0) & (y1 < 1.0) & (y0 > min(self.stoichiometry)) & (y0 < max(self.stoichiometry))
-        r = self.u_p(y1) - self.u_n(x1) - v1
-        r[~ok] = np.nan
-        sign = np.flatnonzero(np.isfinite(r[:-1]) & np.isfinite(r[1:]) & (np.sign(r[:-1]) != np.sign(r[1:])))
-        if sign.size == 0:
-            return None
-        k = sign[-1]  # the fullest negative electrode that explains both: the cell was charged full
-        w = r[k] / (r[k] - r[k + 1])
-        xs = float(x0[k] + w * (x0[k + 1] - x0[k]))
-        return xs, float(self.y_at(v0 + self.u_n(xs)))
+        r = np.abs(self.u_p(y1) - self.u_n(x1) - v1)
+        band = ok & (r <= tolerance_v)
+        if not band.any() and ok.any():  # between two grid points: the closest
+            k = int(np.nanargmin(np.where(ok, r, np.nan)))
+            band[k] = r[k] <= 5.0 * tolerance_v
+        return x0[band]
 
-    def capacity_from(self, x0: float, y0: float) -> float:
-        """Charge (Ah) from (x0, y0) down to the lower cut-off at equilibrium."""
+    def capacity_from(self, x0: float, y0: float, polarization_v: float = 0.0) -> float:
+        """Charge (Ah) from (x0, y0) down to the lower cut-off, the open-circuit voltage held
+        ``polarization_v`` above it (the drop of the measuring discharge's current)."""
         q = np.linspace(0.0, min(x0 * self.negative_ah, (1.0 - y0) * self.positive_ah), 4000)
-        v = self.u_p(y0 + q / self.positive_ah) - self.u_n(x0 - q / self.negative_ah)
+        v = self.u_p(y0 + q / self.positive_ah) - self.u_n(x0 - q / self.negative_ah) - polarization_v
         below = np.flatnonzero(v <= self.lower_cutoff_v)
         if below.size == 0:
             return float(q[-1])
@@ -119,9 +119,48 @@ class ElectrodeCurves:
         w = (v[k - 1] - self.lower_cutoff_v) / (v[k - 1] - v[k])
         return float(q[k - 1] + w * (q[k] - q[k - 1]))
 
-    def capacity(self, v0: float, v1: float, drawn_ah: float) -> float | None:
-        state = self.rested_state(v0, v1, drawn_ah)
-        return None if state is None else self.capacity_from(*state)
+    def capacity(self, v0: float, v1: float, drawn_ah: float, tolerance_v: float, polarization_v: float = 0.0,
+                 flight: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None):
+        """(capacity, σ, how) over the states consistent with both rests; None: none is.
+
+        ``flight`` (time, current, voltage, charge drawn since the first rest; the loaded samples):
+        each consistent state's open-circuit curve along the flight, less the current's drop (an
+        ohmic term and two lags, 30 s and 300 s, fitted by least squares), is compared with the
+        voltage flown; the state that fits best is taken (the electrodes' features under load pin
+        what the two rests leave loose: differential voltage analysis), its σ the spread of the
+        states that fit within 5 % of the best. Without it, the band's median and spread."""
+        xs = self.consistent_states(v0, v1, drawn_ah, tolerance_v)
+        if xs.size == 0:
+            return None
+        xs = xs[:: max(1, xs.size // 120)]
+        ys = np.array([float(self.y_at(v0 + self.u_n(x))) for x in xs])
+        caps = np.array([self.capacity_from(float(x), float(y), polarization_v) for x, y in zip(xs, ys)])
+        if flight is None or xs.size == 1:
+            lo, mid, hi = np.percentile(caps, [16, 50, 84])
+            return float(mid), float(max((hi - lo) / 2.0, 0.0)), "the rests alone"
+        t, i, v, q = flight
+        lags = [_lowpass(t, i, tau) for tau in (30.0, 300.0)]
+        design = np.column_stack([i, *lags])
+        rms = np.empty(xs.size)
+        for k, (x, y) in enumerate(zip(xs, ys)):
+            drop = self.u_p(y + q / self.positive_ah) - self.u_n(x - q / self.negative_ah) - v
+            coef, *_ = np.linalg.lstsq(design, drop, rcond=None)
+            rms[k] = math.sqrt(float(np.mean((drop - design @ coef) ** 2)))
+        best = int(np.argmin(rms))
+        near = caps[rms <= rms[best] * 1.05]
+        lo, hi = np.percentile(near, [16, 84]) if near.size > 1 else (caps[best], caps[best])
+        return float(caps[best]), float(max((hi - lo) / 2.0, 0.0)), f"fitted to the flight's voltage (rms {rms[best] * 1e3:.1f} mV)"
+
+
+def _lowpass(t: np.ndarray, x: np.ndarray, tau_s: float) -> np.ndarray:
+    out = np.empty_like(x)
+    acc = 0.0
+    out[0] = 0.0
+    w = np.exp(-np.diff(t) / tau_s)
+    for k in range(1, x.size):
+        acc = w[k - 1] * acc + (1.0 - w[k - 1]) * x[k]
+        out[k] = acc
+    return out
 
 
 @dataclass(frozen=True)
@@ -144,6 +183,8 @@ class HealthSettings:
     max_step_dt_s: float = 1.5
     #: Arrhenius activation energy of the pack's resistance (J/mol)
     activation_energy_j_mol: float = 20000.0
+    #: the rate a capacity is stated at (C/20: the usual measurement, and PyBaMM's)
+    measure_c_rate: float = 0.05
 
 
 @dataclass
@@ -186,6 +227,14 @@ def _finite_interp(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     if ok.sum() < 2:
         return x
     return np.interp(t, t[ok], x[ok])
+
+
+def _step_resistance(t, i, v, nominal_capacity_ah: float, settings: HealthSettings) -> float | None:
+    """The pack's resistance (Ω): the median of -ΔV/ΔI over the record's current steps (None: none)."""
+    dt, di, dv = np.diff(t), np.diff(i), np.diff(v)
+    step = ((np.abs(di) >= max(settings.min_step_c_rate * nominal_capacity_ah, 1e-3)) & (dt > 0)
+            & (dt <= settings.max_step_dt_s) & np.isfinite(dv) & np.isfinite(di))
+    return float(np.median(-dv[step] / di[step])) if step.any() else None
 
 
 def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None, *, nominal_capacity_ah: float,
@@ -249,21 +298,29 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
                 elif electrodes is not None:
                     # per cell of the parallel group: the electrodes are one cell's
                     q = counted / cells_parallel
-                    noise0 = float(np.std(v[pre] / cells)) / math.sqrt(pre.sum())
-                    sd1 = math.hypot(float(np.std(v[post] / cells)) / math.sqrt(post.sum()), settings.relaxation_sd_v)
-                    c = electrodes.capacity(v0, v1, q)
-                    if c is None:
+                    noise1 = float(np.std(v[post] / cells)) / math.sqrt(post.sum())
+                    tol = 2.0 * math.hypot(noise1, settings.relaxation_sd_v)
+                    # the true capacity is measured by a slow discharge (C/20): its current's drop
+                    # through the cell's resistance ends it that much early
+                    r_cell = _step_resistance(t, i, v, nominal_capacity_ah, settings)
+                    pol = 0.0 if r_cell is None else (settings.measure_c_rate * nominal_capacity_ah / cells_parallel
+                                                      * r_cell * cells_parallel / cells)
+                    flown = (t >= t[first]) & (t <= t[last]) & np.isfinite(v)
+                    drawn_since = np.concatenate([[0.0], np.cumsum(0.5 * (i_filled[1:] + i_filled[:-1]) * np.diff(t))])
+                    drawn_since = (drawn_since - drawn_since[max(first - 1, 0)]) / 3600.0 / cells_parallel
+                    flight = (t[flown], i_filled[flown] / cells_parallel, v[flown] / cells, drawn_since[flown]) \
+                        if flown.sum() >= 30 else None
+                    got = electrodes.capacity(v0, v1, q, tol, pol, flight)
+                    if got is None:
                         why["capacity_ah"] = "no lithium inventory of the electrodes explains both rests"
                     else:
-                        spread = [electrodes.capacity(v0 + d0, v1 + d1, q) for d0, d1 in
-                                  ((noise0, 0.0), (-noise0, 0.0), (0.0, sd1), (0.0, -sd1))]
-                        spread = [x for x in spread if x is not None]
-                        dv = (max(spread) - min(spread)) / 2.0 if len(spread) >= 2 else 0.05 * c
+                        c, spread, how = got
                         capacity = c * cells_parallel
-                        capacity_sd = cells_parallel * math.hypot(dv, c * settings.current_gain_sd)
+                        capacity_sd = cells_parallel * math.hypot(spread, c * settings.current_gain_sd)
                         dod = q / c if c > 0 else None
                         method["capacity"] = (f"lithium inventory from the rests: {q:.4g} Ah per cell drawn "
-                                              f"between {v0:.4f} V and {v1:.4f} V")
+                                              f"between {v0:.4f} V and {v1:.4f} V, {how}; at "
+                                              f"{settings.measure_c_rate:g}C ({pol * 1e3:.1f} mV drop)")
                 else:
                     capacity = counted / used
                     noise0 = float(np.std(v[pre] / cells)) / math.sqrt(pre.sum())
