@@ -8,7 +8,9 @@ cells (SMART_BATTERY_INFO), its BATTERY_STATUS at 2 Hz, the vehicle's HEARTBEAT 
 a real tlog carries (ATTITUDE at 10 Hz, GLOBAL_POSITION_INT at 4 Hz: ≈ 0.9 MB per log). ``--distinct``
 logs are written (10 packs, capacities and resistances apart) and copied up to ``--logs``, each copy
 made unique by one extra ground-station heartbeat at its end, so every file has its own content hash
-and is read, scanned and decoded in full (none is skipped as known). Each engine ingests all logs
+and is read, scanned and decoded in full (none is skipped as known). The Dask cluster's workers are
+started as ``gcs_pdm.packs.ingest.local_cluster`` starts them (without the nanny's
+MALLOC_TRIM_THRESHOLD_: see WORKER_ENVIRON there). Each engine ingests all logs
 into a fresh SQLite database (the records written as they arrive, as `gcs-pdm packs ingest` does);
 the figure is logs / wall minute of that run, start-up of the pool or cluster included. Floor: ≥ 200
 logs/min with 2 workers. The machine may be shared: figures are what this run measured. Last line:
@@ -89,10 +91,10 @@ def main(argv=None) -> int:
             results[name] = run(paths, work, name.replace(" ", "_"), **engine)
             print(f"{name}: {results[name]}", flush=True)
         if not args.skip_dask:
-            from distributed import LocalCluster
+            from gcs_pdm.packs.ingest import local_cluster
 
             t0 = time.perf_counter()
-            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+            with local_cluster(2) as cluster:
                 started = time.perf_counter() - t0
                 r = run(paths, work, "dask", scheduler=cluster.scheduler_address)
             r["cluster_start_s"] = round(started, 2)

@@ -97,7 +97,10 @@ def test_a_dask_local_cluster_gives_the_same_records_as_the_local_pool(logs):
     d, _ = logs
     paths = sorted(d.glob("*.tlog"))
     _, pool = ingest(paths, workers=2)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+    from gcs_pdm.packs.ingest import local_cluster
+
+    with local_cluster(2) as cluster:
+        assert isinstance(cluster, distributed.LocalCluster)
         summary, on_dask = ingest(paths, scheduler=cluster.scheduler_address)
     assert summary["engine"].startswith("dask scheduler tcp://")
     assert comparable(on_dask) == comparable(pool)

@@ -56,7 +56,7 @@ def find_logs(args: Iterable[str | Path]) -> list[Path]:
     return sorted(set(out))
 
 
-def _flight_windows(pack_log, n_armed) -> list[tuple[float, float, float, float, str, str]]:
+def _flight_windows(pack_log, link_lost_end_s: float) -> list[tuple[float, float, float, float, str, str]]:
     """(window start, flight start, flight end, window end, begin reason, end reason) per flight: the
     window takes in the rests around the flight, up to halfway to the neighbouring flights."""
     if pack_log.armed is None:
@@ -64,7 +64,7 @@ def _flight_windows(pack_log, n_armed) -> list[tuple[float, float, float, float,
         lo, hi = float(np.nanmin(t)), float(np.nanmax(t))
         return [(lo, lo, hi, hi, "log start", "log end")]
     ta, arm = pack_log.armed
-    spans = split_flights(ta, arm, n_armed)
+    spans = split_flights(ta, arm, link_lost_end_s)
     if not spans:
         return []
     t_all = np.concatenate([s.time_s for s in pack_log.slots])
@@ -191,6 +191,23 @@ def run_ingest(paths: Iterable[str | Path], settings: IngestSettings = IngestSet
         bar.close()
     return {"logs": len(paths), "skipped_known": skipped, "ingested": counts["ok"], "bad": counts["bad"],
             "records": counts["records"], "engine": engine}
+
+
+#: what the Dask nanny puts in its workers' environment for this work. Its default adds
+#: MALLOC_TRIM_THRESHOLD_=65536 (to hand memory back to the OS), with which every log's buffers are
+#: mapped and unmapped afresh: 3x the CPU per log, 3x the wall time of a 2-worker run (measured,
+#: docs/packs.md). Workers of a cluster started elsewhere: set the same in their Dask config.
+WORKER_ENVIRON = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
+
+
+def local_cluster(n_workers: int = 2):
+    """A ``distributed.LocalCluster`` of ``n_workers`` single-threaded worker processes started with
+    :data:`WORKER_ENVIRON` (tests, the benchmark; ``--scheduler`` takes any cluster's address)."""
+    import dask
+    from distributed import LocalCluster
+
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": dict(WORKER_ENVIRON)}):
+        return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None)
 
 
 def _run_dask(todo, settings, scheduler, take) -> str:

@@ -4,9 +4,9 @@ the retirement forecast with its interval, and the priors the next flight's esti
 
 The wear law fitted is a power law in equivalent cycles n, ``y(n) = y0 · (1 ∓ a·n^b)``: b ≈ 0.5 is
 diffusion-limited SEI growth (fade slowing down), b ≈ 1 a steady loss, b > 1 an accelerating one
-(plating, a knee). Weighted least squares on the health points' σ; the forecast's interval comes
-from the fit's parameter covariance (scaled by the residuals when they exceed the σ), sampled:
-``n`` where y crosses the threshold, per draw. Limits (docs/packs.md): the law is extrapolated; a
+(plating, a knee). It is fitted with the threshold's crossing N itself as a parameter (as log N,
+``a = |ratio - 1| / N^b``), by weighted least squares on the health points' σ; the forecast's
+interval is log N's from the fit's covariance (scaled by the residuals when they exceed the σ). Limits (docs/packs.md): the law is extrapolated; a
 knee that has not begun by the last point cannot be foreseen; fewer than ``MIN_POINTS`` points give
 no forecast.
 """
@@ -27,27 +27,35 @@ B_RANGE = (0.3, 2.5)
 
 @dataclass(frozen=True)
 class WearFit:
+    """``y(n) = y0 · (1 + sign·a·n^b)`` with ``a = step / N^b``: N is where y reaches
+    ``y0 · (1 + sign·step)`` (the threshold), fitted directly as log N so its interval is the fit's."""
     y0: float
-    a: float
+    log_n: float
     b: float
-    cov: np.ndarray  # of (y0, a, b)
+    cov: np.ndarray  # of (y0, log N, b)
     residual_scale: float
     n_points: int
     sign: float  # -1: fade (capacity), +1: growth (resistance)
+    step: float  # |threshold ratio - 1|
+
+    @property
+    def a(self) -> float:
+        return self.step / math.exp(self.log_n) ** self.b
 
     def at(self, n) -> np.ndarray:
         n = np.maximum(np.asarray(n, float), 0.0)
         return self.y0 * (1.0 + self.sign * self.a * n ** self.b)
 
 
-def _model(n, y0, a, b, sign):
-    return y0 * (1.0 + sign * a * np.maximum(n, 0.0) ** b)
+def _model(n, y0, log_n, b, sign, step):
+    return y0 * (1.0 + sign * step * (np.maximum(n, 0.0) / np.exp(log_n)) ** b)
 
 
-def fit_wear(cycles, values, sds, sign: float) -> WearFit | None:
-    """Fit ``y0·(1 + sign·a·n^b)`` to (cycles, values ± sds); None with fewer than MIN_POINTS."""
+def fit_wear(cycles, values, sds, sign: float, ratio: float) -> WearFit | None:
+    """Fit ``y0·(1 + sign·|ratio-1|·(n/N)^b)`` to (cycles, values ± sds); None with fewer than MIN_POINTS."""
     from scipy.optimize import curve_fit
 
+    step = abs(ratio - 1.0)
     n = np.asarray(cycles, float)
     y = np.asarray(values, float)
     s = np.asarray(sds, float)
@@ -57,19 +65,19 @@ def fit_wear(cycles, values, sds, sign: float) -> WearFit | None:
         return None
     y0_guess = float(np.median(y[: max(2, n.size // 4)]))
     span = max(float(n.max()), 1e-3)
-    change = abs(float(y[-1] - y0_guess)) / max(abs(y0_guess), 1e-12)
     best = None
     for b0 in (0.5, 1.0, 1.5):
-        a0 = max(change, 1e-4) / span ** b0
-        try:
-            p, cov = curve_fit(lambda x, y0, a, b: _model(x, y0, a, b, sign), n, y, p0=(y0_guess, a0, b0), sigma=s,
-                               absolute_sigma=True, bounds=([0.0, 0.0, B_RANGE[0]], [np.inf, np.inf, B_RANGE[1]]),
-                               maxfev=5000)
-        except (RuntimeError, ValueError):
-            continue
-        chi2 = float(np.sum(((y - _model(n, *p, sign)) / s) ** 2))
-        if best is None or chi2 < best[0]:
-            best = (chi2, p, cov)
+        for n0 in (span, 3.0 * span, 10.0 * span):
+            try:
+                p, cov = curve_fit(lambda x, y0, ln, b: _model(x, y0, ln, b, sign, step), n, y,
+                                   p0=(y0_guess, math.log(n0), b0), sigma=s, absolute_sigma=True,
+                                   bounds=([0.0, math.log(span) - 5.0, B_RANGE[0]],
+                                           [np.inf, math.log(span) + 12.0, B_RANGE[1]]), maxfev=5000)
+            except (RuntimeError, ValueError):
+                continue
+            chi2 = float(np.sum(((y - _model(n, *p, sign, step)) / s) ** 2))
+            if best is None or chi2 < best[0]:
+                best = (chi2, p, cov)
     if best is None:
         return None
     chi2, p, cov = best
@@ -77,14 +85,14 @@ def fit_wear(cycles, values, sds, sign: float) -> WearFit | None:
     scale = math.sqrt(max(chi2 / dof, 1.0))  # residuals beyond the σ widen the interval, never narrow it
     cov = np.asarray(cov, float) * scale ** 2
     if not np.all(np.isfinite(cov)):
-        cov = np.diag(np.square(np.maximum(np.abs(p) * 0.5, 1e-9)))
-    return WearFit(float(p[0]), float(p[1]), float(p[2]), cov, scale, int(n.size), sign)
+        cov = np.diag([max(abs(p[0]) * 0.05, 1e-9), 4.0, 1.0])
+    return WearFit(float(p[0]), float(p[1]), float(p[2]), cov, scale, int(n.size), sign, step)
 
 
 @dataclass(frozen=True)
 class Forecast:
-    """Equivalent cycles (from the pack's first) at which the threshold is crossed: median and the
-    ``INTERVAL`` interval; None with ``why`` when the data cannot say."""
+    """Equivalent cycles (from the pack's first) at which the threshold is crossed: the fit's and
+    its ``INTERVAL`` interval; None with ``why`` when the data cannot say."""
     threshold: str
     cycles: float | None
     low: float | None
@@ -96,38 +104,20 @@ class Forecast:
                 "interval": INTERVAL, "why": self.why}
 
 
-def crossing(fit: WearFit | None, ratio: float, label: str, *, draws: int = 2000, seed: int = 0,
-             horizon_factor: float = 50.0, last_cycles: float = 0.0) -> Forecast:
-    """Where ``fit`` crosses ``ratio`` × its own y0 (0.8: 80 % capacity; 1.5: resistance ×1.5)."""
+def crossing(fit: WearFit | None, label: str, *, horizon_factor: float = 50.0, last_cycles: float = 0.0) -> Forecast:
+    """Where ``fit`` reaches its threshold, with the interval of log N (normal, from the fit's
+    covariance); past ``horizon_factor`` × the cycles flown it is "beyond reach"."""
     if fit is None:
         return Forecast(label, None, None, None, f"fewer than {MIN_POINTS} health points with it known")
-    target = abs(ratio - 1.0)  # a·n^b reaches this
     horizon = max(last_cycles, 1.0) * horizon_factor
-
-    def n_cross(a, b):
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            n = np.where(a > 0, (target / np.maximum(a, 1e-300)) ** (1.0 / b), np.inf)
-        return np.where(np.isfinite(n) & (n <= horizon), n, np.inf)
-
-    central = float(n_cross(np.array([fit.a]), np.array([fit.b]))[0])
-    rng = np.random.default_rng(seed)
-    try:
-        sample = rng.multivariate_normal([fit.y0, fit.a, fit.b], fit.cov, size=draws, check_valid="ignore")
-    except (np.linalg.LinAlgError, ValueError):
-        sample = np.tile([fit.y0, fit.a, fit.b], (draws, 1))
-    a = np.maximum(sample[:, 1], 0.0)
-    b = np.clip(sample[:, 2], *B_RANGE)
-    ns = n_cross(a, b)
-    lo_q, hi_q = (1 - INTERVAL) / 2, 1 - (1 - INTERVAL) / 2
-    beyond = 10.0 * horizon  # a draw that never crosses within the horizon: past any finite quantile
-    lo, hi = np.quantile(np.where(np.isfinite(ns), ns, beyond), [lo_q, hi_q])
-    lo = lo if lo <= horizon else math.inf
-    hi = hi if hi <= horizon else math.inf
-    if not math.isfinite(central):
-        return Forecast(label, None, float(lo) if math.isfinite(lo) else None, None,
+    z = 1.2815515655446004  # the 80 % central interval of a normal
+    sd = math.sqrt(max(float(fit.cov[1, 1]), 0.0))
+    central = math.exp(fit.log_n)
+    lo, hi = math.exp(fit.log_n - z * sd), math.exp(fit.log_n + z * sd)
+    if central > horizon:
+        return Forecast(label, None, lo if lo <= horizon else None, None,
                         f"no {label} within {horizon:.0f} equivalent cycles on the trend so far")
-    return Forecast(label, central, float(lo) if math.isfinite(lo) else None,
-                    float(hi) if math.isfinite(hi) else None)
+    return Forecast(label, central, lo, hi if hi <= horizon else None)
 
 
 @dataclass(frozen=True)
@@ -146,8 +136,9 @@ class PackTrend:
             if f is None:
                 return None
             sd = np.sqrt(np.maximum(np.diag(f.cov), 0.0))
-            return {"y0": f.y0, "a": f.a, "b": f.b, "y0_sd": float(sd[0]), "a_sd": float(sd[1]), "b_sd": float(sd[2]),
-                    "residual_scale": f.residual_scale, "points": f.n_points}
+            return {"y0": f.y0, "a": f.a, "b": f.b, "crossing_cycles": math.exp(f.log_n), "y0_sd": float(sd[0]),
+                    "log_crossing_sd": float(sd[1]), "b_sd": float(sd[2]), "residual_scale": f.residual_scale,
+                    "points": f.n_points}
         return {"pack_id": self.pack_id, "points": self.points, "cycles_so_far": self.cycles_so_far,
                 "capacity_fit": fit_dict(self.capacity), "resistance_fit": fit_dict(self.resistance),
                 "capacity_forecast": self.capacity_forecast.to_dict(),
@@ -169,10 +160,10 @@ def pack_trend(pack_id: str, points, *, capacity_fraction: float = 0.8, resistan
     last = float(n[-1] + points[-1].equivalent_cycles) if points else 0.0
     cap = [(c, p.capacity_ah, p.capacity_sd_ah) for c, p in zip(n, points) if p.capacity_ah is not None]
     res = [(c, p.resistance_25c_ohm, p.resistance_sd_ohm) for c, p in zip(n, points) if p.resistance_25c_ohm is not None]
-    cap_fit = fit_wear(*zip(*cap), sign=-1.0) if len(cap) >= MIN_POINTS else None
-    res_fit = fit_wear(*zip(*res), sign=+1.0) if len(res) >= MIN_POINTS else None
-    cf = crossing(cap_fit, capacity_fraction, f"{capacity_fraction:.0%} capacity", last_cycles=last)
-    rf = crossing(res_fit, resistance_factor, f"resistance x{resistance_factor:g}", last_cycles=last)
+    cap_fit = fit_wear(*zip(*cap), sign=-1.0, ratio=capacity_fraction) if len(cap) >= MIN_POINTS else None
+    res_fit = fit_wear(*zip(*res), sign=+1.0, ratio=resistance_factor) if len(res) >= MIN_POINTS else None
+    cf = crossing(cap_fit, f"{capacity_fraction:.0%} capacity", last_cycles=last)
+    rf = crossing(res_fit, f"resistance x{resistance_factor:g}", last_cycles=last)
     known = [f for f in (cf, rf) if f.cycles is not None]
     if known:
         first = min(known, key=lambda f: f.cycles)
