@@ -106,5 +106,7 @@ def test_a_live_flight_leaves_a_health_point_for_the_assigned_pack(tmp_path):
         assert pack["flights"] == 1 and h["identity"] == "operator assignment" and h["flight_id"] == 1
         assert abs(h["capacity_ah"] / cap - 1.0) < 0.03
         assert abs(h["resistance_25c_ohm"] / r - 1.0) < 0.1
+        priors = TestClient(create_app(svc)).get("/packs/priors").json()
+        assert priors[spec.name]["capacity_ah"] == h["capacity_ah"]
     finally:
         svc.close()

@@ -157,6 +157,18 @@ class Service:
             self.loop.declare_fault(fault, replan, fault_id=fid)
         return fid
 
+    def pack_priors(self) -> dict[str, dict | None]:
+        """What the next flight's estimator should start from, per pack slot of the vehicle
+        description: the latest health of the pack in that slot (the operator's assignment, else
+        the slot's own name; ``gcs_pdm.packs.trend.estimator_priors``), None where no flight has told.
+        The hook for the estimator's priors (docs/packs.md)."""
+        from gcs_pdm.packs.identity import identify
+        from gcs_pdm.packs.trend import estimator_priors
+
+        assigned = {k: v["pack_id"] for k, v in self.packs.assignments().items()}
+        slots = [p.name for p in self.vehicle.packs] if self.vehicle is not None else sorted(assigned)
+        return {slot: estimator_priors(self.packs.points(identify(slot, None, assigned).pack_id)) for slot in slots}
+
     def carry_over_fault(self, fault_id: int, note: str = "") -> int:
         """The operator carries a motor fault of an earlier flight into the present one (a damaged
         motor stays damaged): declared again, without a replan of its own; the new fault's id."""

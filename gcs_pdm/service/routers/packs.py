@@ -38,6 +38,13 @@ def assignments(service: ServiceDep):
     return service.packs.assignments()
 
 
+@router.get("/priors", response_model=dict[str, Any])
+def priors(service: ServiceDep):
+    """Per pack slot: what the next flight's estimator should start from (latest capacity and
+    resistance at 25 °C with σ), or null."""
+    return finite(service.pack_priors())
+
+
 @router.put("/assignments/{slot}", response_model=dict[str, Any], dependencies=AUTH, responses=S.errors(401, 422))
 def assign(slot: PathName, body: AssignIn, service: ServiceDep):
     return service.packs.assign(slot, body.pack_id, body.note)
