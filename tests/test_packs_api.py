@@ -70,10 +70,14 @@ def test_packs_over_http_with_trend_and_assignments(tmp_path):
         assert f["cycles"] is not None and 3.0 < f["cycles"] < 7.0 and f["low"] <= f["cycles"] <= (f["high"] or math.inf)
         assert pack["thresholds"] == {"capacity_fraction": 0.8, "resistance_factor": 1.5}
         assert client.get("/packs/nope").status_code == 404
-        assert client.put("/packs/assignments/battery0", json={"pack_id": "P-17"}).status_code == 401
-        r = client.put("/packs/assignments/battery0", json={"pack_id": "P-17"}, headers=AUTH)
+        body = {"slot": "battery0", "pack_id": "P-17"}
+        assert client.put("/packs/assignments", json=body).status_code == 401
+        r = client.put("/packs/assignments", json=body, headers=AUTH)
         assert r.status_code == 200 and r.json()["pack_id"] == "P-17"
         assert client.get("/packs/assignments").json()["battery0"]["pack_id"] == "P-17"
+        assert client.delete("/packs/assignments/battery0", headers=AUTH).json()["pack_id"] == "P-17"
+        assert client.delete("/packs/assignments/battery0", headers=AUTH).status_code == 404
+        assert client.get("/packs/assignments").json() == {}
         page = client.get("/console/packs.html")
         assert page.status_code == 200 and "packs.js" in page.text
         assert client.get("/console/packs.js").status_code == 200

@@ -1,5 +1,5 @@
 // The pack page: each pack's health points against equivalent cycles, its trend and retirement
-// forecast (GET /packs, /packs/{id}), the slot assignments (PUT /packs/assignments/{slot}) and the
+// forecast (GET /packs, /packs/{id}), the slot assignments (PUT /packs/assignments) and the
 // flights (GET /flights). Plain SVG: no library, no network beyond this service.
 "use strict";
 const $ = (id) => document.getElementById(id);
@@ -131,9 +131,9 @@ $("assign-form").addEventListener("submit", async (ev) => {
     if (token) sessionStorage.setItem(TOKEN_KEY, token);
   }
   const slot = $("assign-slot").value.trim(), pack = $("assign-pack").value.trim();
-  const r = await fetch(`/packs/assignments/${encodeURIComponent(slot)}`, {
+  const r = await fetch("/packs/assignments", {
     method: "PUT", headers: { "Content-Type": "application/json", Authorization: `Bearer ${token}` },
-    body: JSON.stringify({ pack_id: pack, note: "console" }),
+    body: JSON.stringify({ slot, pack_id: pack, note: "console" }),
   });
   if (r.status === 401) sessionStorage.removeItem(TOKEN_KEY);
   $("assign-message").textContent = r.ok ? `slot ${slot}: pack ${pack}` : `refused: ${r.status} ${(await r.text()).slice(0, 200)}`;

@@ -14,6 +14,7 @@ router = APIRouter(prefix="/packs")
 
 
 class AssignIn(BaseModel):
+    slot: str = Field(min_length=1, max_length=128, description="the slot (a vehicle description's pack name, battery<N>)")
     pack_id: str = Field(min_length=1, max_length=128, description="the pack now in the slot")
     note: str = Field("", max_length=500)
 
@@ -45,18 +46,22 @@ def priors(service: ServiceDep):
     return finite(service.pack_priors())
 
 
-@router.put("/assignments/{slot}", response_model=dict[str, Any], dependencies=AUTH, responses=S.errors(401, 422))
-def assign(slot: PathName, body: AssignIn, service: ServiceDep):
-    return service.packs.assign(slot, body.pack_id, body.note)
+@router.put("/assignments", response_model=dict[str, Any], dependencies=AUTH, responses=S.errors(401, 422))
+def assign(body: AssignIn, service: ServiceDep):
+    return service.packs.assign(body.slot, body.pack_id, body.note)
 
 
-@router.delete("/assignments/{slot}", status_code=204, dependencies=AUTH, responses=S.errors(401, 404))
+@router.delete("/assignments/{slot}", response_model=dict[str, Any], dependencies=AUTH,
+               responses=S.errors(401, 404, 422))
 def unassign(slot: PathName, service: ServiceDep):
-    if not service.packs.unassign(slot):
+    """The slot's assignment removed (returned): its pack is again known by serial or slot name."""
+    row = service.packs.assignments().get(slot)
+    if row is None or not service.packs.unassign(slot):
         raise HTTPException(404, detail=f"not found: no assignment for slot {slot!r}")
+    return row
 
 
-@router.get("/{pack_id}", response_model=dict[str, Any], responses=S.errors(404))
+@router.get("/{pack_id}", response_model=dict[str, Any], responses=S.errors(404, 422))
 def pack(pack_id: PathName, service: ServiceDep):
     try:
         return finite(service.packs.summary(pack_id, **_thresholds(service)))
