@@ -44,6 +44,8 @@ def test_each_flights_capacity_is_near_the_truth(results):
         assert r["capacity_within_3pct"] >= 0.85 * r["flights"], (name, errors)
         assert r["capacity_abs_error_max"] < 0.05, (name, errors)
         assert r["capacity_abs_error_mean"] < 0.02, (name, errors)
+        # the σ is a claim: 2σ covers the truth (measured 44/44 and 62/64)
+        assert r["capacity_truth_within_2sd"] >= 0.9 * r["flights"], name
 
 
 def test_the_resistance_trend_follows_the_truth(results):

@@ -185,6 +185,9 @@ class HealthSettings:
     activation_energy_j_mol: float = 20000.0
     #: the rate a capacity is stated at (C/20: the usual measurement, and PyBaMM's)
     measure_c_rate: float = 0.05
+    #: the electrode method's own error (1σ, fraction): its equilibrium cell against a C/20
+    #: measurement, measured on the PyBaMM ageing fixtures (mean |error| 1.2-1.7 %, docs/packs.md)
+    electrode_model_sd: float = 0.015
 
 
 @dataclass
@@ -316,7 +319,8 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
                     else:
                         c, spread, how = got
                         capacity = c * cells_parallel
-                        capacity_sd = cells_parallel * math.hypot(spread, c * settings.current_gain_sd)
+                        capacity_sd = cells_parallel * math.sqrt(spread ** 2 + (c * settings.current_gain_sd) ** 2
+                                                                 + (c * settings.electrode_model_sd) ** 2)
                         dod = q / c if c > 0 else None
                         method["capacity"] = (f"lithium inventory from the rests: {q:.4g} Ah per cell drawn "
                                               f"between {v0:.4f} V and {v1:.4f} V, {how}; at "
