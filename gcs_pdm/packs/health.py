@@ -290,8 +290,6 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
                 v0, v1 = float(np.median(v[pre])) / cells, float(np.median(v[post])) / cells
                 s0, s1 = curve.soc_at(v0), curve.soc_at(v1)
                 used = s0 - s1
-                counted = _trapz(i_filled[(t >= t[first] - 1e-9) & (t <= t[last] + 1e-9)],
-                                 t[(t >= t[first] - 1e-9) & (t <= t[last] + 1e-9)]) / 3600.0
                 # the counted span: from the last rest sample before the load to the first after it
                 span = (t >= t[max(first - 1, 0)]) & (t <= t[min(last + 1, t.size - 1)])
                 counted = _trapz(i_filled[span], t[span]) / 3600.0
@@ -352,7 +350,7 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
         why["resistance_25c_ohm"] = (f"no current step of {settings.min_step_c_rate:g}C within "
                                      f"{settings.max_step_dt_s:g} s in the record")
     else:
-        r = -dv[step] / di[step] / cells * cells  # pack resistance (the series string's)
+        r = -dv[step] / di[step]  # the pack's (the series string's) resistance
         r_med = float(np.median(r))
         mad = float(np.median(np.abs(r - r_med))) * 1.4826
         sd = (1.2533 * mad / math.sqrt(r.size)) if r.size >= 3 else abs(r_med) * 0.2
