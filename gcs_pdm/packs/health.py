@@ -29,6 +29,8 @@ T25_K = 298.15
 GENERIC_OCV_SOC = (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0)
 GENERIC_OCV_V = (3.30, 3.50, 3.60, 3.68, 3.73, 3.77, 3.81, 3.86, 3.93, 4.00, 4.08, 4.13, 4.19)
 GENERIC_CURVE_SOC_SD = 0.03
+#: the take-off step is the flight's first current step within this long of its first load (s)
+TAKEOFF_WINDOW_S = 120.0
 
 
 @dataclass(frozen=True)
@@ -181,6 +183,9 @@ class HealthSettings:
     min_step_c_rate: float = 0.2
     #: ... between samples this close (s): the voltage over a longer gap also holds diffusion
     max_step_dt_s: float = 1.5
+    #: read the resistance at the take-off step when there is one (else: the median over the
+    #: flight's steps)
+    resistance_at_takeoff: bool = True
     #: Arrhenius activation energy of the pack's resistance (J/mol)
     activation_energy_j_mol: float = 20000.0
     #: the rate a capacity is stated at (C/20: the usual measurement, and PyBaMM's)
@@ -355,6 +360,22 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
         mad = float(np.median(np.abs(r - r_med))) * 1.4826
         sd = (1.2533 * mad / math.sqrt(r.size)) if r.size >= 3 else abs(r_med) * 0.2
         temp_step = temp[1:][step]
+        how = f"median dV/dI over {int(step.sum())} current step(s)"
+        # the take-off step (the flight's first, within TAKEOFF_WINDOW_S of the first load), when
+        # there is one: the same condition every flight (the pack at its starting charge, barely
+        # loaded before), where the median mixes steps at every SoC
+        rest_a = settings.rest_c_rate * nominal_capacity_ah
+        k = int(np.flatnonzero(step)[0])
+        first_load = np.flatnonzero(np.abs(i_filled) > rest_a)
+        before = (t < t[k] + 1e-9) & (t >= t[k] - 30.0) & np.isfinite(v)
+        if (settings.resistance_at_takeoff and first_load.size and t[k] - t[first_load[0]] <= TAKEOFF_WINDOW_S
+                and before.sum() >= 5):
+            noise = float(np.std(np.diff(v[before]))) / math.sqrt(2.0)  # one sample's voltage noise
+            r_med = float(r[0])
+            sd = math.hypot(math.sqrt(2.0) * noise / abs(di[k]), mad / math.sqrt(max(r.size, 1)) * 0.0)
+            sd = max(sd, 1e-6)
+            temp_step = temp[1:][step][:1]
+            how = f"the take-off step ({di[k]:+.3g} A)"
         t_c = float(np.nanmedian(temp_step)) if np.isfinite(temp_step).any() else None
         if t_c is None:
             factor = 1.0
@@ -364,8 +385,7 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
                               * (1.0 / (t_c + 273.15) - 1.0 / T25_K))
         resistance = r_med * factor
         resistance_sd = max(sd * factor, 1e-6)
-        method["resistance"] = f"median dV/dI over {int(step.sum())} current step(s)" + (
-            f" at {t_c:.1f} °C" if t_c is not None else "")
+        method["resistance"] = how + (f" at {t_c:.1f} °C" if t_c is not None else "")
     return HealthPoint(pack_id=pack_id, start_s=float(t[0]), end_s=float(t[-1]), capacity_ah=capacity,
                        capacity_sd_ah=capacity_sd, resistance_25c_ohm=resistance, resistance_sd_ohm=resistance_sd,
                        charge_ah=charge_ah, energy_wh=energy_wh,

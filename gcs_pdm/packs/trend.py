@@ -113,7 +113,7 @@ def crossing(fit: WearFit | None, label: str, *, horizon_factor: float = 50.0, l
     z = 1.2815515655446004  # the 80 % central interval of a normal
     sd = math.sqrt(max(float(fit.cov[1, 1]), 0.0))
     central = math.exp(fit.log_n)
-    lo, hi = math.exp(fit.log_n - z * sd), math.exp(fit.log_n + z * sd)
+    lo, hi = (math.exp(min(fit.log_n + d, 700.0)) for d in (-z * sd, z * sd))  # 700: exp's range
     if central > horizon:
         return Forecast(label, None, lo if lo <= horizon else None, None,
                         f"no {label} within {horizon:.0f} equivalent cycles on the trend so far")
