@@ -206,7 +206,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--train-start-socs", type=float, nargs=2, default=None, metavar=("LO", "HI"),
                     help="experiment: the training flights start at SoCs spread evenly over this range (in the "
                          "order of their drawn ones) instead of the drawn ones (default: drawn, as committed)")
+    ap.add_argument("--ageing", action="store_true",
+                    help="instead: one ageing cell per set (--ageing-sets), flown from cycle 1 to --cycles with its "
+                         "true C/20 capacity at each flight (fixtures/pybamm_ageing; see AGEING_SETS)")
+    ap.add_argument("--cycles", type=int, default=44,
+                    help="with --ageing: flights (cycles) per ageing set, unless AGEING_SETS gives its own")
+    ap.add_argument("--ageing-sets", nargs="+", default=list(AGEING_SETS), metavar="SET")
     args = ap.parse_args(argv)
+    if args.ageing:
+        return ageing_main(args)
 
     import pandas as pd
     import pybamm
@@ -295,6 +303,175 @@ def main(argv: list[str] | None = None) -> int:
             if args.train_start_socs is not None:
                 manifest["train_start_socs"] = list(args.train_start_socs)
     manifest["seconds"] = round(time.perf_counter() - t_all, 1)
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return 0
+
+
+# --- ageing: one cell from its first flight to past end of life ----------------------------------------
+
+#: PyBaMM parameter set -> its degradation submodels and the factor on the rate that sets how fast the
+#: cell ages (accelerated so a cell reaches 80 % capacity in tens of flights, not the ~1000 cycles of
+#: its published rate: the wear mechanism is the model's, the calendar is compressed)
+AGEING_SETS = {
+    # O'Kane et al. 2022 (LG M50): solvent-diffusion-limited SEI growth and irreversible lithium plating
+    "OKane2022": {"options": {"SEI": "solvent-diffusion limited", "lithium plating": "irreversible"},
+                  "accelerate": {"Lithium plating kinetic rate constant [m.s-1]": 0.3},
+                  "cruise_c": (1.2, 1.8), "charge_c": 0.5},
+    # Chen et al. 2020 (LG M50): solvent-diffusion-limited SEI growth only
+    "Chen2020": {"options": {"SEI": "solvent-diffusion limited"},
+                 "accelerate": {"SEI solvent diffusivity [m2.s-1]": 8000.0, "SEI resistivity [Ohm.m]": 3.0},
+                 "cruise_c": (1.2, 1.8), "charge_c": 1.0, "cycles": 64},
+}
+#: the planned depth of discharge of a fresh cell's flight (deeper as it ages: the profile is fixed)
+AGEING_FLIGHT_DOD = 0.6
+#: rests: before the flight (after the CC-CV charge) and after landing, long enough to relax
+AGEING_REST_BEFORE_S, AGEING_REST_AFTER_S = 1800, 3600
+#: cell sensor noise (a 5S pack's 10 mV is ~2 mV per cell), current noise
+AGEING_NOISE_V, AGEING_NOISE_A = 0.002, 0.01
+
+
+def ageing_profile(rng: np.random.Generator, cap_ah: float, c_lo: float, c_hi: float) -> np.ndarray:
+    """Cell current (A) at 1 Hz for one flight: climb, cruise with gusts and bursts, descent; its
+    length gives a fresh cell ``AGEING_FLIGHT_DOD``."""
+    cruise_c = float(rng.uniform(c_lo, c_hi))
+    n = int(AGEING_FLIGHT_DOD * 3600.0 / cruise_c)
+    i = flight_profile(rng, cruise_c, n + 2, burst_cap=2.2)[1:-1]   # the pack profile, no rests
+    i = i / PACK_CAPACITY_AH * cap_ah
+    i[i <= 0] = 0.05 * cruise_c * cap_ah                               # props idle on the ground roll
+    return i
+
+
+def fresh_electrodes(pybamm, pv) -> dict:
+    """The fresh cell's electrodes (what a chemistry's datasheet-level model gives): each electrode's
+    potential on a stoichiometry grid at 25 °C, their capacities (Ah) and the cell's stoichiometry
+    windows; a capacity estimate that reads lithium loss needs them (docs/packs.md)."""
+    def electrode_potential(pybamm, values, name, sto):
+        fn = values[name]
+        try:
+            expr = fn(pybamm.Scalar(sto))
+        except TypeError:  # parameter sets whose potentials take the temperature too
+            expr = fn(pybamm.Scalar(sto), pybamm.Scalar(298.15))
+        return float(np.asarray(values.evaluate(expr)).ravel()[0])
+
+    grid = np.round(np.linspace(0.001, 0.999, 333), 6)
+    param = pybamm.LithiumIonParameters()
+    x_0, x_100, y_100, y_0 = pybamm.lithium_ion.get_min_max_stoichiometries(pv)
+    return {"stoichiometry": grid.tolist(),
+            "negative_v": [round(electrode_potential(pybamm, pv, "Negative electrode OCP [V]", x), 6) for x in grid],
+            "positive_v": [round(electrode_potential(pybamm, pv, "Positive electrode OCP [V]", y), 6) for y in grid],
+            "negative_ah": float(pv.evaluate(param.n.Q_init)), "positive_ah": float(pv.evaluate(param.p.Q_init)),
+            "x_0": float(x_0), "x_100": float(x_100), "y_0": float(y_0), "y_100": float(y_100)}
+
+
+def ageing_main(args) -> int:
+    """``--ageing``: per set, one cell flown ``--cycles`` times; each cycle a CC-CV charge, a rest, one
+    flight, a rest. Each flight's log (the last 2 min of the rest before it, the flight, the rest after:
+    1 Hz for a minute, then every 30 s) is ``<set>/<set>_NNN.parquet`` (cell current, voltage,
+    temperature, ambient); the manifest has, per flight, the cell's true capacity (a C/20 discharge
+    from the charged, rested state, on a copy of the cell: the cell itself never sees it) and its true
+    pulse resistance (the noiseless voltage step over the take-off current step), and per set the
+    fresh cell's open-circuit voltage curve along that C/20 discharge."""
+    import pandas as pd
+    import pybamm
+
+    out = Path(args.out)
+    rng = np.random.default_rng(args.seed)
+    manifest = {"generator": "scripts/generate_pybamm_flights.py --ageing", "pybamm": pybamm.__version__,
+                "seed": args.seed, "model": "SPM, isothermal 25 C, degradation submodels per set",
+                "columns": ["time_s", "current_a", "voltage_v", "temperature_c", "ambient_c"],
+                "noise": {"voltage_v": AGEING_NOISE_V, "current_a": AGEING_NOISE_A},
+                "rests_s": {"before": AGEING_REST_BEFORE_S, "after": AGEING_REST_AFTER_S},
+                "sets": {}, "flights": []}
+    t_all = time.perf_counter()
+    for set_name in args.ageing_sets:
+        rng = np.random.default_rng(args.seed)  # each set its own stream: a set is remade alone, the same
+        spec = AGEING_SETS[set_name]
+        pv = pybamm.ParameterValues(set_name)
+        pv.update({k: pv[k] * f for k, f in spec["accelerate"].items()})
+        pv.update({"Ambient temperature [K]": 298.15, "Initial temperature [K]": 298.15})
+        model = pybamm.lithium_ion.SPM(options=spec["options"])
+        electrodes = fresh_electrodes(pybamm, pv)
+        cap = float(pv["Nominal cell capacity [A.h]"])
+        vmax, vmin = float(pv["Upper voltage cut-off [V]"]), float(pv["Lower voltage cut-off [V]"])
+        profiles = [ageing_profile(rng, cap, *spec["cruise_c"]) for _ in range(spec.get("cycles", args.cycles))]
+        steps = []
+        for prof in profiles:
+            drive = pybamm.step.current(np.column_stack([np.arange(prof.size, dtype=float), prof]))
+            steps.append((f"Charge at {spec['charge_c']}C until {vmax} V", f"Hold at {vmax} V until C/50",
+                          f"Rest for {AGEING_REST_BEFORE_S} seconds", drive, f"Rest for {AGEING_REST_AFTER_S} seconds"))
+        t0 = time.perf_counter()
+        sim = pybamm.Simulation(model, parameter_values=pv, experiment=pybamm.Experiment(steps),
+                                solver=pybamm.IDAKLUSolver())
+        sol = sim.solve(initial_soc=1.0)
+        print(f"{set_name}: {len(sol.cycles)} cycles simulated in {time.perf_counter() - t0:.0f} s", flush=True)
+        (out / set_name).mkdir(parents=True, exist_ok=True)
+        set_entry = {"options": spec["options"], "accelerate": spec["accelerate"], "nominal_cell_capacity_ah": cap,
+                     "upper_cutoff_v": vmax, "lower_cutoff_v": vmin, "cycles": len(sol.cycles),
+                     "electrodes": electrodes}
+        for k, cycle in enumerate(sol.cycles):
+            if len(cycle.steps) < 5:  # the experiment stopped in this cycle (a step hit a voltage limit)
+                print(f"{set_name}: cycle {k + 1} incomplete, the cell's life ends there", flush=True)
+                break
+            rested = cycle.steps[2]
+            # truth: a C/20 discharge from the charged, rested state, on a copy of the cell
+            truth_model = model.set_initial_conditions_from(rested, inplace=False)
+            c20 = pybamm.Simulation(truth_model, parameter_values=pv,
+                                    experiment=pybamm.Experiment([f"Discharge at C/20 until {vmin} V"]),
+                                    solver=pybamm.IDAKLUSolver()).solve()
+            q = c20["Discharge capacity [A.h]"].entries
+            true_ah = float(q[-1] - q[0])
+            if k == 0:
+                ocv = c20["Battery open-circuit voltage [V]"].entries
+                frac = (q - q[0]) / true_ah
+                pick = np.linspace(0, frac.size - 1, 201).astype(int)
+                set_entry["ocv_curve"] = {"soc": [round(1.0 - float(x), 5) for x in frac[pick]],
+                                          "voltage_v": [round(float(v), 5) for v in ocv[pick]]}
+            parts = [cycle.steps[2], cycle.steps[3], cycle.steps[4]]
+            ts = np.concatenate([p["Time [s]"].entries for p in parts])
+            vs = np.concatenate([p["Voltage [V]"].entries for p in parts])
+            cs = np.concatenate([p["Current [A]"].entries for p in parts])
+            flight_start = float(parts[1]["Time [s]"].entries[0])
+            rest_end = float(parts[2]["Time [s]"].entries[-1])
+            after = float(parts[2]["Time [s]"].entries[0])
+            grid = np.concatenate([np.arange(flight_start - 120.0, after + 60.0, 1.0),
+                                   np.arange(after + 90.0, rest_end - 1e-6, 30.0), [rest_end]])
+            order = np.argsort(ts, kind="stable")
+            ts, vs, cs = ts[order], vs[order], cs[order]
+            keep = np.concatenate([[True], np.diff(ts) > 1e-9])
+            ts, vs, cs = ts[keep], vs[keep], cs[keep]
+            v = np.interp(grid, ts, vs)
+            # a logger samples both at one instant: at a step's instant the solution holds the step
+            # before it (voltage and current alike), so the current is taken just before the instant too
+            i = np.interp(grid - 1e-3, ts, cs)
+            j = int(np.searchsorted(grid, flight_start))
+            # 1 s after the step, as a 1 Hz log sees it
+            true_r = float((v[j - 1] - v[j + 1]) / (i[j + 1] - i[j - 1])) if abs(i[j + 1] - i[j - 1]) > 1e-6 else None
+            n = grid.size
+            cols = {"time_s": grid - grid[0], "current_a": i + rng.normal(0, AGEING_NOISE_A, n),
+                    "voltage_v": v + rng.normal(0, AGEING_NOISE_V, n),
+                    "temperature_c": np.round((25.0 + rng.normal(0, 0.1, n)) * 10.0) / 10.0,
+                    "ambient_c": np.full(n, 25.0)}
+            name = f"{set_name.lower()}_{k + 1:03d}"
+            pd.DataFrame(cols).astype({"time_s": "float64", "current_a": "float32", "voltage_v": "float32",
+                                       "temperature_c": "float32", "ambient_c": "float32"}).to_parquet(
+                out / set_name / f"{name}.parquet", index=False)
+            drawn = float(np.sum(profiles[k])) / 3600.0
+            manifest["flights"].append({"flight": name, "set": set_name, "cycle": k + 1,
+                                        "file": f"{set_name}/{name}.parquet", "true_capacity_ah": round(true_ah, 6),
+                                        "true_pulse_resistance_ohm": None if true_r is None else round(true_r, 7),
+                                        "drawn_ah": round(drawn, 5), "flight_s": int(profiles[k].size),
+                                        "samples": int(n)})
+            print(f"{name}: true C/20 capacity {true_ah:.4f} Ah, pulse R {true_r * 1e3:.2f} mOhm", flush=True)
+        manifest["sets"][set_name] = set_entry
+    manifest["seconds"] = round(time.perf_counter() - t_all, 1)
+    out.mkdir(parents=True, exist_ok=True)
+    previous = out / "manifest.json"
+    if previous.exists():  # the sets not made in this run stay as they were
+        old = json.loads(previous.read_text())
+        for name, entry in old.get("sets", {}).items():
+            if name not in manifest["sets"]:
+                manifest["sets"][name] = entry
+                manifest["flights"] += [f for f in old["flights"] if f["set"] == name]
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return 0
 

@@ -450,7 +450,7 @@ def tlog_message_dicts(path: str | Path, names, *, system: int | None = None) ->
 def tlog_message_columns(path: str | Path, name: str, *, system: int | None = None) -> dict:
     """One message's CRC-valid packets of a tlog as numpy columns, all at once: field -> array in
     file order (arrays ``(n, count)``; zero-truncated payloads padded with the zeros they dropped),
-    plus ``"sysid"``. Numeric fields only (text fields are left out)."""
+    plus ``"sysid"`` and ``"tlog_time_us"`` (each record's tlog timestamp). Numeric fields only (text fields are left out)."""
     import numpy as np
 
     from gcs_pdm.mavlink.dialect import MESSAGE_IDS_BY_NAME
@@ -470,7 +470,7 @@ def tlog_message_columns(path: str | Path, name: str, *, system: int | None = No
     sysid = columns[2][picked].astype(np.int64)
     rows = lay.unpack_many(np.frombuffer(data, dtype=np.uint8), columns[4][picked].astype(np.int64),
                            columns[5][picked].astype(np.int64))
-    out = {"sysid": sysid}
+    out = {"sysid": sysid, "tlog_time_us": columns[0][picked].astype(np.int64)}
     for field_name, (code, _repeat) in lay.codes.items():
         if code != "s":
             out[field_name] = np.ascontiguousarray(rows[field_name])

@@ -16,7 +16,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 import gcs_pdm
 from gcs_pdm.service.console_routes import include_console
-from gcs_pdm.service.routers import events, faults, files, health, jobs, missions, parameter_sets
+from gcs_pdm.service.routers import events, faults, files, flights, health, jobs, missions, packs, parameter_sets
 from gcs_pdm.service.storage import Conflict, NotFound
 from gcs_pdm.service.uploads import UploadBodyLimit
 
@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 #: every resource's router, in the order they are included
 ROUTERS = (health.router, faults.router, missions.router, parameter_sets.router, files.router, jobs.router,
-           events.router)
+           events.router, flights.router, packs.router)
 
 
 def create_app(service) -> FastAPI:

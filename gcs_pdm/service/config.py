@@ -123,6 +123,9 @@ class ServiceConfig(BaseSettings):
     deviation_soc: float = Field(0.08, gt=0, description="SoC deviation (observed vs predicted at plan time) that triggers a replan")
     confirm_download: bool = Field(True, description="confirm each upload by downloading the mission back")
     link_lost_after_s: float = Field(5.0, gt=0, description="seconds without a heartbeat from the vehicle before the link is declared lost (replans and uploads refused until it returns)")
+    flight_end_after_link_lost_s: float = Field(300.0, gt=0, description="a flight ends when the vehicle has been silent this long (docs/packs.md)")
+    pack_retire_capacity_fraction: float = Field(0.8, gt=0, lt=1, description="a pack is due for retirement at this fraction of its first capacity (docs/packs.md)")
+    pack_retire_resistance_factor: float = Field(1.5, gt=1, description="... or at this multiple of its first resistance at 25 °C (docs/packs.md)")
     fit_workers: int = Field(1, ge=1, le=8, description="worker threads for fitting jobs")
 
     @field_validator("map_tile_url")

@@ -4,7 +4,9 @@
   that moves by ``MAGNITUDE_STEP`` or more is a new fault for the planner (the old one is cleared);
 * operator faults are kept by their fault id, so clearing one leaves another on the same motor;
 * the planner's view (:meth:`FaultTracker.motor_faults`) is the worst power loss per motor over
-  both, and the status page's motor health follows it.
+  both, and the status page's motor health follows it;
+* faults belong to a flight (service/flights.py): a new flight starts with none active
+  (:meth:`FaultTracker.new_flight`).
 
 Runs on the telemetry thread (it reads the diagnoser, which is not thread-safe).
 """
@@ -59,6 +61,15 @@ class FaultTracker:
             events.publish("fault", id=fid, time_s=t, kind=key[0], target=key[1], cleared=True)
         self.update_motor_health(list(current.values()))
         return new_or_grown
+
+    def new_flight(self, kept_fault_ids: set = frozenset()) -> None:
+        """A flight began: nothing of the previous one is active (the store closed its faults, they
+        stay in that flight's history); an operator carries one over explicitly
+        (Service.carry_over_fault). ``kept_fault_ids``: the operator's faults declared on the ground
+        since, which join the new flight."""
+        self._stored.clear()
+        self._operator = {k: f for k, f in self._operator.items() if k in kept_fault_ids}
+        self.update_motor_health([])
 
     def declare(self, fault: Fault, fault_id: int | None = None) -> None:
         """An operator fault, kept by ``fault_id`` (without one, by motor: it replaces the last one)."""

@@ -61,6 +61,14 @@ class LiveLoop:
         self.faults = FaultTracker(service, self.diagnoser)
         self.executor = PlanExecutor(service, link, mission_client, self.telemetry, self.estimator, self.diagnoser)
         self._deferred: str | None = None  # a replan asked for before the estimator had a state
+        # flights (service/flights.py): a new one starts with no fault of the last one active and,
+        # after a flight ended or a reboot, with fresh filters (only those this loop built itself)
+        self._owns_filters = diagnoser is None and estimator is None
+        self._flights_begun = 0
+        self.telemetry.on_clock = lambda t, armed: service.flights.observe(t, armed)
+        self.telemetry.on_pack = service.flights.pack_frame
+        self.telemetry.on_silent = lambda silent_s: service.flights.silent(silent_s)
+        service.flights.on_begin = self._flight_began
         # wiring (late-bound through self, so a replaced method is the one called)
         self.telemetry.on_reached = self.executor.reached
         self.telemetry.on_tick = self._tick
@@ -99,6 +107,21 @@ class LiveLoop:
         self.faults.diagnoser = self.diagnoser
         self.service.adopt_vehicle(desc, "provisional", notes)
         self.publish_readiness()
+
+    def _flight_began(self, flight_id: int, boundary, kept_fault_ids: set = frozenset()) -> None:
+        rebooted = boundary.reason.startswith("vehicle reboot")
+        if rebooted:
+            self.telemetry.restart_clock()
+        if (rebooted or self._flights_begun) and self._owns_filters and self.service.vehicle is not None:
+            self.diagnoser = adapters.make_diagnoser(
+                self.service.params, self.service.limits.kernel_limits() if self.service.limits is not None else None,
+                vehicle=self.service.vehicle)
+            self.estimator = adapters.estimator_of(self.diagnoser)
+            for part in (self.telemetry, self.executor):
+                part.estimator, part.diagnoser = self.estimator, self.diagnoser
+            self.faults.diagnoser = self.diagnoser
+        self._flights_begun += 1
+        self.faults.new_flight(kept_fault_ids)
 
     def readiness(self) -> dict[str, str]:
         """What the service can do now and why not ("ready" or the reason), per capability."""

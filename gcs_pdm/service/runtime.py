@@ -46,6 +46,13 @@ class Service:
         active = self.store.active_parameter_set_name() or config.parameter_set
         self.params: ParameterSet = self.store.activate_parameter_set(active)
         self.index_recorded_tlogs()
+        from gcs_pdm.packs.records import PackRecords
+        from gcs_pdm.service.flights import FlightRecorder
+
+        #: each pack's health across flights (gcs_pdm.packs; docs/packs.md), in the same database file
+        self.packs = PackRecords(config.database if str(config.database) != ":memory:" else ":memory:")
+        #: flights as records (service/flights.py); the live loop feeds it
+        self.flights = FlightRecorder(self)
         self.catalogue: list[CatalogueWaypoint] | None = None
         #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the kernel's defaults
         self.limits = None
@@ -106,6 +113,9 @@ class Service:
         if self.loop is not None:
             self.loop.stop()
         self.runner.shutdown()
+        if self.flights._pending:  # an ended flight's health points, with the rest heard so far
+            self.flights.make_health_points()
+        self.packs.close()
         self.store.close()
 
     def index_recorded_tlogs(self) -> int:
@@ -149,6 +159,33 @@ class Service:
         if self.loop is not None:
             self.loop.declare_fault(fault, replan, fault_id=fid)
         return fid
+
+    def pack_priors(self) -> dict[str, dict | None]:
+        """What the next flight's estimator should start from, per pack slot of the vehicle
+        description: the latest health of the pack in that slot (the operator's assignment, else
+        the slot's own name; ``gcs_pdm.packs.trend.estimator_priors``), None where no flight has told.
+        The hook for the estimator's priors (docs/packs.md)."""
+        from gcs_pdm.packs.identity import identify
+        from gcs_pdm.packs.trend import estimator_priors
+
+        assigned = {k: v["pack_id"] for k, v in self.packs.assignments().items()}
+        slots = [p.name for p in self.vehicle.packs] if self.vehicle is not None else sorted(assigned)
+        return {slot: estimator_priors(self.packs.points(identify(slot, None, assigned).pack_id)) for slot in slots}
+
+    def carry_over_fault(self, fault_id: int, note: str = "") -> int:
+        """The operator carries a motor fault of an earlier flight into the present one (a damaged
+        motor stays damaged): declared again, without a replan of its own; the new fault's id."""
+        fault = next((f for f in self.store.faults() if f["id"] == fault_id), None)
+        if fault is None:
+            raise NotFound(f"fault {fault_id}")
+        if fault["kind"] != MOTOR_POWER_LOSS or not fault["target"]:
+            raise Conflict(f"fault {fault_id} is a {fault['kind']}: only a motor's power loss can be carried over")
+        if self.store.current_flight_id is None:
+            raise Conflict("no flight is open: a fault is carried into the flight in progress")
+        if fault["flight_id"] == self.store.current_flight_id and fault["active"]:
+            raise Conflict(f"fault {fault_id} is already active in this flight")
+        why = f"carried over from flight {fault['flight_id']} (fault {fault_id})" + (f": {note}" if note else "")
+        return self.declare_fault(MOTOR_POWER_LOSS, fault["target"], float(fault["magnitude"]), why, replan=False)
 
     def clear_fault(self, fault_id: int) -> None:
         fault = next((f for f in self.store.faults() if f["id"] == fault_id), None)

@@ -138,6 +138,8 @@ class FaultOut(BaseModel):
     active: bool
     detail: dict[str, Any]
     created_at: float
+    #: the flight it belongs to (None: before flights were recorded, or on the ground)
+    flight_id: int | None = None
 
 
 class MissionItemModel(BaseModel):

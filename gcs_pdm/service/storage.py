@@ -23,7 +23,7 @@ from gcs_pdm.models.params import BUILTIN_SETS, ParameterSet
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 _SCHEMA = [
     """CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)""",
@@ -49,7 +49,14 @@ _SCHEMA = [
     """CREATE TABLE IF NOT EXISTS tlogs (
         id INTEGER PRIMARY KEY AUTOINCREMENT, path TEXT UNIQUE NOT NULL, started_at REAL NOT NULL,
         ended_at REAL, size_bytes INTEGER, note TEXT)""",
+    # schema 2: flights as records (gcs_pdm.packs.flights says where one begins and ends)
+    """CREATE TABLE IF NOT EXISTS flights (
+        id INTEGER PRIMARY KEY AUTOINCREMENT, started_s REAL NOT NULL, last_s REAL NOT NULL, ended_s REAL,
+        begin_reason TEXT NOT NULL, end_reason TEXT, body TEXT NOT NULL, created_at REAL NOT NULL, ended_at REAL)""",
 ]
+
+#: schema 2: what belongs to a flight carries its id (NULL: before flights were recorded, or on the ground)
+_FLIGHT_COLUMNS = ("faults", "plans", "uploads")
 
 JOB_FINAL = frozenset({"succeeded", "failed", "cancelled", "interrupted"})
 
@@ -88,6 +95,10 @@ class Store:
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.execute("PRAGMA foreign_keys=ON")
+        #: the open flight's id (set by service/flights.py); faults, plans and uploads stored now carry it
+        self.current_flight_id: int | None = None
+        #: when this store was opened: a fault stored before it with no flight is a previous run's
+        self.opened_at = clock()
         self._migrate()
         self.interrupted_at_open = self._interrupt_orphans()
         self._seed_builtins()
@@ -98,6 +109,9 @@ class Store:
         with self._lock:
             for stmt in _SCHEMA:
                 self._db.execute(stmt)
+            for table in _FLIGHT_COLUMNS:  # an older database gains the column; its rows keep NULL
+                if "flight_id" not in {r["name"] for r in self._db.execute(f"PRAGMA table_info({table})")}:
+                    self._db.execute(f"ALTER TABLE {table} ADD COLUMN flight_id INTEGER")
             row = self._db.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
             version = int(row["value"]) if row else 0
             if version > SCHEMA_VERSION:
@@ -222,8 +236,10 @@ class Store:
             body["note"] = note
         with self._lock:
             cur = self._db.execute(
-                "INSERT INTO faults(time_s, kind, target, magnitude, source, active, body, created_at) VALUES(?,?,?,?,?,1,?,?)",
-                (body["time_s"], fault.type, fault.component, body["magnitude"], source, _dumps(body), self._clock()))
+                "INSERT INTO faults(time_s, kind, target, magnitude, source, active, body, created_at, flight_id) "
+                "VALUES(?,?,?,?,?,1,?,?,?)",
+                (body["time_s"], fault.type, fault.component, body["magnitude"], source, _dumps(body), self._clock(),
+                 self.current_flight_id))
             return int(cur.lastrowid)
 
     def clear_fault(self, fault_id: int) -> None:
@@ -232,12 +248,90 @@ class Store:
         if cur.rowcount == 0:
             raise NotFound(f"fault {fault_id}")
 
-    def faults(self, active_only: bool = False) -> list[dict]:
-        q = "SELECT * FROM faults" + (" WHERE active=1" if active_only else "") + " ORDER BY id"
+    def faults(self, active_only: bool = False, flight_id: int | None = None) -> list[dict]:
+        where, args = [], []
+        if active_only:
+            where.append("active=1")
+        if flight_id is not None:
+            where.append("flight_id=?")
+            args.append(flight_id)
+        q = "SELECT * FROM faults" + (" WHERE " + " AND ".join(where) if where else "") + " ORDER BY id"
         return [{"id": r["id"], "time_s": r["time_s"], "kind": r["kind"], "target": r["target"],
                  "magnitude": r["magnitude"], "source": r["source"], "active": bool(r["active"]),
-                 "detail": json.loads(r["body"]), "created_at": r["created_at"]}
-                for r in self._db.execute(q).fetchall()]
+                 "detail": json.loads(r["body"]), "created_at": r["created_at"], "flight_id": r["flight_id"]}
+                for r in self._db.execute(q, args).fetchall()]
+
+    def end_flight_faults(self, flight_id: int) -> list[int]:
+        """A flight ended: its active faults (and any of an earlier flight) stop being active; they
+        stay in its history. Their ids."""
+        with self._lock:
+            rows = self._db.execute("SELECT id FROM faults WHERE active=1 AND flight_id IS NOT NULL AND flight_id<=?",
+                                    (flight_id,)).fetchall()
+            ids = [int(r["id"]) for r in rows]
+            self._db.executemany("UPDATE faults SET active=0 WHERE id=?", [(i,) for i in ids])
+            return ids
+
+    # --- flights -------------------------------------------------------------------------------
+
+    def begin_flight(self, started_s: float, reason: str, body: dict | None = None) -> tuple[int, list[int], list[int]]:
+        """A new flight: no fault of an earlier flight stays active, nor one stored before this store
+        was opened (a previous run's, or from before flights were recorded); a fault declared on the
+        ground since (no flight open) is the operator's for this flight and joins it.
+        (flight id, fault ids closed, fault ids carried in)."""
+        with self._lock:
+            stale = [int(r["id"]) for r in self._db.execute(
+                "SELECT id FROM faults WHERE active=1 AND (flight_id IS NOT NULL OR created_at<?)",
+                (self.opened_at,)).fetchall()]
+            self._db.executemany("UPDATE faults SET active=0 WHERE id=?", [(i,) for i in stale])
+            cur = self._db.execute(
+                "INSERT INTO flights(started_s, last_s, begin_reason, body, created_at) VALUES(?,?,?,?,?)",
+                (started_s, started_s, reason, _dumps(body or {}), self._clock()))
+            fid = int(cur.lastrowid)
+            carried = [int(r["id"]) for r in self._db.execute(
+                "SELECT id FROM faults WHERE active=1 AND flight_id IS NULL").fetchall()]
+            self._db.executemany("UPDATE faults SET flight_id=? WHERE id=?", [(fid, i) for i in carried])
+            self.current_flight_id = fid
+            return fid, stale, carried
+
+    def touch_flight(self, flight_id: int, last_s: float) -> None:
+        with self._lock:
+            self._db.execute("UPDATE flights SET last_s=MAX(last_s, ?) WHERE id=?", (last_s, flight_id))
+
+    def end_flight(self, flight_id: int, ended_s: float | None, reason: str) -> None:
+        with self._lock:
+            self._db.execute("UPDATE flights SET ended_s=COALESCE(?, last_s), end_reason=?, ended_at=? "
+                             "WHERE id=? AND ended_s IS NULL", (ended_s, reason, self._clock(), flight_id))
+            if self.current_flight_id == flight_id:
+                self.current_flight_id = None
+
+    def open_flight(self) -> dict | None:
+        """The newest flight not ended (the service stopped during it), or None."""
+        row = self._db.execute("SELECT * FROM flights WHERE ended_s IS NULL ORDER BY id DESC LIMIT 1").fetchone()
+        return _flight_row(row) if row else None
+
+    def flight(self, flight_id: int) -> dict:
+        row = self._db.execute("SELECT * FROM flights WHERE id=?", (flight_id,)).fetchone()
+        if row is None:
+            raise NotFound(f"flight {flight_id}")
+        out = _flight_row(row)
+        out["faults"] = self.faults(flight_id=flight_id)
+        out["plans"] = [_plan_row(r) for r in self._db.execute(
+            "SELECT * FROM plans WHERE flight_id=? ORDER BY id", (flight_id,)).fetchall()]
+        out["uploads"] = [_upload_row(r) for r in self._db.execute(
+            "SELECT * FROM uploads WHERE flight_id=? ORDER BY id", (flight_id,)).fetchall()]
+        return out
+
+    def flights(self, limit: int = 100) -> list[dict]:
+        rows = self._db.execute("SELECT * FROM flights ORDER BY id DESC LIMIT ?", (limit,)).fetchall()
+        return [_flight_row(r) for r in rows]
+
+    def set_flight_body(self, flight_id: int, **fields) -> None:
+        with self._lock:
+            row = self._db.execute("SELECT body FROM flights WHERE id=?", (flight_id,)).fetchone()
+            if row is None:
+                raise NotFound(f"flight {flight_id}")
+            body = {**json.loads(row["body"]), **fields}
+            self._db.execute("UPDATE flights SET body=? WHERE id=?", (_dumps(body), flight_id))
 
     # --- plans and uploads ---------------------------------------------------------------------
 
@@ -245,8 +339,8 @@ class Store:
         now = self._clock()
         with self._lock:
             cur = self._db.execute(
-                "INSERT INTO plans(time_s, trigger, status, body, created_at, updated_at) VALUES(?,?,?,?,?,?)",
-                (time_s, trigger, status, _dumps(body), now, now))
+                "INSERT INTO plans(time_s, trigger, status, body, created_at, updated_at, flight_id) "
+                "VALUES(?,?,?,?,?,?,?)", (time_s, trigger, status, _dumps(body), now, now, self.current_flight_id))
             return int(cur.lastrowid)
 
     def set_plan_status(self, plan_id: int, status: str, note: str | None = None) -> None:
@@ -286,8 +380,9 @@ class Store:
 
     def add_upload(self, plan_id: int | None, status: str, body: dict) -> int:
         with self._lock:
-            cur = self._db.execute("INSERT INTO uploads(plan_id, status, body, created_at) VALUES(?,?,?,?)",
-                                   (plan_id, status, _dumps(body), self._clock()))
+            cur = self._db.execute("INSERT INTO uploads(plan_id, status, body, created_at, flight_id) "
+                                   "VALUES(?,?,?,?,?)",
+                                   (plan_id, status, _dumps(body), self._clock(), self.current_flight_id))
             return int(cur.lastrowid)
 
     #: an upload whose transfer began and whose outcome is not written yet (see begin_upload)
@@ -369,6 +464,12 @@ def _job_row(r: sqlite3.Row) -> dict:
 def _upload_row(r: sqlite3.Row) -> dict:
     return {"id": r["id"], "plan_id": r["plan_id"], "status": r["status"], "created_at": r["created_at"],
             **json.loads(r["body"])}
+
+
+def _flight_row(r: sqlite3.Row) -> dict:
+    return {"id": r["id"], "started_s": r["started_s"], "last_s": r["last_s"], "ended_s": r["ended_s"],
+            "begin_reason": r["begin_reason"], "end_reason": r["end_reason"], "open": r["ended_s"] is None,
+            "created_at": r["created_at"], "ended_at": r["ended_at"], **json.loads(r["body"])}
 
 
 def _plan_row(r: sqlite3.Row) -> dict:

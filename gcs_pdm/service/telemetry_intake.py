@@ -24,7 +24,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
-from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PositionFrame, StatusFrame, StatusTextFrame
+from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PackFrame, PositionFrame, StatusFrame, StatusTextFrame
 from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
 from gcs_pdm.service import adapters
 from gcs_pdm.service.flight_phase import FlightPhase, flight_phase
@@ -83,6 +83,11 @@ class TelemetryIntake:
         self.on_tick: Callable[[float], None] = lambda t: None
         self.on_link_restored: Callable[[], None] = lambda: None
         self.on_message: Callable[[object, float], None] = lambda msg, t: None
+        #: each frame's message time and the armed flag, before anything else (flights begin and end
+        #: there: service/flights.py); the vehicle's silence in wall seconds, at each link check
+        self.on_clock: Callable[[float, bool | None], None] = lambda t, armed: None
+        self.on_silent: Callable[[float], None] = lambda silent_s: None
+        self.on_pack: Callable[[PackFrame], None] = lambda frame: None
         self._messages = None  # the link's subscription to MISSION_WATCH_TYPES
         self.motor_faults: Callable[[], list[MotorFault]] = lambda: []
 
@@ -159,6 +164,7 @@ class TelemetryIntake:
         st = self.service.state
         st.apply_frame(frame)
         t = frame.time_s
+        self.on_clock(t, bool(frame.armed) if isinstance(frame, StatusFrame) else self._armed)
         self.time_s = t if self.time_s is None else max(self.time_s, t)
         if isinstance(frame, PositionFrame) and frame.lat_deg is not None:
             self.position = (frame.lat_deg, frame.lon_deg, frame.relative_alt_m or 0.0)
@@ -168,6 +174,8 @@ class TelemetryIntake:
             self._airdata = (frame.airspeed, frame.climb_rate or 0.0)
         elif isinstance(frame, StatusFrame):
             self._armed = bool(frame.armed)
+        elif isinstance(frame, PackFrame):
+            self.on_pack(frame)
         elif isinstance(frame, MissionProgressFrame) and frame.reached_seq is not None:
             self.on_reached(frame.reached_seq, t)
         elif isinstance(frame, StatusTextFrame):
@@ -253,6 +261,7 @@ class TelemetryIntake:
         silent = silent_fn() if silent_fn is not None else None
         if silent is None:
             return
+        self.on_silent(silent)
         limit = self.service.config.link_lost_after_s
         lost = silent > limit
         st = self.service.state
@@ -284,6 +293,13 @@ class TelemetryIntake:
             self.service.events.publish("link", status="restored", vehicle=vehicle, time_s=self.time_s,
                                         was=reason)
             self.on_link_restored()
+
+    def restart_clock(self) -> None:
+        """The vehicle rebooted (its message time went back): count from its new clock."""
+        self.time_s = None
+        self._last_status_s = self._last_predict_s = -math.inf
+        self._armed = None
+        self._landed_state = None
 
     def flight_phase(self, t: float) -> FlightPhase:
         """Flying or not, and why, from the latest telemetry and the vehicle's airframe."""

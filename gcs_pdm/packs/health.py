@@ -1,0 +1,394 @@
+"""A pack's health point for one flight, from that flight's current, voltage and temperature (pure).
+
+* **Capacity** (Ah) by the charge counted between two rested open-circuit voltages: the rest
+  before take-off and the rest after landing, each read as a state of charge on the pack's
+  open-circuit-voltage curve; capacity = charge drawn / SoC used. Its σ follows from the voltage
+  uncertainty at each rest (noise, and what relaxation may still be under way) through the curve's
+  slope there, and the current sensor's gain error. Without both rests, or with too shallow a
+  discharge (less than ``min_soc_used`` of the pack), the capacity is unknown and the point says why.
+* **Resistance at 25 °C** (Ω) from the voltage steps at the flight's current steps (take-off,
+  climbs, throttle-back): ΔV/ΔI one sample apart, the median over the flight, scaled to 25 °C by an
+  Arrhenius law (``activation_energy_j_mol``); σ from the spread of the steps.
+* **Use**: charge and energy drawn, equivalent full cycles (charge drawn / nominal capacity), depth
+  of discharge (SoC used when the rests tell it, else charge / nominal), peak temperature.
+
+Sign: discharge current positive (the project's convention). Time in message seconds.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+GAS_CONSTANT = 8.314462618
+T25_K = 298.15
+
+#: a generic Li-ion (NMC/graphite, LiPo) cell's open-circuit voltage against SoC, for a pack with no
+#: curve of its own: a capacity read on it carries ``GENERIC_CURVE_SOC_SD`` more SoC uncertainty
+GENERIC_OCV_SOC = (0.0, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0)
+GENERIC_OCV_V = (3.30, 3.50, 3.60, 3.68, 3.73, 3.77, 3.81, 3.86, 3.93, 4.00, 4.08, 4.13, 4.19)
+GENERIC_CURVE_SOC_SD = 0.03
+#: the take-off step is the flight's first current step within this long of its first load (s)
+TAKEOFF_WINDOW_S = 120.0
+
+
+@dataclass(frozen=True)
+class OcvCurve:
+    """A cell's open-circuit voltage against state of charge (increasing in both)."""
+    soc: tuple[float, ...]
+    voltage_v: tuple[float, ...]
+    #: extra SoC uncertainty of reading this curve (0 for the pack's own; >0 for a generic one)
+    soc_sd: float = 0.0
+    name: str = "own"
+
+    def __post_init__(self):
+        order = np.argsort(self.soc)
+        s, v = np.asarray(self.soc, float)[order], np.asarray(self.voltage_v, float)[order]
+        v = np.maximum.accumulate(v)  # a flat or noisy stretch must not make the inverse ambiguous
+        object.__setattr__(self, "soc", tuple(float(x) for x in s))
+        object.__setattr__(self, "voltage_v", tuple(float(x) for x in v))
+
+    def soc_at(self, cell_v: float) -> float:
+        v, s = np.asarray(self.voltage_v), np.asarray(self.soc)
+        keep = np.concatenate([[True], np.diff(v) > 1e-9])
+        return float(np.interp(cell_v, v[keep], s[keep]))
+
+    def slope_at(self, soc: float, half_width: float = 0.02) -> float:
+        """dV/dSoC (V per unit SoC) about ``soc``."""
+        lo, hi = max(0.0, soc - half_width), min(1.0, soc + half_width)
+        s, v = np.asarray(self.soc), np.asarray(self.voltage_v)
+        return float((np.interp(hi, s, v) - np.interp(lo, s, v)) / max(hi - lo, 1e-6))
+
+
+GENERIC_OCV = OcvCurve(GENERIC_OCV_SOC, GENERIC_OCV_V, soc_sd=GENERIC_CURVE_SOC_SD, name="generic Li-ion")
+
+
+@dataclass(frozen=True)
+class ElectrodeCurves:
+    """A cell chemistry's two electrodes: their potentials against stoichiometry, their capacities
+    (Ah) and the cell's voltage limits. With these a capacity is read as lithium lost, which is
+    what SEI growth and lithium plating take: the cell's open-circuit curve against its own SoC
+    changes shape as it loses lithium, so a fresh cell's curve misreads an aged cell (measured on
+    the ageing fixtures: +5 % at 7 % fade), the electrodes' curves do not."""
+    stoichiometry: tuple[float, ...]
+    negative_v: tuple[float, ...]
+    positive_v: tuple[float, ...]
+    negative_ah: float
+    positive_ah: float
+    lower_cutoff_v: float
+    name: str = "electrodes"
+
+    def u_n(self, x):
+        return np.interp(x, self.stoichiometry, self.negative_v)
+
+    def u_p(self, y):
+        return np.interp(y, self.stoichiometry, self.positive_v)
+
+    def y_at(self, u_p_v):
+        """The positive stoichiometry where its potential is ``u_p_v`` (it falls as y rises)."""
+        s, v = np.asarray(self.stoichiometry), np.asarray(self.positive_v)
+        return np.interp(-np.asarray(u_p_v), -v, s)
+
+    def consistent_states(self, v0: float, v1: float, drawn_ah: float, tolerance_v: float) -> np.ndarray:
+        """Every negative stoichiometry x0 at the first rest (on the curve through ``v0``, cell OCV)
+        from which ``drawn_ah`` later the cell rests within ``tolerance_v`` of ``v1``. The
+        electrodes' plateaus make this a band, not a point: near a full cell the graphite's stage
+        plateau leaves the split between the electrodes loosely pinned."""
+        x0 = np.linspace(0.05, 0.999, 4000)
+        y0 = self.y_at(v0 + self.u_n(x0))
+        x1 = x0 - drawn_ah / self.negative_ah
+        y1 = y0 + drawn_ah / self.positive_ah
+        ok = (x1 > 0.0) & (y1 < 1.0) & (y0 > min(self.stoichiometry)) & (y0 < max(self.stoichiometry))
+        r = np.abs(self.u_p(y1) - self.u_n(x1) - v1)
+        band = ok & (r <= tolerance_v)
+        if not band.any() and ok.any():  # between two grid points: the closest
+            k = int(np.nanargmin(np.where(ok, r, np.nan)))
+            band[k] = r[k] <= 5.0 * tolerance_v
+        return x0[band]
+
+    def capacity_from(self, x0: float, y0: float, polarization_v: float = 0.0) -> float:
+        """Charge (Ah) from (x0, y0) down to the lower cut-off, the open-circuit voltage held
+        ``polarization_v`` above it (the drop of the measuring discharge's current)."""
+        q = np.linspace(0.0, min(x0 * self.negative_ah, (1.0 - y0) * self.positive_ah), 4000)
+        v = self.u_p(y0 + q / self.positive_ah) - self.u_n(x0 - q / self.negative_ah) - polarization_v
+        below = np.flatnonzero(v <= self.lower_cutoff_v)
+        if below.size == 0:
+            return float(q[-1])
+        k = int(below[0])
+        if k == 0:
+            return 0.0
+        w = (v[k - 1] - self.lower_cutoff_v) / (v[k - 1] - v[k])
+        return float(q[k - 1] + w * (q[k] - q[k - 1]))
+
+    def capacity(self, v0: float, v1: float, drawn_ah: float, tolerance_v: float, polarization_v: float = 0.0,
+                 flight: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None):
+        """(capacity, σ, how) over the states consistent with both rests; None: none is.
+
+        ``flight`` (time, current, voltage, charge drawn since the first rest; the loaded samples):
+        each consistent state's open-circuit curve along the flight, less the current's drop (an
+        ohmic term and two lags, 30 s and 300 s, fitted by least squares), is compared with the
+        voltage flown; the state that fits best is taken (the electrodes' features under load pin
+        what the two rests leave loose: differential voltage analysis), its σ the spread of the
+        states that fit within 5 % of the best. Without it, the band's median and spread."""
+        xs = self.consistent_states(v0, v1, drawn_ah, tolerance_v)
+        if xs.size == 0:
+            return None
+        xs = xs[:: max(1, xs.size // 120)]
+        ys = np.array([float(self.y_at(v0 + self.u_n(x))) for x in xs])
+        caps = np.array([self.capacity_from(float(x), float(y), polarization_v) for x, y in zip(xs, ys)])
+        if flight is None or xs.size == 1:
+            lo, mid, hi = np.percentile(caps, [16, 50, 84])
+            return float(mid), float(max((hi - lo) / 2.0, 0.0)), "the rests alone"
+        t, i, v, q = flight
+        lags = [_lowpass(t, i, tau) for tau in (30.0, 300.0)]
+        design = np.column_stack([i, *lags])
+        rms = np.empty(xs.size)
+        for k, (x, y) in enumerate(zip(xs, ys)):
+            drop = self.u_p(y + q / self.positive_ah) - self.u_n(x - q / self.negative_ah) - v
+            coef, *_ = np.linalg.lstsq(design, drop, rcond=None)
+            rms[k] = math.sqrt(float(np.mean((drop - design @ coef) ** 2)))
+        best = int(np.argmin(rms))
+        near = caps[rms <= rms[best] * 1.05]
+        lo, hi = np.percentile(near, [16, 84]) if near.size > 1 else (caps[best], caps[best])
+        return float(caps[best]), float(max((hi - lo) / 2.0, 0.0)), f"fitted to the flight's voltage (rms {rms[best] * 1e3:.1f} mV)"
+
+
+def _lowpass(t: np.ndarray, x: np.ndarray, tau_s: float) -> np.ndarray:
+    out = np.empty_like(x)
+    acc = 0.0
+    out[0] = 0.0
+    w = np.exp(-np.diff(t) / tau_s)
+    for k in range(1, x.size):
+        acc = w[k - 1] * acc + (1.0 - w[k - 1]) * x[k]
+        out[k] = acc
+    return out
+
+
+@dataclass(frozen=True)
+class HealthSettings:
+    #: below this share of the nominal 1C current the pack is at rest
+    rest_c_rate: float = 0.02
+    #: a rest before take-off must be this long to be read as an open-circuit voltage
+    min_rest_before_s: float = 60.0
+    #: ... and after landing (relaxation is slower after a discharge)
+    min_rest_after_s: float = 600.0
+    #: a capacity needs at least this share of the pack used between the two rests
+    min_soc_used: float = 0.3
+    #: cell voltage still relaxing after a rest of min_rest_after_s (1σ, V)
+    relaxation_sd_v: float = 0.002
+    #: current sensor gain error (1σ, fraction)
+    current_gain_sd: float = 0.005
+    #: a current step this large (share of 1C) is read for resistance
+    min_step_c_rate: float = 0.2
+    #: ... between samples this close (s): the voltage over a longer gap also holds diffusion
+    max_step_dt_s: float = 1.5
+    #: read the resistance at the take-off step when there is one (else: the median over the
+    #: flight's steps)
+    resistance_at_takeoff: bool = True
+    #: Arrhenius activation energy of the pack's resistance (J/mol)
+    activation_energy_j_mol: float = 20000.0
+    #: the rate a capacity is stated at (C/20: the usual measurement, and PyBaMM's)
+    measure_c_rate: float = 0.05
+    #: the electrode method's own error (1σ, fraction): its equilibrium cell against a C/20
+    #: measurement, measured on the PyBaMM ageing fixtures (mean |error| 1.2-1.7 %, docs/packs.md)
+    electrode_model_sd: float = 0.015
+
+
+@dataclass
+class HealthPoint:
+    """One pack's health over one flight (SI units; None: unknown, and ``why`` says why)."""
+    pack_id: str
+    start_s: float
+    end_s: float
+    capacity_ah: float | None
+    capacity_sd_ah: float | None
+    resistance_25c_ohm: float | None
+    resistance_sd_ohm: float | None
+    charge_ah: float
+    energy_wh: float
+    equivalent_cycles: float
+    depth_of_discharge: float | None
+    peak_temperature_c: float | None
+    nominal_capacity_ah: float
+    cells_series: int
+    method: dict = field(default_factory=dict)
+    why: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "HealthPoint":
+        names = cls.__dataclass_fields__
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def _trapz(y: np.ndarray, t: np.ndarray) -> float:
+    if y.size < 2:
+        return 0.0
+    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(t)))
+
+
+def _finite_interp(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    ok = np.isfinite(x)
+    if ok.sum() < 2:
+        return x
+    return np.interp(t, t[ok], x[ok])
+
+
+def _step_resistance(t, i, v, nominal_capacity_ah: float, settings: HealthSettings) -> float | None:
+    """The pack's resistance (Ω): the median of -ΔV/ΔI over the record's current steps (None: none)."""
+    dt, di, dv = np.diff(t), np.diff(i), np.diff(v)
+    step = ((np.abs(di) >= max(settings.min_step_c_rate * nominal_capacity_ah, 1e-3)) & (dt > 0)
+            & (dt <= settings.max_step_dt_s) & np.isfinite(dv) & np.isfinite(di))
+    return float(np.median(-dv[step] / di[step])) if step.any() else None
+
+
+def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None, *, nominal_capacity_ah: float,
+                 cells_series: int = 1, ocv: OcvCurve | None = None, electrodes: ElectrodeCurves | None = None,
+                 cells_parallel: float = 1.0, settings: HealthSettings = HealthSettings()) -> HealthPoint:
+    """The health point of one pack over one flight's record (rests around it included)."""
+    t = np.asarray(time_s, float)
+    i = np.asarray(current_a, float)
+    v = np.asarray(voltage_v, float)
+    temp = np.full(t.size, np.nan) if temperature_c is None else np.asarray(temperature_c, float)
+    order = np.argsort(t, kind="stable")
+    t, i, v, temp = t[order], i[order], v[order], temp[order]
+    why, method = {}, {}
+    if t.size < 2 or nominal_capacity_ah <= 0:
+        raise ValueError(f"{pack_id}: a health point needs at least two samples and a nominal capacity")
+    i_filled = np.nan_to_num(_finite_interp(t, i), nan=0.0)
+    v_filled = _finite_interp(t, v)
+    drawn = np.maximum(i_filled, 0.0)
+    charge_ah = _trapz(drawn, t) / 3600.0
+    energy_wh = _trapz(np.nan_to_num(np.maximum(i_filled * v_filled, 0.0)), t) / 3600.0
+    peak = float(np.nanmax(temp)) if np.isfinite(temp).any() else None
+    if peak is None:
+        why["peak_temperature_c"] = "no pack temperature in the record"
+    cells = max(int(cells_series), 1)
+    curve = ocv or GENERIC_OCV
+    method["ocv_curve"] = electrodes.name if electrodes is not None else curve.name
+
+    # --- capacity between the rests ---
+    capacity = capacity_sd = dod = None
+    rest_a = settings.rest_c_rate * nominal_capacity_ah
+    loaded = np.flatnonzero(np.abs(i_filled) > rest_a)
+    if loaded.size == 0:
+        why["capacity_ah"] = "the pack never carried a load in this record"
+    else:
+        first, last = int(loaded[0]), int(loaded[-1])
+        before_s = t[first] - t[0]
+        after_s = t[-1] - t[last]
+        if before_s < settings.min_rest_before_s:
+            why["capacity_ah"] = (f"no rest before take-off ({before_s:.0f} s < {settings.min_rest_before_s:g} s): "
+                                  "no open-circuit voltage to start from")
+        elif after_s < settings.min_rest_after_s:
+            why["capacity_ah"] = (f"no rest after landing ({after_s:.0f} s < {settings.min_rest_after_s:g} s): "
+                                  "no open-circuit voltage to end at")
+        else:
+            pre = (t >= t[first] - min(before_s, 30.0)) & (t < t[first]) & np.isfinite(v)
+            post = (t >= t[-1] - 60.0) & (t > t[last]) & np.isfinite(v)
+            if pre.sum() < 3 or post.sum() < 2:
+                why["capacity_ah"] = "too few voltage samples in the rests"
+            else:
+                v0, v1 = float(np.median(v[pre])) / cells, float(np.median(v[post])) / cells
+                s0, s1 = curve.soc_at(v0), curve.soc_at(v1)
+                used = s0 - s1
+                # the counted span: from the last rest sample before the load to the first after it
+                span = (t >= t[max(first - 1, 0)]) & (t <= t[min(last + 1, t.size - 1)])
+                counted = _trapz(i_filled[span], t[span]) / 3600.0
+                if used < settings.min_soc_used:
+                    why["capacity_ah"] = (f"too shallow: {used:.0%} of the pack used between the rests "
+                                          f"(< {settings.min_soc_used:.0%})")
+                elif electrodes is not None:
+                    # per cell of the parallel group: the electrodes are one cell's
+                    q = counted / cells_parallel
+                    noise1 = float(np.std(v[post] / cells)) / math.sqrt(post.sum())
+                    tol = 2.0 * math.hypot(noise1, settings.relaxation_sd_v)
+                    # the true capacity is measured by a slow discharge (C/20): its current's drop
+                    # through the cell's resistance ends it that much early
+                    r_cell = _step_resistance(t, i, v, nominal_capacity_ah, settings)
+                    pol = 0.0 if r_cell is None else (settings.measure_c_rate * nominal_capacity_ah / cells_parallel
+                                                      * r_cell * cells_parallel / cells)
+                    flown = (t >= t[first]) & (t <= t[last]) & np.isfinite(v)
+                    drawn_since = np.concatenate([[0.0], np.cumsum(0.5 * (i_filled[1:] + i_filled[:-1]) * np.diff(t))])
+                    drawn_since = (drawn_since - drawn_since[max(first - 1, 0)]) / 3600.0 / cells_parallel
+                    flight = (t[flown], i_filled[flown] / cells_parallel, v[flown] / cells, drawn_since[flown]) \
+                        if flown.sum() >= 30 else None
+                    got = electrodes.capacity(v0, v1, q, tol, pol, flight)
+                    if got is None:
+                        why["capacity_ah"] = "no lithium inventory of the electrodes explains both rests"
+                    else:
+                        c, spread, how = got
+                        capacity = c * cells_parallel
+                        capacity_sd = cells_parallel * math.sqrt(spread ** 2 + (c * settings.current_gain_sd) ** 2
+                                                                 + (c * settings.electrode_model_sd) ** 2)
+                        dod = q / c if c > 0 else None
+                        method["capacity"] = (f"lithium inventory from the rests: {q:.4g} Ah per cell drawn "
+                                              f"between {v0:.4f} V and {v1:.4f} V, {how}; at "
+                                              f"{settings.measure_c_rate:g}C ({pol * 1e3:.1f} mV drop)")
+                else:
+                    capacity = counted / used
+                    noise0 = float(np.std(v[pre] / cells)) / math.sqrt(pre.sum())
+                    noise1 = float(np.std(v[post] / cells)) / math.sqrt(post.sum())
+                    sd_s0 = math.hypot(noise0 / max(curve.slope_at(s0), 1e-3), curve.soc_sd)
+                    sd_s1 = math.hypot(math.hypot(noise1, settings.relaxation_sd_v) / max(curve.slope_at(s1), 1e-3),
+                                       curve.soc_sd)
+                    rel = math.sqrt((math.hypot(sd_s0, sd_s1) / used) ** 2 + settings.current_gain_sd ** 2)
+                    capacity_sd = capacity * rel
+                    dod = used
+                    method["capacity"] = (f"charge counted between rests: {counted:.4g} Ah over SoC "
+                                          f"{s0:.3f} -> {s1:.3f}")
+    if dod is None:
+        dod = min(charge_ah / nominal_capacity_ah, 1.0) if charge_ah > 0 else 0.0
+        method["depth_of_discharge"] = "charge drawn / nominal capacity (no rested SoC)"
+
+    # --- resistance from the current steps ---
+    resistance = resistance_sd = None
+    dt = np.diff(t)
+    di = np.diff(i)
+    dv = np.diff(v)
+    step = ((np.abs(di) >= max(settings.min_step_c_rate * nominal_capacity_ah, 1e-3)) & (dt > 0)
+            & (dt <= settings.max_step_dt_s) & np.isfinite(dv) & np.isfinite(di))
+    if step.sum() < 1:
+        why["resistance_25c_ohm"] = (f"no current step of {settings.min_step_c_rate:g}C within "
+                                     f"{settings.max_step_dt_s:g} s in the record")
+    else:
+        r = -dv[step] / di[step]  # the pack's (the series string's) resistance
+        r_med = float(np.median(r))
+        mad = float(np.median(np.abs(r - r_med))) * 1.4826
+        sd = (1.2533 * mad / math.sqrt(r.size)) if r.size >= 3 else abs(r_med) * 0.2
+        temp_step = temp[1:][step]
+        how = f"median dV/dI over {int(step.sum())} current step(s)"
+        # the take-off step (the flight's first, within TAKEOFF_WINDOW_S of the first load), when
+        # there is one: the same condition every flight (the pack at its starting charge, barely
+        # loaded before), where the median mixes steps at every SoC
+        rest_a = settings.rest_c_rate * nominal_capacity_ah
+        k = int(np.flatnonzero(step)[0])
+        first_load = np.flatnonzero(np.abs(i_filled) > rest_a)
+        before = (t < t[k] + 1e-9) & (t >= t[k] - 30.0) & np.isfinite(v)
+        if (settings.resistance_at_takeoff and first_load.size and t[k] - t[first_load[0]] <= TAKEOFF_WINDOW_S
+                and before.sum() >= 5):
+            noise = float(np.std(np.diff(v[before]))) / math.sqrt(2.0)  # one sample's voltage noise
+            r_med = float(r[0])
+            sd = math.hypot(math.sqrt(2.0) * noise / abs(di[k]), mad / math.sqrt(max(r.size, 1)) * 0.0)
+            sd = max(sd, 1e-6)
+            temp_step = temp[1:][step][:1]
+            how = f"the take-off step ({di[k]:+.3g} A)"
+        t_c = float(np.nanmedian(temp_step)) if np.isfinite(temp_step).any() else None
+        if t_c is None:
+            factor = 1.0
+            method["resistance_temperature"] = "no pack temperature: read as if at 25 °C"
+        else:
+            factor = math.exp(-settings.activation_energy_j_mol / GAS_CONSTANT
+                              * (1.0 / (t_c + 273.15) - 1.0 / T25_K))
+        resistance = r_med * factor
+        resistance_sd = max(sd * factor, 1e-6)
+        method["resistance"] = how + (f" at {t_c:.1f} °C" if t_c is not None else "")
+    return HealthPoint(pack_id=pack_id, start_s=float(t[0]), end_s=float(t[-1]), capacity_ah=capacity,
+                       capacity_sd_ah=capacity_sd, resistance_25c_ohm=resistance, resistance_sd_ohm=resistance_sd,
+                       charge_ah=charge_ah, energy_wh=energy_wh,
+                       equivalent_cycles=charge_ah / nominal_capacity_ah, depth_of_discharge=dod,
+                       peak_temperature_c=peak, nominal_capacity_ah=float(nominal_capacity_ah), cells_series=cells,
+                       method=method, why=why)
