@@ -45,7 +45,7 @@ def print_replay(path: Path, frame_consumer=None, as_json: bool = False) -> int:
     try:
         summary = replay_log(path, frame_consumer)
     except FlightDataError as exc:
-        print(f"replay: {exc}", file=sys.stderr)
+        print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
         return 2
     if as_json:
         print(json.dumps(summary, default=str))

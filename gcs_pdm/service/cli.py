@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
+
+from gcs_pdm.command_errors import EXIT_NOTHING, error
 
 
 def register(subparsers) -> None:
@@ -59,8 +60,7 @@ def _serve(args: argparse.Namespace) -> int:
     from gcs_pdm.service.config import ConfigError, load_config
 
     def fail(message: str) -> int:
-        print(f"gcs-pdm serve: {message}", file=sys.stderr)
-        return 2
+        return error("serve", message)
 
     host = port = None
     if args.http:
@@ -114,15 +114,13 @@ def _demo(args: argparse.Namespace) -> int:
             result = run_vehicle_demo(args.vehicle, speedup=speedup, http_port=args.http_port, data_dir=args.data_dir,
                                       seed=args.seed, timeout_s=args.timeout, policy=args.policy)
         except VehicleError as exc:
-            print(f"gcs-pdm demo: --vehicle: {exc}", file=sys.stderr)
-            return 2
+            return error("demo", str(exc))
         print_vehicle_summary(result)
-        return 0 if result.landed else 1
+        return 0 if result.landed else error("demo", "the vehicle did not land safely", EXIT_NOTHING)
     result = run_demo(speedup=args.speedup, http_port=args.http_port, data_dir=args.data_dir, seed=args.seed,
                       timeout_s=args.timeout, compare=not args.no_compare, params=args.params,
                       policy=args.policy)
     print_summary(result)
     if not result.landed:
-        print("gcs-pdm demo: the vehicle did not land safely")
-        return 1
+        return error("demo", "the vehicle did not land safely", EXIT_NOTHING)
     return 0
