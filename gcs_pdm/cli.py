@@ -11,7 +11,7 @@ import importlib
 import logging
 import sys
 
-from gcs_pdm import process_gc, process_threads
+from gcs_pdm import compiled, process_gc, process_threads
 from gcs_pdm.command_errors import CommandError, error
 
 #: subcommand -> (module with ``register(subparsers)``, the one line ``gcs-pdm --help`` shows). The
@@ -56,6 +56,7 @@ class _WithHelpLines:
 
 def main(argv: list[str] | None = None) -> int:
     process_threads.one_blas_thread()  # before a command's module imports numpy
+    compiled.hold_compiler_at_exit()  # no numba compilation while the interpreter exits (a crash)
     with process_gc.command():
         return _main(list(sys.argv[1:] if argv is None else argv))
 
