@@ -37,7 +37,7 @@ REPO = Path(__file__).resolve().parents[1]
 WARM_UP_TLOG = REPO / "fixtures" / "flights" / "fault_01.tlog"
 #: a progress line only once preparing has taken this long (s), then every PROGRESS_EVERY_S
 PROGRESS_AFTER_S = 2.0
-PROGRESS_EVERY_S = 5.0
+PROGRESS_EVERY_S = 10.0
 
 
 # --- the groups: small real workloads --------------------------------------------------------------
@@ -65,13 +65,25 @@ def _filters() -> None:
                     frame_consumer=pipeline_for(desc).consume)
 
 
-def _predictions() -> None:
-    """The Monte Carlo predictions from an estimator (the live loop's time to cut-off and a
-    route's risk, a replay's held-current time to cut-off), the planner's vehicle simulator on the
-    demo's Table III route (as ``demo.table3_mission`` plans it) and the simulated vehicle's truth."""
+def _held_current() -> None:
+    """A replay's trace: the held-current Monte Carlo time to cut-off from an estimator."""
     import numpy as np
 
-    from gcs_pdm.estimation.prediction import FutureLoad, predict_packs_at_current
+    from gcs_pdm.estimation.prediction import predict_packs_at_current
+    from gcs_pdm.models.params import builtin
+    from gcs_pdm.service import adapters
+
+    est = adapters.make_estimator(builtin("paper_si"))
+    n_packs = est.packs.params.shape[0]
+    predict_packs_at_current(est, np.full(n_packs, 15.0), current_a=np.full(n_packs, 10.0), horizon_s=120.0,
+                             rng=np.random.default_rng(0), n_samples=4)
+
+
+def _predictions() -> None:
+    """The live loop's Monte Carlo predictions from an estimator (time to cut-off, a route's risk),
+    the planner's vehicle simulator on the demo's Table III route (as ``demo.table3_mission`` plans
+    it) and the simulated vehicle's truth: the whole-vehicle simulation."""
+    from gcs_pdm.estimation.prediction import FutureLoad
     from gcs_pdm.models.params import builtin
     from gcs_pdm.planning.plan import make_plan
     from gcs_pdm.planning.simulator import VehicleSimulator, original_order
@@ -81,21 +93,31 @@ def _predictions() -> None:
     from gcs_pdm.sim.model import SimConfig
     from gcs_pdm.sim.truth import true_parameters
 
+    import numpy as np
+
+    from gcs_pdm.estimation.prediction import predict_from_estimator
+
     est = adapters.make_estimator(builtin("paper_si"))
     adapters.prediction_job(est, 3000.0, 20.0, [])()
-    adapters.route_risk(est, FutureLoad.constant(3000.0, 600.0, 10.0, 20.0), [], n_samples=8)
-    predict_packs_at_current(est, np.full(est.packs.params.shape[0], 15.0), current_a=np.full(4, 10.0),
-                             horizon_s=120.0, rng=np.random.default_rng(0), n_samples=4)
+    load = FutureLoad.constant(3000.0, 600.0, 10.0, 20.0)
+    adapters.route_risk(est, load, [], n_samples=8)
+    # the diagnoser's prognosis against the mission's load keeps its trajectories' medians
+    predict_from_estimator(est, load, rng=np.random.default_rng(0), n_samples=4, trajectories=True)
     scenario = preflight_scenario(10)
     make_plan(VehicleSimulator(scenario, true_parameters()), original_order(scenario), "original")
     warm_up_kernel(SimConfig(limits=scenario.limits.kernel_limits()))
 
 
 #: group name -> workload; a child process runs ``python -m gcs_pdm.compiled GROUP``
-GROUPS: dict[str, Callable[[], None]] = {"filters": _filters, "predictions": _predictions}
+GROUPS: dict[str, Callable[[], None]] = {"filters": _filters, "held_current": _held_current,
+                                         "predictions": _predictions}
 #: a compiled function of each group whose cache says whether the group is compiled already
 _PROBES = {"filters": ("gcs_pdm.estimation.ukf", "pack_step_one"),
-           "predictions": ("gcs_pdm.estimation.prediction", "_held_current_to_cutoff_compiled")}
+           "held_current": ("gcs_pdm.estimation.prediction", "_held_current_to_cutoff_compiled"),
+           "predictions": ("gcs_pdm.models.topology", "_simulate")}
+#: what each command runs
+DEMO_GROUPS = ("filters", "held_current", "predictions")
+REPLAY_GROUPS = ("filters", "held_current")
 
 
 def cached(group: str) -> bool:

@@ -69,6 +69,10 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError, MappingError) as exc:
         print(f"gcs-pdm replay: error: bad mapping: {exc}", file=sys.stderr)
         return 2
+    if consumer is not None:  # the estimator's compiled paths, in parallel on a cold cache, said when long
+        from gcs_pdm.compiled import REPLAY_GROUPS, prepare
+
+        prepare(REPLAY_GROUPS, in_process=False)
     start_up_over()
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs

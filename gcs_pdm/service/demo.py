@@ -401,10 +401,6 @@ def close_demo(http, service, tmp) -> None:
         tmp.cleanup()
 
 
-#: the compiled groups (gcs_pdm.compiled) the demo's service and vehicle run
-COMPILED_GROUPS = ("filters", "predictions")
-
-
 def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None = None, seed: int = 0,
              timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned",
              policy: str = "auto", hold_while_deciding: bool = False, prepare: bool = True) -> DemoResult:
@@ -416,9 +412,9 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     from gcs_pdm.service.server import start_mavlink, stop_mavlink
 
     if prepare:
-        from gcs_pdm.compiled import prepare as prepare_compiled
+        from gcs_pdm.compiled import DEMO_GROUPS, prepare as prepare_compiled
 
-        prepare_compiled(COMPILED_GROUPS, out)
+        prepare_compiled(DEMO_GROUPS, out)
     wall0 = time.monotonic()
     scenario, mission = table3_mission()
     cfg_sim = sim_config(scenario, mission, seed)

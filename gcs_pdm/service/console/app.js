@@ -219,9 +219,11 @@ function drawProposed() {
   const dropped = (plan.previous_route || []).filter((n) => !newRoute.includes(n));
   const sc = plan.scenario;
   for (const n of dropped) {
-    const w = sc && (sc.waypoints || []).find((x) => x.number === n);
-    if (!w) continue;
-    const [lat, lon] = fromScenario(sc.home, w.east_m, w.north_m);
+    // where waypoint n is: the plan's scenario, else the place the mission's numbering gave it
+    const w = sc && sc.home && (sc.waypoints || []).find((x) => x.number === n);
+    const known = Object.entries(S.waypointNames).find(([, m]) => m === n);
+    if (!w && !known) continue;
+    const [lat, lon] = w ? fromScenario(sc.home, w.east_m, w.north_m) : known[0].split(",").map(Number);
     L.marker(toMap(lat, lon), {icon: label("✕", "dropped"), title: `waypoint ${n} dropped by the proposed plan`, zIndexOffset: 600}).addTo(layers.proposed);
   }
 }
