@@ -448,7 +448,8 @@ def _held_current_to_cutoff_compiled(variant, params, state, dt, current, cutoff
         p_a = params[active]
         x_a = state[active]
         dt_a = np.empty((1, m))
-        dt_a[0, :] = dt[k0:k0 + m]
+        for k in range(m):  # element loops, not slice assignments (their shape-mismatch message compiles slowly)
+            dt_a[0, k] = dt[k0 + k]
         cur_a = np.empty((na, m))
         for r in range(na):
             cur_a[r, :] = current[active[r]]
@@ -483,7 +484,8 @@ def _held_current_to_cutoff_compiled(variant, params, state, dt, current, cutoff
                 peak[row] = np.nan
             elif top > peak[row]:
                 peak[row] = top
-            state[row] = final[r]
+            for j in range(n_state):
+                state[row, j] = final[r, j]
         active = active[keep]
         k0 += m
 
