@@ -37,7 +37,7 @@ REPO = Path(__file__).resolve().parents[1]
 WARM_UP_TLOG = REPO / "fixtures" / "flights" / "fault_01.tlog"
 #: a progress line only once preparing has taken this long (s), then every PROGRESS_EVERY_S
 PROGRESS_AFTER_S = 2.0
-PROGRESS_EVERY_S = 10.0
+PROGRESS_EVERY_S = 30.0
 
 
 # --- the groups: small real workloads --------------------------------------------------------------
