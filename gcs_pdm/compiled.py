@@ -135,8 +135,8 @@ def cached(group: str) -> bool:
 
 def prepare(groups: tuple[str, ...], out: Callable[[str], None] | None = None, *, in_process: bool = True) -> float:
     """Make ``groups`` compiled (module docstring); returns the wall seconds it took. ``out``: where
-    the progress line goes (stderr by default). ``in_process=False``: only fill the cache."""
-    say = out or (lambda line: print(line, file=sys.stderr, flush=True))
+    the progress line goes (the log by default). ``in_process=False``: only fill the cache."""
+    say = out or log.warning  # a CLI passes its own printer; library code does not print
     started = time.monotonic()
     cold = [g for g in groups if not cached(g)]
     progress = _Progress(say, started)

@@ -72,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
     if consumer is not None:  # the estimator's compiled paths, in parallel on a cold cache, said when long
         from gcs_pdm.compiled import REPLAY_GROUPS, prepare
 
-        prepare(REPLAY_GROUPS, in_process=False)
+        prepare(REPLAY_GROUPS, lambda line: print(f"gcs-pdm replay: {line}", file=sys.stderr, flush=True),
+                in_process=False)
     start_up_over()
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
