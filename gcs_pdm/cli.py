@@ -11,7 +11,8 @@ import importlib
 import logging
 import sys
 
-from gcs_pdm import process_gc, process_threads
+from gcs_pdm import compiled, process_gc, process_threads
+from gcs_pdm.command_errors import CommandError, error
 
 #: subcommand -> (module with ``register(subparsers)``, the one line ``gcs-pdm --help`` shows). The
 #: lines live here so that ``gcs-pdm --help`` imports no command module (they import numpy, numba,
@@ -56,6 +57,7 @@ class _WithHelpLines:
 
 def main(argv: list[str] | None = None) -> int:
     process_threads.one_blas_thread()  # before a command's module imports numpy
+    compiled.hold_compiler_at_exit()  # no numba compilation while the interpreter exits (a crash)
     with process_gc.command():
         return _main(list(sys.argv[1:] if argv is None else argv))
 
@@ -63,7 +65,10 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str]) -> int:
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(command if command in COMMANDS else None)
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    names, deepest = _chosen_parser(parser, argv)
+    if extras:  # the subcommand's usage, not the top level's (argparse would show gcs-pdm's)
+        deepest.error(f"unrecognized arguments: {' '.join(extras)}")
     logging.basicConfig(
         level=logging.WARNING - 10 * min(args.verbose, 2) if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -71,7 +76,27 @@ def _main(argv: list[str]) -> int:
     if not getattr(args, "func", None):
         build_parser().print_help()
         return 2
-    return int(args.func(args) or 0)
+    try:
+        return int(args.func(args) or 0)
+    except CommandError as exc:
+        return error(" ".join(names), str(exc), exc.status)
+    except SystemExit as exc:  # a command's SystemExit("message"): the convention's form, exit 2
+        if isinstance(exc.code, str):
+            return error(" ".join(names), exc.code.removeprefix(f"{names[0]}: "))
+        raise
+
+
+def _chosen_parser(parser: argparse.ArgumentParser, argv: list[str]) -> tuple[list[str], argparse.ArgumentParser]:
+    """The subcommand names in ``argv`` (``["vehicle", "init"]``) and the parser of the last one."""
+    names: list[str] = []
+    for token in (a for a in argv if not a.startswith("-")):
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if sub is None:
+            break
+        if token in sub.choices:
+            names.append(token)
+            parser = sub.choices[token]
+    return names or ["?"], parser
 
 
 if __name__ == "__main__":

@@ -165,12 +165,12 @@ def test_provisional_from_the_stock_arduplane_tlog():
 def test_cli_init_from_log_then_check_and_show(tmp_path, capsys):
     out = tmp_path / "mine.toml"
     assert main(["vehicle", "init", "--from", str(STOCK_TLOG), "--out", str(out)]) == 0
-    assert main(["vehicle", "init", "--from", str(STOCK_TLOG), "--out", str(out)]) == 1   # no overwrite
+    assert main(["vehicle", "init", "--from", str(STOCK_TLOG), "--out", str(out)]) == 2   # no overwrite: an input error
     capsys.readouterr()
     assert main(["vehicle", "check", str(out)]) == 0
     assert "1 pack(s), 1 motor(s)" in capsys.readouterr().out
     assert main(["vehicle", "show", "quad-4s", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["name"] == "quad-4s"
     out.write_text(out.read_text().replace("esc_index = 2", "esc_index = -1"))
-    assert main(["vehicle", "check", str(out)]) == 1
+    assert main(["vehicle", "check", str(out)]) == 2
     assert "motors[0].esc_index" in capsys.readouterr().err

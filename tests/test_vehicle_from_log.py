@@ -92,5 +92,5 @@ def test_cli_init_from_a_dataflash_and_a_ulog(tmp_path, capsys):
         assert len(load(out).packs) == packs
         assert main(["vehicle", "check", str(out)]) == 0
         assert f"{packs} pack(s)" in capsys.readouterr().out
-    assert main(["vehicle", "init", "--from", str(tmp_path / "none.bin"), "--out", str(tmp_path / "x.toml")]) == 1
+    assert main(["vehicle", "init", "--from", str(tmp_path / "none.bin"), "--out", str(tmp_path / "x.toml")]) == 2
     assert "none.bin" in capsys.readouterr().err

@@ -368,8 +368,12 @@ def _extend(params, final, prev_voltage, prev_soc, offset, dt, current, ambient,
     old = prev_voltage.shape[1] - offset
     run_voltage = np.empty((n_vec, old + m))
     run_soc = np.empty((n_vec, old + m))
-    run_voltage[:, :old] = prev_voltage[:, offset:]
-    run_soc[:, :old] = prev_soc[:, offset:]
+    # element loops, not slice assignments: those compile numba's shape-mismatch message (~10 s of
+    # CPU on a fresh install's first run, issue 33)
+    for v in range(n_vec):
+        for k in range(old):
+            run_voltage[v, k] = prev_voltage[v, offset + k]
+            run_soc[v, k] = prev_soc[v, offset + k]
     final = final.copy()
     if m > 0:
         more_voltage = np.empty((n_vec, m))
@@ -378,8 +382,10 @@ def _extend(params, final, prev_voltage, prev_soc, offset, dt, current, ambient,
         x0 = final.copy()
         kernel._simulate_packs(params, x0, dt, current, ambient, kernel.DEFAULT_MAX_DT, more_voltage,
                                more_temperature, more_soc, np.empty((1, 1, kernel.N_PACK_STATE)), False, final)
-        run_voltage[:, old:] = more_voltage
-        run_soc[:, old:] = more_soc
+        for v in range(n_vec):
+            for k in range(m):
+                run_voltage[v, old + k] = more_voltage[v, k]
+                run_soc[v, old + k] = more_soc[v, k]
     r, jac, use, _, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage,
                                                        np.ones(voltage.shape[0], dtype=np.bool_), perturbed, eps,
                                                        min_soc)

@@ -302,11 +302,40 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
 
 @njit(cache=True, nogil=True)
 def median_by_selection(x):
-    """``np.median`` of a non-empty 1-D finite array, the same number, by selection (``np.partition``)
-    instead of a sort: the middle order statistic, or the mean of the middle two."""
-    half = x.size // 2
-    part = np.partition(x, half)
-    return part[half] if x.size % 2 else (np.max(part[:half]) + part[half]) / 2.0
+    """``np.median`` of a non-empty 1-D finite array, the same number, by selection (quickselect on
+    a copy) instead of a sort: the middle order statistic, or the mean of the middle two. Written
+    out rather than ``np.partition``, whose numba implementation costs ~12 s of CPU to compile
+    (issue 33: a fresh install's first run)."""
+    a = x.copy()
+    n = a.size
+    half = n // 2
+    lo, hi = 0, n - 1
+    while lo < hi:  # Hoare partition around the median of three until a[half] is in place
+        mid = (lo + hi) // 2
+        p = max(min(a[lo], a[mid]), min(max(a[lo], a[mid]), a[hi]))
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < p:
+                i += 1
+            while a[j] > p:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if half <= j:
+            hi = j
+        elif half >= i:
+            lo = i
+        else:
+            break
+    if n % 2:
+        return a[half]
+    lower = a[0]
+    for k in range(1, half):  # everything before a[half] is <= it: the largest is the lower middle
+        if a[k] > lower:
+            lower = a[k]
+    return (lower + a[half]) / 2.0
 
 
 @njit(cache=True, nogil=True)
@@ -419,7 +448,8 @@ def _held_current_to_cutoff_compiled(variant, params, state, dt, current, cutoff
         p_a = params[active]
         x_a = state[active]
         dt_a = np.empty((1, m))
-        dt_a[0, :] = dt[k0:k0 + m]
+        for k in range(m):  # element loops, not slice assignments (their shape-mismatch message compiles slowly)
+            dt_a[0, k] = dt[k0 + k]
         cur_a = np.empty((na, m))
         for r in range(na):
             cur_a[r, :] = current[active[r]]
@@ -454,7 +484,8 @@ def _held_current_to_cutoff_compiled(variant, params, state, dt, current, cutoff
                 peak[row] = np.nan
             elif top > peak[row]:
                 peak[row] = top
-            state[row] = final[r]
+            for j in range(n_state):
+                state[row, j] = final[r, j]
         active = active[keep]
         k0 += m
 

@@ -181,12 +181,12 @@ def run_vehicle(args: argparse.Namespace, settings, desc=None) -> int:
     try:
         desc = desc if desc is not None else resolve(args.vehicle)
     except VehicleError as exc:
-        print(f"fit: {exc}", file=sys.stderr)
+        print(f"gcs-pdm fit {args.fit_command}: error: {exc}", file=sys.stderr)
         return 2
     pack_arg = getattr(args, "pack", None)
     packs = desc.pack_names if pack_arg in (None, "all") else (pack_arg,)
     if any(p not in desc.pack_names for p in packs):
-        print(f"fit: --pack {pack_arg}: vehicle {desc.name} has packs {', '.join(desc.pack_names)}", file=sys.stderr)
+        print(f"gcs-pdm fit {args.fit_command}: error: --pack {pack_arg}: vehicle {desc.name} has packs {', '.join(desc.pack_names)}", file=sys.stderr)
         return 2
     splits = {"train": args.train, "validation": args.val, "test": args.test}
 
@@ -201,7 +201,7 @@ def run_vehicle(args: argparse.Namespace, settings, desc=None) -> int:
         else:
             merged, results = fit_motors(desc, read, splits, settings, _ProgressLine("fit motor: ", args.quiet))
     except (FlightDataError, VehicleError, ValueError) as exc:
-        print(f"fit: {exc}", file=sys.stderr)
+        print(f"gcs-pdm fit {args.fit_command}: error: {exc}", file=sys.stderr)
         return 2
     for name, res in results.items():
         write_outputs(res, args.out / name if len(results) > 1 else args.out, plots=not args.no_plots)
@@ -232,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
         settings = _settings(args)
         builtin(settings.base), builtin(settings.reference)
     except (KeyError, TypeError, ValueError) as exc:
-        print(f"fit: {exc}", file=sys.stderr)
+        print(f"gcs-pdm fit {args.fit_command}: error: {exc}", file=sys.stderr)
         return 2
     if getattr(args, "vehicle", None) is not None:
         return run_vehicle(args, settings)
@@ -245,21 +245,21 @@ def run(args: argparse.Namespace) -> int:
         try:
             desc, notes = observe_file(args.train[0])
         except VehicleError as exc:
-            print(f"fit: no --vehicle, and none could be derived from {args.train[0]}: {exc}", file=sys.stderr)
+            print(f"gcs-pdm fit {args.fit_command}: error: no --vehicle, and none could be derived from {args.train[0]}: {exc}", file=sys.stderr)
             return 2
         for note in notes:
             print(f"fit: vehicle (derived from {args.train[0].name}): {note}", file=sys.stderr)
         return run_vehicle(args, settings, desc)
     pack_arg = getattr(args, "pack", None)
     if pack_arg not in (None, "all") + PACK_NAMES:
-        print(f"fit: --pack {pack_arg}: expected one of {', '.join(PACK_NAMES)} or all (another vehicle's packs: "
+        print(f"gcs-pdm fit {args.fit_command}: error: --pack {pack_arg}: expected one of {', '.join(PACK_NAMES)} or all (another vehicle's packs: "
               "--vehicle FILE|PRESET)", file=sys.stderr)
         return 2
     any_tlog = any(p.suffix.lower() == ".tlog" for p in args.train + args.val + args.test)
     if kind == "battery":
         packs = (PACK_NAMES if pack_arg in (None, "all") else (pack_arg,)) if any_tlog else (pack_arg or "LLF20",)
         if not any_tlog and "all" in packs:
-            print("fit: a table holds one pack; name it with --pack (or give tlogs for --pack all)", file=sys.stderr)
+            print(f"gcs-pdm fit {args.fit_command}: error: a table holds one pack; name it with --pack (or give tlogs for --pack all)", file=sys.stderr)
             return 2
     else:
         packs = (None,)
@@ -284,7 +284,7 @@ def run(args: argparse.Namespace) -> int:
             _print_warnings(res, pack)
             print(json.dumps(_summary(res)))
     except FlightDataError as exc:
-        print(f"fit: {exc}", file=sys.stderr)
+        print(f"gcs-pdm fit {args.fit_command}: error: {exc}", file=sys.stderr)
         return 2
     if kind == "battery" and len(results) > 1:
         merged = merge_results(builtin(settings.base), results, name="learned",
@@ -342,7 +342,7 @@ def run_set(args: argparse.Namespace) -> int:
                                            else {"source": "gcs-pdm fit set"},
                                            progress=_ProgressLine("fit set: ", args.quiet))
     except (FlightDataError, KeyError, ValueError) as exc:
-        print(f"fit: {exc}", file=sys.stderr)
+        print(f"gcs-pdm fit {args.fit_command}: error: {exc}", file=sys.stderr)
         return 2
     for part, res in results.items():
         write_outputs(res, args.out / part, plots=not args.no_plots)

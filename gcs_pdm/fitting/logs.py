@@ -189,6 +189,13 @@ def read_flights(path: str | Path, kind: str, pack: str = "all",
         bad = [p for p in packs if p not in names]
         if bad:
             raise FlightDataError(f"unknown pack {bad[0]!r}; expected one of {', '.join(names)} or all")
+    if suffix in TLOG_SUFFIXES + AUTOPILOT_LOG_SUFFIXES and path.is_file():
+        from gcs_pdm.logs.kind import NotALog, log_kind
+
+        try:  # a file that is no log is told so, as every command tells it (docs/cli.md)
+            log_kind(path)
+        except NotALog as exc:
+            raise FlightDataError(str(exc)) from None
     if suffix in TLOG_SUFFIXES:
         return read_tlog(path, kind, packs, vehicle)
     if suffix in AUTOPILOT_LOG_SUFFIXES:

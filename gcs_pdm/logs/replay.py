@@ -109,7 +109,7 @@ def print_replay(path: Path, frame_consumer=None, as_json: bool = False, vehicle
     try:
         summary = replay_log(path, frame_consumer, vehicle)
     except FlightDataError as exc:
-        print(f"replay: {exc}", file=sys.stderr)
+        print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
         return 2
     status = exit_status(summary)
     if as_json:

@@ -7,6 +7,7 @@ import logging
 import sys
 from pathlib import Path
 
+from gcs_pdm.logs.kind import NOT_A_LOG
 from gcs_pdm.mavlink.mapping import FrameMapper, MappingError
 from gcs_pdm.process_gc import start_up_over
 
@@ -31,8 +32,16 @@ def run(args: argparse.Namespace) -> int:
     from gcs_pdm.mavlink.replay import replay_tlog
 
     if not args.file.is_file():
-        print(f"replay: no such file: {args.file}", file=sys.stderr)
+        print(f"gcs-pdm replay: error: no such file: {args.file}", file=sys.stderr)
         return 2
+    if args.file.suffix.lower() in (".bin", ".ulg"):  # a tlog that is none is said below, with its summary
+        from gcs_pdm.logs.kind import NotALog, log_kind
+
+        try:
+            log_kind(args.file)
+        except (NotALog, OSError) as exc:
+            print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
+            return 2
     consumer = desc = None
     if not args.no_diagnose or args.vehicle:  # a given vehicle names the packs even undiagnosed
         from gcs_pdm.vehicle.description import VehicleError
@@ -41,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             desc, about = replay_vehicle(args.file, args.vehicle)
         except VehicleError as exc:
-            print(f"replay: --vehicle: {exc}", file=sys.stderr)
+            print(f"gcs-pdm replay: error: --vehicle: {exc}", file=sys.stderr)
             return 2
     if not args.no_diagnose:
         if desc is None:
@@ -59,8 +68,13 @@ def run(args: argparse.Namespace) -> int:
         else:
             mapper = FrameMapper(mapping, target_system=args.system, target_component=args.component)
     except (OSError, ValueError, MappingError) as exc:
-        print(f"replay: bad mapping: {exc}", file=sys.stderr)
+        print(f"gcs-pdm replay: error: bad mapping: {exc}", file=sys.stderr)
         return 2
+    if consumer is not None:  # the estimator's compiled paths, in parallel on a cold cache, said when long
+        from gcs_pdm.compiled import REPLAY_GROUPS, prepare
+
+        prepare(REPLAY_GROUPS, lambda line: print(f"gcs-pdm replay: {line}", file=sys.stderr, flush=True),
+                in_process=False)
     start_up_over()
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
@@ -80,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
         return status
     if not summary["readable"]:
-        print(f"replay: {args.file}: could not be read: {summary['not_diagnosed'][0].removeprefix('nothing: ')}",
+        print(f"gcs-pdm replay: error: {args.file}: {NOT_A_LOG} ({summary['not_diagnosed'][0].removeprefix('nothing: ')})",
               file=sys.stderr)
         return status
     print(f"{summary['path']}: {summary['messages']} messages, {summary['frames']} frames "

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 import time
 from pathlib import Path
 
@@ -63,10 +64,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
     try:
         scenario = Scenario.from_json(args.scenario.read_text())
     except OSError as exc:
-        print(f"error: cannot read {args.scenario}: {exc}")
+        print(f"gcs-pdm plan: error: cannot read {args.scenario}: {exc}", file=sys.stderr)
         return 2
     except (ScenarioError, ValueError) as exc:
-        print(f"error: {args.scenario}: {exc}")
+        print(f"gcs-pdm plan: error: {args.scenario}: {exc}", file=sys.stderr)
         return 2
     vehicle, motor_faults = None, {}
     if args.vehicle:
@@ -79,7 +80,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
                 name, _, mag = spec.partition("=")
                 motor_faults[name] = float(mag)
         except (VehicleError, ValueError) as exc:
-            print(f"error: {exc}")
+            print(f"gcs-pdm plan: error: {exc}", file=sys.stderr)
             return 2
     t0 = time.perf_counter()
     try:
@@ -87,7 +88,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
                              optimise_airspeed=args.optimise_airspeed, should_stop=_deadline(args.deadline),
                              vehicle=vehicle, motor_faults=motor_faults or None)
     except ValueError as exc:
-        print(f"error: {exc}")
+        print(f"gcs-pdm plan: error: {exc}", file=sys.stderr)
         return 2
     elapsed = time.perf_counter() - t0
     mission = plan_to_mission(scenario, plan, airborne=not args.on_ground)

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
+
+from gcs_pdm.command_errors import EXIT_NOTHING, error
 
 
 def register(subparsers) -> None:
@@ -35,7 +36,12 @@ def register(subparsers) -> None:
     d.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
                    help="fly another vehicle description (e.g. quad-4s: a survey, a fault on one rotor, replan, "
                         "upload); default: the paper's Edge 540 and its Table III flight")
-    d.add_argument("--timeout", type=float, default=170.0, help="wall-clock limit, s")
+    d.add_argument("--timeout", type=float, default=600.0,
+                   help="wall-clock limit of the flight, s (default 600; about 60 s on an idle 2-core machine)")
+    d.add_argument("--real-time", action="store_true",
+                   help="the vehicle flies on at its speed-up whatever the service does, as a real aircraft would "
+                        "(default: its clock waits while the service catches up with the telemetry or decides, "
+                        "so a slow or busy machine gets the same flight)")
     d.add_argument("--no-compare", action="store_true", help="skip flying the original mission without the service")
     d.add_argument("--export-tryout", metavar="DIR",
                    help="only write the Table III mission (.plan) and objectives (JSON) to DIR, for deploy/")
@@ -59,8 +65,7 @@ def _serve(args: argparse.Namespace) -> int:
     from gcs_pdm.service.config import ConfigError, load_config
 
     def fail(message: str) -> int:
-        print(f"gcs-pdm serve: {message}", file=sys.stderr)
-        return 2
+        return error("serve", message)
 
     host = port = None
     if args.http:
@@ -112,17 +117,16 @@ def _demo(args: argparse.Namespace) -> int:
         speedup = args.speedup if args.speedup != 60.0 else 8.0  # a small vehicle's short legs: 60x is a blur
         try:
             result = run_vehicle_demo(args.vehicle, speedup=speedup, http_port=args.http_port, data_dir=args.data_dir,
-                                      seed=args.seed, timeout_s=args.timeout, policy=args.policy)
+                                      seed=args.seed, timeout_s=args.timeout, policy=args.policy,
+                                      hold_while_deciding=not args.real_time)
         except VehicleError as exc:
-            print(f"gcs-pdm demo: --vehicle: {exc}", file=sys.stderr)
-            return 2
+            return error("demo", str(exc))
         print_vehicle_summary(result)
-        return 0 if result.landed else 1
+        return 0 if result.landed else error("demo", "the vehicle did not land safely", EXIT_NOTHING)
     result = run_demo(speedup=args.speedup, http_port=args.http_port, data_dir=args.data_dir, seed=args.seed,
                       timeout_s=args.timeout, compare=not args.no_compare, params=args.params,
-                      policy=args.policy)
+                      policy=args.policy, hold_while_deciding=not args.real_time)
     print_summary(result)
     if not result.landed:
-        print("gcs-pdm demo: the vehicle did not land safely")
-        return 1
+        return error("demo", "the vehicle did not land safely", EXIT_NOTHING)
     return 0

@@ -40,8 +40,9 @@ class DemoResult:
     landed: bool
     failed: bool
     failure: str
-    reached: list[int]
+    reached: list[int]                                # waypoints the vehicle flew (its truth)
     reward_flown: float
+    heard: list[int] = field(default_factory=list)    # waypoints the service heard reached
     original: dict = field(default_factory=dict)      # the same vehicle without the service
     predicted: dict = field(default_factory=dict)     # keep vs replanned, scored on the truth
     plans: int = 0
@@ -84,6 +85,26 @@ def demo_telemetry():
 
     rates = dict(RECORDING_RATES, GLOBAL_POSITION_INT=1.0, VFR_HUD=1.0, MISSION_CURRENT=1.0, HEARTBEAT=1.0)
     return TelemetryConfig(rates_hz=rates)
+
+
+def flown_waypoints(items, scenario, tolerance_m: float = 5.0) -> tuple[list[int], float]:
+    """The scenario's waypoint numbers of the mission items a vehicle reached (its truth: the items
+    as they were when reached, matched by position, so every upload's numbering agrees), each
+    counted once, and their reward."""
+    from gcs_pdm.geo import enu_from_geodetic
+    from gcs_pdm.missions import MAV_CMD_NAV_WAYPOINT
+
+    h = scenario.home
+    nums: list[int] = []
+    for item in items:
+        if item.command != MAV_CMD_NAV_WAYPOINT:
+            continue
+        e, n = enu_from_geodetic(item.lat_deg, item.lon_deg, h.lat_deg, h.lon_deg)
+        w = min(scenario.waypoints, key=lambda w: math.hypot(w.east_m - e, w.north_m - n))
+        if math.hypot(w.east_m - e, w.north_m - n) <= tolerance_m and w.number not in nums:
+            nums.append(w.number)
+    reward = {w.number: w.reward for w in scenario.waypoints}
+    return nums, float(sum(reward[n] for n in nums))
 
 
 def reward_of(reached_seqs, mission, scenario) -> tuple[list[int], float]:
@@ -382,12 +403,18 @@ def close_demo(http, service, tmp) -> None:
 
 def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None = None, seed: int = 0,
              timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned",
-             policy: str = "auto", hold_while_deciding: bool = False) -> DemoResult:
+             policy: str = "auto", hold_while_deciding: bool = False, prepare: bool = True) -> DemoResult:
     """The demo; ``hold_while_deciding`` stops the vehicle's clock while the service decides
-    (:class:`DecisionHold`: deterministic under load, for tests)."""
+    (:class:`DecisionHold`: deterministic under load; ``gcs-pdm demo`` holds unless ``--real-time``).
+    ``prepare``: compile what the service and the vehicle will run before the vehicle exists
+    (``gcs_pdm.compiled``), so no thread compiles in flight; ``timeout_s`` counts from then."""
     from gcs_pdm.service.adapters import start_sim_vehicle
     from gcs_pdm.service.server import start_mavlink, stop_mavlink
 
+    if prepare:
+        from gcs_pdm.compiled import DEMO_GROUPS, prepare as prepare_compiled
+
+        prepare_compiled(DEMO_GROUPS, out)
     wall0 = time.monotonic()
     scenario, mission = table3_mission()
     cfg_sim = sim_config(scenario, mission, seed)
@@ -404,6 +431,9 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     out(f"  service: policy {policy}, parameter set {params_name!r} (the vehicle's true parameters stay hidden)")
     out(f"  mission: waypoints 1..10 in numbered order; the {FAULT_MOTOR} motor will lose "
         f"{FAULT_MAGNITUDE:.0%} of its power half way from waypoint 2 to 3")
+    if hold_while_deciding:
+        out("  clock: the vehicle's clock waits while the service catches up with its telemetry or decides "
+            "(--real-time: it never waits)")
     printer = TerminalPrinter(service, out).start()
     operator = Operator(http.url, token, out).start() if policy == "advise" else None
     start_mavlink(service)
@@ -420,14 +450,16 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         stop_mavlink(service)
         printer.stop()
     s = vehicle.state
-    # Waypoint numbers as the service matched them (the mission's seqs change with each upload).
-    hits = [e.data for e in service.events.since(0) if e.kind == "mission" and e.data.get("waypoint") is not None]
-    reached, reward = [h["waypoint"] for h in hits], float(sum(h["reward"] for h in hits))
+    # What the vehicle flew (its truth: the items it reached, as they were then), beside what the
+    # service heard (the waypoints it matched from MISSION_ITEM_REACHED; a lagging link hears fewer).
+    reached, reward = flown_waypoints(vehicle.model.reached_items, scenario)
+    heard = [e.data["waypoint"] for e in service.events.since(0)
+             if e.kind == "mission" and e.data.get("waypoint") is not None]
     faults = service.store.faults()
     fault_log = vehicle.fault_log
     injected = fault_log[0]["time_s"] if fault_log else None
     result = DemoResult(landed=bool(s.landed and not s.failed), failed=bool(s.failed), failure=s.failure,
-                        reached=reached, reward_flown=reward, plans=len(service.store.plans()),
+                        reached=reached, reward_flown=reward, heard=heard, plans=len(service.store.plans()),
                         uploads=len([u for u in service.store.uploads() if u["status"] == "confirmed"]),
                         fault_detected_s=next((f["time_s"] for f in faults if f["kind"] == "motor_power_loss"), None),
                         fault_injected_s=injected, sim_time_s=float(s.time_s))
@@ -470,4 +502,6 @@ def print_summary(r: DemoResult, out=print) -> None:
         f"{r.reward_flown if r.landed else 0:g} scored), "
         + ("landed safely" if r.landed else (f"FAILED: {r.failure}" if r.failed else "still flying (timeout)"))
         + f" at t={r.sim_time_s:.0f} s")
+    if r.heard != r.reached:
+        out(f"  (the service heard waypoints {r.heard} reached)")
     out(f"{r.plans} plan(s), {r.uploads} confirmed upload(s); {r.wall_s:.0f} s wall time")

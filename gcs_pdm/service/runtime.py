@@ -265,11 +265,15 @@ class Service:
 
     def current_mission(self) -> dict:
         if self.loop is None or self.loop.mission_items is None:
-            return {"items": None, "source": "none", "time_s": None}
+            return {"items": None, "source": "none", "time_s": None, "waypoints": None}
         from gcs_pdm.missions import item_to_json
+        from gcs_pdm.service.decision import catalogue_from_items, match_items
 
-        return {"items": [item_to_json(i) for i in self.loop.mission_items], "source": "download",
-                "time_s": self.loop.mission_time_s}
+        items = self.loop.mission_items
+        # the waypoint numbers plans and routes use: the objectives', else the first mission's order
+        catalogue = getattr(self.loop.executor, "catalogue", None) or self.catalogue or catalogue_from_items(items)
+        return {"items": [item_to_json(i) for i in items], "source": "download",
+                "time_s": self.loop.mission_time_s, "waypoints": match_items(items, catalogue)}
 
     # --- files -------------------------------------------------------------------------------------
 

@@ -162,6 +162,9 @@ class MissionOut(BaseModel):
     items: list[MissionItemModel] | None
     source: str = Field(..., description="'download' (read back from the vehicle) or 'none'")
     time_s: float | None = None
+    waypoints: dict[int, int] | None = Field(
+        None, description="mission item seq -> waypoint number (the numbers routes and plans use): the "
+                          "objectives' numbers, else the first mission's waypoints in order")
 
 
 class PlanOut(BaseModel):

@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     if args.record:
         from gcs_pdm.sim.record import fly
         if not config.mission:
-            print("sim --record: needs --mission", file=sys.stderr)
+            print("gcs-pdm sim: error: --record needs --mission", file=sys.stderr)
             return 2
         rec = fly(config, telemetry, args.record)
         n_packs = 4 if config.vehicle is None else len(config.vehicle.packs)
@@ -159,6 +159,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         vehicle.stop()
     if vehicle.error is not None:
-        print(f"sim: vehicle stopped by an error: {vehicle.error}", file=sys.stderr)
+        print(f"gcs-pdm sim: error: the vehicle stopped on an error: {vehicle.error}", file=sys.stderr)
         return 1
     return 0

@@ -212,6 +212,9 @@ class VehicleModel:
         self.fault = np.zeros(n_motors)
         self.fault_log: list[dict] = []  # one entry per fault that triggered
         self.reached_log: list[tuple[int, float]] = []
+        #: the items reached, as they were then (a new upload renumbers the seqs; the demo's summary
+        #: tells the waypoints flown by position)
+        self.reached_items: list[MissionItem] = []
         self._pending_faults = list(config.faults)
         self._armed_time = 0.0
         self._last_reached = -1
@@ -590,6 +593,8 @@ class VehicleModel:
     def _reached(self, seq: int, advance: bool = True) -> None:
         self._emit("reached", seq=seq)
         self.reached_log.append((seq, self.time_s))
+        if 0 <= seq < len(self.mission):
+            self.reached_items.append(self.mission[seq])
         self._last_reached = seq
         for spec in list(self._pending_faults):
             if spec.trigger.kind == "wp" and spec.trigger.seq == seq:

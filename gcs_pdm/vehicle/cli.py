@@ -5,6 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from gcs_pdm.command_errors import error
 from gcs_pdm.vehicle.description import VehicleError, dumps, load
 from gcs_pdm.vehicle.presets import resolve
 from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
@@ -43,8 +44,7 @@ def _show(args) -> int:
     try:
         desc = resolve(args.vehicle)
     except VehicleError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return error("vehicle show", str(exc))
     sys.stdout.write(dumps(desc, "json" if args.json else "toml"))
     return 0
 
@@ -56,8 +56,7 @@ def _check(args) -> int:
         desc = load(args.file)
         inputs = model_inputs(desc)  # the parameter references resolve too
     except VehicleError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+        return error("vehicle check", str(exc))
     print(f"{args.file}: ok — {desc.name}: {inputs.n_packs} pack(s), {inputs.n_motors} motor(s), "
           f"{desc.feed_kind()}, {desc.airframe.type}" + (" (provisional)" if desc.provisional else ""))
     return 0
@@ -80,11 +79,17 @@ def _capacities(items: list[str]) -> dict[int, float]:
 def _init(args) -> int:
     out = Path(args.out)
     if out.exists() and not args.force:
-        print(f"error: {out} exists (--force to overwrite)", file=sys.stderr)
-        return 1
+        return error("vehicle init", f"{out} exists (--force to overwrite)")
     try:
         if args.log:
+            from gcs_pdm.logs.kind import NotALog, log_kind
             from gcs_pdm.vehicle.from_log import observe_file
+
+            try:
+                log_kind(args.log)
+            except (NotALog, OSError) as exc:
+                return error("vehicle init", f"--from {exc}" if isinstance(exc, NotALog) else
+                             f"--from {args.log}: {exc.strerror or exc}")
 
             desc, notes = observe_file(args.log, capacities=_capacities(args.capacity_mah))
             for n in notes:
@@ -92,8 +97,7 @@ def _init(args) -> int:
         else:
             desc = resolve(args.preset or DEFAULT_PRESET)
     except VehicleError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+        return error("vehicle init", str(exc))
     out.write_text(dumps(desc, "json" if out.suffix.lower() == ".json" else "toml"))
     print(f"wrote {out} ({desc.name}); check it with `gcs-pdm vehicle check {out}`")
     return 0

@@ -120,6 +120,14 @@ function numberOf(lat, lon) {
   }
   return best;
 }
+function learnMissionNumbers(mission) {
+  // the service's waypoint numbers of the current mission's items (GET /missions/current .waypoints)
+  const numbers = (mission && mission.waypoints) || {};
+  for (const w of navItems(mission && mission.items)) {
+    const n = numbers[w.seq];
+    if (n != null) S.waypointNames[wpKey(w.lat, w.lon)] = n;
+  }
+}
 function learnWaypoints(plan) {
   const sc = plan && plan.scenario;
   if (!sc || !sc.home || !Array.isArray(sc.waypoints)) return;
@@ -148,7 +156,7 @@ function ensureMap() {
             track: L.layerGroup().addTo(map), vehicle: L.layerGroup().addTo(map)};
   $("map-legend").innerHTML =
     `<span><i class="sw" style="background:#1d4ed8"></i>current mission</span>` +
-    `<span><i class="sw" style="background:#ea580c"></i>proposed plan (numbers: new order)</span>` +
+    `<span><i class="sw" style="background:#ea580c"></i>proposed plan (waypoint numbers; the dashed line: its order)</span>` +
     `<span><i class="sw" style="background:#b91c1c"></i>✕ dropped waypoint</span>` +
     `<span><i class="sw" style="background:#6b7280"></i>track</span>` +
     `<span>${mode === "tiles" ? "map tiles: " + esc(S.settings.tile_url) : "local frame: metres east/north of home (no map tiles configured)"}</span>`;
@@ -174,6 +182,7 @@ function drawMission() {
   if (!h) return;
   const home = toMap(h[0], h[1]);
   L.marker(home, {icon: label("H", "home"), title: "home"}).addTo(layers.mission);
+  learnMissionNumbers(S.mission);
   const nav = navItems(S.mission && S.mission.items);
   const pts = [home, ...nav.map((w) => toMap(w.lat, w.lon))];
   L.polyline(pts, {color: "#1d4ed8", weight: 3, className: "current-route"}).addTo(layers.mission);
@@ -204,14 +213,17 @@ function drawProposed() {
   nav.forEach((w) => {
     const n = numberOf(w.lat, w.lon);
     const order = n != null ? newRoute.indexOf(n) + 1 : 0;
-    if (order > 0) L.marker(toMap(w.lat, w.lon), {icon: label(order, "proposed"), title: `proposed: waypoint ${n} flown ${order}.`, zIndexOffset: 500}).addTo(layers.proposed);
+    // waypoint numbers, as in the plans' table (the dashed line shows the order they are flown in)
+    if (order > 0) L.marker(toMap(w.lat, w.lon), {icon: label(n, "proposed"), title: `proposed: waypoint ${n}, flown ${order}. of ${newRoute.length}`, zIndexOffset: 500}).addTo(layers.proposed);
   });
   const dropped = (plan.previous_route || []).filter((n) => !newRoute.includes(n));
   const sc = plan.scenario;
   for (const n of dropped) {
-    const w = sc && (sc.waypoints || []).find((x) => x.number === n);
-    if (!w) continue;
-    const [lat, lon] = fromScenario(sc.home, w.east_m, w.north_m);
+    // where waypoint n is: the plan's scenario, else the place the mission's numbering gave it
+    const w = sc && sc.home && (sc.waypoints || []).find((x) => x.number === n);
+    const known = Object.entries(S.waypointNames).find(([, m]) => m === n);
+    if (!w && !known) continue;
+    const [lat, lon] = w ? fromScenario(sc.home, w.east_m, w.north_m) : known[0].split(",").map(Number);
     L.marker(toMap(lat, lon), {icon: label("✕", "dropped"), title: `waypoint ${n} dropped by the proposed plan`, zIndexOffset: 600}).addTo(layers.proposed);
   }
 }
@@ -258,7 +270,9 @@ function plot(canvas, points, opts) {
   for (const l of opts.limits || []) {
     if (!num(l.value)) continue;
     g.strokeStyle = "#b91c1c"; g.setLineDash([4, 3]); g.beginPath(); g.moveTo(30, Y(l.value)); g.lineTo(w - 4, Y(l.value)); g.stroke(); g.setLineDash([]);
-    g.fillStyle = "#b91c1c"; g.fillText(l.label, w - 4 - g.measureText(l.label).width, Y(l.value) - 2);
+    // above its line, or below it when the line runs along the top (a 10 px label would be clipped)
+    const ly = Y(l.value) - 2 >= 10 ? Y(l.value) - 2 : Math.min(h - 2, Y(l.value) + 10);
+    g.fillStyle = "#b91c1c"; g.fillText(l.label, w - 4 - g.measureText(l.label).width, ly);
   }
   g.fillStyle = "#6e7781";
   g.fillText(opts.fmt(hi - pad), 2, 10); g.fillText(opts.fmt(lo + pad), 2, h - 2);
@@ -301,6 +315,10 @@ const FAULT_MAGNITUDE = {
 };
 // kinds that tell the operator something but are no reason to re-plan (faults.ADVISORY_TYPES)
 const ADVISORY_FAULTS = new Set(["model_mismatch"]);
+// a fault in the words of its kind: "motor power loss on aft, 70 % power lost" (timeline, cards)
+function faultWords(kind, target, magnitude) {
+  return `${String(kind || "fault").replace(/_/g, " ")}${target != null ? " on " + target : ""}, ${faultMagnitude({kind, magnitude})}`;
+}
 function faultMagnitude(f) {
   if (!num(f.magnitude)) return "magnitude unknown";
   const say = FAULT_MAGNITUDE[f.kind];
@@ -384,7 +402,7 @@ function renderMotors() {
        <div class="row"><span>current (share)</span><span class="v">${val(m.current_a, 1, " A", "no ESC current received")} (${share})</span></div>
        <div class="row"><span>rpm</span><span class="v">${val(m.rpm, 0, "", "no rpm received")}</span></div>
        <div class="row"><span>temperature</span><span class="v">${pm(m.temperature_c, m.temperature_sd, 1, " °C", "no estimate yet")}</span></div>
-       ${m.fault ? `<div class="row bad"><span>fault</span><span class="v">${esc(m.fault.kind || "fault")} ${num(m.fault.magnitude) ? (100 * m.fault.magnitude).toFixed(0) + " % power lost" : ""}</span></div>` : ""}`;
+       ${m.fault ? `<div class="row bad"><span>fault</span><span class="v">${esc(faultWords(m.fault.kind, null, m.fault.magnitude))}</span></div>` : ""}`;
     plot(card.querySelector("canvas.temp"), S.series["motor-temp-" + name], {fmt: (v) => `${v.toFixed(0)}°`, color: "#c2410c", band: "rgba(194,65,12,.18)",
       limits: [{value: lim.motor_max_temp_c, label: "max °C"}]});
   }
@@ -613,7 +631,7 @@ function describe(ev) {
     case "fault":
       if (d.kind === "soc_deviation") return `Model mismatch: state of charge deviates from the plan's prediction${num(d.magnitude) ? " by " + (100 * d.magnitude).toFixed(1) + " %" : ""}`;
       if (d.cleared) return `Fault ${d.id ?? ""} cleared${d.target ? " (" + d.target + ")" : ""}`;
-      return `Fault: ${String(d.kind || "").replace(/_/g, " ")} on ${d.target ?? "?"}${num(d.magnitude) ? ", " + (100 * d.magnitude).toFixed(0) + " % power lost" : ""} (${d.source || "diagnoser"})`;
+      return `Fault: ${faultWords(d.kind, d.target ?? "?", d.magnitude)} (${d.source || "diagnoser"})`;
     case "plan":
       if (d.status === "planning") return `Replanning: ${d.reason || ""}`;
       if (d.status === "failed") return `Replanning failed: ${d.error || d.reason || ""}`;
