@@ -20,14 +20,22 @@ type when time went back to near zero (a reboot). A sample consistent with the a
 the candidate, so a sender injecting odd timestamps between the vehicle's own never wins while the
 vehicle is heard, however fast it floods (the vehicle's timed streams run at several Hz). Everything else is
 counted in ``rejected`` and its message gives no frame. The first time is acquired the same way.
-What this does not stop: a sample up to ``MAX_STEP_S`` ahead is consistent and taken at once (a
-short outage costs no frames), so an unsigned sender with the vehicle's ids can move time forward
-by that much per packet; only MAVLink signing stops it (docs/operations.md, "Safety").
+Held against receive time: a sample is taken at once only if it is at most ``HOLD_STEP_S`` plus
+``MAX_RATE`` times the receive time since the last accepted sample ahead of the accepted time (a
+short outage, a vehicle or simulator running faster than real time, all pass: their time moves by
+small steps, or by about the receive time that passed). A larger step is a candidate under the rules
+above. An unsigned sender that puts one packet 9.9 s ahead between the vehicle's own therefore never
+moves message time: its step is not followed by the vehicle's next sample, which agrees with the old
+time. Such unfollowed steps — steps only some sender makes — are counted; ``SUSPECT_STEPS`` of them
+within ``SUSPECT_WINDOW_S`` of receive time raise ``spoof_suspected`` (a warning, /health degraded).
+What is left: a sender that floods agreeing samples of several types for ``CONFIRM_SPAN_S`` while the
+vehicle is silent can still move time; only MAVLink signing stops that (docs/operations.md, "Safety").
 """
 from __future__ import annotations
 
 import enum
 import logging
+from collections import deque
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +72,14 @@ class VehicleClock:
     ACQUIRE_SAMPLES = 2
     # A reboot is evident when time goes back to below this.
     NEAR_BOOT_S = 120.0
+    # A forward step taken at once: this much, plus MAX_RATE times the receive time since the last
+    # accepted sample (a larger step waits for confirmation as a jump does).
+    HOLD_STEP_S = 2.0
+    MAX_RATE = 1.5
+    # Forward steps abandoned because the next sample agreed with the old time, this many within
+    # this much receive time: someone else is sending the vehicle's timestamps.
+    SUSPECT_STEPS = 3
+    SUSPECT_WINDOW_S = 60.0
     _REJECT_MESSAGE = "vehicle time_boot_ms %.3f s disagrees with the vehicle's time %.3f s: ignored (%d so far)"
     _BACK_MESSAGE = "vehicle rebooted (time_boot_ms %.3f s -> %.3f s); time continues at %.3f s"
     _JUMP_MESSAGE = "vehicle time jumped %.3f s -> %.3f s (confirmed by %d messages of %d types)"
@@ -82,10 +98,47 @@ class VehicleClock:
         self._first_recv_s: float | None = None
         self._candidate: _Candidate | None = None
         self._receive: _ReceiveClock | None = None  # after the fallback: receive time under the same rules
+        self.accepted = 0  # timestamps that gave message time (the vehicle's timed stream is alive)
+        self.unfollowed_steps = 0  # forward steps the next sample did not follow
+        self._unfollowed_at: deque[float] = deque(maxlen=self.SUSPECT_STEPS)
+        self._suspect_warned = False
+
+    @property
+    def spoof_suspected(self) -> bool:
+        """Whether ``SUSPECT_STEPS`` steps ahead went unfollowed within ``SUSPECT_WINDOW_S`` of the
+        latest receive time (someone besides the vehicle sends its timestamps)."""
+        at = self._unfollowed_at
+        return (len(at) == self.SUSPECT_STEPS and self._last_timed_recv_s is not None
+                and self._last_timed_recv_s - at[0] <= self.SUSPECT_WINDOW_S)
 
     def to_dict(self) -> dict:
-        return {"synced": self.synced, "fallback": self.fallback, "now_s": self.now, "reboots": self.reboots,
-                "jumps": self.jumps, "rejected": self.rejected}
+        out = {"synced": self.synced, "fallback": self.fallback, "now_s": self.now, "reboots": self.reboots,
+               "jumps": self.jumps, "rejected": self.rejected, "unfollowed_steps": self.unfollowed_steps,
+               "spoof_suspected": self.spoof_suspected}
+        if out["spoof_suspected"]:
+            out["spoof_reason"] = (f"{self.SUSPECT_STEPS} timestamps within {self.SUSPECT_WINDOW_S:g} s jumped ahead "
+                                   "of the vehicle's time and its next message did not follow: another sender "
+                                   "uses the vehicle's ids (time held; sign the link)")
+        return out
+
+    def _allowed_step(self, recv_s: float) -> float:
+        """How far ahead of the accepted time a sample received at ``recv_s`` is taken at once."""
+        gap = recv_s - self._last_timed_recv_s if self._last_timed_recv_s is not None else 0.0
+        return min(self.MAX_STEP_S, self.HOLD_STEP_S + max(0.0, gap) * self.MAX_RATE)
+
+    def _abandon_candidate(self, recv_s: float) -> None:
+        """A sample agreed with the accepted time: a candidate ahead of it was a step no one followed."""
+        c = self._candidate
+        self._candidate = None
+        if c is None or self._last_boot_s is None or c.first_boot_s <= self._last_boot_s:
+            return
+        self.unfollowed_steps += 1
+        self._unfollowed_at.append(recv_s)
+        if self.spoof_suspected and not self._suspect_warned:
+            self._suspect_warned = True
+            log.warning("vehicle clock: %d timestamps jumped ahead and the vehicle's own did not follow; another "
+                        "sender uses its ids (message time held at the vehicle's; only signing stops this)",
+                        self.SUSPECT_STEPS)
 
     def _consistent(self, boot_s: float, ref_s: float) -> bool:
         return ref_s - self.REBOOT_BACKSTEP_S <= boot_s <= ref_s + self.MAX_STEP_S
@@ -115,8 +168,9 @@ class VehicleClock:
         if self.fallback:
             return Verdict.FALLBACK
         last = self._last_boot_s
-        if last is not None and self._consistent(boot_s, last):
-            self._candidate = None
+        if last is not None and self._consistent(boot_s, last) and boot_s <= last + self._allowed_step(recv_s):
+            if self._candidate is not None:
+                self._abandon_candidate(recv_s)
             if boot_s > last:
                 self._last_boot_s = boot_s
         else:
@@ -145,6 +199,7 @@ class VehicleClock:
             self.now = t
         self._last_timed_recv_s = recv_s
         self.synced = True
+        self.accepted += 1
         return t
 
     def on_time_boots(self, boot_s, recv_s, msgids):
@@ -163,16 +218,24 @@ class VehicleClock:
         while i < n:
             last = self._last_boot_s
             seg = boot_s[i:i + window]
+            rseg = recv_s[i:i + window]
             # the accepted time before each sample of a run: the latest so far (consistent samples only raise it)
             ref = np.maximum.accumulate(np.concatenate(([last], seg[:-1])))
-            bad = np.flatnonzero(~((ref - self.REBOOT_BACKSTEP_S <= seg) & (seg <= ref + self.MAX_STEP_S)))
+            # ... and the receive time of the sample before it (accepted too, in a run): _allowed_step
+            prev_recv = np.concatenate(([self._last_timed_recv_s if self._last_timed_recv_s is not None
+                                         else rseg[0]], rseg[:-1]))
+            ahead = np.minimum(self.MAX_STEP_S,
+                               self.HOLD_STEP_S + np.maximum(0.0, rseg - prev_recv) * self.MAX_RATE)
+            bad = np.flatnonzero(~((ref - self.REBOOT_BACKSTEP_S <= seg) & (seg <= ref + ahead)))
             run = int(bad[0]) if bad.size else seg.size
             if run:
+                if self._candidate is not None:
+                    self._abandon_candidate(float(rseg[0]))
                 times[i:i + run] = seg[:run] + self.epoch_s
                 self._last_boot_s = max(last, float(seg[:run].max()))
                 self.now = max(self.now, float(times[i:i + run].max()))
                 self._last_timed_recv_s = float(recv_s[i + run - 1])
-                self._candidate = None
+                self.accepted += run
                 i += run
             window = window * 2 if not bad.size else 64
             if bad.size:  # the odd one out: the clock's own rules (candidate, reboot, jump, reject)
