@@ -143,9 +143,10 @@ def test_a_full_tmpfs_keeps_the_link_following_the_vehicle(tmp_path, monkeypatch
     try:
         clock = FakeTime()
         monkeypatch.setattr(connection, "time", clock)
-        monkeypatch.setattr(tlog_module, "RESUME_FREE_BYTES", 64 * 1024)
+        monkeypatch.setattr(tlog_module, "RESUME_FREE_BYTES", 64 * 1024, raising=False)
         link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))
-        link.tlog = TlogWriter(disk_dir / "live.tlog", wall=clock.monotonic)
+        monkeypatch.setattr(tlog_module, "time", clock)  # the writer's retry clock
+        link.tlog = TlogWriter(disk_dir / "live.tlog")
         filler = disk_dir / "filler"
 
         def full():

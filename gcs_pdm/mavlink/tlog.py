@@ -50,7 +50,7 @@ class TlogWriter:
     free space and resumes appending. What was in the write buffer when the disk failed may end as a
     cut record in the file, which the tlog scanner skips and counts (``garbage_bytes``)."""
 
-    def __init__(self, path: str | Path, *, clock=time.time, wall=time.monotonic, opener=open):
+    def __init__(self, path: str | Path, *, clock=time.time, wall=None, opener=open):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._opener = opener  # tests pass a fault-injecting one
@@ -58,7 +58,7 @@ class TlogWriter:
         self._closed = False
         self._lock = threading.Lock()
         self._clock = clock
-        self._wall = wall
+        self._wall = wall if wall is not None else (lambda: time.monotonic())  # looked up per call
         self.records = 0
         self.dropped = 0  # records not written while the recording was stopped
         self.failure: str | None = None

@@ -98,8 +98,8 @@ class ServiceConfig(BaseSettings):
     # --- uploads (POST /files) -------------------------------------------------------------------
     max_upload_bytes: int = Field(256 * 1024 * 1024, ge=1, description="largest accepted upload (bytes); larger is 413")
     max_upload_rows: int = Field(5_000_000, ge=1, description="most rows of an uploaded CSV/Parquet table; more is 413")
-    max_upload_cells: int = Field(50_000_000, ge=1, description="most cells (rows x columns) of an uploaded table; more is 413")
-    max_upload_decoded_bytes: int = Field(1 << 30, ge=1, description="most bytes an uploaded table may take decoded "
+    max_upload_cells: int = Field(10_000_000, ge=1, description="most cells (rows x columns) of an uploaded table; more is 413")
+    max_upload_decoded_bytes: int = Field(128 << 20, ge=1, description="most bytes an uploaded table may take decoded "
                                           "(a Parquet file's uncompressed size, from its footer); more is 413")
     max_json_bytes: int = Field(1 << 20, ge=1024, description="largest request body other than an upload (bytes); "
                                 "larger is 413, before it is parsed or the token is checked")

@@ -268,7 +268,7 @@ class FileOut(BaseModel):
 
 class TlogOut(BaseModel):
     id: int
-    path: str
+    path: str = Field(..., description="relative to the data directory (tlogs/live_….tlog); a tlog kept elsewhere: its file name")
     started_at: float
     ended_at: float | None
     size_bytes: int | None
