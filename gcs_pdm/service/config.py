@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 import tomllib
 from contextvars import ContextVar
@@ -37,12 +38,43 @@ PLACEHOLDER_TOKENS = frozenset({
 })
 
 
+#: fewest distinct characters in an accepted api_token (16 spaces or "aaaaaaaaaaaaaaaa" are one)
+MIN_TOKEN_DISTINCT = 8
+#: the most common passwords (lists of leaked passwords), refused with digits or symbols around them
+COMMON_PASSWORDS = frozenset({
+    "password", "qwerty", "qwertyuiop", "letmein", "welcome", "admin", "administrator", "iloveyou", "monkey",
+    "dragon", "football", "baseball", "sunshine", "princess", "trustno", "master", "shadow", "superman", "batman",
+    "abc", "login", "starwars", "whatever", "freedom", "passwd", "secret", "hello", "charlie", "michael", "jordan",
+    "access", "mustang", "flower", "hunter", "ninja", "azerty", "solo", "loveme", "zaq", "qazwsx", "changeme",
+})
+_LEET = str.maketrans("0134@$5!7", "oleaassit")
+
+
+def _common_password(token: str) -> bool:
+    """A common password, repeated, or dressed up: leading with one (p@ssw0rd read as password) and
+    followed by at most two more letters among digits and symbols."""
+    low = token.lower().strip()
+    letters = re.sub(r"[^a-z]", "", low)
+    unleet = low.translate(_LEET)  # one character for one, so positions agree with ``low``
+    for word in COMMON_PASSWORDS:
+        if letters and len(letters) % len(word) == 0 and letters == word * (len(letters) // len(word)):
+            return True
+        if unleet.startswith(word) and len(re.sub(r"[^a-z]", "", low[len(word):])) <= 2:
+            return True
+    return False
+
+
 def token_problem(token: str) -> str | None:
     """Why ``token`` cannot be the API's bearer token, or None."""
+    advice = "set a random one (e.g. python -c 'import secrets; print(secrets.token_urlsafe(24))')"
     if token.lower().replace("-", "").replace("_", "").replace(" ", "") in PLACEHOLDER_TOKENS:
-        return "is a known placeholder; set a random one (e.g. python -c 'import secrets; print(secrets.token_urlsafe(24))')"
+        return f"is a known placeholder; {advice}"
     if len(token) < MIN_TOKEN_CHARS:
         return f"is shorter than {MIN_TOKEN_CHARS} characters; set a random one, or leave it unset to have one generated"
+    if len(set(token)) < MIN_TOKEN_DISTINCT:
+        return f"has fewer than {MIN_TOKEN_DISTINCT} distinct characters; {advice}"
+    if _common_password(token):
+        return f"is a common password; {advice}"
     return None
 
 
