@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("gcs_pdm.service.cli", "simulated vehicle + service on loopback: the Table III flight, live"),
     "sim": ("gcs_pdm.sim.cli", "simulated MAVLink vehicle (fixed wing, system 1) on a UDP link"),
     "vehicle": ("gcs_pdm.vehicle.cli", "print, validate and write vehicle descriptions (docs/vehicles.md)"),
+    "signing": ("gcs_pdm.mavlink.signing_cli", "MAVLink 2 signing: `signing init` writes a key and says how to set it up"),
 }
 
 

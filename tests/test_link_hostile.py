@@ -208,3 +208,49 @@ def test_a_lone_vehicle_raises_no_heartbeat_or_clock_suspicion(fake_time):
         ("duplicate", "identity", "out_of_sequence", "uncorroborated"), 0)
     assert report["clock"]["rejected"] == 0 and not report["clock"]["spoof_suspected"]
     assert link.vehicle_silent_s() < 1.5
+
+
+def test_signing_init_writes_a_key_the_service_reads_and_says_how_to_set_it_up(tmp_path, capsys):
+    from gcs_pdm.cli import main
+
+    key_file = tmp_path / "signing.key"
+    assert main(["signing", "init", "--key-file", str(key_file)]) == 0
+    out = capsys.readouterr().out
+    passphrase = key_file.read_text().strip()
+    assert (key_file.stat().st_mode & 0o777) == 0o600 and len(passphrase) == 24
+    key = load_signing_key(key_file)
+    assert f"signing setup {passphrase}" in out and "SETUP_SIGNING" in out and "QGroundControl" in out
+    assert key.hex() in out  # the key the passphrase gives (SHA-256), for tools that take raw bytes
+    assert main(["signing", "init", "--key-file", str(key_file)]) == 2  # never overwritten by accident
+    assert key_file.read_text().strip() == passphrase
+
+
+def test_status_says_whether_the_link_is_signed(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from gcs_pdm.service.api import create_app
+    from gcs_pdm.service.config import load_config
+    from gcs_pdm.service.runtime import Service
+
+    class LinkOnlyLoop:
+        def __init__(self, link):
+            self.link = link
+
+        def stop(self):
+            self.link.close()
+
+    key_file = tmp_path / "key"
+    key_file.write_text("a passphrase for the test\n")
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="signed-status-token-Zq81"))
+    try:
+        for key, signed in ((str(key_file), True), (None, False)):
+            link = Link(LinkConfig(url=f"udpin:127.0.0.1:{free_udp_port()}", signing_key_file=key, heartbeat_hz=0))
+            link.open()
+            svc.attach_loop(LinkOnlyLoop(link))
+            status = TestClient(create_app(svc)).get("/status").json()
+            assert status["link_trust"]["signing"]["signed"] is signed
+            kinds = [w["kind"] for w in status.get("warnings", [])]
+            assert ("unsigned_link" in kinds) is not signed
+            link.close()
+    finally:
+        svc.close()

@@ -122,7 +122,10 @@ def new_passphrase() -> str:
     """A random passphrase (24 characters, 144 bits). The key is its SHA-256, as MAVProxy's
     ``signing setup``, Mission Planner and QGroundControl derive a key from a passphrase, so the same
     text can be typed into each (``connection.load_signing_key`` reads it back the same way)."""
-    return secrets.token_urlsafe(18)
+    while True:  # not led by "-" or "_": MAVProxy's command line would read "-..." as an option
+        passphrase = secrets.token_urlsafe(18)
+        if passphrase[0].isalnum():
+            return passphrase
 
 
 def passphrase_key(passphrase: str) -> bytes:
