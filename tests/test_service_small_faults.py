@@ -22,8 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.fixture
 def service(tmp_path):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN, max_upload_rows=1000,
-                              max_json_bytes=64 * 1024))
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token=TOKEN, max_upload_rows=1000))
     yield svc
     svc.close()
 
@@ -47,7 +46,7 @@ def test_non_finite_numbers_in_json_bodies_are_422(client, path, body, number):
 
 
 def test_a_json_body_over_the_limit_is_413_with_or_without_a_token(client):
-    body = '{"motor": "fwd", "magnitude": 0.1, "note": "%s"}' % ("x" * 70_000)
+    body = '{"motor": "fwd", "magnitude": 0.1, "note": "%s"}' % ("x" * 1_100_000)  # max_json_bytes: 1 MiB
     for headers in (AUTH, {"Content-Type": "application/json"}):
         r = client.post("/faults", content=body, headers=headers)
         assert r.status_code == 413 and "max_json_bytes" in r.json()["detail"], r.text
@@ -60,8 +59,10 @@ def test_a_body_within_the_limit_still_works(client):
 
 @pytest.mark.parametrize("name", ["..csv", ".csv", "_.parquet", " .tlog", "-.csv"])
 def test_names_with_nothing_before_the_suffix_are_refused(client, name):
-    r = client.post("/files", files={"file": (name, b"time_s,current_a\n0,1\n")},
-                    headers={"Authorization": f"Bearer {TOKEN}"})
+    good = b"time_s,current_a,voltage_v,temperature_c,ambient_c\n0,10,20.1,25,20\n1,10,20.0,25.1,20\n"
+    assert client.post("/files", files={"file": ("flight.csv", good)},
+                       headers={"Authorization": f"Bearer {TOKEN}"}).status_code == 201
+    r = client.post("/files", files={"file": (name, good)}, headers={"Authorization": f"Bearer {TOKEN}"})
     assert r.status_code == 422, (name, r.status_code, r.text)
 
 
