@@ -41,6 +41,7 @@ def test_steps_ahead_that_the_vehicle_does_not_follow_never_move_message_time_an
         assert clock.now is None or clock.now <= vehicle_s + 1e-9  # message time never ran ahead of the vehicle's
         if warned_at is None and clock.spoof_suspected:
             warned_at = recv - 10.0
+    print(f"drift +{DRIFT_S} s/s: warned after {warned_at} s of receive time")
     assert warned_at is not None and warned_at <= 10.0, warned_at
     report = clock.to_dict()
     assert report["spoof_suspected"] and "another sender uses the vehicle's ids" in report["spoof_reason"]
@@ -125,6 +126,8 @@ def test_a_drifting_sender_leaves_the_soc_estimate_within_003_over_60_s(monkeypa
     e = est.estimate()
     k = min(int(np.searchsorted(flight.time_s, flight.time_s[-1])), flight.time_s.size - 1)
     err = np.abs(e.soc - flight.soc[k])
+    print(f"SoC error after {flight.time_s[-1]:.1f} s under +{DRIFT_S} s/s drift: max {float(err.max()):.4f}; "
+          f"message time offset {e.time_s - BOOT_S - flight.time_s[-1]:+.2f} s")
     assert flight.time_s[-1] >= 60.0
     assert float(err.max()) <= 0.03, (e.soc, flight.soc[k])
     assert e.time_s - BOOT_S == pytest.approx(flight.time_s[-1], abs=0.6)  # no offset left behind

@@ -94,6 +94,8 @@ def run_full_disk(link, clock, disk_full, disk_free, caplog):
         assert report["stopped"] and report["dropped"] > 1000 and "No space left" in report["reason"]
         assert report["file"] == Path(link.tlog.path).name  # a name, not a server path
         lines = _recording_lines(caplog)
+        print(f"full disk 30 s: {len(frames) - before} frames mapped, {report['dropped']} records not recorded, "
+              f"{len(lines)} warning line(s): {lines}")
         assert sum("recording stopped" in line for line in lines) == 1
         assert len(lines) <= 3, lines  # one line, not one per packet (the sequence/clock may add none)
         disk_free()

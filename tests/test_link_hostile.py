@@ -169,6 +169,7 @@ def test_spoofed_heartbeats_do_not_keep_a_silent_vehicle_up(fake_time):
             fake_time.sleep(0.1)
             if lost_after is None and link.vehicle_silent_s() > 5.0:  # link_lost_after_s's default
                 lost_after = fake_time.now - silent_at
+    print(f"spoofed 1 Hz heartbeats, silent vehicle: lost (silent > 5 s) after {lost_after} s")
     assert lost_after is not None and lost_after <= 10.0, lost_after
     assert "heartbeats without the vehicle's timed telemetry" in link.silence_cause()
     watch = link.trust_report()["heartbeats"]
