@@ -152,12 +152,17 @@ def dictionary_text_parquet(rows: int = 200_000, value_bytes: int = 100_000) -> 
 
     note = pa.DictionaryArray.from_arrays(pa.array(np.zeros(rows, dtype=np.int32)), pa.array(["x" * value_bytes]))
     table = pa.table({"time_s": np.arange(rows, dtype=float), "current_a": np.full(rows, 10.0),
-                      "voltage_v": np.full(rows, 20.0), "temperature_c": np.full(rows, 25.0), "note": note})
-    return parquet_bytes(lambda buf, pq: pq.write_table(table, buf, compression="zstd", use_dictionary=True))
+                      "voltage_v": np.full(rows, 20.0), "temperature_c": np.full(rows, 25.0),
+                      "ambient_c": np.full(rows, 20.0), "note": note})
+    # row groups of 10,000 rows: each decodes to 1 GB, under Arrow's 2 GB string-array limit
+    # without the Arrow schema in the file a reader gets plain strings back, not a categorical
+    return parquet_bytes(lambda buf, pq: pq.write_table(table, buf, compression="zstd", use_dictionary=True,
+                                                        row_group_size=10_000, store_schema=False))
 
 
 def test_a_wide_parquet_file_is_refused_by_its_cells(server):
     payload = wide_constant_parquet()
+    print(f"wide Parquet: {len(payload)} bytes")
     assert len(payload) < 2_000_000
     (status, body), growth = server.growth_mb(upload("wide.parquet", payload))
     assert status == 413, body[:300]
@@ -168,6 +173,7 @@ def test_a_wide_parquet_file_is_refused_by_its_cells(server):
 
 def test_a_repeated_text_value_is_refused_by_its_decoded_bytes(server):
     payload = dictionary_text_parquet()
+    print(f"text Parquet: {len(payload)} bytes")
     assert len(payload) < 5_000_000
     (status, body), growth = server.growth_mb(upload("notes.parquet", payload))
     assert status == 413, body[:300]
