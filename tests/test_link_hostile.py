@@ -255,3 +255,32 @@ def test_status_says_whether_the_link_is_signed(tmp_path):
             link.close()
     finally:
         svc.close()
+
+
+def test_a_fault_every_packet_hits_is_counted_and_logged_once_a_minute(caplog):
+    """A consumer failing on every packet used to write one traceback per packet (a full disk: 21,042
+    in 48 s); the reader counts them and logs the traceback at most once a minute."""
+    link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))
+    vehicle = PacketFactory(1, 1, numbered=True)
+    messages = [mavlink2.MAVLink(None).decode(bytearray(vehicle.battery(0, [4000] * 4, 1500, 2500)))
+                for _ in range(2000)]
+
+    class Conn:
+        def recv_msg(self):
+            if messages:
+                return messages.pop()
+            link._stop.set()
+            return None
+
+        def select(self, _timeout):
+            pass
+
+    def broken(*_args):
+        raise RuntimeError("a consumer's bug")
+
+    link.conn = Conn()
+    link.mapper.feed = broken
+    with caplog.at_level(logging.WARNING):
+        link._run()
+    assert link.handle_failures == 2000 and link.trust_report()["handle_failures"] == 2000
+    assert sum("failed to handle" in r.getMessage() for r in caplog.records) == 1
