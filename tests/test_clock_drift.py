@@ -132,3 +132,30 @@ def test_a_drifting_sender_leaves_the_soc_estimate_within_003_over_60_s(monkeypa
     assert float(err.max()) <= 0.03, (e.soc, flight.soc[k])
     assert e.time_s - BOOT_S == pytest.approx(flight.time_s[-1], abs=0.6)  # no offset left behind
     assert link.trust_report()["clock"]["spoof_suspected"]
+
+
+def test_small_steps_ahead_that_run_the_clock_fast_are_noticed_by_its_rate():
+    """A sender whose steps stay within what is taken at once (1.9 s ahead of message time, once a
+    second) runs message time at about 2x: the steps are not held, the rate gives it away."""
+    clock = VehicleClock()
+    suspected_at = None
+    for k in range(1200):  # 120 s; the first 40 s without the sender set the vehicle's pace
+        recv = k * 0.1
+        clock.on_time_boot(BOOT_S + k * 0.1, recv, msgid=33 if k % 2 else 29)
+        if k >= 400 and k % 10 == 5:
+            clock.on_time_boot(clock.now + 1.9, recv + 0.01, msgid=33)
+        if suspected_at is None and clock.to_dict()["spoof_suspected"]:
+            suspected_at = recv - 40.0
+    report = clock.to_dict()
+    assert report["rate"]["baseline"] == pytest.approx(1.0, abs=0.02)
+    assert suspected_at is not None and suspected_at <= 20.0, suspected_at
+    assert "ran at" in report["spoof_reason"]
+
+
+def test_a_steady_fast_simulator_raises_no_rate_suspicion():
+    clock = VehicleClock()
+    for k in range(60_000):  # 100 s of receive time at 60x, samples every 0.1 s of its time
+        clock.on_time_boot(BOOT_S + k * 0.1, k * 0.1 / 60.0, msgid=33)
+    report = clock.to_dict()
+    assert report["rate"]["baseline"] == pytest.approx(60.0, rel=0.01)
+    assert not report["spoof_suspected"] and report["rate"]["off_windows"] == 0

@@ -58,6 +58,48 @@ class _Candidate:
         self.count = 1
 
 
+class RateWatch:
+    """Message time against receive time, one window of ``WINDOW_S`` receive seconds at a time. A
+    vehicle's clock runs at a steady rate: 1, or a simulator's speed-up, which is why no fixed rate
+    is expected; the first ``BASELINE_WINDOWS`` windows set it. A later window running more than
+    ``RATE_CHANGE`` times faster or slower is a clock someone else is moving (small steps ahead,
+    each within what the step rule takes at once): ``suspected`` until a window is back in line."""
+
+    WINDOW_S = 10.0
+    BASELINE_WINDOWS = 3
+    RATE_CHANGE = 1.5
+
+    def __init__(self):
+        self._start: tuple[float, float] | None = None
+        self._first: list[float] = []
+        self.baseline: float | None = None
+        self.latest: float | None = None
+        self.suspected = False
+        self.off_windows = 0
+
+    def note(self, recv_s: float, t: float) -> bool:
+        """An accepted sample (receive time, message time); True when a window closed off its rate."""
+        if self._start is None:
+            self._start = (recv_s, t)
+            return False
+        span = recv_s - self._start[0]
+        if span < self.WINDOW_S:
+            return False
+        rate = (t - self._start[1]) / span
+        self._start = (recv_s, t)
+        self.latest = rate
+        if self.baseline is None:
+            self._first.append(rate)
+            if len(self._first) == self.BASELINE_WINDOWS:
+                self.baseline = sorted(self._first)[self.BASELINE_WINDOWS // 2]
+            return False
+        if self.baseline < 0.05:  # a clock that stood still sets no pace to hold it to
+            return False
+        self.suspected = not self.baseline / self.RATE_CHANGE <= rate <= self.baseline * self.RATE_CHANGE
+        self.off_windows += self.suspected
+        return self.suspected
+
+
 class VehicleClock:
     # time_boot_ms going back by more than this is a reboot (or a lie), not reordering between streams.
     REBOOT_BACKSTEP_S = 2.0
@@ -102,6 +144,15 @@ class VehicleClock:
         self.unfollowed_steps = 0  # forward steps the next sample did not follow
         self._unfollowed_at: deque[float] = deque(maxlen=self.SUSPECT_STEPS)
         self._suspect_warned = False
+        self.rate = RateWatch()
+        self._rate_warned = False
+
+    def _note_rate(self, recv_s: float) -> None:
+        if self.rate.note(recv_s, self.now) and not self._rate_warned:
+            self._rate_warned = True
+            log.warning("vehicle clock ran at %.2fx receive time over %.0f s, its usual pace %.2fx: another "
+                        "sender may be moving it (only signing stops this)", self.rate.latest, self.rate.WINDOW_S,
+                        self.rate.baseline)
 
     @property
     def spoof_suspected(self) -> bool:
@@ -114,11 +165,21 @@ class VehicleClock:
     def to_dict(self) -> dict:
         out = {"synced": self.synced, "fallback": self.fallback, "now_s": self.now, "reboots": self.reboots,
                "jumps": self.jumps, "rejected": self.rejected, "unfollowed_steps": self.unfollowed_steps,
-               "spoof_suspected": self.spoof_suspected}
+               "spoof_suspected": self.spoof_suspected,
+               "rate": {"latest": self.rate.latest, "baseline": self.rate.baseline, "suspected": self.rate.suspected,
+                        "off_windows": self.rate.off_windows}}
+        reasons = []
         if out["spoof_suspected"]:
-            out["spoof_reason"] = (f"{self.SUSPECT_STEPS} timestamps within {self.SUSPECT_WINDOW_S:g} s jumped ahead "
-                                   "of the vehicle's time and its next message did not follow: another sender "
-                                   "uses the vehicle's ids (time held; sign the link)")
+            reasons.append(f"{self.SUSPECT_STEPS} timestamps within {self.SUSPECT_WINDOW_S:g} s jumped ahead "
+                           "of the vehicle's time and its next message did not follow: another sender "
+                           "uses the vehicle's ids (time held; sign the link)")
+        if self.rate.suspected:
+            reasons.append(f"message time ran at {self.rate.latest:.2f}x receive time over the last "
+                           f"{self.rate.WINDOW_S:g} s, the vehicle's pace is {self.rate.baseline:.2f}x: another "
+                           "sender may be moving its clock (sign the link)")
+        if reasons:
+            out["spoof_suspected"] = True
+            out["spoof_reason"] = "; ".join(reasons)
         return out
 
     def _allowed_step(self, recv_s: float) -> float:
@@ -200,6 +261,7 @@ class VehicleClock:
         self._last_timed_recv_s = recv_s
         self.synced = True
         self.accepted += 1
+        self._note_rate(recv_s)
         return t
 
     def on_time_boots(self, boot_s, recv_s, msgids):
@@ -236,6 +298,7 @@ class VehicleClock:
                 self.now = max(self.now, float(times[i:i + run].max()))
                 self._last_timed_recv_s = float(recv_s[i + run - 1])
                 self.accepted += run
+                self._note_rate(self._last_timed_recv_s)
                 i += run
             window = window * 2 if not bad.size else 64
             if bad.size:  # the odd one out: the clock's own rules (candidate, reboot, jump, reject)
