@@ -60,14 +60,18 @@ class _Candidate:
 
 class RateWatch:
     """Message time against receive time, one window of ``WINDOW_S`` receive seconds at a time. A
-    vehicle's clock runs at a steady rate: 1, or a simulator's speed-up, which is why no fixed rate
-    is expected; the first ``BASELINE_WINDOWS`` windows set it. A later window running more than
-    ``RATE_CHANGE`` times faster or slower is a clock someone else is moving (small steps ahead,
-    each within what the step rule takes at once): ``suspected`` until a window is back in line."""
+    vehicle's clock runs at real time; the first ``BASELINE_WINDOWS`` windows measure the pace, and
+    only a pace within ``REAL_TIME`` is judged: a simulator faster than real time paces itself by a
+    wall clock it falls behind and catches up with (and waits in lockstep), so its windows vary and
+    say nothing. On real time, a window running more than ``RATE_CHANGE`` times faster is a clock
+    someone else is moving (small steps ahead, each within what the step rule takes at once):
+    ``suspected`` until a window is back in line. (Slower windows are stalls: a spoofer moves time
+    forward; back-steps have their own rules.)"""
 
     WINDOW_S = 10.0
     BASELINE_WINDOWS = 3
     RATE_CHANGE = 1.5
+    REAL_TIME = (0.8, 1.25)
 
     def __init__(self):
         self._start: tuple[float, float] | None = None
@@ -93,9 +97,9 @@ class RateWatch:
             if len(self._first) == self.BASELINE_WINDOWS:
                 self.baseline = sorted(self._first)[self.BASELINE_WINDOWS // 2]
             return False
-        if self.baseline < 0.05:  # a clock that stood still sets no pace to hold it to
+        if not self.REAL_TIME[0] <= self.baseline <= self.REAL_TIME[1]:
             return False
-        self.suspected = not self.baseline / self.RATE_CHANGE <= rate <= self.baseline * self.RATE_CHANGE
+        self.suspected = rate > self.baseline * self.RATE_CHANGE
         self.off_windows += self.suspected
         return self.suspected
 
