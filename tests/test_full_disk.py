@@ -76,8 +76,9 @@ def _recording_lines(caplog) -> list[str]:
     return [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
 
 
-def run_full_disk(link, clock, disk_full, disk_free, caplog):
-    """A healthy minute, then the disk fills for 30 s, then it has room again."""
+def run_full_disk(link, clock, disk_full, disk_free, caplog, status=None):
+    """A healthy minute, then the disk fills for 30 s, then it has room again. ``status``: a callable
+    giving /status, checked to follow the vehicle while the disk is full."""
     frames = []
     link.add_frame_listener(frames.append)
     vehicle = PacketFactory(1, 1, numbered=True)
@@ -90,6 +91,9 @@ def run_full_disk(link, clock, disk_full, disk_free, caplog):
         # the link followed the vehicle all along: every frame mapped, the vehicle heard
         assert len(frames) - before >= 30 * 10 * 5
         assert link.vehicle_silent_s() < 1.5
+        if status is not None:  # the service's view: up, at the vehicle's latest time
+            st = status()
+            assert st["link"]["state"] == "up" and st["time_s"] == pytest.approx((boot - 100) / 1000, abs=0.01)
         report = link.trust_report()["recording"]
         assert report["stopped"] and report["dropped"] > 1000 and "No space left" in report["reason"]
         assert report["file"] == Path(link.tlog.path).name  # a name, not a server path
@@ -138,7 +142,22 @@ def _can_mount_tmpfs(path: Path) -> bool:
     return ok
 
 
-def test_a_full_tmpfs_keeps_the_link_following_the_vehicle(tmp_path, monkeypatch, caplog):
+class _NoEstimate:
+    """The telemetry thread's estimator and diagnoser, reduced to what /status's link needs."""
+
+    pack_names = motor_names = ()
+
+    def ready(self) -> bool:
+        return False
+
+    def consume(self, _frame) -> None:
+        pass
+
+
+def test_a_full_tmpfs_keeps_status_following_the_vehicle(tmp_path, monkeypatch, caplog, service):
+    from gcs_pdm.service.api import create_app
+    from gcs_pdm.service.telemetry_intake import TelemetryIntake
+
     disk_dir = tmp_path / "disk"
     if not _can_mount_tmpfs(disk_dir):
         pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN); the fault-injecting test covers it")
@@ -149,6 +168,10 @@ def test_a_full_tmpfs_keeps_the_link_following_the_vehicle(tmp_path, monkeypatch
         link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))
         monkeypatch.setattr(tlog_module, "time", clock)  # the writer's retry clock
         link.tlog = TlogWriter(disk_dir / "live.tlog")
+        service.attach_loop(LinkOnlyLoop(link))
+        intake = TelemetryIntake(service, link, _NoEstimate(), _NoEstimate(), feed_estimator=False)
+        link.add_frame_listener(intake.process)  # driven directly: the telemetry thread's work, in order
+        client = TestClient(create_app(service))
         filler = disk_dir / "filler"
 
         def full():
@@ -163,7 +186,7 @@ def test_a_full_tmpfs_keeps_the_link_following_the_vehicle(tmp_path, monkeypatch
         def free():
             filler.unlink()
 
-        run_full_disk(link, clock, full, free, caplog)
+        run_full_disk(link, clock, full, free, caplog, status=lambda: client.get("/status").json())
     finally:
         subprocess.run(["umount", "-l", str(disk_dir)], check=False)
 
