@@ -81,6 +81,32 @@ class RateWatch:
         self.suspected = False
         self.off_windows = 0
 
+    def __eq__(self, other) -> bool:  # two clocks fed the same samples agree (tests compare them whole)
+        return isinstance(other, RateWatch) and vars(self) == vars(other)
+
+    def __repr__(self) -> str:
+        return f"RateWatch({vars(self)})"
+
+    def note_many(self, recv_s, t) -> bool:
+        """:meth:`note` of each sample in turn (numpy arrays), visiting only those that close a
+        window; whether any closed off its pace."""
+        import numpy as np
+
+        n = len(recv_s)
+        k, flagged = 0, False
+        if n and self._start is None:
+            self._start = (float(recv_s[0]), float(t[0]))
+            k = 1
+        # the first sample at or past a window's end is the first whose running maximum is
+        reach = np.maximum.accumulate(recv_s)
+        while k < n:
+            j = k + int(np.searchsorted(reach[k:], self._start[0] + self.WINDOW_S, side="left"))
+            if j >= n:
+                break
+            flagged |= self.note(float(recv_s[j]), float(t[j]))
+            k = j + 1
+        return flagged
+
     def note(self, recv_s: float, t: float) -> bool:
         """An accepted sample (receive time, message time); True when a window closed off its rate."""
         if self._start is None:
@@ -151,8 +177,10 @@ class VehicleClock:
         self.rate = RateWatch()
         self._rate_warned = False
 
-    def _note_rate(self, recv_s: float) -> None:
-        if self.rate.note(recv_s, self.now) and not self._rate_warned:
+    def _note_rate(self, recv_s: float, flagged: bool | None = None) -> None:
+        if flagged is None:
+            flagged = self.rate.note(recv_s, self.now)
+        if flagged and not self._rate_warned:
             self._rate_warned = True
             log.warning("vehicle clock ran at %.2fx receive time over %.0f s, its usual pace %.2fx: another "
                         "sender may be moving it (only signing stops this)", self.rate.latest, self.rate.WINDOW_S,
@@ -299,10 +327,12 @@ class VehicleClock:
                     self._abandon_candidate(float(rseg[0]))
                 times[i:i + run] = seg[:run] + self.epoch_s
                 self._last_boot_s = max(last, float(seg[:run].max()))
-                self.now = max(self.now, float(times[i:i + run].max()))
+                # message time after each sample of the run, for the pace watch (as on_time_boot feeds it)
+                after = np.maximum.accumulate(np.maximum(self.now, times[i:i + run]))
+                self.now = float(after[-1])
                 self._last_timed_recv_s = float(recv_s[i + run - 1])
                 self.accepted += run
-                self._note_rate(self._last_timed_recv_s)
+                self._note_rate(0.0, self.rate.note_many(rseg[:run], after))
                 i += run
             window = window * 2 if not bad.size else 64
             if bad.size:  # the odd one out: the clock's own rules (candidate, reboot, jump, reject)
