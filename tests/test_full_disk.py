@@ -285,3 +285,41 @@ def test_the_service_says_once_that_the_recording_stopped_and_again_when_it_resu
     events = [(e.data["status"], e.data.get("file")) for e in service.events.since(0) if e.kind == "recording"]
     assert events == [("stopped", "live.tlog"), ("resumed", "live.tlog")]
     assert client.get("/health").json()["status"] == "ok"
+
+
+def test_a_database_on_a_full_tmpfs_answers_507_and_keeps_what_it_stored(tmp_path):
+    """SQLite itself meeting a full disk (not a stand-in): the write answers 507 with the reason, the
+    rows stored before stay readable, and writes work again once there is room."""
+    from gcs_pdm.service.api import create_app
+    from gcs_pdm.service.config import load_config
+    from gcs_pdm.service.runtime import Service
+
+    disk_dir = tmp_path / "disk"
+    if not _can_mount_tmpfs(disk_dir):
+        pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN)")
+    svc = None
+    try:
+        svc = Service(load_config(env={}, data_dir=str(disk_dir / "data"), api_token=TOKEN))
+        client = TestClient(create_app(svc), raise_server_exceptions=False)
+        auth = {"Authorization": f"Bearer {TOKEN}"}
+        body = {"motor": "fwd", "magnitude": 0.2, "replan": False, "note": "n" * 1900}
+        assert client.post("/faults", json=body, headers=auth).status_code == 201
+        filler = disk_dir / "filler"
+        with open(filler, "wb", buffering=0) as fh:
+            try:
+                while True:
+                    fh.write(b"\0" * 4096)
+            except OSError as exc:
+                assert exc.errno == errno.ENOSPC
+        codes = [client.post("/faults", json=body, headers=auth) for _ in range(200)]
+        full = [r for r in codes if r.status_code == 507]
+        assert full and all(r.status_code in (201, 507) for r in codes), {r.status_code for r in codes}
+        assert "full" in full[0].json()["detail"]
+        stored = client.get("/faults").json()
+        assert len(stored) >= 1 and client.get("/health").status_code == 200
+        filler.unlink()
+        assert client.post("/faults", json=body, headers=auth).status_code == 201
+    finally:
+        if svc is not None:
+            svc.close()
+        subprocess.run(["umount", "-l", str(disk_dir)], check=False)
