@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("gcs_pdm.sim.cli", "simulated MAVLink vehicle (fixed wing, system 1) on a UDP link"),
     "vehicle": ("gcs_pdm.vehicle.cli", "print, validate and write vehicle descriptions (docs/vehicles.md)"),
     "packs": ("gcs_pdm.packs.cli", "each pack's health across flights: ingest logs (pool or Dask), list, show, assign"),
+    "signing": ("gcs_pdm.mavlink.signing_cli", "MAVLink 2 signing: `signing init` writes a key and says how to set it up"),
 }
 
 

@@ -54,3 +54,19 @@ def test_advise_is_the_default_policy_and_the_demo_chooses_auto():
 
     assert load_config(env={}).policy == "advise"
     assert inspect.signature(run_demo).parameters["policy"].default == "auto"
+
+
+@pytest.mark.parametrize("token,why", [
+    (" " * 16, "fewer than 8 distinct characters"), ("a" * 16, "fewer than 8 distinct characters"),
+    ("abababababababab", "fewer than 8 distinct characters"), ("password12345678", "a common password"),
+    ("P@ssw0rd!2024-x#", "a common password"), ("letmein-letmein-99", "a common password"),
+    ("qwerty_123456789", "a common password")])
+def test_weak_tokens_are_refused_naming_why(token, why):
+    """Issue 34: 16 spaces, aaaaaaaaaaaaaaaa and password12345678 were accepted."""
+    with pytest.raises(ConfigError, match=f"^api_token: (is|has) {why}"):
+        load_config(env={}, api_token=token)
+
+
+@pytest.mark.parametrize("token", ["x7Qp-2mZr_91LkWd", "trust-test-token-0123456", "correct-horse-battery-staple-42"])
+def test_random_and_passphrase_tokens_are_accepted(token):
+    assert load_config(env={}, api_token=token).api_token == token

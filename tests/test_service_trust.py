@@ -95,9 +95,11 @@ def test_a_second_sender_on_the_vehicles_id_degrades_health_and_warns_in_status(
             link.handle_message(mavlink2.MAVLink(None).decode(bytearray(packet)))
     status = client.get("/status").json()
     assert status["link_trust"]["sequence"]["shared"]
-    assert [w["kind"] for w in status["warnings"]] == ["shared_vehicle_id"]
+    # the two senders' heartbeats interleave out of sequence too; the link is not signed
+    assert [w["kind"] for w in status["warnings"]] == ["shared_vehicle_id", "heartbeat_spoofing", "unsigned_link"]
     health = client.get("/health").json()
     assert health["status"] == "degraded" and "more than one sender" in health["reasons"][0]
+    assert not any("not signed" in r or "no signing key" in r for r in health["reasons"])  # said, not degraded
 
 
 def test_one_sender_raises_no_warning(service):
@@ -111,5 +113,53 @@ def test_one_sender_raises_no_warning(service):
         packet = ours.heartbeat() if k % 10 == 0 else ours.battery(0, [4000] * 4, 1500, 3000)
         link.handle_message(mavlink2.MAVLink(None).decode(bytearray(packet)))
     assert client.get("/status").json()["link_trust"]["sequence"]["verdict"] == "one sender"
-    assert "warnings" not in client.get("/status").json()
+    # the one warning left: the link is not signed (a banner, not a degraded /health)
+    assert [w["kind"] for w in client.get("/status").json()["warnings"]] == ["unsigned_link"]
     assert client.get("/health").json()["status"] == "ok"
+
+
+def test_timestamps_and_heartbeats_another_sender_makes_degrade_health(service, monkeypatch):
+    """Issue 34: steps ahead the vehicle does not follow and heartbeats without its telemetry are
+    each a critical /status warning and a /health reason."""
+    from gcs_pdm.mavlink import connection
+    from gcs_pdm.mavlink.dialect import mavlink2
+
+    class FakeTime:
+        now = 100.0
+
+        def monotonic(self):
+            return self.now
+
+        def time(self):
+            return 1.7e9 + self.now
+
+    clock = FakeTime()
+    monkeypatch.setattr(connection, "time", clock)
+    link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))
+    service.attach_loop(LinkOnlyLoop(link))
+    client = TestClient(create_app(service))
+    vehicle, other = PacketFactory(1, 1, numbered=True), PacketFactory(1, 1, numbered=True)
+
+    def inject(packet):
+        msg = mavlink2.MAVLink(None).decode(bytearray(packet))
+        msg._timestamp = clock.time()
+        link.handle_message(msg)
+
+    for k in range(100):  # 10 s: the vehicle at 10 Hz, another sender's position 9.9 s ahead once a second
+        if k % 10 == 0:
+            inject(vehicle.heartbeat())
+        inject(vehicle.position(30_000 + k * 100))
+        if k % 10 == 5:
+            inject(other.position(30_000 + k * 100 + 9_900))
+        clock.now += 0.1
+    kinds = {w["kind"]: w for w in client.get("/status").json()["warnings"]}
+    assert kinds["clock_spoofing"]["level"] == "critical"
+    health = client.get("/health").json()
+    assert health["status"] == "degraded" and any("another sender uses the vehicle's ids" in r for r in health["reasons"])
+    for _ in range(5):  # the vehicle goes silent; its heartbeat keeps coming from someone
+        inject(other.heartbeat())
+        clock.now += 1.0
+    kinds = {w["kind"] for w in client.get("/status").json()["warnings"]}
+    assert "heartbeat_spoofing" in kinds
+    assert any("heartbeats count only with the vehicle's timed telemetry" in r
+               for r in client.get("/health").json()["reasons"])

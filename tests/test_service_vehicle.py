@@ -32,7 +32,7 @@ class Subscription:
 
 
 def _loop(tmp_path, vehicle=None, **kw):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="x" * 20, vehicle=vehicle))
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="vehicle-test-token-8Rw2", vehicle=vehicle))
     link = FakeLink()
     link.mapper = FrameMapper(waiting_mapping(), target_system=1)
     link.subscribe = lambda types: Subscription()

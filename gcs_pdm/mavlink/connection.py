@@ -23,9 +23,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
+from gcs_pdm.mavlink.heartbeat_watch import HeartbeatWatch
 from gcs_pdm.mavlink.dialect import DIALECT, MESSAGE_IDS_BY_NAME, mavlink2, mavutil
 from gcs_pdm.mavlink.mapping import FrameMapper, ForeignSystem
 from gcs_pdm.mavlink.sequence import SequenceMonitor
+from gcs_pdm.mavlink.signing import SignatureCheck
 from gcs_pdm.mavlink.tlog import TlogWriter
 from gcs_pdm.mavlink.wire import split_packet
 
@@ -196,8 +198,14 @@ class Link:
         self.sequence = SequenceMonitor()  # whether one sender is behind each id (sequence numbers)
         self.sent = 0
         self.rcvbuf_effective: int | None = None
+        self.signature_check: SignatureCheck | None = None  # with a signing key (open)
+        self.handle_failures = 0  # packets whose handling raised (a consumer's bug), counted
+        self._failure_logged_at: float | None = None
         # monotonic time of the tracked vehicle's last HEARTBEAT (for "link lost" decisions)
         self._vehicle_heartbeat_at: float | None = None
+        # ... and of its last packet whose timestamp the vehicle clock accepted (its timed stream)
+        self._vehicle_timed_at: float | None = None
+        self.heartbeats = HeartbeatWatch()
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -234,6 +242,8 @@ class Link:
             allow = (lambda _mav, _msgid: True) if cfg.allow_unsigned else None
             self.conn.setup_signing(key, sign_outgoing=True, allow_unsigned_callback=allow,
                                     initial_timestamp=None, link_id=0)
+            # the signature before anything is stored from a packet (pymavlink stores the timestamp first)
+            self.signature_check = SignatureCheck.install(self.conn.mav)
         if cfg.tlog_path:
             self.tlog = TlogWriter(cfg.tlog_path)
         self.conn.mav.set_send_callback(self._on_sent)
@@ -326,11 +336,34 @@ class Link:
         return list(self.mapper.foreign_systems.values())
 
     def vehicle_silent_s(self, now: float | None = None) -> float | None:
-        """Wall seconds since the tracked vehicle's last HEARTBEAT; None if it was never heard.
-        (Wall time on purpose: a silent vehicle sends no message time to measure silence by.)"""
+        """Wall seconds since the tracked vehicle was last heard; None if it was never heard.
+        (Wall time on purpose: a silent vehicle sends no message time to measure silence by.)
+
+        Heard means a HEARTBEAT and, once the vehicle has sent timed telemetry (its clock is
+        synced), that telemetry too: on an unsigned link anyone can send the vehicle's heartbeat,
+        and heartbeats alone must not keep a silent vehicle "up" (docs/operations.md)."""
         if self._vehicle_heartbeat_at is None:
             return None
-        return (time.monotonic() if now is None else now) - self._vehicle_heartbeat_at
+        now = time.monotonic() if now is None else now
+        silent = now - self._vehicle_heartbeat_at
+        timed = self._timed_silent_s(now)
+        return silent if timed is None else max(silent, timed)
+
+    def _timed_silent_s(self, now: float) -> float | None:
+        clock = self.mapper.clock
+        if self._vehicle_timed_at is None or clock.fallback:
+            return None
+        return now - self._vehicle_timed_at
+
+    def silence_cause(self, now: float | None = None) -> str:
+        """Why the vehicle counts as silent: no heartbeat, or heartbeats without its timed telemetry."""
+        now = time.monotonic() if now is None else now
+        hb = None if self._vehicle_heartbeat_at is None else now - self._vehicle_heartbeat_at
+        timed = self._timed_silent_s(now)
+        if hb is not None and timed is not None and timed > hb + 1.0:
+            return (f"heartbeats without the vehicle's timed telemetry for {timed:.1f} s (spoofed heartbeats, "
+                    "or its streams stopped)")
+        return f"no heartbeat for {hb if hb is not None else 0.0:.1f} s"
 
     def trust_report(self) -> dict:
         """What the link refused to believe, for /status: foreign vehicles, rejected timestamps,
@@ -340,9 +373,28 @@ class Link:
                 "foreign_systems": [f.to_dict() for f in self.foreign_systems],
                 "clock": self.mapper.clock.to_dict(), "time_rejected": stats.time_rejected,
                 "gated": stats.to_dict()["gated"], "bad_data": self.bad_data, "other_source": stats.other_source,
+                "handle_failures": self.handle_failures,
+                "signing": self.signing_report(), "heartbeats": self.heartbeats.to_dict(time.monotonic()),
+                "recording": self.recording_report(),
                 "sequence": (None if (seq := self.sequence.stats(self.mapper.target_system,
                                                                  self.mapper.target_component)) is None
                              else seq.to_dict())}
+
+    def recording_report(self) -> dict:
+        """The live tlog: recording, or stopped and why (a full or failing disk), records dropped."""
+        if self.tlog is None:
+            return {"recording": False, "reason": "not recording (record_tlog off)", "stopped": False}
+        return self.tlog.report()
+
+    def signing_report(self) -> dict:
+        """Whether the link is signed (a key is set and unsigned packets are refused) and what the
+        signature check refused."""
+        check = self.signature_check
+        signed = check is not None and not self.config.allow_unsigned
+        out = {"signed": signed, "key": check is not None, "allow_unsigned": bool(self.config.allow_unsigned)}
+        if check is not None:
+            out.update(check.to_dict())
+        return out
 
     def wait_for_vehicle(self, timeout: float = 10.0) -> tuple[int, int]:
         """Block until the vehicle's heartbeat has been seen; its (system, component)."""
@@ -394,7 +446,14 @@ class Link:
             try:
                 self.handle_message(msg)
             except Exception:  # noqa: BLE001 - one bad packet or consumer must not stop the link
-                log.exception("link %s: failed to handle %s", self.config.url, msg.get_type())
+                # counted; the traceback at most once a minute (a fault hit by every packet must not
+                # write a traceback per packet: a full disk once wrote 21,042 in 48 s)
+                self.handle_failures += 1
+                now = time.monotonic()
+                if self._failure_logged_at is None or now - self._failure_logged_at >= 60.0:
+                    self._failure_logged_at = now
+                    log.exception("link %s: failed to handle %s (%d failures so far; logged once a minute)",
+                                  self.config.url, msg.get_type(), self.handle_failures)
 
     def _send_heartbeat(self) -> None:
         try:
@@ -413,14 +472,23 @@ class Link:
         # Receive time rounded to the tlog's microseconds, so replay sees exactly what live saw.
         recv_us = int(round((getattr(msg, "_timestamp", None) or time.time()) * 1e6))
         if self.tlog is not None:
-            self.tlog.write_us(raw, recv_us)
+            self.tlog.write_us(raw, recv_us)  # never raises: a full disk stops the recording, not the link
         packet = split_packet(bytes(raw))
         if packet is not None:
+            previous_seq = self.sequence.last_seq(packet.sysid, packet.compid)
             self.sequence.note(packet.sysid, packet.compid, packet.seq)
+            clock = self.mapper.clock
+            accepted = clock.accepted
             frames = self.mapper.feed(recv_us / 1e6, packet.msgid, packet.sysid, packet.compid, packet.payload)
-            if (packet.msgid == HEARTBEAT_ID and self.mapper.locked and packet.sysid == self.mapper.target_system
+            if (self.mapper.locked and packet.sysid == self.mapper.target_system
                     and packet.compid == self.mapper.target_component):
-                self._vehicle_heartbeat_at = time.monotonic()
+                now = time.monotonic()
+                if self.mapper.clock is clock and clock.accepted > accepted:
+                    self._vehicle_timed_at = now
+                if packet.msgid == HEARTBEAT_ID:
+                    self.heartbeats.note(now, packet.payload, packet.seq, previous_seq, self._timed_silent_s(now),
+                                         self.mapper.clock.accepted if self.mapper.clock.synced else None)
+                    self._vehicle_heartbeat_at = now
             for frame in frames:
                 for listener in self._frame_listeners:
                     try:

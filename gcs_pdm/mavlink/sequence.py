@@ -159,5 +159,9 @@ class SequenceMonitor:
                 self._warned.add(key)
                 log.warning("%s", st.verdict)
 
+    def last_seq(self, system: int, component: int) -> int | None:
+        """The sequence number of the id's latest packet (None before its first)."""
+        return self._last.get((system, component))
+
     def stats(self, system: int | None, component: int | None) -> SequenceStats | None:
         return self._stats.get((system, component))

@@ -35,43 +35,136 @@ log = logging.getLogger(__name__)
 _TIMESTAMP = struct.Struct(">Q")
 
 
-class TlogWriter:
-    """Appends records to a tlog; safe to call from the reader thread and senders at once."""
+#: wall seconds between two attempts to resume a recording stopped by a disk error
+RESUME_RETRY_S = 5.0
+#: free bytes the disk must have again before a stopped recording resumes
+RESUME_FREE_BYTES = 8 << 20
 
-    def __init__(self, path: str | Path, *, clock=time.time):
+
+class TlogWriter:
+    """Appends records to a tlog; safe to call from the reader thread and senders at once.
+
+    A write never raises: a full or failing disk (ENOSPC, EIO, a read-only remount) stops the
+    recording — said once in the log, in :meth:`report` and through ``on_change`` — and the records
+    meanwhile are counted as dropped; every ``RESUME_RETRY_S`` it looks for ``RESUME_FREE_BYTES`` of
+    free space and resumes appending. What was in the write buffer when the disk failed may end as a
+    cut record in the file, which the tlog scanner skips and counts (``garbage_bytes``)."""
+
+    def __init__(self, path: str | Path, *, clock=time.time, wall=None, opener=open):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file: BinaryIO = open(self.path, "ab")
+        self._opener = opener  # tests pass a fault-injecting one
+        self._file: BinaryIO | None = opener(self.path, "ab")
+        self._closed = False
         self._lock = threading.Lock()
         self._clock = clock
+        self._wall = wall if wall is not None else (lambda: time.monotonic())  # looked up per call
         self.records = 0
+        self.dropped = 0  # records not written while the recording was stopped
+        self.failure: str | None = None
+        self.stops = 0
+        self._retry_at = 0.0
+        self.on_change = None  # callback(report) when the recording stops or resumes
 
     def write(self, packet: bytes, timestamp_s: float | None = None) -> None:
         stamp = self._clock() if timestamp_s is None else timestamp_s
-        record = _TIMESTAMP.pack(int(round(stamp * 1e6))) + bytes(packet)
-        with self._lock:
-            if self._file.closed:
-                return
-            self._file.write(record)
-            self.records += 1
+        self._append(_TIMESTAMP.pack(int(round(stamp * 1e6))) + bytes(packet))
 
     def write_us(self, packet: bytes, timestamp_us: int) -> None:
         """Like :meth:`write` with the timestamp already in integer microseconds."""
-        record = _TIMESTAMP.pack(timestamp_us) + bytes(packet)
+        self._append(_TIMESTAMP.pack(timestamp_us) + bytes(packet))
+
+    def _append(self, record: bytes) -> None:
+        changed = None
         with self._lock:
-            if self._file.closed:
+            if self._closed:
                 return
-            self._file.write(record)
-            self.records += 1
+            if self._file is None:
+                if not self._try_resume(record):
+                    self.dropped += 1
+                    return
+                changed = self._report()
+            else:
+                try:
+                    self._file.write(record)
+                    self.records += 1
+                except OSError as exc:
+                    self.dropped += 1
+                    changed = self._stop(exc)
+        if changed is not None and self.on_change is not None:
+            self.on_change(changed)
+
+    def _stop(self, exc: OSError) -> dict:
+        self.failure = f"tlog {self.path.name}: {exc.strerror or exc}"
+        self.stops += 1
+        self._retry_at = self._wall() + RESUME_RETRY_S
+        self._discard(self._file)
+        self._file = None
+        log.warning("recording stopped: %s; telemetry continues unrecorded, resuming when the disk has room",
+                    self.failure)
+        return self._report()
+
+    @staticmethod
+    def _discard(fh) -> None:
+        try:
+            fh.close()  # flushes what it can, and closes the descriptor whatever happens
+        except OSError:
+            pass
+
+    def _try_resume(self, record: bytes) -> bool:
+        """Reopen and write ``record`` through to the disk; False (quietly: the stop was said) while
+        the disk still refuses it."""
+        if self._wall() < self._retry_at:
+            return False
+        self._retry_at = self._wall() + RESUME_RETRY_S
+        import shutil
+
+        try:
+            if shutil.disk_usage(self.path.parent).free < RESUME_FREE_BYTES:
+                return False
+            fh = self._opener(self.path, "ab")
+        except OSError:
+            return False
+        try:
+            fh.write(record)
+            fh.flush()
+        except OSError:
+            self._discard(fh)
+            return False
+        self._file = fh
+        self.records += 1
+        log.warning("recording resumed to %s (%d records dropped while stopped)", self.path.name, self.dropped)
+        self.failure = None
+        return True
+
+    def _report(self) -> dict:
+        out = {"recording": self._file is not None, "stopped": self.failure is not None, "file": self.path.name,
+               "records": self.records, "dropped": self.dropped, "stops": self.stops}
+        if self.failure is not None:
+            out["reason"] = self.failure
+        return out
+
+    def report(self) -> dict:
+        with self._lock:
+            return self._report()
 
     def flush(self) -> None:
         with self._lock:
-            if not self._file.closed:
-                self._file.flush()
+            if self._file is not None and not self._closed:
+                try:
+                    self._file.flush()
+                except OSError as exc:
+                    self._stop(exc)
 
     def close(self) -> None:
         with self._lock:
-            self._file.close()
+            self._closed = True
+            if self._file is not None:
+                try:
+                    self._file.close()
+                except OSError as exc:
+                    log.warning("tlog %s: closing failed: %s", self.path.name, exc.strerror or exc)
+                self._file = None
 
     def __enter__(self) -> "TlogWriter":
         return self

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sqlite3
+import sys
 
 from gcs_pdm.command_errors import EXIT_NOTHING, error
 
@@ -98,6 +100,8 @@ def _serve(args: argparse.Namespace) -> int:
         return fail(str(exc))
     except OSError as exc:  # e.g. a data directory that cannot be created
         return fail(f"{exc.strerror or exc}{': ' + str(exc.filename) if exc.filename else ''}")
+    except sqlite3.Error as exc:  # e.g. a read-only data directory or disk
+        return fail(f"database {config.database}: {exc} (is the data directory writable, with room?)")
 
 
 def _demo(args: argparse.Namespace) -> int:

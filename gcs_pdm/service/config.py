@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 import tomllib
 from contextvars import ContextVar
@@ -38,12 +39,43 @@ PLACEHOLDER_TOKENS = frozenset({
 })
 
 
+#: fewest distinct characters in an accepted api_token (16 spaces or "aaaaaaaaaaaaaaaa" are one)
+MIN_TOKEN_DISTINCT = 8
+#: the most common passwords (lists of leaked passwords), refused with digits or symbols around them
+COMMON_PASSWORDS = frozenset({
+    "password", "qwerty", "qwertyuiop", "letmein", "welcome", "admin", "administrator", "iloveyou", "monkey",
+    "dragon", "football", "baseball", "sunshine", "princess", "trustno", "master", "shadow", "superman", "batman",
+    "abc", "login", "starwars", "whatever", "freedom", "passwd", "secret", "hello", "charlie", "michael", "jordan",
+    "access", "mustang", "flower", "hunter", "ninja", "azerty", "solo", "loveme", "zaq", "qazwsx", "changeme",
+})
+_LEET = str.maketrans("0134@$5!7", "oleaassit")
+
+
+def _common_password(token: str) -> bool:
+    """A common password, repeated, or dressed up: leading with one (p@ssw0rd read as password) and
+    followed by at most two more letters among digits and symbols."""
+    low = token.lower().strip()
+    letters = re.sub(r"[^a-z]", "", low)
+    unleet = low.translate(_LEET)  # one character for one, so positions agree with ``low``
+    for word in COMMON_PASSWORDS:
+        if letters and len(letters) % len(word) == 0 and letters == word * (len(letters) // len(word)):
+            return True
+        if unleet.startswith(word) and len(re.sub(r"[^a-z]", "", low[len(word):])) <= 2:
+            return True
+    return False
+
+
 def token_problem(token: str) -> str | None:
     """Why ``token`` cannot be the API's bearer token, or None."""
+    advice = "set a random one (e.g. python -c 'import secrets; print(secrets.token_urlsafe(24))')"
     if token.lower().replace("-", "").replace("_", "").replace(" ", "") in PLACEHOLDER_TOKENS:
-        return "is a known placeholder; set a random one (e.g. python -c 'import secrets; print(secrets.token_urlsafe(24))')"
+        return f"is a known placeholder; {advice}"
     if len(token) < MIN_TOKEN_CHARS:
         return f"is shorter than {MIN_TOKEN_CHARS} characters; set a random one, or leave it unset to have one generated"
+    if len(set(token)) < MIN_TOKEN_DISTINCT:
+        return f"has fewer than {MIN_TOKEN_DISTINCT} distinct characters; {advice}"
+    if _common_password(token):
+        return f"is a common password; {advice}"
     return None
 
 
@@ -104,6 +136,11 @@ class ServiceConfig(BaseSettings):
     # --- uploads (POST /files) -------------------------------------------------------------------
     max_upload_bytes: int = Field(256 * 1024 * 1024, ge=1, description="largest accepted upload (bytes); larger is 413")
     max_upload_rows: int = Field(5_000_000, ge=1, description="most rows of an uploaded CSV/Parquet table; more is 413")
+    max_upload_cells: int = Field(10_000_000, ge=1, description="most cells (rows x columns) of an uploaded table; more is 413")
+    max_upload_decoded_bytes: int = Field(128 << 20, ge=1, description="most bytes an uploaded table may take decoded "
+                                          "(a Parquet file's uncompressed size, from its footer); more is 413")
+    max_json_bytes: int = Field(1 << 20, ge=1024, description="largest request body other than an upload (bytes); "
+                                "larger is 413, before it is parsed or the token is checked")
     tlog_min_mavlink_fraction: float = Field(0.9, gt=0, le=1, description="share of an uploaded tlog's bytes that must be CRC-valid MAVLink records")
 
     # --- auth --------------------------------------------------------------------------------

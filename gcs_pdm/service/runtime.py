@@ -282,7 +282,8 @@ class Service:
         from gcs_pdm.service.uploads import UploadLimits
 
         c = self.config
-        return UploadLimits(c.max_upload_bytes, c.max_upload_rows, c.tlog_min_mavlink_fraction)
+        return UploadLimits(c.max_upload_bytes, c.max_upload_rows, c.tlog_min_mavlink_fraction,
+                            max_cells=c.max_upload_cells, max_decoded_bytes=c.max_upload_decoded_bytes)
 
     @property
     def incoming_dir(self) -> Path:

@@ -31,6 +31,8 @@ ERROR_MEANINGS = {
     409: "the resource is not in a state that allows this",
     413: "the upload is larger than the configured limit (bytes or rows)",
     422: "a parameter or body field is invalid (named in detail[].loc)",
+    507: "the data directory's disk is full or failing, or the database cannot be written (detail says which); "
+         "nothing was stored",
 }
 
 
@@ -277,7 +279,7 @@ class FileOut(BaseModel):
 
 class TlogOut(BaseModel):
     id: int
-    path: str
+    path: str = Field(..., description="relative to the data directory (tlogs/live_….tlog); a tlog kept elsewhere: its file name")
     started_at: float
     ended_at: float | None
     size_bytes: int | None

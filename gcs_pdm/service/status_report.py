@@ -36,13 +36,41 @@ def trust_warnings(trust: dict) -> list[dict]:
     """The operator's warnings from the link's trust report (``/status`` ``warnings``, one banner
     each on the console): more than one sender on the vehicle's own id, whose readings are mixed
     as the vehicle's (gcs_pdm.mavlink.sequence)."""
-    seq = trust.get("sequence") if trust.get("available") else None
-    if not seq or not seq.get("shared"):
+    if not trust.get("available"):
         return []
-    # now: the readings being mixed; earlier: some of what was estimated may have been another's
-    return [{"kind": "shared_vehicle_id", "level": "critical" if seq.get("shared_now") else "warning",
-             "title": "More than one sender on the vehicle's id" + ("" if seq.get("shared_now") else " (earlier)"),
-             "text": seq["verdict"]}]
+    out = []
+    seq = trust.get("sequence")
+    if seq and seq.get("shared"):
+        # now: the readings being mixed; earlier: some of what was estimated may have been another's
+        out.append({"kind": "shared_vehicle_id", "level": "critical" if seq.get("shared_now") else "warning",
+                    "title": "More than one sender on the vehicle's id" + ("" if seq.get("shared_now") else " (earlier)"),
+                    "text": seq["verdict"]})
+    clock = trust.get("clock") or {}
+    if clock.get("spoof_suspected"):
+        out.append({"kind": "clock_spoofing", "level": "critical", "title": "Timestamps the vehicle did not send",
+                    "text": clock.get("spoof_reason", "")})
+    beats = trust.get("heartbeats") or {}
+    if beats.get("suspected"):
+        out.append({"kind": "heartbeat_spoofing", "level": "critical",
+                    "title": "Heartbeats out of the vehicle's pattern", "text": beats.get("reason", "")})
+    recording = trust.get("recording") or {}
+    if recording.get("stopped"):
+        # the telemetry is not affected, but nothing of this flight is being kept: /health says so
+        out.append({"kind": "recording_stopped", "level": "warning", "degrades": True,
+                    "title": "Recording stopped", "text": f"{recording.get('reason')}; {recording.get('dropped', 0)} "
+                    "records not recorded; telemetry continues, recording resumes when the disk has room"})
+    signing = trust.get("signing") or {}
+    if signing and not signing.get("signed"):
+        out.append({"kind": "unsigned_link", "level": "warning", "title": "MAVLink link not signed",
+                    "text": ("unsigned packets are accepted" if signing.get("key") else "no signing key: anyone on the "
+                             "link can send as the vehicle (spoofed heartbeats, timestamps, readings are only "
+                             "detected, not prevented); run `gcs-pdm signing init` (docs/operations.md)")})
+    return out
+
+
+def health_reasons(warnings: list[dict]) -> list[str]:
+    """The warnings that make /health degraded: the critical ones and those marked ``degrades``."""
+    return [w["text"] for w in warnings if w["level"] == "critical" or w.get("degrades")]
 
 
 def model_mismatch_summary(model_checks: dict[str, dict]) -> dict | None:

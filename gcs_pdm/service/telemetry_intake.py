@@ -78,6 +78,7 @@ class TelemetryIntake:
         self.link_lost = False
         self.link_lost_reason: str | None = None
         self._last_link_check = -math.inf
+        self._recording_stopped = False  # the live tlog's state last told (an event on each change)
         # wired by the live loop
         self.on_reached: Callable[[int, float], None] = lambda seq, t: None
         self.on_tick: Callable[[float], None] = lambda t: None
@@ -257,6 +258,7 @@ class TelemetryIntake:
         This one check runs on receive (monotonic wall) time, not message time: message time comes
         from the vehicle's own timestamps and simply stops while the vehicle is silent, so silence
         cannot be measured in it. Before the vehicle was ever heard the link is waiting, not lost."""
+        self._check_recording()
         silent_fn = getattr(self.link, "vehicle_silent_s", None)
         silent = silent_fn() if silent_fn is not None else None
         if silent is None:
@@ -273,8 +275,11 @@ class TelemetryIntake:
         self.link_lost = lost
         vehicle = [self.link.target_system, self.link.target_component]
         if lost:
-            self.link_lost_reason = (f"no heartbeat from vehicle {vehicle[0]} for {silent:.1f} s "
-                                     f"(link_lost_after_s = {limit:g})")
+            cause_fn = getattr(self.link, "silence_cause", None)  # heartbeats alone are not the vehicle's life
+            cause = cause_fn() if cause_fn is not None else ""
+            self.link_lost_reason = (f"vehicle {vehicle[0]}: {cause}" if cause.startswith("heartbeats without")
+                                     else f"no heartbeat from vehicle {vehicle[0]} for {silent:.1f} s")
+            self.link_lost_reason += f" (link_lost_after_s = {limit:g})"
             log.warning("link lost: %s", self.link_lost_reason)
             st.update(link={"connected": False, "state": LINK_LOST, "reason": self.link_lost_reason,
                             "silent_s": silent, "lost_at_time_s": self.time_s})
@@ -300,6 +305,20 @@ class TelemetryIntake:
         self._last_status_s = self._last_predict_s = -math.inf
         self._armed = None
         self._landed_state = None
+
+    def _check_recording(self) -> None:
+        """One ``recording`` event when the live tlog stops (a full or failing disk) and one when it
+        resumes; /health and the console's banner read the link's report itself."""
+        report_fn = getattr(self.link, "recording_report", None)
+        if report_fn is None:
+            return
+        rec = report_fn()
+        stopped = bool(rec.get("stopped"))
+        if stopped == self._recording_stopped:
+            return
+        self._recording_stopped = stopped
+        self.service.events.publish("recording", status="stopped" if stopped else "resumed", reason=rec.get("reason"),
+                                    file=rec.get("file"), dropped=rec.get("dropped"), time_s=self.time_s)
 
     def flight_phase(self, t: float) -> FlightPhase:
         """Flying or not, and why, from the latest telemetry and the vehicle's airframe."""

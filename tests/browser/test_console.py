@@ -288,6 +288,10 @@ def test_a_second_sender_on_the_vehicles_id_is_a_banner(service, page):
         expect(page.locator("#conn")).to_have_attribute("data-state", "live", timeout=15_000)
         expect(page.locator("#packs .card").first).to_contain_text("V", timeout=30_000)
         expect(page.locator('[data-banner="status-shared_vehicle_id"]')).to_have_count(0)
+        # the link is not signed: the console says so (issue 34), as a warning, not a critical banner
+        unsigned = page.locator('[data-banner="status-unsigned_link"]')
+        expect(unsigned).to_have_count(1, timeout=15_000)
+        expect(unsigned).to_contain_text("MAVLink link not signed")
         other = PacketFactory(1, 1, numbered=True)
         other.mav.seq = 131
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

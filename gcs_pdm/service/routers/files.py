@@ -6,6 +6,7 @@ it is kept; the limits are the service's configuration (``max_upload_bytes``, ``
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
 from fastapi import APIRouter, File, HTTPException, UploadFile
 
@@ -43,4 +44,14 @@ def files(service: ServiceDep):
 
 @router.get("/tlogs", response_model=list[S.TlogOut])
 def tlogs(service: ServiceDep):
-    return service.store.tlogs()
+    # paths relative to the data directory (a tlog elsewhere: its name): the server's layout is not
+    # the client's business
+    return [{**t, "path": shown_path(t["path"], service.config.data_path)} for t in service.store.tlogs()]
+
+
+def shown_path(path: str, data_dir: Path) -> str:
+    p = Path(path)
+    try:
+        return p.relative_to(data_dir).as_posix()
+    except ValueError:
+        return p.name

@@ -7,7 +7,7 @@ import gcs_pdm
 from gcs_pdm.service import schemas as S
 from gcs_pdm.service.routers.deps import AUTH, ServiceDep, finite
 from gcs_pdm.service.fit_envelope import fit_envelope_warnings
-from gcs_pdm.service.status_report import foreign_system_ids, link_trust, trust_warnings
+from gcs_pdm.service.status_report import foreign_system_ids, health_reasons, link_trust, trust_warnings
 
 router = APIRouter()
 
@@ -16,7 +16,7 @@ router = APIRouter()
 def health(service: ServiceDep):
     link = service.state.get("link")
     reasons = [f"link lost: {link.get('reason')}"] if link.get("state") == "lost" else []
-    reasons += [w["text"] for w in trust_warnings(link_trust(service)) if w["level"] == "critical"]
+    reasons += health_reasons(trust_warnings(link_trust(service)))
     return S.Health(status="degraded" if reasons else "ok", reasons=reasons, version=gcs_pdm.__version__,
                     schema_version=service.store.schema_version,
                     link_connected=bool(link["connected"]), policy=service.policy,

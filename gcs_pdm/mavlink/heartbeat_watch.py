@@ -1,0 +1,104 @@
+"""Whether the tracked vehicle's heartbeats look like one vehicle's.
+
+On an unsigned link anyone can send a HEARTBEAT with the vehicle's system and component id. Alone,
+such heartbeats would keep a silent vehicle "up" (the link's loss is judged by heartbeats). The
+link therefore counts a heartbeat as the vehicle's life only while the vehicle's timed telemetry
+is alive too (``Link.vehicle_silent_s``), and this watch notices heartbeats out of the vehicle's
+pattern:
+
+* ``duplicate``: two within ``MIN_INTERVAL_S`` of wall time with none of the vehicle's timed
+  telemetry between them (autopilots send one a second: a second sender, or a link that duplicates
+  packets; a simulator running faster than real time sends its timed stream between them);
+* ``identity``: a field a vehicle never changes (MAV_TYPE, MAV_AUTOPILOT, mavlink_version) differs
+  from the first heartbeat's;
+* ``out_of_sequence``: its sequence number does not continue the id's previous packet (one sender
+  numbers all its packets with one counter; gcs_pdm.mavlink.sequence);
+* ``uncorroborated``: it arrives while the vehicle's timed telemetry has been silent for more than
+  ``UNCORROBORATED_AFTER_S`` (a heartbeat without the vehicle's stream is not the vehicle).
+
+``SUSPECT_COUNT`` of them within ``WINDOW_S`` (wall seconds) raise ``suspected``: a warning and a
+degraded /health until the window passes. Only MAVLink signing proves who sent a heartbeat.
+"""
+from __future__ import annotations
+
+import logging
+from collections import deque
+
+log = logging.getLogger(__name__)
+
+MIN_INTERVAL_S = 0.25
+UNCORROBORATED_AFTER_S = 3.0
+SUSPECT_COUNT = 3
+WINDOW_S = 60.0
+KINDS = ("duplicate", "identity", "out_of_sequence", "uncorroborated")
+#: HEARTBEAT's payload: custom_mode u32, then type, autopilot, base_mode, system_status, mavlink_version
+_TYPE_AT, _AUTOPILOT_AT, _VERSION_AT = 4, 5, 8
+
+
+def _identity(payload: bytes) -> tuple[int, int, int]:
+    p = bytes(payload).ljust(9, b"\0")  # MAVLink 2 drops trailing zero bytes
+    return p[_TYPE_AT], p[_AUTOPILOT_AT], p[_VERSION_AT]
+
+
+class HeartbeatWatch:
+    def __init__(self):
+        self.counts = dict.fromkeys(KINDS, 0)
+        self.heartbeats = 0
+        self._identity: tuple[int, int, int] | None = None
+        self._last_at: float | None = None
+        self._last_timed_count: int | None = None
+        self._recent: deque[tuple[float, str]] = deque()
+        self._warned = False
+
+    def note(self, at_s: float, payload: bytes, seq: int, previous_seq: int | None,
+             timed_silent_s: float | None, timed_count: int | None = None) -> list[str]:
+        """One heartbeat of the tracked id received at wall time ``at_s``: the anomalies it shows.
+        ``previous_seq``: the id's packet before it; ``timed_silent_s``: wall seconds since the
+        vehicle's timed telemetry was last accepted (None: it never sent any); ``timed_count``: how
+        many timed samples the vehicle clock has accepted so far (None: it has no time yet)."""
+        self.heartbeats += 1
+        found = []
+        ident = _identity(payload)
+        if self._identity is None:
+            self._identity = ident
+        elif ident != self._identity:
+            found.append("identity")
+        if (self._last_at is not None and at_s - self._last_at < MIN_INTERVAL_S and timed_count is not None
+                and timed_count == self._last_timed_count):
+            found.append("duplicate")
+        if previous_seq is not None and not 1 <= (seq - previous_seq) % 256 <= 128:
+            found.append("out_of_sequence")
+        if timed_silent_s is not None and timed_silent_s > UNCORROBORATED_AFTER_S:
+            found.append("uncorroborated")
+        self._last_at = at_s
+        self._last_timed_count = timed_count
+        for kind in found:
+            self.counts[kind] += 1
+            self._recent.append((at_s, kind))
+        self._expire(at_s)
+        if self.suspected(at_s) and not self._warned:
+            self._warned = True
+            log.warning("heartbeats of the vehicle's id out of its pattern: %s", self.reason(at_s))
+        return found
+
+    def _expire(self, now_s: float) -> None:
+        while self._recent and now_s - self._recent[0][0] > WINDOW_S:
+            self._recent.popleft()
+
+    def suspected(self, now_s: float) -> bool:
+        self._expire(now_s)
+        return len(self._recent) >= SUSPECT_COUNT
+
+    def reason(self, now_s: float) -> str:
+        self._expire(now_s)
+        kinds: dict[str, int] = {}
+        for _, kind in self._recent:
+            kinds[kind] = kinds.get(kind, 0) + 1
+        what = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in kinds.items())
+        return (f"{what} in the last {WINDOW_S:g} s: another sender may use the vehicle's ids "
+                "(heartbeats count only with the vehicle's timed telemetry; sign the link)")
+
+    def to_dict(self, now_s: float) -> dict:
+        suspected = self.suspected(now_s)
+        return {"heartbeats": self.heartbeats, "anomalies": dict(self.counts), "suspected": suspected,
+                **({"reason": self.reason(now_s)} if suspected else {})}
