@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import logging
 import sqlite3
-import sys
 
 from gcs_pdm.command_errors import EXIT_NOTHING, error
 
