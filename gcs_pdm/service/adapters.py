@@ -163,14 +163,17 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                     ground_temp_c: float, position: tuple[float, float, float], keep_route: Sequence[int],
                     *, planner: str, particles: int, seed: int, deadline_s: float, time_s: float,
                     visited: Sequence[int] = (), reward_collected: float = 0.0,
-                    limits: Any = None, vehicle=None) -> tuple[list[Candidate], dict]:
+                    limits: Any = None, vehicle=None,
+                    wind_en: tuple[float, float] | None = None) -> tuple[list[Candidate], dict]:
     """Plan from the live state; evaluate the planner's route, the current one and the way home.
 
     Each candidate carries the mission that flies it (``extra["mission"]``: items in the planner's
     ArduPilot layout and the item to make current after the upload). ``vehicle``: a description to
     fly instead of the paper's aircraft; ``state`` and ``faults`` are then its packs' and motors'
     (the scenario keeps the position and waypoints; its four-pack start is a placeholder the
-    simulator does not read, and ``info["vehicle"]`` records the state planned from)."""
+    simulator does not read, and ``info["vehicle"]`` records the state planned from). ``wind_en``:
+    the wind (east, north m/s) every leg is flown in; None (unknown) plans in calm air and says so
+    in ``info["wind_unknown"]``."""
     from gcs_pdm.vehicle.presets import is_paper_aircraft
     from gcs_pdm.missions import item_to_json
     from gcs_pdm.planning.mission import plan_to_mission
@@ -193,7 +196,8 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
     scenario = Scenario.from_live(params, state if paper else _placeholder_state(params, ground_temp_c),
                                   list(faults) if paper else [], wps, (e, n, position[2]),
                                   Home(lat_deg=lat0, lon_deg=lon0, ground_alt_m=alt0, ground_temp_c=ground_temp_c),
-                                  limits, time_s=time_s, reward_collected=reward_collected, visited=tuple(visited))
+                                  limits, time_s=time_s, reward_collected=reward_collected, visited=tuple(visited),
+                                  wind_en_mps=wind_en if wind_en is not None else (0.0, 0.0))
     if paper:
         sim = VehicleSimulator(scenario, params)
     else:
@@ -217,6 +221,8 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                    "mission": {"items": [item_to_json(i) for i in mp.items], "current_seq": mp.current_seq}}))
     info = {"planner": getattr(planned, "planner", planner), "plan_time_s": plan_s, "scenario": scenario.to_dict(),
             "loads": {name: route_load(sim, p.route) for name, p in plans.items()}}
+    if wind_en is None:
+        info["wind_unknown"] = "no wind estimate: planned in calm air"
     if not paper:
         info["vehicle"] = {"name": vehicle.name, "pack_state": np.asarray(state.pack_state).tolist(),
                            "motor_temp_c": np.asarray(state.motor_temp_c).tolist(),

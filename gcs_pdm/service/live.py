@@ -164,7 +164,8 @@ class LiveLoop:
                         ambient_c=float(amb) if amb is not None else 20.0,
                         faults=tuple(self.faults.motor_faults(diagnosed)), fault_records=tuple(diagnosed),
                         current_seq=self.service.state.get("mission")["current_seq"], soc=soc,
-                        estimator=copy.deepcopy(self.estimator) if self.estimator.ready() else None)
+                        estimator=copy.deepcopy(self.estimator) if self.estimator.ready() else None,
+                        wind_en=self.service.state.wind_en())
 
     # --- operator and triggers (any thread) ------------------------------------------------------
 

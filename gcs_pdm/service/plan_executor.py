@@ -55,6 +55,8 @@ class Snapshot:
     #: a frozen copy of the estimator (None before it is ready): the plans' Monte Carlo risk runs
     #: from it on the worker while the live filters move on
     estimator: Any = None
+    #: the wind (the air's velocity east, north, m/s) the plan is flown in; None while unknown
+    wind_en: tuple[float, float] | None = None
 
 
 class UploadOutcome(enum.Enum):
@@ -384,7 +386,7 @@ class PlanExecutor:
             svc.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
             planner=cfg.planner, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
             time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
-            limits=svc.limits, vehicle=svc.vehicle)
+            limits=svc.limits, vehicle=svc.vehicle, wind_en=snap.wind_en)
         chosen, why = choose(cands)
         cands, chosen = self._assess_risk(snap, cands, chosen, info["loads"])
         load = (info["loads"].get(chosen.name), snap.time_s)

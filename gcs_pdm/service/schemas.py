@@ -88,6 +88,10 @@ class VehicleStatus(BaseModel):
     mode: str | None
     mission: dict[str, Any]
     prediction: dict[str, Any] | None
+    wind: dict[str, Any] | None = Field(None, description=(
+        "the wind flown in: speed_mps, from_deg (where it blows from, clockwise from north), east_mps/north_mps "
+        "(the air's velocity), source autopilot (WIND / WIND_COV) | triangle (ground velocity minus the airspeed "
+        "vector), time_s; or unknown with the reason"))
     policy: str | None
     parameter_set: str | None
     failed: str | None = None

@@ -393,6 +393,13 @@ function renderMotors() {
 
 // ---------- header and banners ----------
 function staleSeconds() { return (Date.now() - S.msgAdvancedAt) / 1000; }
+// the wind flown in (/status.wind): speed and where it blows from, and whose estimate it is
+function windText(w) {
+  if (!w) return "";
+  if (!num(w.speed_mps)) return `<span title="${esc(w.unknown || "")}">wind unknown</span>`;
+  const src = w.source === "triangle" ? " (est.)" : "";
+  return `<span id="wind" title="${w.source === "triangle" ? "estimated from ground velocity minus airspeed" : "the autopilot's estimate"}">wind ${w.speed_mps.toFixed(1)} m/s from ${w.from_deg.toFixed(0)}°${src}</span>`;
+}
 function renderHeader() {
   const st = S.status, conn = $("conn");
   let state, text;
@@ -409,6 +416,7 @@ function renderHeader() {
     `mode ${esc(st.mode ?? "unknown")}`, st.armed == null ? "armed: unknown" : (st.armed ? "armed" : "disarmed"),
     num(pos.relative_alt_m) ? `alt ${pos.relative_alt_m.toFixed(0)} m` : "",
     st.airdata && num(st.airdata.airspeed) ? `${st.airdata.airspeed.toFixed(1)} m/s` : "",
+    windText(st.wind),
     `policy ${esc(st.policy ?? "?")}`, `set ${esc(st.parameter_set ?? "?")}`,
   ].filter(Boolean).join(" · ");
 }
