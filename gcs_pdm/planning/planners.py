@@ -73,11 +73,22 @@ def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: Paramete
                   particles: int = 30, seed: int = 0, theta: Sequence[float] = DEFAULT_THETA,
                   dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
                   should_stop: StopCheck | None = None, vehicle=None,
-                  motor_faults: dict[str, float] | None = None) -> Plan:
+                  motor_faults: dict[str, float] | None = None, max_failure_probability: float | None = None,
+                  risk_samples: int = 200) -> Plan:
     """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set), or
     on a vehicle description (``vehicle``, with ``motor_faults`` by its motor names); the CLI's entry
-    (the service builds its simulator itself: ``service.adapters.plan_candidates``)."""
+    (the service builds its simulator itself: ``service.adapters.plan_candidates``).
+
+    ``max_failure_probability`` ε: plan risk-bounded (``planning.risk``: expected reward subject to
+    P(failure) <= ε and the reserve at the 5 % quantile, over ``risk_samples`` draws about the
+    scenario); None: the deterministic planner on the nominal model (the paper's Table III)."""
     entry = resolve(planner)
     sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed, vehicle=vehicle,
                            motor_faults=motor_faults)
+    if max_failure_probability is not None:
+        from gcs_pdm.planning.risk import RiskSimulator, draw, plan_risk_bounded
+
+        risk = RiskSimulator(sim, draw(sim, risk_samples, seed=seed), max_failure_probability=max_failure_probability)
+        return plan_risk_bounded(entry.name, risk, particles=particles, seed=seed, theta=theta,
+                                 should_stop=should_stop)
     return entry.run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
