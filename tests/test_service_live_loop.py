@@ -28,6 +28,7 @@ from gcs_pdm.service.decision import Candidate, choose
 from gcs_pdm.diagnosis.faults import operator_fault
 from gcs_pdm.service.live import LiveLoop
 from gcs_pdm.service.runtime import Service
+from gcs_pdm.service.storage import Conflict
 from gcs_pdm.sim.truth import true_parameters
 
 
@@ -182,12 +183,26 @@ def test_advise_policy_proposes_and_uploads_only_when_approved(tmp_path, frames)
         proposed = svc.store.plans(status="proposed")
         assert len(proposed) == 1 and vehicle.uploads == []
         assert any("proposed" in t for t in statustexts(link))
-        svc.approve(proposed[0]["id"])
+        # made on the fault, minutes of message time ago: approving it re-plans from the current state
+        # first (issue 31), it does not upload the old proposal
+        old = proposed[0]
+        with pytest.raises(Conflict, match="re-planning from the current state"):
+            svc.approve(old["id"])
+        assert svc.store.plan(old["id"])["status"] == "superseded"
+        deadline = time.monotonic() + 60
+        while not svc.store.plans(status="proposed") and time.monotonic() < deadline:
+            time.sleep(0.05)
+        while loop.executor.busy and time.monotonic() < deadline:
+            time.sleep(0.05)
+        fresh = svc.store.plans(status="proposed")
+        assert len(fresh) == 1 and fresh[0]["id"] != old["id"] and vehicle.uploads == []
+        assert fresh[0]["trigger"].startswith(f"approval of plan {old['id']}: re-evaluated first")
+        svc.approve(fresh[0]["id"])
         deadline = time.monotonic() + 20
         while not vehicle.uploads and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(0.2)
-        assert vehicle.uploads and svc.store.plan(proposed[0]["id"])["status"] == "uploaded"
+        assert vehicle.uploads and svc.store.plan(fresh[0]["id"])["status"] == "uploaded"
     finally:
         svc.close()
 

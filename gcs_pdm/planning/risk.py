@@ -326,7 +326,7 @@ class RiskSimulator:
         state = self.start_state(B)
         for level in range(max((len(r) for r in routes), default=0)):
             idx = np.array([b for b, r in enumerate(routes) if len(r) > level], dtype=np.int64)
-            new = self._fly(state.take(idx), np.array([routes[b][level] for b in idx], dtype=np.int64))
+            new = self._fly_memo(state.take(idx), np.array([routes[b][level] for b in idx], dtype=np.int64))
             state = _scatter(state, idx, new)
         out = self.home(state)
         lens = np.array([len(r) for r in routes], dtype=np.int64)

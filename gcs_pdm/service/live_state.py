@@ -61,6 +61,7 @@ class LiveState:
             "armed": None, "mode": None, "system_status": None,
             "mission": {"current_seq": None, "last_reached_seq": None, "count": None},
             "prediction": None,
+            "outlook": {"unknown": "not evaluated yet", "line": "outlook unknown: not evaluated yet"},
             "wind": {"unknown": "no wind estimate from the autopilot and no airspeed with ground velocity yet"},
             "policy": None,
             "parameter_set": None,
@@ -87,6 +88,11 @@ class LiveState:
                     self._s[key].update(value)
                 else:
                     self._s[key] = value
+
+    def replace(self, **sections: Any) -> None:
+        """Set whole sections (``update`` merges a dict into the one there)."""
+        with self._lock:
+            self._s.update(sections)
 
     def update_nested(self, section: str, name: str, **values: Any) -> None:
         with self._lock:

@@ -418,7 +418,14 @@ function renderHeader() {
     st.airdata && num(st.airdata.airspeed) ? `${st.airdata.airspeed.toFixed(1)} m/s` : "",
     windText(st.wind),
     `policy ${esc(st.policy ?? "?")}`, `set ${esc(st.parameter_set ?? "?")}`,
-  ].filter(Boolean).join(" · ");
+  ].filter(Boolean).join(" · ") + outlookHtml(st.outlook);
+}
+// the vehicle-level line, always shown (issue 31): the current mission re-evaluated from the current state
+function outlookHtml(o) {
+  const line = o && o.line ? o.line : "outlook unknown: not evaluated yet";
+  const alarm = o && o.alarm;
+  return `<div id="outlook" class="${alarm ? "bad" : ""}" data-alarm="${alarm ? esc(alarm.level) : ""}">${esc(line)}${
+    o && num(o.time_s) ? ` <span class="muted">(t=${o.time_s.toFixed(0)} s)</span>` : ""}</div>`;
 }
 
 function computeBanners() {
@@ -506,6 +513,15 @@ function uploadOutcome(planId) {
                  failed: "upload FAILED", uploaded_unconfirmed: "uploaded but not confirmed (read-back failed)", sent: "sent, awaiting read-back", uploading: "uploading…"};
   return `<div class="outcome" data-upload-status="${esc(u.status)}">Plan ${planId}: ${esc(words[u.status] || u.status)}${u.error ? " — " + esc(u.error) : ""}</div>`;
 }
+// a proposal's gate (GET /missions/proposed): its age; Approve/Reject off with the reason when the
+// link is lost or the vehicle failed or is on the ground; a stale one is re-planned when approved
+function gateOff(plan) { return plan.gate && plan.gate.blocked ? ` disabled title="${esc(plan.gate.reason || "")}"` : ""; }
+function gateText(plan) {
+  const g = plan.gate;
+  if (!g) return "";
+  const age = num(g.age_s) ? `${g.age_s.toFixed(0)} s old` : "age unknown";
+  return `<span class="gate${g.blocked ? " bad" : ""}" data-blocked="${g.blocked}" data-stale="${g.stale}">${esc(age)}${g.reason ? " — " + esc(g.reason) : ""}</span>`;
+}
 function renderDecision() {
   const host = $("decision-body");
   const parts = [];
@@ -521,8 +537,9 @@ function renderDecision() {
         <tr><th>landing SoC</th><td>${a[2]}</td><td>${b[2]}</td></tr>
         <tr><th>probability of failure</th><td>${a[3]}</td><td>${b[3]}</td></tr></table>
       <div>${esc(plan.why || "")}</div>
-      <div class="actions"><button class="approve" id="approve-${plan.id}" data-act="approve" data-id="${plan.id}">Approve and upload</button>
-        <button class="reject" id="reject-${plan.id}" data-act="reject" data-id="${plan.id}">Reject</button>
+      <div class="actions"><button class="approve" id="approve-${plan.id}" data-act="approve" data-id="${plan.id}"${gateOff(plan)}>Approve and upload</button>
+        <button class="reject" id="reject-${plan.id}" data-act="reject" data-id="${plan.id}"${gateOff(plan)}>Reject</button>
+        ${gateText(plan)}
         <span class="decision-state">${dec ? esc(dec.text) : ""}</span></div></div>`);
   }
   // the latest decided plan and what became of its upload
@@ -726,6 +743,9 @@ async function pollStatus() {
   }
   renderHeader(); renderBanners(); renderPacks(); renderMotors();
   if (S.mission == null && S.statusOk) refreshMission();
+  // a waiting proposal's gate (age; blocked when the link is lost or the vehicle failed or landed) moves
+  // with the vehicle's state, not only on plan events
+  if (S.proposed.length && S.statusOk) refreshPlans();
   if (!fitted) drawMission();
   drawVehicle();
   if (timelineDirty) { timelineDirty = false; renderTimeline(); }
