@@ -97,8 +97,12 @@ def frames():
     return fault_frames()
 
 
-def make_loop(tmp_path, policy, mission, fail_uploads=0):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy=policy, planner_deadline_s=20.0))
+def make_loop(tmp_path, policy, mission, fail_uploads=0, reevaluate_every_s=3600.0):
+    # the frames are replayed as fast as they go: minutes of flight pass while a plan is made, so
+    # plans would be stale before they are done (issue 31) unless the re-evaluation period is long;
+    # the tests of staleness pass a realistic one
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy=policy,
+                              planner_deadline_s=20.0, reevaluate_every_s=reevaluate_every_s))
     svc.load_objectives_scenario(preflight_scenario(10))
     link = FakeLink()
     vehicle = FakeVehicleMissions(mission.items, fail_uploads)
@@ -177,7 +181,7 @@ def test_auto_policy_diagnoses_replans_uploads_and_confirms(tmp_path, frames):
 @pytest.mark.slow
 def test_advise_policy_proposes_and_uploads_only_when_approved(tmp_path, frames):
     mission = original_mission()
-    svc, loop, link, vehicle = make_loop(tmp_path, "advise", mission)
+    svc, loop, link, vehicle = make_loop(tmp_path, "advise", mission, reevaluate_every_s=30.0)
     try:
         run(loop, frames, mission)
         proposed = svc.store.plans(status="proposed")
@@ -896,5 +900,26 @@ def test_without_an_estimate_a_proposal_says_its_risk_is_unknown(tmp_path, monke
         loop.executor.plan("fault", loop.snapshot())
         (plan,) = svc.store.plans(status="proposed")
         assert plan["chosen"]["risk_unknown"] == "no load profile for this route"
+    finally:
+        svc.close()
+
+
+@pytest.mark.slow
+def test_auto_policy_does_not_upload_a_plan_that_went_stale_while_planning(tmp_path, frames):
+    """Planned from the fault's state while the (replayed) vehicle flew on for minutes: not uploaded,
+    recorded superseded, and planned again from the current state, which is uploaded (issue 31)."""
+    mission = original_mission()
+    svc, loop, link, vehicle = make_loop(tmp_path, "auto", mission, reevaluate_every_s=30.0)
+    try:
+        run(loop, frames, mission)
+        deadline = time.monotonic() + 60
+        while (not vehicle.uploads or loop.executor.busy) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        plans = {p["id"]: p for p in svc.store.plans(limit=100)}
+        stale = [p for p in plans.values() if p["status"] == "superseded" and p["trigger"].startswith("fault:")]
+        assert stale, [(p["id"], p["trigger"], p["status"]) for p in plans.values()]
+        again = [p for p in plans.values() if p["trigger"] == f"plan {stale[0]['id']} went stale while planning"]
+        assert again and again[0]["time_s"] > stale[0]["time_s"]
+        assert vehicle.uploads and again[0]["status"] == "uploaded"
     finally:
         svc.close()

@@ -226,7 +226,10 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
             from gcs_pdm.planning.planners import resolve
             from gcs_pdm.planning.risk import plan_risk_bounded
 
-            planned = plan_risk_bounded(resolve(planner).name, judge, particles=particles, seed=seed,
+            # the risk search runs Algorithm 1 for "auto"/"pfls": PF + local search over the draws does
+            # not fit a replan's budget (20 s on a 10-waypoint field, vs ~1-5 s for the PF)
+            name = resolve(planner).name
+            planned = plan_risk_bounded("pf" if name == "pfls" else name, judge, particles=particles, seed=seed,
                                         should_stop=_deadline(deadline_s))
         else:
             planned = run_planner(planner, sim, particles=particles, seed=seed, deadline_s=deadline_s)

@@ -416,6 +416,18 @@ class PlanExecutor:
         body["items"] = mission["items"]
         body["current_seq"] = mission["current_seq"]
         auto = svc.policy == "auto" and chosen.feasible
+        now = self._now()
+        if auto and now is not None and now - snap.time_s > cfg.reevaluate_every_s:
+            # the vehicle flew on while this was planned: its start is no longer where the vehicle is,
+            # so it is not uploaded (issue 31: never act on a state the service cannot support); plan
+            # again from the current state
+            pid = svc.store.add_plan(body, reason, "superseded", snap.time_s)
+            note = (f"stale: planned from t={snap.time_s:.0f} s, done at t={now:.0f} s "
+                    f"(> reevaluate_every_s {cfg.reevaluate_every_s:g} s); re-planned from the current state")
+            svc.events.publish("plan", id=pid, status="superseded", time_s=now, why=note, chosen=chosen.to_dict())
+            log.warning("plan %d not uploaded: %s", pid, note)
+            self.request_replan(f"plan {pid} went stale while planning")
+            return
         pid = svc.store.add_plan(body, reason, "approved" if auto else "proposed", snap.time_s)
         self.loads[pid] = load
         svc.events.publish("plan", id=pid, status="approved" if auto else "proposed", time_s=snap.time_s, why=why,
