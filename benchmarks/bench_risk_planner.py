@@ -1,6 +1,7 @@
 """Risk-bounded planning benchmark (issue 31, parts 2 and 5).
 
-1. **Speed**: 10 waypoints (table3_10) × 200 draws, the risk-bounded particle filter
+1. **Speed**: table3_10 (10 waypoints, 8 still free) and preflight_10 (all 10 free, the fault known
+   before take-off) × 200 draws, the risk-bounded particle filter
    (``plan_risk_bounded("pf", ...)``: search on 50 draws at 30 s, the finalists decided on all 200
    at 10 s), wall time per plan over ``--trials`` seeds, with the machine's load average beside it.
 2. **Table III under uncertainty**: table3_{7..10} in wind (``--wind SPEED@FROM``), each planned by
@@ -47,18 +48,20 @@ def wilson_upper(k: int, n: int, z: float = 1.96) -> float:
     return min(1.0, (centre + half) / (1 + z * z / n))
 
 
-def speed(trials: int, samples: int) -> dict:
-    sc = table3_scenario(true_parameters(), 10)
+def speed(trials: int, samples: int, sc) -> dict:
     warm = VehicleSimulator(sc)
     plan_risk_bounded("pf", RiskSimulator(warm, draw(warm, samples, seed=99)), seed=99)
     times = []
+    load = []
     for seed in range(trials):
         t = time.perf_counter()
         base = VehicleSimulator(sc)
         plan_risk_bounded("pf", RiskSimulator(base, draw(base, samples, seed=seed)), seed=seed)
         times.append(time.perf_counter() - t)
-    return {"waypoints": 10, "samples": samples, "trials": trials, "median_s": float(np.median(times)),
-            "max_s": float(np.max(times)), "load_average_1min": os.getloadavg()[0], "cpus": os.cpu_count()}
+        load.append(os.getloadavg()[0])
+    return {"scenario": sc.name, "free_waypoints": len(sc.waypoints), "samples": samples, "trials": trials,
+            "median_s": float(np.median(times)), "max_s": float(np.max(times)),
+            "load_average_1min": float(np.mean(load)), "cpus": os.cpu_count()}
 
 
 def score(route, truth: RiskSimulator) -> dict:
@@ -118,9 +121,14 @@ def main() -> int:
     ap.add_argument("--eps", type=float, default=0.02)
     ap.add_argument("--skip-table", action="store_true")
     args = ap.parse_args()
-    sp = speed(args.trials, args.samples)
-    print(f"risk-bounded PF, 10 waypoints x {args.samples} draws: median {sp['median_s']:.3f} s, "
-          f"max {sp['max_s']:.3f} s (load average {sp['load_average_1min']:.1f} on {sp['cpus']} CPUs)", flush=True)
+    from gcs_pdm.planning.table3_scenario import preflight_scenario
+
+    sp = [speed(args.trials, args.samples, sc) for sc in (table3_scenario(true_parameters(), 10),
+                                                          preflight_scenario(10))]
+    for s in sp:
+        print(f"risk-bounded PF, {s['scenario']} ({s['free_waypoints']} free waypoints) x {args.samples} draws: "
+              f"median {s['median_s']:.3f} s, max {s['max_s']:.3f} s (load average {s['load_average_1min']:.1f} "
+              f"on {s['cpus']} CPUs)", flush=True)
     result = {"speed": sp, "eps": args.eps, "wind": args.wind}
     if not args.skip_table:
         result["table3"] = table3(args.truths, args.samples, args.wind, args.eps)
