@@ -2,7 +2,7 @@
 
 1. **Speed**: table3_10 (10 waypoints, 8 still free) and preflight_10 (all 10 free, the fault known
    before take-off) × 200 draws, the risk-bounded particle filter
-   (``plan_risk_bounded("pf", ...)``: search on 50 draws at 30 s, the finalists decided on all 200
+   (``run_risk_bounded("pf", ...)``: search on 50 draws at 30 s, the finalists decided on all 200
    at 10 s), wall time per plan over ``--trials`` seeds, with the machine's load average beside it.
 2. **Table III under uncertainty**: table3_{7..10} in wind (``--wind SPEED@FROM``), each planned by
    the deterministic PF (the nominal model, the paper's objective), the risk-bounded PF and the
@@ -33,7 +33,8 @@ sys.path.insert(0, str(ROOT))
 
 from gcs_pdm.models.wind import wind_from_speed_direction  # noqa: E402
 from gcs_pdm.planning.particle_filter import particle_filter  # noqa: E402
-from gcs_pdm.planning.risk import RiskSimulator, draw, plan_risk_bounded  # noqa: E402
+from gcs_pdm.planning.planners import run_risk_bounded  # noqa: E402
+from gcs_pdm.planning.risk import RiskSimulator, draw  # noqa: E402
 from gcs_pdm.planning.simulator import VehicleSimulator  # noqa: E402
 from gcs_pdm.planning.table3_scenario import table3_scenario  # noqa: E402
 from gcs_pdm.sim.truth import true_parameters  # noqa: E402
@@ -50,13 +51,13 @@ def wilson_upper(k: int, n: int, z: float = 1.96) -> float:
 
 def speed(trials: int, samples: int, sc) -> dict:
     warm = VehicleSimulator(sc)
-    plan_risk_bounded("pf", RiskSimulator(warm, draw(warm, samples, seed=99)), seed=99)
+    run_risk_bounded("pf", RiskSimulator(warm, draw(warm, samples, seed=99)), seed=99)
     times = []
     load = []
     for seed in range(trials):
         t = time.perf_counter()
         base = VehicleSimulator(sc)
-        plan_risk_bounded("pf", RiskSimulator(base, draw(base, samples, seed=seed)), seed=seed)
+        run_risk_bounded("pf", RiskSimulator(base, draw(base, samples, seed=seed)), seed=seed)
         times.append(time.perf_counter() - t)
         load.append(os.getloadavg()[0])
     return {"scenario": sc.name, "free_waypoints": len(sc.waypoints), "samples": samples, "trials": trials,
@@ -99,7 +100,7 @@ def table3(truths: int, samples: int, wind_text: str, eps: float) -> dict:
             planner = "pf" if name == "pf_risk" else "exact"
             t = time.perf_counter()
             rs = RiskSimulator(base, draw(base, samples, seed=n), max_failure_probability=eps)
-            p = plan_risk_bounded(planner, rs, seed=0, **kw)
+            p = run_risk_bounded(planner, rs, seed=0, **kw)
             rows[name] = {**score(p.route, truth), "route": list(p.numbers), "plan_s": time.perf_counter() - t,
                           "planned_p_failure": p.stats["risk"]["p_failure"],
                           "planned_landing_soc_q05": p.stats["risk"]["landing_soc_quantiles"]["soc"][0]}

@@ -10,7 +10,8 @@ import pytest
 from gcs_pdm.planning.exact import exact_search
 from gcs_pdm.planning.particle_filter import particle_filter
 from gcs_pdm.planning.plan import rank
-from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw, plan_risk_bounded
+from gcs_pdm.planning.planners import run_risk_bounded
+from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw
 from gcs_pdm.planning.simulator import VehicleSimulator
 from gcs_pdm.planning.table3_scenario import table3_scenario
 from gcs_pdm.sim.truth import true_parameters
@@ -64,7 +65,7 @@ def test_risk_plan_keeps_the_bound_where_the_nominal_plan_does_not(table3_10):
     # the nominal plan promises the reserve but misses it on many draws
     assert nominal.feasible
     assert nominal_risk["landing_soc_quantiles"]["soc"][0] < table3_10.limits.landing_reserve_soc
-    plan = plan_risk_bounded("pf", risk, seed=0)
+    plan = run_risk_bounded("pf", risk, seed=0)
     r = plan.stats["risk"]
     assert plan.feasible and r["samples"] == 200
     assert r["p_failure"] <= 0.02

@@ -13,6 +13,7 @@ from typing import Callable, Sequence
 
 from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.planning.plan import Plan
+from gcs_pdm.planning.risk import RiskSimulator, draw, plan_risk_bounded
 from gcs_pdm.planning.scenario import Scenario
 from gcs_pdm.planning.simulator import DEFAULT_DT_S, DEFAULT_THETA, VehicleSimulator
 
@@ -69,6 +70,11 @@ def run_planner(name: str, sim: VehicleSimulator, *, particles: int = 30, seed=0
     return resolve(name).run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
 
 
+def run_risk_bounded(name: str, sim: RiskSimulator, **kw) -> Plan:
+    """The named planner (or alias) with the risk-aware objective on ``sim`` (``risk.plan_risk_bounded``)."""
+    return plan_risk_bounded(resolve(name).run, sim, **kw)
+
+
 def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: ParameterSet | None = None,
                   particles: int = 30, seed: int = 0, theta: Sequence[float] = DEFAULT_THETA,
                   dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
@@ -86,9 +92,7 @@ def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: Paramete
     sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed, vehicle=vehicle,
                            motor_faults=motor_faults)
     if max_failure_probability is not None:
-        from gcs_pdm.planning.risk import RiskSimulator, draw, plan_risk_bounded
-
         risk = RiskSimulator(sim, draw(sim, risk_samples, seed=seed), max_failure_probability=max_failure_probability)
-        return plan_risk_bounded(entry.name, risk, particles=particles, seed=seed, theta=theta,
+        return plan_risk_bounded(entry.run, risk, particles=particles, seed=seed, theta=theta,
                                  should_stop=should_stop)
     return entry.run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)

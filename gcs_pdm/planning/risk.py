@@ -354,11 +354,13 @@ class RiskSimulator:
                 "samples": self.S, "max_failure_probability": self.eps, "reserve_quantile": self.reserve_quantile}
 
 
-def plan_risk_bounded(planner: str, sim: RiskSimulator, *, search_samples: int | None = DEFAULT_SEARCH_SAMPLES,
+def plan_risk_bounded(search: Callable[..., Plan], sim: RiskSimulator, *,
+                      search_samples: int | None = DEFAULT_SEARCH_SAMPLES,
                       search_dt_s: float | None = DEFAULT_SEARCH_DT_S, finalists: int = 12,
                       particles: int = 30, seed=0, theta: Sequence[float] = DEFAULT_THETA,
                       should_stop: Callable[[], bool] | None = None) -> Plan:
-    """Run ``planner`` (a registry name: ``pf``, ``exact``, …) with the risk-aware objective.
+    """Run the planner ``search`` (a registry entry's ``run(sim, *, particles, seed, theta,
+    should_stop)``; by name: ``planners.run_risk_bounded``) with the risk-aware objective.
 
     With ``search_samples`` (< the draws), the search runs on that common subset of the draws
     sampled at ``search_dt_s`` (coarser than the planning step: it only ranks routes), and
@@ -366,20 +368,18 @@ def plan_risk_bounded(planner: str, sim: RiskSimulator, *, search_samples: int |
     are flown on ALL the draws; the best of them that keeps the risk bound there is the plan. So
     the decision, and every figure reported with it, is on all the draws; the subset only steers
     the search (the 1-s budget: docs/planning.md). ``search_samples=None`` searches on all of them."""
-    from gcs_pdm.planning.planners import run_planner
-
     if search_samples is None or search_samples >= sim.S:
-        search = sim if search_dt_s is None else sim.subset(sim.S, search_dt_s)
+        search_sim = sim if search_dt_s is None else sim.subset(sim.S, search_dt_s)
     else:
-        search = sim.subset(int(search_samples), search_dt_s)
-    found = run_planner(planner, search, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
-    ranked = sorted(search.seen.items(), key=lambda kv: (not kv[1][0], -kv[1][1], -kv[1][2]))
+        search_sim = sim.subset(int(search_samples), search_dt_s)
+    found = search(search_sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
+    ranked = sorted(search_sim.seen.items(), key=lambda kv: (not kv[1][0], -kv[1][1], -kv[1][2]))
     routes = [found.route, ()] + [r for r, v in ranked[:finalists] if v[0]]
     routes = list(dict.fromkeys(tuple(r) for r in routes))
     ev = sim.evaluate(routes)
     obj = ev.objective(theta)
     i = rank(np.where(ev.feasible, ev.reward, -1.0), np.where(ev.feasible, obj, -np.inf))
-    stats = dict(found.stats, search_samples=search.S, finalists=len(routes), searched_planner=found.planner,
+    stats = dict(found.stats, search_samples=search_sim.S, finalists=len(routes), searched_planner=found.planner,
                  risk=sim.risk_of(routes[i]))
     return make_plan(sim, routes[i], f"{found.planner}_risk", theta, **stats)
 

@@ -223,14 +223,13 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
         planned = None
     else:
         if judge is not sim:
-            from gcs_pdm.planning.planners import resolve
-            from gcs_pdm.planning.risk import plan_risk_bounded
+            from gcs_pdm.planning.planners import resolve, run_risk_bounded
 
             # the risk search runs Algorithm 1 for "auto"/"pfls": PF + local search over the draws does
             # not fit a replan's budget (20 s on a 10-waypoint field, vs ~1-5 s for the PF)
             name = resolve(planner).name
-            planned = plan_risk_bounded("pf" if name == "pfls" else name, judge, particles=particles, seed=seed,
-                                        should_stop=_deadline(deadline_s))
+            planned = run_risk_bounded("pf" if name == "pfls" else name, judge, particles=particles, seed=seed,
+                                       should_stop=_deadline(deadline_s))
         else:
             planned = run_planner(planner, sim, particles=particles, seed=seed, deadline_s=deadline_s)
         plans = {"planner": planned, "keep": make_plan(judge, keep, "keep"), "home": make_plan(judge, [], "home")}
