@@ -5,6 +5,7 @@
 (STATUSTEXT) and a replan proposes a route."""
 from __future__ import annotations
 
+import re
 import time
 
 import pytest
@@ -50,6 +51,15 @@ def test_the_landing_forecast_alarm_is_a_banner_and_a_marked_outlook_line(tmp_pa
             time.sleep(0.5)
             trigger = [p["trigger"] for p in service.get("/missions/history?limit=50")]
         assert any(t.startswith("alarm:") for t in trigger), (trigger, (tmp_path / "svc" / "serve.log").read_text()[-3000:])
+        # a waiting proposal shows its age; once the vehicle is silent, Approve and Reject are off with the reason
+        expect(page.locator(".plan .gate").first).to_contain_text("s old", timeout=60_000)
+        approve = page.locator(".plan button.approve").first
+        expect(approve).to_be_enabled()
+        sim.stop()
+        expect(approve).to_be_disabled(timeout=30_000)
+        expect(approve).to_have_attribute("title", re.compile("link lost"))
+        expect(page.locator(".plan button.reject").first).to_be_disabled()
+        expect(page.locator(".plan .gate").first).to_contain_text("link lost")
         assert not errors, f"JavaScript errors on the page: {errors}"
     finally:
         ctx.close()
