@@ -164,6 +164,11 @@ class LiveLoop:
             return
         if not self.telemetry.flight_phase(t).flying:
             return
+        if self._last_reevaluation_s == -math.inf:
+            # the first evaluation comes one period into the flight: at the take-off roll the
+            # estimate has just started (its spread is the prior's) and no decision should rest on it
+            self._last_reevaluation_s = t
+            return
         self._last_reevaluation_s = t
         self.executor.submit_outlook(self.snapshot())
         pending = self.service.store.plans(status="proposed", limit=1)
