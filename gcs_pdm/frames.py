@@ -70,6 +70,16 @@ class AirdataFrame:
 
 
 @dataclass(frozen=True, slots=True)
+class WindFrame:
+    """The autopilot's wind estimate: speed m/s and the direction it blows FROM, degrees clockwise
+    from north in [0, 360) (ArduPilot's WIND convention; PX4's WIND_COV velocity is turned into it)."""
+
+    time_s: float
+    speed_mps: float | None
+    from_deg: float | None
+
+
+@dataclass(frozen=True, slots=True)
 class StatusFrame:
     """Armed state, flight mode name and MAV_STATE of the vehicle."""
 
@@ -106,6 +116,7 @@ Frame = Union[
     StatusFrame,
     MissionProgressFrame,
     StatusTextFrame,
+    WindFrame,
 ]
 
 # Short names used in the mapping configuration and in replay summaries.
@@ -118,5 +129,6 @@ FRAME_KINDS: dict[str, type] = {
     "status": StatusFrame,
     "mission_progress": MissionProgressFrame,
     "statustext": StatusTextFrame,
+    "wind": WindFrame,
 }
 FRAME_KIND_OF: dict[type, str] = {cls: kind for kind, cls in FRAME_KINDS.items()}

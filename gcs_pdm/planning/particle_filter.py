@@ -108,12 +108,11 @@ def particle_filter(sim: VehicleSimulator, *, particles: int = 30, iterations: i
 
 
 def _scatter(base, idx: np.ndarray, values):
-    """``base`` with rows ``idx`` replaced by ``values`` (FlightState, functional)."""
-    from gcs_pdm.planning.simulator import FlightState
-
+    """``base`` with rows ``idx`` replaced by ``values`` (a FlightState, or the risk simulator's
+    RiskState: any dataclass of arrays batched on the first axis; functional)."""
     fields = {}
-    for f in FlightState.__dataclass_fields__:
+    for f in type(base).__dataclass_fields__:
         a = getattr(base, f).copy()
         a[idx] = getattr(values, f)
         fields[f] = a
-    return FlightState(**fields)
+    return type(base)(**fields)

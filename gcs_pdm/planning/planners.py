@@ -13,6 +13,7 @@ from typing import Callable, Sequence
 
 from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.planning.plan import Plan
+from gcs_pdm.planning.risk import RiskSimulator, draw, plan_risk_bounded
 from gcs_pdm.planning.scenario import Scenario
 from gcs_pdm.planning.simulator import DEFAULT_DT_S, DEFAULT_THETA, VehicleSimulator
 
@@ -69,15 +70,29 @@ def run_planner(name: str, sim: VehicleSimulator, *, particles: int = 30, seed=0
     return resolve(name).run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
 
 
+def run_risk_bounded(name: str, sim: RiskSimulator, **kw) -> Plan:
+    """The named planner (or alias) with the risk-aware objective on ``sim`` (``risk.plan_risk_bounded``)."""
+    return plan_risk_bounded(resolve(name).run, sim, **kw)
+
+
 def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: ParameterSet | None = None,
                   particles: int = 30, seed: int = 0, theta: Sequence[float] = DEFAULT_THETA,
                   dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
                   should_stop: StopCheck | None = None, vehicle=None,
-                  motor_faults: dict[str, float] | None = None) -> Plan:
+                  motor_faults: dict[str, float] | None = None, max_failure_probability: float | None = None,
+                  risk_samples: int = 200) -> Plan:
     """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set), or
     on a vehicle description (``vehicle``, with ``motor_faults`` by its motor names); the CLI's entry
-    (the service builds its simulator itself: ``service.adapters.plan_candidates``)."""
+    (the service builds its simulator itself: ``service.adapters.plan_candidates``).
+
+    ``max_failure_probability`` ε: plan risk-bounded (``planning.risk``: expected reward subject to
+    P(failure) <= ε and the reserve at the 5 % quantile, over ``risk_samples`` draws about the
+    scenario); None: the deterministic planner on the nominal model (the paper's Table III)."""
     entry = resolve(planner)
     sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed, vehicle=vehicle,
                            motor_faults=motor_faults)
+    if max_failure_probability is not None:
+        risk = RiskSimulator(sim, draw(sim, risk_samples, seed=seed), max_failure_probability=max_failure_probability)
+        return plan_risk_bounded(entry.run, risk, particles=particles, seed=seed, theta=theta,
+                                 should_stop=should_stop)
     return entry.run(sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)

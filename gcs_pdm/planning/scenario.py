@@ -20,6 +20,7 @@ from gcs_pdm.geo import enu_from_geodetic
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, builtin
 from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState
+from gcs_pdm.models.wind import wind_from_speed_direction
 
 FORMAT_VERSION = 1
 
@@ -135,6 +136,9 @@ class Scenario:
     description: str = ""
     return_airspeed_mps: float = 25.0
     max_climb_rate_mps: float = 5.0
+    #: the wind the legs are flown in, m/s, the velocity of the air (the direction it blows towards)
+    wind_east_mps: float = 0.0
+    wind_north_mps: float = 0.0
 
     def __post_init__(self) -> None:
         numbers = [w.number for w in self.waypoints]
@@ -142,6 +146,15 @@ class Scenario:
             raise ScenarioError(f"waypoints: numbers must be unique, got {numbers}")
         if self.return_airspeed_mps <= 0 or self.max_climb_rate_mps <= 0:
             raise ScenarioError("return_airspeed_mps and max_climb_rate_mps must be > 0")
+        if not (math.isfinite(self.wind_east_mps) and math.isfinite(self.wind_north_mps)):
+            raise ScenarioError("wind: east_mps and north_mps must be finite")
+
+    @property
+    def wind_en_mps(self) -> tuple[float, float]:
+        return (float(self.wind_east_mps), float(self.wind_north_mps))
+
+    def with_wind(self, east_mps: float, north_mps: float) -> "Scenario":
+        return _replace(self, wind_east_mps=float(east_mps), wind_north_mps=float(north_mps))
 
     # ---- parameters ----------------------------------------------------------------------------
     def parameter_set(self) -> ParameterSet:
@@ -164,7 +177,8 @@ class Scenario:
     def from_live(cls, params: ParameterSet, state: PowertrainState, faults: Sequence[MotorFault],
                   waypoints: Sequence[Waypoint], position_enu: tuple[float, float, float], home: Home,
                   limits: PlanLimits | None = None, *, name: str = "live", time_s: float = 0.0,
-                  reward_collected: float = 0.0, visited: Sequence[int] = ()) -> "Scenario":
+                  reward_collected: float = 0.0, visited: Sequence[int] = (),
+                  wind_en_mps: tuple[float, float] = (0.0, 0.0)) -> "Scenario":
         """The scenario the service builds: the estimated state (full pack states) of ``params``."""
         x = np.asarray(state.pack_state, dtype=np.float64)
         start = StartState(east_m=position_enu[0], north_m=position_enu[1], alt_m=position_enu[2],
@@ -173,7 +187,7 @@ class Scenario:
                            pack_state=tuple(tuple(float(v) for v in row) for row in x), time_s=time_s)
         return cls(name=name, home=home, start=start, waypoints=tuple(waypoints), faults=tuple(faults),
                    limits=limits or PlanLimits(), params=params.to_dict(), reward_collected=reward_collected,
-                   visited=tuple(visited))
+                   visited=tuple(visited), wind_east_mps=float(wind_en_mps[0]), wind_north_mps=float(wind_en_mps[1]))
 
     # ---- JSON ----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -202,6 +216,9 @@ class Scenario:
             "params": self.params if isinstance(self.params, str) else dict(self.params),
             "reward_collected": self.reward_collected, "visited": list(self.visited),
             "return_airspeed_mps": self.return_airspeed_mps, "max_climb_rate_mps": self.max_climb_rate_mps,
+            # calm air is the default and is left out (scenario files written before wind stay as they were)
+            **({"wind": {"east_mps": self.wind_east_mps, "north_mps": self.wind_north_mps}}
+               if self.wind_en_mps != (0.0, 0.0) else {}),
         }
 
     def to_json(self, **kw: Any) -> str:
@@ -261,7 +278,8 @@ class Scenario:
                        visited=tuple(int(v) for v in data.get("visited", ())),
                        description=str(data.get("description", "")),
                        return_airspeed_mps=float(data.get("return_airspeed_mps", 25.0)),
-                       max_climb_rate_mps=float(data.get("max_climb_rate_mps", 5.0)))
+                       max_climb_rate_mps=float(data.get("max_climb_rate_mps", 5.0)),
+                       **_wind_fields(data.get("wind")))
         except KeyError as exc:
             raise ScenarioError(f"scenario: missing field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:
@@ -276,6 +294,22 @@ class Scenario:
         except json.JSONDecodeError as exc:
             raise ScenarioError(f"scenario: not JSON: {exc}") from None
         return cls.from_dict(data)
+
+
+def _wind_fields(wind: Any) -> dict[str, float]:
+    """``"wind": {"east_mps": e, "north_mps": n}`` (the air's velocity) or
+    ``{"speed_mps": s, "from_deg": d}`` (where it blows from, as a forecast or ArduPilot's WIND says it)."""
+    if wind is None:
+        return {}
+    if not isinstance(wind, Mapping):
+        raise ScenarioError("wind: expected {east_mps, north_mps} or {speed_mps, from_deg}")
+    keys = set(wind)
+    if keys == {"east_mps", "north_mps"}:
+        return {"wind_east_mps": float(wind["east_mps"]), "wind_north_mps": float(wind["north_mps"])}
+    if keys == {"speed_mps", "from_deg"}:
+        east, north = wind_from_speed_direction(float(wind["speed_mps"]), float(wind["from_deg"]))
+        return {"wind_east_mps": east, "wind_north_mps": north}
+    raise ScenarioError(f"wind: expected {{east_mps, north_mps}} or {{speed_mps, from_deg}}, got {sorted(keys)}")
 
 
 def _replace(s: Scenario, **changes: Any) -> Scenario:

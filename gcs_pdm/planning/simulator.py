@@ -35,12 +35,18 @@ from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
                                        fault_vector, shaft_power)
 from gcs_pdm.models.topology import simulate_vehicle
+from gcs_pdm.models.wind import ground_speed
 from gcs_pdm.planning.scenario import Scenario
 
 #: safety margins on the verdicts of coarse (> 1 s) planning steps; see _set_verdict_limits
 VERDICT_MARGIN_SOC = 0.001
 VERDICT_MARGIN_V = 0.02
 VERDICT_MARGIN_C = 0.1
+
+#: a leg the wind makes unflyable at its airspeed (ground speed below MIN_GROUND_SPEED_MPS) is one
+#: short sample at a power no motor delivers: the kernel fails it ("motors cannot deliver the power")
+UNFLYABLE_LEG_S = 1.0
+UNFLYABLE_POWER_W = 1e9
 
 #: failure code for a route that lands with a pack below the landing reserve
 FAIL_RESERVE = 6
@@ -240,7 +246,14 @@ class VehicleSimulator:
         sc = self.scenario
         dist = float(np.hypot(*(b[:2] - a[:2])))
         dz = float(b[2] - a[2])
-        t = dist / airspeed
+        if dist > 0.0 and sc.wind_en_mps != (0.0, 0.0):
+            # the wind triangle: the aircraft crabs to hold the track, the along-track wind adds
+            vg = float(ground_speed((b[0] - a[0]) / dist, (b[1] - a[1]) / dist, airspeed, sc.wind_en_mps))
+            if not np.isfinite(vg):
+                return UNFLYABLE_LEG_S, dist, UNFLYABLE_POWER_W, 20.0, airspeed
+            t = dist / vg
+        else:
+            t = dist / airspeed
         # too steep to fly straight: climb or descend in a spiral at the vehicle's climb rate
         t = max(t, abs(dz) / sc.max_climb_rate_mps)
         climb = dz / t if t > 0 else 0.0
@@ -289,7 +302,9 @@ class VehicleSimulator:
         x0 = np.broadcast_to(self.initial.pack_state, (len(rows),) + np.shape(self.initial.pack_state))
         tm0 = np.broadcast_to(self.initial.motor_temp_c, (len(rows), np.size(self.initial.motor_temp_c)))
         run = self._simulate(x0, tm0, dt, pw, am, verdict=False)
-        energy = run.energy_j.reshape(len(pairs), len(candidates))
+        # a candidate the wind makes unflyable on its leg is never the cheapest
+        flyable = np.array([p[2] < UNFLYABLE_POWER_W for p in prof])
+        energy = np.where(flyable, run.energy_j, np.inf).reshape(len(pairs), len(candidates))
         out = info.copy()
         for r, (i, j) in enumerate(pairs):
             out[i, j] = prof[r * len(candidates) + int(np.argmin(energy[r]))]

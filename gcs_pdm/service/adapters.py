@@ -163,14 +163,21 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                     ground_temp_c: float, position: tuple[float, float, float], keep_route: Sequence[int],
                     *, planner: str, particles: int, seed: int, deadline_s: float, time_s: float,
                     visited: Sequence[int] = (), reward_collected: float = 0.0,
-                    limits: Any = None, vehicle=None) -> tuple[list[Candidate], dict]:
+                    limits: Any = None, vehicle=None,
+                    wind_en: tuple[float, float] | None = None, max_failure_probability: float | None = None,
+                    risk_samples: int = 200, estimator=None) -> tuple[list[Candidate], dict]:
     """Plan from the live state; evaluate the planner's route, the current one and the way home.
 
     Each candidate carries the mission that flies it (``extra["mission"]``: items in the planner's
     ArduPilot layout and the item to make current after the upload). ``vehicle``: a description to
     fly instead of the paper's aircraft; ``state`` and ``faults`` are then its packs' and motors'
     (the scenario keeps the position and waypoints; its four-pack start is a placeholder the
-    simulator does not read, and ``info["vehicle"]`` records the state planned from)."""
+    simulator does not read, and ``info["vehicle"]`` records the state planned from). ``wind_en``:
+    the wind (east, north m/s) every leg is flown in; None (unknown) plans in calm air and says so
+    in ``info["wind_unknown"]``. ``max_failure_probability`` (the paper's aircraft): plan
+    risk-bounded over ``risk_samples`` draws (the start from ``estimator``'s covariance when given)
+    and judge every candidate on the same draws; each candidate's ``extra["risk"]`` holds its
+    P(failure) and landing-SoC quantiles."""
     from gcs_pdm.vehicle.presets import is_paper_aircraft
     from gcs_pdm.missions import item_to_json
     from gcs_pdm.planning.mission import plan_to_mission
@@ -193,7 +200,8 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
     scenario = Scenario.from_live(params, state if paper else _placeholder_state(params, ground_temp_c),
                                   list(faults) if paper else [], wps, (e, n, position[2]),
                                   Home(lat_deg=lat0, lon_deg=lon0, ground_alt_m=alt0, ground_temp_c=ground_temp_c),
-                                  limits, time_s=time_s, reward_collected=reward_collected, visited=tuple(visited))
+                                  limits, time_s=time_s, reward_collected=reward_collected, visited=tuple(visited),
+                                  wind_en_mps=wind_en if wind_en is not None else (0.0, 0.0))
     if paper:
         sim = VehicleSimulator(scenario, params)
     else:
@@ -201,10 +209,31 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                                motor_faults={f.motor: f.magnitude for f in faults})
     index_of = {w.number: i for i, w in enumerate(scenario.waypoints)}
     t0 = time.perf_counter()
-    planned = run_planner(planner, sim, particles=particles, seed=seed, deadline_s=deadline_s)
-    plan_s = time.perf_counter() - t0
+    judge = sim
+    if max_failure_probability is not None and paper:
+        from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw
+
+        unc = Uncertainty(wind_sd_mps=1.5 if wind_en is not None else 3.0)
+        judge = RiskSimulator(sim, draw(sim, risk_samples, uncertainty=unc, seed=seed,
+                                        **_estimated_start(estimator, sim)),
+                              max_failure_probability=max_failure_probability)
     keep = [index_of[n] for n in keep_route if n in index_of]
-    plans = {"planner": planned, "keep": make_plan(sim, keep, "keep"), "home": make_plan(sim, [], "home")}
+    if planner is None:  # the outlook of the current mission only (no planning)
+        plans = {"keep": make_plan(judge, keep, "keep")}
+        planned = None
+    else:
+        if judge is not sim:
+            from gcs_pdm.planning.planners import resolve, run_risk_bounded
+
+            # the risk search runs Algorithm 1 for "auto"/"pfls": PF + local search over the draws does
+            # not fit a replan's budget (20 s on a 10-waypoint field, vs ~1-5 s for the PF)
+            name = resolve(planner).name
+            planned = run_risk_bounded("pf" if name == "pfls" else name, judge, particles=particles, seed=seed,
+                                       should_stop=_deadline(deadline_s))
+        else:
+            planned = run_planner(planner, sim, particles=particles, seed=seed, deadline_s=deadline_s)
+        plans = {"planner": planned, "keep": make_plan(judge, keep, "keep"), "home": make_plan(judge, [], "home")}
+    plan_s = time.perf_counter() - t0
     cands = []
     for name, p in plans.items():
         mp = plan_to_mission(scenario, p, airborne=True)
@@ -214,14 +243,35 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
             cause=None if p.feasible else p.failure,
             extra={"flight_time_s": p.flight_time_s, "health_cost": p.health_cost, "power_cost_mj": p.power_cost_mj,
                    "final_soc": list(p.final_soc), "fail_leg": p.fail_leg,
-                   "mission": {"items": [item_to_json(i) for i in mp.items], "current_seq": mp.current_seq}}))
-    info = {"planner": getattr(planned, "planner", planner), "plan_time_s": plan_s, "scenario": scenario.to_dict(),
+                   "mission": {"items": [item_to_json(i) for i in mp.items], "current_seq": mp.current_seq},
+                   **({"risk": judge.risk_of(p.route)} if judge is not sim else {})}))
+    info = {"planner": getattr(planned, "planner", planner), "plan_time_s": plan_s, "risk_bounded": judge is not sim, "scenario": scenario.to_dict(),
             "loads": {name: route_load(sim, p.route) for name, p in plans.items()}}
+    if wind_en is None:
+        info["wind_unknown"] = "no wind estimate: planned in calm air"
     if not paper:
         info["vehicle"] = {"name": vehicle.name, "pack_state": np.asarray(state.pack_state).tolist(),
                            "motor_temp_c": np.asarray(state.motor_temp_c).tolist(),
                            "motor_faults": {f.motor: f.magnitude for f in faults}}
     return cands, info
+
+
+def _estimated_start(estimator, sim) -> dict:
+    """The risk draws' start: the planned state with the estimator's pack covariance (plus the
+    capacity mismatch it adds to its SoC spread, as the prediction does); {} without an estimator."""
+    if estimator is None or getattr(estimator, "inputs", None) is not None:
+        return {}
+    from gcs_pdm.models import kernel
+
+    packs = estimator.packs
+    cov = np.array(packs.cov, dtype=np.float64, copy=True)
+    soc = kernel.state_of_charge(packs.params, packs.mean)
+    extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * packs.params[:, kernel.I_CMAX]
+    cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    cov *= estimator.prediction_inflation()[:, None, None]
+    tm_sd = np.asarray(estimator.motors.temperature()[1], dtype=np.float64)
+    return {"pack_mean": np.asarray(sim.initial.pack_state, dtype=np.float64), "pack_cov": cov,
+            "motor_sd": np.where(np.isfinite(tm_sd), tm_sd, 2.0)}
 
 
 def _placeholder_state(params: ParameterSet, temp_c: float) -> PowertrainState:

@@ -156,6 +156,14 @@ class ServiceConfig(BaseSettings):
     particles: int = Field(30, ge=1, le=10_000)
     planner_deadline_s: float = Field(20.0, gt=0, description="wall-clock budget of one planning run")
     planner_seed: int = 0
+    max_failure_probability: float | None = Field(0.02, ge=0, lt=1, description=(
+        "risk-bounded planning: the most expected reward with P(failure) <= this and the landing reserve at the "
+        "5 % quantile, over risk_samples draws of state, parameters, fault and wind (docs/planning.md); "
+        "null: the deterministic planner on the nominal model"))
+    risk_samples: int = Field(200, ge=10, le=2000, description="draws of the risk-bounded planner")
+    reevaluate_every_s: float = Field(30.0, gt=0, description=(
+        "message-time seconds between two re-evaluations of the current mission's outlook (/status.outlook) and of a "
+        "pending proposal (re-planned from the current state); an older proposal is re-planned before an approval uploads"))
     replan_cooldown_s: float = Field(30.0, ge=0, description="message-time seconds between two replans for deviations")
     deviation_soc: float = Field(0.08, gt=0, description="SoC deviation (observed vs predicted at plan time) that triggers a replan")
     confirm_download: bool = Field(True, description="confirm each upload by downloading the mission back")

@@ -113,3 +113,92 @@ def choose(candidates: Sequence[Candidate]) -> tuple[Candidate, str]:
 def route_of_items(items: Sequence[M.MissionItem], catalogue: Sequence[CatalogueWaypoint]) -> list[int]:
     seq_to_number = match_items(items, catalogue)
     return [seq_to_number[i.seq] for i in items if i.seq in seq_to_number]
+
+
+# --- decisions that do not go stale (issue 31, part 4) ---------------------------------------------
+
+@dataclass(frozen=True)
+class ProposalGate:
+    """Whether an operator may decide on a proposal now, and whether it is still the decision.
+
+    ``blocked``: Approve and Reject are refused (``reason`` says why: the link is lost, the vehicle
+    failed or is on the ground): deciding on a vehicle one cannot reach or that no longer flies acts
+    on a state the service cannot support. ``stale``: the proposal was made from a state older than
+    ``reevaluate_every_s``, or under other faults than now: Approve re-plans first, from the current
+    state, and shows the new proposal instead of uploading this one."""
+
+    age_s: float | None
+    blocked: bool
+    stale: bool
+    reason: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"age_s": None if self.age_s is None else round(self.age_s, 1), "blocked": self.blocked,
+                "stale": self.stale, "reason": self.reason}
+
+
+def proposal_gate(plan_time_s: float | None, now_s: float | None, *, reevaluate_every_s: float,
+                  link_lost: str | None = None, failed: str | None = None, flying: bool = True,
+                  not_flying_reason: str = "", plan_faults: Sequence[Any] = (),
+                  faults_now: Sequence[Any] = ()) -> ProposalGate:
+    age = None if plan_time_s is None or now_s is None else max(0.0, float(now_s) - float(plan_time_s))
+    if link_lost is not None:
+        return ProposalGate(age, True, False, f"link lost: {link_lost}")
+    if failed:
+        return ProposalGate(age, True, False, f"the vehicle has failed: {failed}")
+    if not flying:
+        return ProposalGate(age, True, False, f"the vehicle is not flying: {not_flying_reason or 'landed'}")
+    if not _same_faults(plan_faults, faults_now):
+        return ProposalGate(age, False, True, "the faults changed since it was planned: Approve re-plans first")
+    if age is not None and age > reevaluate_every_s:
+        return ProposalGate(age, False, True,
+                            f"{age:.0f} s old (re-evaluated every {reevaluate_every_s:g} s): Approve re-plans first")
+    return ProposalGate(age, False, False, None)
+
+
+#: a fault's magnitude may move this much (the diagnoser refines it) before a proposal is stale
+FAULT_MAGNITUDE_TOLERANCE = 0.05
+
+
+def _same_faults(a: Sequence[Any], b: Sequence[Any]) -> bool:
+    """The same motors faulted, each magnitude within FAULT_MAGNITUDE_TOLERANCE (MotorFaults or dicts)."""
+    def by_motor(faults):
+        out: dict[str, float] = {}
+        for f in faults:
+            motor = f.get("motor") if isinstance(f, dict) else getattr(f, "motor", None)
+            mag = f.get("magnitude", 0.0) if isinstance(f, dict) else getattr(f, "magnitude", 0.0)
+            out[str(motor)] = max(out.get(str(motor), 0.0), float(mag))
+        return out
+    x, y = by_motor(a), by_motor(b)
+    return x.keys() == y.keys() and all(abs(x[k] - y[k]) <= FAULT_MAGNITUDE_TOLERANCE for k in x)
+
+
+def outlook_alarm(outlook: dict[str, Any] | None, *, max_failure_probability: float,
+                  reserve_soc: float) -> dict[str, Any] | None:
+    """The alarm for the vehicle-level outlook (``/status.outlook``): ``critical`` when P(failure)
+    is above ε, ``warning`` when the landing forecast (p05 of the lowest pack's landing SoC) is
+    below the reserve; None when neither (or the outlook is unknown: said there, not alarmed)."""
+    if not outlook or outlook.get("unknown"):
+        return None
+    p_fail = float(outlook.get("p_failure", 0.0))
+    p05 = outlook.get("landing_soc_p05")
+    if p_fail > max_failure_probability:
+        return {"kind": "landing_forecast", "level": "critical", "title": "Vehicle may not get home",
+                "text": f"P(failure) {p_fail:.0%} > {max_failure_probability:.0%} on the current mission; replanning",
+                "statustext": f"PDM: P(fail) {p_fail:.0%} > {max_failure_probability:.0%}: REPLAN/RTL?"}
+    if p05 is not None and float(p05) < reserve_soc:
+        return {"kind": "landing_forecast", "level": "critical", "title": "Landing forecast below the reserve",
+                "text": f"lowest pack lands at {float(p05):.0%} (p05) < reserve {reserve_soc:.0%}; replanning",
+                "statustext": f"PDM: landing {float(p05):.0%} (p05) < reserve {reserve_soc:.0%}: REPLAN",
+                "severity": "warning"}
+    return None
+
+
+def outlook_line(outlook: dict[str, Any] | None) -> str:
+    """The vehicle-level line the console always shows."""
+    if not outlook:
+        return "outlook unknown: not evaluated yet"
+    if outlook.get("unknown"):
+        return f"outlook unknown: {outlook['unknown']}"
+    return (f"gets home with {outlook['landing_soc_p50']:.0%} ({outlook['landing_soc_p05']:.0%}–"
+            f"{outlook['landing_soc_p95']:.0%}), P(failure) {outlook['p_failure']:.1%}")

@@ -420,7 +420,9 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     cfg_sim = sim_config(scenario, mission, seed)
     config, tmp, port, token = demo_config(data_dir, policy=policy, http_port=http_port,
                                            hold_while_deciding=hold_while_deciding, replan_cooldown_s=120.0,
-                                           vehicle="edge540")
+                                           vehicle="edge540",
+                                           # a plan takes seconds of wall time, minutes of flight at x60
+                                           reevaluate_every_s=30.0 * max(1.0, speedup / 10.0))
     service = Service(config)
     if params == "learned" and not LEARNED_SET.exists():
         params = "paper_si"

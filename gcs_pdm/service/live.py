@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 import logging
+import math
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from gcs_pdm import missions as M
 from gcs_pdm.diagnosis.faults import Fault
 from gcs_pdm.models.powertrain import PowertrainState
 from gcs_pdm.service import adapters
+from gcs_pdm.service.decision import proposal_gate
 from gcs_pdm.service.fault_tracker import FaultTracker
 from gcs_pdm.service.live_state import LinkLost
 from gcs_pdm.service.plan_executor import MAV_SEVERITY_NOTICE, PlanExecutor, Snapshot, UploadOutcome
@@ -58,6 +60,7 @@ class LiveLoop:
         shared = adapters.estimator_of(self.diagnoser) if estimator is None else None
         self.estimator = estimator or shared or adapters.make_estimator(service.params, service.vehicle)
         self.telemetry = TelemetryIntake(service, link, self.estimator, self.diagnoser, feed_estimator=shared is None)
+        self._last_reevaluation_s = -math.inf
         self.faults = FaultTracker(service, self.diagnoser)
         self.executor = PlanExecutor(service, link, mission_client, self.telemetry, self.estimator, self.diagnoser)
         self._deferred: str | None = None  # a replan asked for before the estimator had a state
@@ -172,8 +175,41 @@ class LiveLoop:
             self.request_replan("fault: " + ", ".join(f"{f.type} {f.component}" for f in new_or_grown))
         self.executor.check_deviation(t)
         self.executor.check_mission_read(t)
+        self._reevaluate(t)
         if self._deferred is not None and self.estimator.ready() and not self.telemetry.link_lost:
             self.request_replan(self._deferred)
+
+    def _reevaluate(self, t: float) -> None:
+        """Every ``reevaluate_every_s`` of message time in flight: the current mission's outlook
+        from the current state, and a pending proposal re-planned from it (issue 31, part 4)."""
+        every = self.service.config.reevaluate_every_s
+        if t - self._last_reevaluation_s < every or self.telemetry.link_lost or not self.estimator.ready():
+            return
+        if not self.telemetry.flight_phase(t).flying:
+            return
+        if self._last_reevaluation_s == -math.inf:
+            # the first evaluation comes one period into the flight: at the take-off roll the
+            # estimate has just started (its spread is the prior's) and no decision should rest on it
+            self._last_reevaluation_s = t
+            return
+        self._last_reevaluation_s = t
+        self.executor.submit_outlook(self.snapshot())
+        pending = self.service.store.plans(status="proposed", limit=1)
+        if pending and t - (pending[0].get("time_s") or t) >= every and t - self.executor.last_replan_s >= every:
+            self.request_replan(f"re-evaluation of plan {pending[0]['id']} (proposed at t={pending[0]['time_s']:.0f} s)")
+
+    def proposal_gate(self, plan: dict):
+        """May the operator decide on ``plan`` now, and is it still the decision (``decision.proposal_gate``)."""
+        t = self.telemetry.time_s
+        phase = self.telemetry.flight_phase(t) if t is not None else None
+        return proposal_gate(plan.get("time_s"), t, reevaluate_every_s=self.service.config.reevaluate_every_s,
+                             link_lost=self.telemetry.link_lost_reason if self.telemetry.link_lost else None,
+                             failed=self.service.state.get("failed"),
+                             # on the ground only when the telemetry says so (no airspeed yet is not "landed")
+                             flying=phase is None or phase.flying or phase.reason.startswith("no "),
+                             not_flying_reason=phase.reason if phase is not None else "",
+                             plan_faults=plan.get("faults") or (),
+                             faults_now=self.faults.motor_faults(self.faults.diagnosed()))
 
     def snapshot(self) -> Snapshot:
         t = self.telemetry.time_s if self.telemetry.time_s is not None else 0.0
@@ -187,7 +223,8 @@ class LiveLoop:
                         ambient_c=float(amb) if amb is not None else 20.0,
                         faults=tuple(self.faults.motor_faults(diagnosed)), fault_records=tuple(diagnosed),
                         current_seq=self.service.state.get("mission")["current_seq"], soc=soc,
-                        estimator=copy.deepcopy(self.estimator) if self.estimator.ready() else None)
+                        estimator=copy.deepcopy(self.estimator) if self.estimator.ready() else None,
+                        wind_en=self.service.state.wind_en())
 
     # --- operator and triggers (any thread) ------------------------------------------------------
 

@@ -10,8 +10,9 @@ import math
 import threading
 from typing import Any
 
+from gcs_pdm.estimation.wind import WindEstimator
 from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, MotorFrame, PackFrame,
-                            PositionFrame, StatusFrame)
+                            PositionFrame, StatusFrame, WindFrame)
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.service.storage import Conflict
 from gcs_pdm.service.track import Track
@@ -46,6 +47,8 @@ class LiveState:
         self._lock = threading.Lock()
         #: the vehicle's recent positions (1 Hz, ``track_window_s`` of message time) for the console
         self.track = Track(window_s=track_window_s)
+        #: the wind: the autopilot's estimate, else the wind triangle (gcs_pdm.estimation.wind)
+        self.wind = WindEstimator()
         self._s: dict[str, Any] = {
             "time_s": None,
             "link": {"url": None, "connected": False, "state": LINK_WAITING, "reason": None, "vehicle": None,
@@ -58,6 +61,8 @@ class LiveState:
             "armed": None, "mode": None, "system_status": None,
             "mission": {"current_seq": None, "last_reached_seq": None, "count": None},
             "prediction": None,
+            "outlook": {"unknown": "not evaluated yet", "line": "outlook unknown: not evaluated yet"},
+            "wind": {"unknown": "no wind estimate from the autopilot and no airspeed with ground velocity yet"},
             "policy": None,
             "parameter_set": None,
             "failed": None,
@@ -83,6 +88,11 @@ class LiveState:
                     self._s[key].update(value)
                 else:
                     self._s[key] = value
+
+    def replace(self, **sections: Any) -> None:
+        """Set whole sections (``update`` merges a dict into the one there)."""
+        with self._lock:
+            self._s.update(sections)
 
     def update_nested(self, section: str, name: str, **values: Any) -> None:
         with self._lock:
@@ -118,11 +128,22 @@ class LiveState:
                 s["airdata"].update({k: getattr(f, k) for k in ("airspeed", "groundspeed", "climb_rate", "throttle_pct")})
             elif isinstance(f, StatusFrame):
                 s["armed"], s["mode"], s["system_status"] = f.armed, f.mode, f.system_status
-            elif isinstance(f, MissionProgressFrame):
+            if isinstance(f, (WindFrame, PositionFrame, AirdataFrame)):
+                self.wind.consume(f)
+                est = self.wind.estimate(f.time_s)
+                s["wind"] = est.to_dict() if est is not None else {
+                    "unknown": "no fresh wind estimate from the autopilot and the wind triangle not settled"}
+            if isinstance(f, MissionProgressFrame):
                 if f.current_seq is not None:
                     s["mission"]["current_seq"] = f.current_seq
                 if f.reached_seq is not None:
                     s["mission"]["last_reached_seq"] = f.reached_seq
+
+    def wind_en(self) -> tuple[float, float] | None:
+        """The wind now (the air's velocity east, north, m/s), or None while it is unknown."""
+        with self._lock:
+            est = self.wind.estimate(self._s["time_s"])
+            return None if est is None else est.en
 
     def get(self, key: str) -> Any:
         with self._lock:

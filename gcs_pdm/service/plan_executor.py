@@ -30,8 +30,8 @@ from gcs_pdm.mavlink.mission_client import MissionError
 from gcs_pdm.mavlink.mission_watch import MissionWatcher
 from gcs_pdm.models.powertrain import MotorFault, PowertrainState
 from gcs_pdm.service import adapters
-from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, match_items, remaining_route,
-                                      route_of_items)
+from gcs_pdm.service.decision import (Candidate, catalogue_from_items, choose, match_items, outlook_alarm, outlook_line,
+                                      remaining_route, route_of_items)
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,8 @@ class Snapshot:
     #: a frozen copy of the estimator (None before it is ready): the plans' Monte Carlo risk runs
     #: from it on the worker while the live filters move on
     estimator: Any = None
+    #: the wind (the air's velocity east, north, m/s) the plan is flown in; None while unknown
+    wind_en: tuple[float, float] | None = None
 
 
 class UploadOutcome(enum.Enum):
@@ -107,6 +109,7 @@ class PlanExecutor:
         #: wired by the live loop: how a replan is asked for (the deviation check's trigger)
         self.request_replan: Callable[[str], None] = lambda reason: None
         self.last_replan_s = -math.inf
+        self._alarm_on = False  # the outlook's alarm is raised (said once per crossing)
         # mission knowledge
         self.mission_items: list[M.MissionItem] | None = None
         self.mission_time_s: float | None = None
@@ -385,7 +388,9 @@ class PlanExecutor:
             svc.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
             planner=cfg.planner, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
             time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
-            limits=svc.limits, vehicle=svc.vehicle)
+            limits=svc.limits, vehicle=svc.vehicle, wind_en=snap.wind_en,
+            max_failure_probability=cfg.max_failure_probability, risk_samples=cfg.risk_samples,
+            estimator=snap.estimator)
         chosen, why = choose(cands)
         cands, chosen = self._assess_risk(snap, cands, chosen, info["loads"])
         load = (info["loads"].get(chosen.name), snap.time_s)
@@ -412,6 +417,18 @@ class PlanExecutor:
         body["items"] = mission["items"]
         body["current_seq"] = mission["current_seq"]
         auto = svc.policy == "auto" and chosen.feasible
+        now = self._now()
+        if auto and now is not None and now - snap.time_s > cfg.reevaluate_every_s:
+            # the vehicle flew on while this was planned: its start is no longer where the vehicle is,
+            # so it is not uploaded (issue 31: never act on a state the service cannot support); plan
+            # again from the current state
+            pid = svc.store.add_plan(body, reason, "superseded", snap.time_s)
+            note = (f"stale: planned from t={snap.time_s:.0f} s, done at t={now:.0f} s "
+                    f"(> reevaluate_every_s {cfg.reevaluate_every_s:g} s); re-planned from the current state")
+            svc.events.publish("plan", id=pid, status="superseded", time_s=now, why=note, chosen=chosen.to_dict())
+            log.warning("plan %d not uploaded: %s", pid, note)
+            self.request_replan(f"plan {pid} went stale while planning")
+            return
         pid = svc.store.add_plan(body, reason, "approved" if auto else "proposed", snap.time_s)
         self.loads[pid] = load
         svc.events.publish("plan", id=pid, status="approved" if auto else "proposed", time_s=snap.time_s, why=why,
@@ -461,6 +478,61 @@ class PlanExecutor:
             if old["id"] != pid and self.service.store.transition_plan(old["id"], "proposed", "superseded",
                                                                        f"by plan {pid}"):
                 self.service.events.publish("plan", id=old["id"], status="superseded", by=pid)
+
+    # --- the outlook: the current mission re-evaluated from the current state ---------------------------
+
+    def submit_outlook(self, snap: Snapshot) -> None:
+        self._submit(self.evaluate_outlook, snap)
+
+    def evaluate_outlook(self, snap: Snapshot) -> None:
+        """The current mission's P(failure) and landing SoC from ``snap`` over the risk draws
+        (``/status.outlook``: the console's vehicle-level line); when the landing forecast crosses the
+        reserve or P(failure) rises above ε: an alarm (the banner, a STATUSTEXT) and a replan, once
+        per crossing. On the worker."""
+        svc, cfg = self.service, self.service.config
+        reserve = float(getattr(svc.limits, "landing_reserve_soc", 0.15)) if svc.limits is not None else 0.15
+        why = None
+        if cfg.max_failure_probability is None:
+            why = "risk-bounded planning is off (max_failure_probability is null)"
+        elif snap.estimator is None:
+            why = "no state estimate yet"
+        elif self.mission_items is None or not self.catalogue or self.home is None:
+            why = "no mission on the vehicle to evaluate"
+        if why is None:
+            keep = remaining_route(self.mission_items, snap.current_seq, self.catalogue, self.visited)
+            home = (self.home[0], self.home[1], self.home[2] or self.telemetry.ground_alt_amsl or 0.0)
+            cands, _info = adapters.plan_candidates(
+                svc.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
+                planner=None, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
+                time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
+                limits=svc.limits, vehicle=svc.vehicle, wind_en=snap.wind_en,
+                max_failure_probability=cfg.max_failure_probability, risk_samples=cfg.risk_samples,
+                estimator=snap.estimator)
+            risk = cands[0].extra.get("risk")
+            if risk is None:
+                why = "the risk draws fly the paper's aircraft only"
+        if why is not None:
+            svc.state.replace(outlook={"unknown": why, "time_s": snap.time_s, "line": outlook_line({"unknown": why})})
+            return
+        q = risk["landing_soc_quantiles"]["soc"]
+        outlook = {"time_s": snap.time_s, "route": list(cands[0].route), "p_failure": risk["p_failure"],
+                   "landing_soc_p05": q[0], "landing_soc_p50": q[1], "landing_soc_p95": q[2],
+                   "samples": risk["samples"], "max_failure_probability": cfg.max_failure_probability,
+                   "reserve_soc": reserve, "wind_known": snap.wind_en is not None}
+        alarm = outlook_alarm(outlook, max_failure_probability=cfg.max_failure_probability, reserve_soc=reserve)
+        outlook["line"] = outlook_line(outlook)
+        outlook["alarm"] = alarm
+        svc.state.replace(outlook=outlook)
+        if alarm is None:
+            self._alarm_on = False
+            return
+        if self._alarm_on:
+            return
+        self._alarm_on = True
+        svc.events.publish("alarm", time_s=snap.time_s, kind=alarm["kind"], level=alarm["level"], text=alarm["text"])
+        self.statustext(alarm["statustext"], MAV_SEVERITY_WARNING if alarm.get("severity") == "warning"
+                        else MAV_SEVERITY_CRITICAL)
+        self.enqueue(f"alarm: {alarm['title'].lower()}", snap)
 
     # --- operator decisions ------------------------------------------------------------------------
 

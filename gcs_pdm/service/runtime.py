@@ -203,10 +203,21 @@ class Service:
         return plan
 
     def approve(self, plan_id: int, note: str = "") -> None:
-        self._proposed(plan_id)
+        plan = self._proposed(plan_id)
         if self.loop is None:
             raise Conflict("no vehicle link: a plan cannot be uploaded")
         self.loop.require_link(f"approval of plan {plan_id}")
+        gate = self.loop.proposal_gate(plan)
+        if gate.blocked:
+            raise Conflict(f"plan {plan_id} cannot be approved now: {gate.reason}")
+        if gate.stale:
+            # a decision made from an old state is not uploaded: re-plan from the current one and
+            # let the operator decide on that (the old proposal is superseded by it)
+            if self.store.transition_plan(plan_id, "proposed", "superseded", f"stale at approval: {gate.reason}"):
+                self.events.publish("plan", id=plan_id, status="superseded", by="re-evaluation at approval")
+            self.loop.request_replan(f"approval of plan {plan_id}: re-evaluated first ({gate.reason})")
+            raise Conflict(f"plan {plan_id} was not uploaded: {gate.reason}; re-planning from the current state, "
+                           "decide on the new proposal")
         # conditional: a newer plan may have superseded this one since it was read
         if not self.store.transition_plan(plan_id, "proposed", "approved", note or "operator"):
             raise Conflict(f"plan {plan_id} is {self.store.plan(plan_id)['status']}, not proposed")
@@ -214,7 +225,11 @@ class Service:
         self.loop.approve(plan_id)
 
     def reject(self, plan_id: int, note: str = "") -> None:
-        self._proposed(plan_id)
+        plan = self._proposed(plan_id)
+        if self.loop is not None:
+            gate = self.loop.proposal_gate(plan)
+            if gate.blocked:
+                raise Conflict(f"plan {plan_id} cannot be rejected now: {gate.reason}")
         if not self.store.transition_plan(plan_id, "proposed", "rejected", note or "operator"):
             raise Conflict(f"plan {plan_id} is {self.store.plan(plan_id)['status']}, not proposed")
         self.events.publish("plan", id=plan_id, status="rejected", by="operator")

@@ -90,6 +90,15 @@ class VehicleStatus(BaseModel):
     mode: str | None
     mission: dict[str, Any]
     prediction: dict[str, Any] | None
+    outlook: dict[str, Any] | None = Field(None, description=(
+        "the current mission re-evaluated from the current state every reevaluate_every_s over the risk draws: "
+        "line ('gets home with X % (p05–p95), P(failure) …'), p_failure, landing_soc_p05/p50/p95 (lowest pack), "
+        "route, samples, alarm (null, or {kind, level, title, text} when the forecast crosses the reserve or "
+        "P(failure) > max_failure_probability); or unknown with the reason"))
+    wind: dict[str, Any] | None = Field(None, description=(
+        "the wind flown in: speed_mps, from_deg (where it blows from, clockwise from north), east_mps/north_mps "
+        "(the air's velocity), source autopilot (WIND / WIND_COV) | triangle (ground velocity minus the airspeed "
+        "vector), time_s; or unknown with the reason"))
     policy: str | None
     parameter_set: str | None
     failed: str | None = None

@@ -39,7 +39,12 @@ def register(subparsers) -> None:
     p.add_argument("--soc", type=float, default=1.0, help="initial state of charge of every pack")
     p.add_argument("--ground-temp", type=float, default=20.0, help="ambient temperature at the ground, °C")
     p.add_argument("--home", default="37.0870,-76.3800,0", help="home lat,lon,alt(m AMSL)")
-    p.add_argument("--wind", default="0,0", help="wind east,north m/s (the direction it blows towards)")
+    p.add_argument("--wind", default="0,0",
+                   help="mean wind: SPEED@DIR (m/s, the direction it blows FROM in degrees, as ArduPilot's WIND "
+                        "says it: 8@270 is a westerly) or east,north m/s (the direction it blows towards)")
+    p.add_argument("--gust", type=float, default=None, metavar="SIGMA",
+                   help="gusts: 1-sigma m/s of each wind component (a 5 s Gauss-Markov process); "
+                        "default 15%% of the mean wind speed, 0 for a steady wind")
     p.add_argument("--airspeed", type=float, default=None,
                    help="cruise airspeed m/s (default 25, or the vehicle description's cruise speed)")
     p.add_argument("--rate", action="append", default=[], metavar="MSG=HZ",
@@ -60,6 +65,32 @@ def _pair(text: str, what: str, n: int) -> tuple[float, ...]:
     if len(values) != n:
         raise SystemExit(f"--{what}: expected {n} comma-separated numbers, got {text!r}")
     return values
+
+
+def parse_wind(text: str) -> tuple[float, float]:
+    """``SPEED@FROM_DEG`` or ``east,north`` → the air's velocity (east, north), m/s."""
+    from gcs_pdm.models.wind import wind_from_speed_direction
+
+    if "@" in text:
+        speed, _, direction = text.partition("@")
+        try:
+            speed_mps, from_deg = float(speed), float(direction)
+        except ValueError:
+            raise SystemExit(f"--wind: expected SPEED@DIR (e.g. 8@270) or east,north, got {text!r}") from None
+        if not (speed_mps >= 0 and np.isfinite(speed_mps) and np.isfinite(from_deg)):
+            raise SystemExit(f"--wind: speed must be >= 0 and the direction finite, got {text!r}")
+        return wind_from_speed_direction(speed_mps, from_deg)
+    east, north = _pair(text, "wind", 2)
+    return east, north
+
+
+def _gust(args: argparse.Namespace, wind_en: tuple[float, float]) -> float:
+    gust = getattr(args, "gust", None)
+    if gust is None:
+        return 0.15 * float(np.hypot(*wind_en))
+    if not (gust >= 0 and np.isfinite(gust)):
+        raise SystemExit(f"--gust: must be a finite number >= 0, got {gust!r}")
+    return float(gust)
 
 
 def build_config(args: argparse.Namespace):
@@ -93,6 +124,8 @@ def build_config(args: argparse.Namespace):
         mission = tuple(mission_files.read_plan(path) if path.suffix == ".plan" else mission_files.read_wpl(path))
     params = ParameterSet.from_json(Path(args.params).read_text()) if args.params else None
     lat, lon, alt = _pair(args.home, "home", 3)
+    wind_en = parse_wind(args.wind)
+    gust = _gust(args, wind_en)
     rates = dict(DEFAULT_RATES)
     for r in args.rate:
         name, _, hz = r.partition("=")
@@ -104,7 +137,7 @@ def build_config(args: argparse.Namespace):
 
         config = vehicle_config(desc, seed=args.seed, home_lat_deg=lat, home_lon_deg=lon, home_alt_m=alt,
                                 ground_temp_c=args.ground_temp, initial_soc=args.soc, faults=faults,
-                                wind_en_mps=_pair(args.wind, "wind", 2), mission=mission,
+                                wind_en_mps=wind_en, wind_gust_mps=gust, mission=mission,
                                 autostart=not args.no_autostart, start_delay_s=args.start_delay)
         if args.airspeed is not None:
             config = replace(config, cruise_airspeed_mps=args.airspeed)
@@ -112,7 +145,8 @@ def build_config(args: argparse.Namespace):
     config = SimConfig(
         seed=args.seed, truth_seed=args.truth_seed if args.truth_seed is not None else DEFAULT_TRUTH_SEED,
         params=params, home_lat_deg=lat, home_lon_deg=lon, home_alt_m=alt, ground_temp_c=args.ground_temp,
-        initial_soc=args.soc, faults=faults, degradations=degradations, wind_en_mps=_pair(args.wind, "wind", 2),
+        initial_soc=args.soc, faults=faults, degradations=degradations, wind_en_mps=wind_en,
+        wind_gust_mps=gust,
         cruise_airspeed_mps=args.airspeed if args.airspeed is not None else 25.0, mission=mission, autostart=not args.no_autostart,
         start_delay_s=args.start_delay)
     return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate)

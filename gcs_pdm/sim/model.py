@@ -76,7 +76,11 @@ class SimConfig:
     limits: Limits = Limits()
     airframe: Airframe = EDGE_540
     flight_limits: FlightLimits = FlightLimits()
-    wind_en_mps: tuple[float, float] = (0.0, 0.0)
+    wind_en_mps: tuple[float, float] = (0.0, 0.0)  # mean wind, the air's velocity east, north
+    #: gusts: a first-order Gauss-Markov process on each wind component, 1-sigma m/s and time
+    #: constant s (seeded with ``seed``); 0 = a steady wind
+    wind_gust_mps: float = 0.0
+    wind_gust_tau_s: float = 5.0
     cruise_airspeed_mps: float = 25.0
     physics_dt_s: float = 0.1
     mission: tuple[MissionItem, ...] = ()
@@ -173,6 +177,9 @@ class TruthState:
     motor_charge_c: np.ndarray | None = None  # per motor, drawn since boot (None: its string's first pack)
     mav_type: int = 1
     multirotor: bool = False
+    #: the wind in force (mean plus gust), the air's velocity east and north, m/s
+    wind_east_mps: float = 0.0
+    wind_north_mps: float = 0.0
 
 
 class VehicleModel:
@@ -223,6 +230,8 @@ class VehicleModel:
         self._ready_at: float | None = None
         self._rtl_landing = False
         self._takeoff_heading: float | None = None
+        self._gust_en = (0.0, 0.0)
+        self._gust_rng: np.random.Generator | None = None
         soc = np.broadcast_to(np.asarray(config.initial_soc, dtype=float), (n_packs,)).copy()
         if np.any((soc <= 0) | (soc > 1)):
             raise ValueError(f"initial_soc: must be within (0, 1], got {config.initial_soc!r}")
@@ -366,6 +375,7 @@ class VehicleModel:
         if not dt > 0.0:
             raise ValueError(f"dt: must be > 0 s, got {dt!r}")
         self._autostart()
+        self._gust(dt)
         power, motors_on = self._fly(dt)
         self.time_s += dt
         if self.armed:
@@ -374,6 +384,24 @@ class VehicleModel:
         self._powertrain(dt, power, motors_on)
         self.distance_m += self.kin.groundspeed_mps * dt
         return self.take_events()
+
+    @property
+    def wind_en(self) -> tuple[float, float]:
+        """The wind in force now: the mean plus the gust."""
+        we, wn = self.config.wind_en_mps
+        return we + self._gust_en[0], wn + self._gust_en[1]
+
+    def _gust(self, dt: float) -> None:
+        c = self.config
+        if c.wind_gust_mps <= 0.0:
+            return
+        if self._gust_rng is None:
+            # its own stream, so a steady wind's flight draws exactly what it did before gusts existed
+            self._gust_rng = np.random.default_rng([int(c.seed), 0x6057])
+        a = math.exp(-dt / c.wind_gust_tau_s)
+        drive = c.wind_gust_mps * math.sqrt(1.0 - a * a)
+        self._gust_en = (a * self._gust_en[0] + drive * float(self._gust_rng.normal()),
+                         a * self._gust_en[1] + drive * float(self._gust_rng.normal()))
 
     def _autostart(self) -> None:
         cfg = self.config
@@ -412,7 +440,7 @@ class VehicleModel:
             # (ArduCopter's STABILIZE number) holds its position: it hovers
             hover = self._inputs is not None and c.vehicle.airframe.type == "multirotor"
             flight.advance(k, dt, heading_cmd=None, airspeed_cmd=0.0 if hover else self.target_airspeed, climb_cmd=0.0,
-                           limits=lim, wind_en=c.wind_en_mps)
+                           limits=lim, wind_en=self.wind_en)
             return self._flight_power(), True
         if self.mode == MODE_RTL or not self.mission or self.current_seq >= len(self.mission):
             return self._fly_home(dt)
@@ -440,7 +468,7 @@ class VehicleModel:
         if k.on_ground:
             return 0.0, True
         flight.advance(k, dt, heading_cmd=None, airspeed_cmd=self.target_airspeed, climb_cmd=0.0, limits=lim,
-                       wind_en=self.config.wind_en_mps)
+                       wind_en=self.wind_en)
         return self._flight_power(), True
 
     def _unpowered(self, dt: float) -> float:
@@ -451,7 +479,7 @@ class VehicleModel:
             return 0.0
         glide = max(self.config.airframe.stall_airspeed + 4.0, 18.0)
         flight.advance(k, dt, heading_cmd=None, airspeed_cmd=glide, climb_cmd=-lim.failure_sink_mps, limits=lim,
-                       wind_en=self.config.wind_en_mps)
+                       wind_en=self.wind_en)
         if k.alt_m <= 0.0:
             self._touchdown()
         return 0.0
@@ -478,7 +506,7 @@ class VehicleModel:
             return flight.ground_roll_power(k.airspeed_mps, lim.takeoff_accel_mps2, lim, self.config.airframe), True
         flight.advance(k, dt, heading_cmd=self._takeoff_heading, airspeed_cmd=self.target_airspeed,
                        climb_cmd=min(lim.takeoff_climb_mps, flight.altitude_command(alt - k.alt_m, lim) + 1.0),
-                       limits=lim, wind_en=self.config.wind_en_mps)
+                       limits=lim, wind_en=self.wind_en)
         if k.alt_m >= alt - 2.0:
             self._reached(item.seq)
         return self._flight_power(), True
@@ -497,9 +525,9 @@ class VehicleModel:
         k, lim, c = self.kin, self.config.flight_limits, self.config
         de, dn = east - k.east_m, north - k.north_m
         course = math.atan2(de, dn)
-        heading = flight.course_heading(course, max(k.airspeed_mps, 1.0), c.wind_en_mps)
+        heading = flight.course_heading(course, max(k.airspeed_mps, 1.0), self.wind_en)
         flight.advance(k, dt, heading_cmd=heading, airspeed_cmd=self.target_airspeed,
-                       climb_cmd=flight.altitude_command(alt - k.alt_m, lim), limits=lim, wind_en=c.wind_en_mps)
+                       climb_cmd=flight.altitude_command(alt - k.alt_m, lim), limits=lim, wind_en=self.wind_en)
         if k.on_ground and k.airspeed_mps >= lim.rotate_airspeed_mps:
             k.on_ground = False
         return math.hypot(east - k.east_m, north - k.north_m)
@@ -557,14 +585,14 @@ class VehicleModel:
             else:
                 climb = flight.altitude_command(min(glide_alt, k.alt_m) - k.alt_m, lim)
                 heading = flight.course_heading(math.atan2(east - k.east_m, north - k.north_m),
-                                                max(k.airspeed_mps, 1.0), c.wind_en_mps)
+                                                max(k.airspeed_mps, 1.0), self.wind_en)
             airspeed = max(c.airframe.stall_airspeed + 4.0, min(self.target_airspeed, 20.0))
             flight.advance(k, dt, heading_cmd=heading, airspeed_cmd=airspeed, climb_cmd=climb, limits=lim,
-                           wind_en=c.wind_en_mps)
+                           wind_en=self.wind_en)
             return self._flight_power(), True
         if not k.on_ground:  # flare
             flight.advance(k, dt, heading_cmd=None, airspeed_cmd=c.airframe.stall_airspeed + 1.0,
-                           climb_cmd=-lim.flare_sink_mps, limits=lim, wind_en=c.wind_en_mps)
+                           climb_cmd=-lim.flare_sink_mps, limits=lim, wind_en=self.wind_en)
             if k.alt_m <= 0.0:
                 self._touchdown(seq)
                 return 0.0, True
@@ -741,7 +769,8 @@ class VehicleModel:
             pack_soc=kernel.state_of_charge(self._pack_matrix, self.pack_state).copy(),
             pack_charge_c=self.pack_charge.copy(), pack_energy_j=self.pack_energy.copy(),
             motor_current_a=self.motor_current.copy(), motor_temp_c=self.motor_temp.copy(),
-            motor_voltage_v=motor_v, fault=self.fault.copy(), energy_j=self.energy_j, distance_m=self.distance_m, **layout)
+            motor_voltage_v=motor_v, fault=self.fault.copy(), energy_j=self.energy_j, distance_m=self.distance_m,
+            wind_east_mps=self.wind_en[0], wind_north_mps=self.wind_en[1], **layout)
 
     def battery_capacities_mah(self) -> dict[int, float]:
         """The capacity the autopilot is configured with, per BATTERY_STATUS id (its BATTn_CAPACITY):

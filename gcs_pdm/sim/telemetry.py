@@ -48,6 +48,7 @@ DEFAULT_RATES: dict[str, float] = {
     "GLOBAL_POSITION_INT": 4.0,
     "VFR_HUD": 4.0,
     "MISSION_CURRENT": 1.0,
+    "WIND": 1.0,
 }
 
 #: thinner rates for recorded fixtures (1 Hz battery/ESC telemetry keeps a 30 min flight small)
@@ -75,6 +76,7 @@ class SensorNoise:
     airspeed_mps: float = 0.3
     position_m: float = 1.0
     alt_m: float = 0.5
+    wind_mps: float = 0.3  # the autopilot's wind estimate, per component
 
 
 @dataclass(frozen=True)
@@ -278,6 +280,14 @@ class Telemetry:
         return [self.mav.vfr_hud_encode(air, s.groundspeed_mps, _clip_int(s.heading_deg, 0, 359), throttle,
                                         s.alt_amsl_m, s.climb_mps)]
 
+    def wind(self, s: TruthState) -> list:
+        """ArduPilot's WIND: where the wind blows FROM (degrees, -180..180 as ArduPilot sends it) and
+        its speed; the estimate a wind-estimating EKF makes of the wind in force, with its noise."""
+        we = s.wind_east_mps + self._n(self.config.noise.wind_mps)
+        wn = s.wind_north_mps + self._n(self.config.noise.wind_mps)
+        direction = math.degrees(math.atan2(-we, -wn))
+        return [self.mav.wind_encode(direction, math.hypot(we, wn), 0.0)]
+
     def mission_current(self, s: TruthState) -> list:
         return [self.mav.mission_current_encode(s.current_seq, s.mission_count, s.mission_state,
                                                 1 if s.mode == "AUTO" else 0)]
@@ -293,5 +303,6 @@ _BUILDERS = {
     "GLOBAL_POSITION_INT": Telemetry.global_position,
     "VFR_HUD": Telemetry.vfr_hud,
     "MISSION_CURRENT": Telemetry.mission_current,
+    "WIND": Telemetry.wind,
 }
 

@@ -411,6 +411,13 @@ function renderMotors() {
 
 // ---------- header and banners ----------
 function staleSeconds() { return (Date.now() - S.msgAdvancedAt) / 1000; }
+// the wind flown in (/status.wind): speed and where it blows from, and whose estimate it is
+function windText(w) {
+  if (!w) return "";
+  if (!num(w.speed_mps)) return `<span title="${esc(w.unknown || "")}">wind unknown</span>`;
+  const src = w.source === "triangle" ? " (est.)" : "";
+  return `<span id="wind" title="${w.source === "triangle" ? "estimated from ground velocity minus airspeed" : "the autopilot's estimate"}">wind ${w.speed_mps.toFixed(1)} m/s from ${w.from_deg.toFixed(0)}°${src}</span>`;
+}
 function renderHeader() {
   const st = S.status, conn = $("conn");
   let state, text;
@@ -427,8 +434,16 @@ function renderHeader() {
     `mode ${esc(st.mode ?? "unknown")}`, st.armed == null ? "armed: unknown" : (st.armed ? "armed" : "disarmed"),
     num(pos.relative_alt_m) ? `alt ${pos.relative_alt_m.toFixed(0)} m` : "",
     st.airdata && num(st.airdata.airspeed) ? `${st.airdata.airspeed.toFixed(1)} m/s` : "",
+    windText(st.wind),
     `policy ${esc(st.policy ?? "?")}`, `set ${esc(st.parameter_set ?? "?")}`,
-  ].filter(Boolean).join(" · ");
+  ].filter(Boolean).join(" · ") + outlookHtml(st.outlook);
+}
+// the vehicle-level line, always shown (issue 31): the current mission re-evaluated from the current state
+function outlookHtml(o) {
+  const line = o && o.line ? o.line : "outlook unknown: not evaluated yet";
+  const alarm = o && o.alarm;
+  return `<div id="outlook" class="${alarm ? "bad" : ""}" data-alarm="${alarm ? esc(alarm.level) : ""}">${esc(line)}${
+    o && num(o.time_s) ? ` <span class="muted">(t=${o.time_s.toFixed(0)} s)</span>` : ""}</div>`;
 }
 
 function computeBanners() {
@@ -516,6 +531,15 @@ function uploadOutcome(planId) {
                  failed: "upload FAILED", uploaded_unconfirmed: "uploaded but not confirmed (read-back failed)", sent: "sent, awaiting read-back", uploading: "uploading…"};
   return `<div class="outcome" data-upload-status="${esc(u.status)}">Plan ${planId}: ${esc(words[u.status] || u.status)}${u.error ? " — " + esc(u.error) : ""}</div>`;
 }
+// a proposal's gate (GET /missions/proposed): its age; Approve/Reject off with the reason when the
+// link is lost or the vehicle failed or is on the ground; a stale one is re-planned when approved
+function gateOff(plan) { return plan.gate && plan.gate.blocked ? ` disabled title="${esc(plan.gate.reason || "")}"` : ""; }
+function gateText(plan) {
+  const g = plan.gate;
+  if (!g) return "";
+  const age = num(g.age_s) ? `${g.age_s.toFixed(0)} s old` : "age unknown";
+  return `<span class="gate${g.blocked ? " bad" : ""}" data-blocked="${g.blocked}" data-stale="${g.stale}">${esc(age)}${g.reason ? " — " + esc(g.reason) : ""}</span>`;
+}
 function renderDecision() {
   const host = $("decision-body");
   const parts = [];
@@ -531,8 +555,9 @@ function renderDecision() {
         <tr><th>landing SoC</th><td>${a[2]}</td><td>${b[2]}</td></tr>
         <tr><th>probability of failure</th><td>${a[3]}</td><td>${b[3]}</td></tr></table>
       <div>${esc(plan.why || "")}</div>
-      <div class="actions"><button class="approve" id="approve-${plan.id}" data-act="approve" data-id="${plan.id}">Approve and upload</button>
-        <button class="reject" id="reject-${plan.id}" data-act="reject" data-id="${plan.id}">Reject</button>
+      <div class="actions"><button class="approve" id="approve-${plan.id}" data-act="approve" data-id="${plan.id}"${gateOff(plan)}>Approve and upload</button>
+        <button class="reject" id="reject-${plan.id}" data-act="reject" data-id="${plan.id}"${gateOff(plan)}>Reject</button>
+        ${gateText(plan)}
         <span class="decision-state">${dec ? esc(dec.text) : ""}</span></div></div>`);
   }
   // the latest decided plan and what became of its upload
@@ -736,6 +761,9 @@ async function pollStatus() {
   }
   renderHeader(); renderBanners(); renderPacks(); renderMotors();
   if (S.mission == null && S.statusOk) refreshMission();
+  // a waiting proposal's gate (age; blocked when the link is lost or the vehicle failed or landed) moves
+  // with the vehicle's state, not only on plan events
+  if (S.proposed.length && S.statusOk) refreshPlans();
   if (!fitted) drawMission();
   drawVehicle();
   if (timelineDirty) { timelineDirty = false; renderTimeline(); }

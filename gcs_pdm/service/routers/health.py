@@ -29,8 +29,10 @@ def health(service: ServiceDep):
 @router.get("/status", response_model=S.VehicleStatus)
 def status(service: ServiceDep):
     snapshot, trust = service.state.snapshot(), link_trust(service)
+    alarm = (snapshot.get("outlook") or {}).get("alarm")
     warnings = (list(snapshot.get("warnings") or []) + trust_warnings(trust)
-                + fit_envelope_warnings(snapshot.get("fit_envelope")))
+                + fit_envelope_warnings(snapshot.get("fit_envelope"))
+                + ([{k: alarm[k] for k in ("kind", "level", "title", "text")}] if alarm else []))
     return finite({**snapshot, "link_trust": trust, **({"warnings": warnings} if warnings else {})})
 
 

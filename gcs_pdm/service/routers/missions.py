@@ -16,7 +16,12 @@ def current_mission(service: ServiceDep):
 
 @router.get("/proposed", response_model=list[S.PlanOut])
 def proposed(service: ServiceDep):
-    return finite(service.store.plans(status="proposed"))
+    """Each proposal with its ``gate``: its age, whether Approve/Reject are refused now (``blocked``,
+    link lost, vehicle failed or on the ground) and whether Approve re-plans first (``stale``)."""
+    plans = service.store.plans(status="proposed")
+    if service.loop is not None:
+        plans = [{**p, "gate": service.loop.proposal_gate(p).to_dict()} for p in plans]
+    return finite(plans)
 
 
 @router.get("/plans/{plan_id}", response_model=S.PlanOut, responses=S.errors(404, 422))

@@ -1,0 +1,407 @@
+"""Risk-bounded planning: candidate routes flown on common random draws of what is uncertain.
+
+The deterministic vehicle simulator flies each route once, on the nominal model. Here each route is
+flown on the same S draws (common random numbers, so two routes differ by the route, not by luck)
+of the start state (SoC and temperatures), the parameters (log-normal spread, as the prediction
+draws them), the fault's magnitude and the wind; routes × samples go through the one kernel in one
+call per leg. A route's verdict is then a risk verdict:
+
+* P(failure) — the share of draws that fail in the air (cut-off voltage, depleted pack, over
+  temperature, power) — must be at most ε (``max_failure_probability``, default 0.02);
+* the landing reserve must be met at the ``reserve_quantile`` (default 0.05) of the lowest pack's
+  landing SoC over the draws (a failed draw counts as landing empty);
+* the reward is the **expected** reward: the route's reward times the share of draws that get home
+  with the reserve kept (a draw that does not scores 0, as on the truth).
+
+:class:`RiskSimulator` offers the deterministic simulator's interface (``start_state``, ``advance``,
+``home``, ``evaluate``, ``cost_lower_bound``), so Algorithm 1 and the exact search run on it
+unchanged and get the risk-aware objective. The exact search's pruning stays valid: per draw,
+flying further never leaves the vehicle better off, so P(failure) and the landing-SoC quantile only
+get worse along a route, and the nominal reward plus the reachable rewards bounds the expected reward.
+
+Approximation, named: a sampled wind changes each leg's duration (the wind triangle at the leg's
+nominal airspeed) but the leg keeps its nominal shaft power (the climb rate of a leg with a height
+change is the nominal one; level legs are exact).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from gcs_pdm.estimation.prediction import restate, sample_parameters
+from gcs_pdm.models import kernel, topology
+from gcs_pdm.models.wind import ground_speed
+from gcs_pdm.planning.plan import Plan, make_plan, rank
+from gcs_pdm.planning.simulator import (DEFAULT_THETA, FAIL_RESERVE, UNFLYABLE_LEG_S, UNFLYABLE_POWER_W, Outcome,
+                                        RouteEvaluation, VehicleSimulator)
+
+DEFAULT_MAX_FAILURE_PROBABILITY = 0.02
+DEFAULT_RESERVE_QUANTILE = 0.05
+DEFAULT_SAMPLES = 200
+#: the search of ``plan_risk_bounded`` runs on this many of the draws at this step; the finalists
+#: are then flown on all the draws at the planning step (what decides)
+DEFAULT_SEARCH_SAMPLES = 50
+DEFAULT_SEARCH_DT_S = 30.0
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """1-sigma spreads of what a plan cannot know exactly (a scenario's; the service draws the
+    state from its estimator instead)."""
+
+    soc_sd: float = 0.02            # per pack, absolute SoC
+    temp_sd_c: float = 1.0          # packs and motors
+    param_rel_sigma: float = 0.05   # log-normal, every parameter (``prediction.sample_parameters``)
+    fault_sd: float = 0.08          # absolute, on each fault present (clipped to [0, 1])
+    wind_sd_mps: float = 1.5        # per component, about the scenario's wind
+
+
+@dataclass(frozen=True)
+class Draws:
+    """S draws of everything uncertain; row s of each array is one possible vehicle."""
+
+    x0: np.ndarray            # (S, 4, 4) pack states (under the draw's own parameters)
+    motor_temp: np.ndarray    # (S, 2)
+    pack_params: np.ndarray   # (S, 4, 12)
+    motor_params: np.ndarray  # (S, 5)
+    fault: np.ndarray         # (S, 2)
+    wind_en: np.ndarray       # (S, 2) the air's velocity east, north
+
+    def __len__(self) -> int:
+        return int(self.x0.shape[0])
+
+
+def draw(sim: VehicleSimulator, n: int = DEFAULT_SAMPLES, *, uncertainty: Uncertainty = Uncertainty(),
+         seed: int | np.random.Generator = 0, pack_mean: np.ndarray | None = None,
+         pack_cov: np.ndarray | None = None, motor_sd: np.ndarray | None = None) -> Draws:
+    """``n`` draws about ``sim``'s start (its scenario's state, parameters, faults and wind).
+
+    ``pack_mean``/``pack_cov`` (4, 4) / (4, 4, 4): an estimator's pack state and covariance to draw
+    the start from instead of the scenario's state with ``uncertainty.soc_sd``/``temp_sd_c``."""
+    if sim.vehicle is not None:
+        raise ValueError("risk-bounded planning: the paper's aircraft only (a described vehicle plans deterministically)")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    pp0, mp0 = sim._pp[0], sim._mp[0]
+    pp, mp = sample_parameters((pp0, mp0), n, rng, uncertainty.param_rel_sigma)
+    if pack_mean is not None:
+        cov = np.asarray(pack_cov, dtype=np.float64)
+        chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
+        x = np.asarray(pack_mean, dtype=np.float64)[None] + np.einsum("bij,nbj->nbi", chol,
+                                                                       rng.standard_normal((n,) + np.shape(pack_mean)))
+    else:
+        x = np.repeat(np.asarray(sim.initial.pack_state, dtype=np.float64)[None], n, axis=0)
+        x[..., kernel.S_QB] += rng.normal(0.0, uncertainty.soc_sd, size=(n, x.shape[1])) * pp0[:, kernel.I_CMAX]
+        x[..., kernel.S_T] += rng.normal(0.0, uncertainty.temp_sd_c, size=(n, x.shape[1]))
+    x[..., kernel.S_QB] = np.minimum(x[..., kernel.S_QB], pp0[:, kernel.I_QMAX])
+    x = restate(pp0, x, pp)
+    tm0 = np.asarray(sim.initial.motor_temp_c, dtype=np.float64)
+    sd = uncertainty.temp_sd_c if motor_sd is None else np.asarray(motor_sd, dtype=np.float64)
+    tm = tm0[None] + sd * rng.standard_normal((n, tm0.size))
+    f0 = np.asarray(sim._fault[0], dtype=np.float64)
+    fault = np.clip(f0[None] + np.where(f0 > 0, 1.0, 0.0)[None] * rng.normal(0.0, uncertainty.fault_sd, (n, f0.size)),
+                    0.0, 1.0)
+    wind = np.asarray(sim.scenario.wind_en_mps)[None] + rng.normal(0.0, uncertainty.wind_sd_mps, (n, 2))
+    return Draws(x, tm, pp, mp, fault, wind)
+
+
+@dataclass(frozen=True)
+class RiskState:
+    """B routes part-way, each on all S draws (the carried prefix state of the risk simulator)."""
+
+    x: np.ndarray            # (B, S, 4, 4)
+    motor_temp: np.ndarray   # (B, S, 2)
+    node: np.ndarray         # (B,)
+    reward: np.ndarray       # (B,) nominal reward of the waypoints visited so far
+    energy_j: np.ndarray     # (B, S)
+    time_s: np.ndarray       # (B, S)
+    peak_pack_c: np.ndarray  # (B, S)
+    peak_motor_c: np.ndarray  # (B, S)
+    failed: np.ndarray       # (B, S) the draw failed in the air (its state is where it failed)
+    cause: np.ndarray        # (B, S) its FAIL_* code
+    route: np.ndarray        # (B,) object: the waypoints flown so far, a tuple (the memo's key)
+
+    def __len__(self) -> int:
+        return int(self.node.shape[0])
+
+    def take(self, idx: np.ndarray) -> "RiskState":
+        return RiskState(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
+
+    @staticmethod
+    def concat(states: Sequence["RiskState"]) -> "RiskState":
+        return RiskState(*(np.concatenate([getattr(s, f) for s in states]) for f in RiskState.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class RiskOutcome(Outcome):
+    """An Outcome whose verdict is the risk verdict; per route also its risk figures."""
+
+    p_failure: np.ndarray = None        # (B,) share of draws failing in the air
+    p_success: np.ndarray = None        # (B,) share landing with the reserve kept
+    landing_soc_q: np.ndarray = None    # (B, 3) p05, p50, p95 of the lowest pack's landing SoC (failed = 0)
+    nominal_reward: np.ndarray = None   # (B,) the route's reward if everything goes as drawn
+
+
+class RiskSimulator:
+    """Routes × draws through the kernel; the deterministic simulator's interface, risk verdicts."""
+
+    def __init__(self, base: VehicleSimulator, draws: Draws, *,
+                 max_failure_probability: float = DEFAULT_MAX_FAILURE_PROBABILITY,
+                 reserve_quantile: float = DEFAULT_RESERVE_QUANTILE) -> None:
+        if not 0.0 <= max_failure_probability < 1.0:
+            raise ValueError(f"max_failure_probability: must be within [0, 1), got {max_failure_probability}")
+        if not 0.0 < reserve_quantile < 1.0:
+            raise ValueError(f"reserve_quantile: must be within (0, 1), got {reserve_quantile}")
+        self.base = base
+        self.draws = draws
+        self.eps = float(max_failure_probability)
+        self.reserve_quantile = float(reserve_quantile)
+        self.scenario, self.vehicle, self.params = base.scenario, base.vehicle, base.params
+        self.n, self.start_node, self.landing_node = base.n, base.start_node, base.landing_node
+        self.rewards, self.dt_s = base.rewards, base.dt_s
+        self.legs = base.legs  # nominal: the airspeeds flown (the mission's), distances
+        self.S = len(draws)
+        self._memo: dict[tuple, RiskState] = {}
+        #: every distinct route closed by the landing so far: route -> (feasible, expected reward, objective)
+        self.seen: dict[tuple, tuple[bool, float, float]] = {}
+        self._reserve = base._reserve
+        self._limits = base._limits
+        self._t_ground = base._t_ground
+        self._sample_legs()
+
+    # ---- per-draw legs: the wind triangle at each leg's airspeed ---------------------------------
+    def _sample_legs(self) -> None:
+        legs, sc = self.base.legs, self.scenario
+        places = self.base._places()
+        d = places[None, :, :2] - places[:, None, :2]                       # (M, M, 2) a→b
+        dist = legs.distance_m
+        with np.errstate(invalid="ignore", divide="ignore"):
+            unit = np.where(dist[..., None] > 0, d / np.where(dist > 0, dist, 1.0)[..., None], 0.0)
+        used = legs.steps > 0
+        M = dist.shape[0]
+        t = np.zeros((self.S, M, M))
+        power = np.broadcast_to(legs.power[..., 0], (self.S, M, M)).copy()
+        dz = np.abs(places[None, :, 2] - places[:, None, 2])
+        for s, wind in enumerate(self.draws.wind_en):
+            vg = ground_speed(unit[..., 0], unit[..., 1], legs.airspeed, (float(wind[0]), float(wind[1])))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ts = np.maximum(dist / vg, dz / sc.max_climb_rate_mps)
+            bad = used & ~np.isfinite(ts) & (dist > 0)
+            ts = np.where(used & (dist > 0), ts, legs.duration_s)
+            ts[bad] = UNFLYABLE_LEG_S
+            power[s][bad] = UNFLYABLE_POWER_W
+            t[s] = np.where(used, ts, 0.0)
+        steps = np.where(used, np.ceil(t / self.dt_s - 1e-9), 0).astype(np.int64)
+        L = max(int(steps.max()), 1)
+        k = np.arange(L)
+        on = k[None, None, None, :] < steps[..., None]
+        self._steps = steps                                                  # (S, M, M)
+        self._dt = np.where(on, (t / np.maximum(steps, 1))[..., None], 0.0)  # (S, M, M, L)
+        self._power = np.where(on, power[..., None], 0.0)
+        self._ambient = np.where(on, legs.ambient[None, :, :, :1], 0.0)
+
+    # ---- flying ----------------------------------------------------------------------------------
+    def start_state(self, batch: int = 1) -> RiskState:
+        dr, S = self.draws, self.S
+        x = np.repeat(dr.x0[None], batch, axis=0)
+        tm = np.repeat(dr.motor_temp[None], batch, axis=0)
+        z = np.zeros((batch, S))
+        return RiskState(x=x, motor_temp=tm, node=np.full(batch, self.start_node, dtype=np.int64),
+                         reward=np.zeros(batch), energy_j=z.copy(), time_s=z.copy(),
+                         peak_pack_c=x[..., kernel.S_T].max(axis=2), peak_motor_c=tm.max(axis=2),
+                         failed=np.zeros((batch, S), dtype=bool), cause=np.zeros((batch, S), dtype=np.int64),
+                         route=_routes([()] * batch))
+
+    def _fly(self, state: RiskState, to: np.ndarray) -> RiskState:
+        B, S = len(state), self.S
+        to = np.asarray(to, dtype=np.int64)
+        frm = state.node
+        used = max(int(self._steps[:, frm, to].max()) if B else 0, 1)
+        dt = np.transpose(self._dt[:, frm, to, :used], (1, 0, 2)).copy()      # (B, S, used)
+        dt[state.failed] = 0.0  # a failed draw stays where it failed
+        pw = np.transpose(self._power[:, frm, to, :used], (1, 0, 2))
+        am = np.transpose(self._ambient[:, frm, to, :used], (1, 0, 2))
+        dr = self.draws
+        pp = np.broadcast_to(dr.pack_params[None], (B,) + dr.pack_params.shape).reshape(B * S, *dr.pack_params.shape[1:])
+        mp = np.broadcast_to(dr.motor_params[None], (B,) + dr.motor_params.shape).reshape(B * S, -1)
+        fault = np.broadcast_to(dr.fault[None], (B,) + dr.fault.shape).reshape(B * S, -1)
+        run = topology.simulate_powertrain(np.ascontiguousarray(pp), np.ascontiguousarray(mp),
+                                           state.x.reshape(B * S, *state.x.shape[2:]),
+                                           state.motor_temp.reshape(B * S, -1), dt.reshape(B * S, used),
+                                           np.ascontiguousarray(pw).reshape(B * S, used),
+                                           np.ascontiguousarray(am).reshape(B * S, used), np.ascontiguousarray(fault),
+                                           limits=self._limits, fault_drag=0.1, max_dt=self.dt_s,
+                                           stop_on_failure=True)
+        new_fail = run.failed.reshape(B, S) & ~state.failed
+        return RiskState(
+            x=run.final_pack_state.reshape(state.x.shape), motor_temp=run.final_motor_temp.reshape(state.motor_temp.shape),
+            node=to, reward=state.reward + self.rewards[to],
+            energy_j=state.energy_j + run.energy_j.reshape(B, S), time_s=state.time_s + run.elapsed_s.reshape(B, S),
+            peak_pack_c=np.maximum(state.peak_pack_c, run.max_pack_temp.max(axis=1).reshape(B, S)),
+            peak_motor_c=np.maximum(state.peak_motor_c, run.max_motor_temp.max(axis=1).reshape(B, S)),
+            failed=state.failed | new_fail, cause=np.where(new_fail, run.fail_cause.reshape(B, S), state.cause),
+            route=_routes([r + (int(w),) for r, w in zip(state.route, to)]))
+
+    def _fly_memo(self, state: RiskState, to: np.ndarray) -> RiskState:
+        """``_fly``, once per distinct route: a prefix's state depends on nothing but the route (the
+        draws are fixed), and a particle filter's resampled particles repeat prefixes many times."""
+        keys = [r + (int(w),) for r, w in zip(state.route, to)]
+        missing: dict[tuple, int] = {}
+        for b, k in enumerate(keys):
+            if k not in self._memo and k not in missing:
+                missing[k] = b
+        if missing:
+            if len(self._memo) + len(missing) > MEMO_LIMIT:
+                self._memo.clear()
+            rows = np.fromiter(missing.values(), dtype=np.int64, count=len(missing))
+            flown = self._fly(state.take(rows), np.asarray(to, dtype=np.int64)[rows])
+            for i, k in enumerate(missing):
+                self._memo[k] = flown.take(np.array([i]))
+        return RiskState.concat([self._memo[k] for k in keys])
+
+    def advance(self, state: RiskState, to: np.ndarray) -> tuple[RiskState, np.ndarray]:
+        """Fly each route of the batch on to waypoint ``to[b]`` on every draw; ``ok``: its
+        P(failure) so far is still within ε (a route past it can only get worse)."""
+        if len(state) == 0:
+            return state, np.zeros(0, dtype=bool)
+        new = self._fly_memo(state, to)
+        return new, new.failed.mean(axis=1) <= self.eps + 1e-12
+
+    def home(self, state: RiskState) -> RiskOutcome:
+        if len(state) == 0:
+            return self._outcome(state)
+        out = self._outcome(self._fly_memo(state, np.full(len(state), self.landing_node, dtype=np.int64)))
+        obj = out.objective()
+        for b, r in enumerate(state.route):
+            self.seen[r] = (bool(out.feasible[b]), float(out.reward[b]), float(obj[b]))
+        return out
+
+    def _stress(self, state: RiskState) -> np.ndarray:
+        lim = self.scenario.limits
+        t0 = self._t_ground
+        return np.maximum(np.maximum((state.peak_pack_c - t0) / max(lim.pack_max_temp_c - t0, 1e-6),
+                                     (state.peak_motor_c - t0) / max(lim.motor_max_temp_c - t0, 1e-6)), 0.0)
+
+    def _soc(self, x: np.ndarray) -> np.ndarray:
+        """(B, S, 4) SoC of each draw under its own parameters."""
+        return kernel.state_of_charge(self.draws.pack_params[None], x)
+
+    def cost_lower_bound(self, state: RiskState) -> tuple[np.ndarray, np.ndarray]:
+        soc = self._soc(state.x).min(axis=2)
+        return (self._stress(state) + (1.0 - soc)).mean(axis=1), state.energy_j.mean(axis=1) / 1e6
+
+    def _outcome(self, final: RiskState) -> RiskOutcome:
+        B = len(final)
+        soc = self._soc(final.x) if B else np.zeros((0, self.S, 4))
+        low = np.where(final.failed, 0.0, soc.min(axis=2)) if B else np.zeros((0, self.S))
+        p_fail = final.failed.mean(axis=1) if B else np.zeros(0)
+        success = ~final.failed & (low >= self._reserve)
+        p_success = success.mean(axis=1) if B else np.zeros(0)
+        q = np.quantile(low, [self.reserve_quantile, 0.5, 0.95], axis=1).T if B else np.zeros((0, 3))
+        feasible = (p_fail <= self.eps + 1e-12) & (q[:, 0] >= self._reserve)
+        cause = np.full(B, kernel.FAIL_NONE, dtype=np.int64)
+        for b in np.flatnonzero(~feasible):
+            fc = final.cause[b][final.failed[b]]
+            cause[b] = int(np.bincount(fc).argmax()) if p_fail[b] > self.eps and fc.size else FAIL_RESERVE
+        expected = final.reward * p_success
+        health = (self._stress(final) + 1.0 - low).mean(axis=1) if B else np.zeros(0)
+        med = (lambda a: np.median(a, axis=1)) if B else (lambda a: a[:, 0])
+        return RiskOutcome(feasible=feasible, cause=cause, reward=np.where(feasible, expected, 0.0),
+                           reward_reached=expected, health_cost=health,
+                           power_cost=final.energy_j.mean(axis=1) / 1e6 if B else np.zeros(0),
+                           final_soc=med(soc), final_pack_temp=med(final.x[..., kernel.S_T]),
+                           final_motor_temp=med(final.motor_temp), flight_time_s=med(final.time_s),
+                           p_failure=p_fail, p_success=p_success, landing_soc_q=q, nominal_reward=final.reward)
+
+    # ---- whole routes ----------------------------------------------------------------------------
+    def evaluate(self, routes: Sequence[Sequence[int]], *, dt_s: float | None = None) -> RouteEvaluation:
+        """Whole routes on every draw (leg by leg from the carried states: the same numbers as
+        ``advance``/``home``). ``fail_leg``: -1 when the risk verdict holds, else ``len(route)``
+        (the risk is a property of the whole route, not of one leg)."""
+        if dt_s is not None and dt_s != self.dt_s:
+            raise ValueError("RiskSimulator.evaluate: the planning step is fixed by the base simulator")
+        routes = [tuple(int(w) for w in r) for r in routes]
+        B = len(routes)
+        state = self.start_state(B)
+        for level in range(max((len(r) for r in routes), default=0)):
+            idx = np.array([b for b, r in enumerate(routes) if len(r) > level], dtype=np.int64)
+            new = self._fly_memo(state.take(idx), np.array([routes[b][level] for b in idx], dtype=np.int64))
+            state = _scatter(state, idx, new)
+        out = self.home(state)
+        lens = np.array([len(r) for r in routes], dtype=np.int64)
+        return RouteEvaluation(**{f: getattr(out, f) for f in Outcome.__dataclass_fields__},
+                               fail_leg=np.where(out.feasible, -1, lens), reached=lens)
+
+    def subset(self, n: int, dt_s: float | None = None) -> "RiskSimulator":
+        """The same simulator on the first ``n`` draws (a common subset: the same random numbers),
+        sampled at ``dt_s`` (default: the same step)."""
+        d = self.draws
+        sub = Draws(*(getattr(d, f)[:n] for f in Draws.__dataclass_fields__))
+        base = self.base if dt_s is None or dt_s == self.dt_s else self.base.resampled(dt_s)
+        return RiskSimulator(base, sub, max_failure_probability=self.eps, reserve_quantile=self.reserve_quantile)
+
+    def risk_of(self, route: Sequence[int]) -> dict:
+        """The risk figures of one route, for the plan's record."""
+        state = self.start_state(1)
+        for w in route:
+            state = self._fly(state, np.array([int(w)]))
+        out = self.home(state)
+        return {"p_failure": float(out.p_failure[0]), "p_success": float(out.p_success[0]),
+                "landing_soc_quantiles": {"q": [self.reserve_quantile, 0.5, 0.95],
+                                          "soc": [float(v) for v in out.landing_soc_q[0]]},
+                "expected_reward": float(out.reward_reached[0]), "nominal_reward": float(out.nominal_reward[0]),
+                "samples": self.S, "max_failure_probability": self.eps, "reserve_quantile": self.reserve_quantile}
+
+
+def plan_risk_bounded(search: Callable[..., Plan], sim: RiskSimulator, *,
+                      search_samples: int | None = DEFAULT_SEARCH_SAMPLES,
+                      search_dt_s: float | None = DEFAULT_SEARCH_DT_S, finalists: int = 12,
+                      particles: int = 30, seed=0, theta: Sequence[float] = DEFAULT_THETA,
+                      should_stop: Callable[[], bool] | None = None) -> Plan:
+    """Run the planner ``search`` (a registry entry's ``run(sim, *, particles, seed, theta,
+    should_stop)``; by name: ``planners.run_risk_bounded``) with the risk-aware objective.
+
+    With ``search_samples`` (< the draws), the search runs on that common subset of the draws
+    sampled at ``search_dt_s`` (coarser than the planning step: it only ranks routes), and
+    the ``finalists`` best distinct routes it closed (plus its own answer and the way straight home)
+    are flown on ALL the draws; the best of them that keeps the risk bound there is the plan. So
+    the decision, and every figure reported with it, is on all the draws; the subset only steers
+    the search (the 1-s budget: docs/planning.md). ``search_samples=None`` searches on all of them."""
+    if search_samples is None or search_samples >= sim.S:
+        search_sim = sim if search_dt_s is None else sim.subset(sim.S, search_dt_s)
+    else:
+        search_sim = sim.subset(int(search_samples), search_dt_s)
+    found = search(search_sim, particles=particles, seed=seed, theta=theta, should_stop=should_stop)
+    ranked = sorted(search_sim.seen.items(), key=lambda kv: (not kv[1][0], -kv[1][1], -kv[1][2]))
+    routes = [found.route, ()] + [r for r, v in ranked[:finalists] if v[0]]
+    routes = list(dict.fromkeys(tuple(r) for r in routes))
+    ev = sim.evaluate(routes)
+    obj = ev.objective(theta)
+    i = rank(np.where(ev.feasible, ev.reward, -1.0), np.where(ev.feasible, obj, -np.inf))
+    stats = dict(found.stats, search_samples=search_sim.S, finalists=len(routes), searched_planner=found.planner,
+                 risk=sim.risk_of(routes[i]))
+    return make_plan(sim, routes[i], f"{found.planner}_risk", theta, **stats)
+
+
+#: routes whose flown states are remembered (about 40 kB each at 200 draws)
+MEMO_LIMIT = 20_000
+
+
+def _routes(items: Sequence[tuple]) -> np.ndarray:
+    out = np.empty(len(items), dtype=object)
+    out[:] = list(items)
+    return out
+
+
+def _scatter(base, idx: np.ndarray, values):
+    fields = {}
+    for f in type(base).__dataclass_fields__:
+        a = getattr(base, f).copy()
+        a[idx] = getattr(values, f)
+        fields[f] = a
+    return type(base)(**fields)
+
+
+__all__ = ["DEFAULT_MAX_FAILURE_PROBABILITY", "DEFAULT_RESERVE_QUANTILE", "DEFAULT_SAMPLES", "Draws", "RiskOutcome",
+           "RiskSimulator", "RiskState", "Uncertainty", "draw", "plan_risk_bounded"]

@@ -1,0 +1,96 @@
+"""Risk-bounded planning (issue 31, part 2): routes × draws through the kernel, the risk verdict,
+Algorithm 1 and the exact search on the risk-aware objective."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from gcs_pdm.planning.exact import exact_search
+from gcs_pdm.planning.particle_filter import particle_filter
+from gcs_pdm.planning.plan import rank
+from gcs_pdm.planning.planners import run_risk_bounded
+from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw
+from gcs_pdm.planning.simulator import VehicleSimulator
+from gcs_pdm.planning.table3_scenario import table3_scenario
+from gcs_pdm.sim.truth import true_parameters
+
+NO_SPREAD = Uncertainty(soc_sd=0.0, temp_sd_c=0.0, param_rel_sigma=0.0, fault_sd=0.0, wind_sd_mps=0.0)
+
+
+@pytest.fixture(scope="module")
+def table3_10():
+    return table3_scenario(true_parameters(), 10)
+
+
+def _some_routes(n: int, count: int, seed: int = 0) -> list[tuple[int, ...]]:
+    rng = np.random.default_rng(seed)
+    return [tuple(int(w) for w in rng.permutation(n)[:rng.integers(0, 6)]) for _ in range(count)]
+
+
+def test_without_spread_every_draw_is_the_deterministic_vehicle(table3_10):
+    base = VehicleSimulator(table3_10.with_wind(3.0, -2.0))
+    risk = RiskSimulator(base, draw(base, 3, uncertainty=NO_SPREAD, seed=0))
+    routes = _some_routes(base.n, 40)
+    det, rsk = base.evaluate(routes), risk.evaluate(routes)
+    assert np.array_equal(det.feasible, rsk.feasible)
+    np.testing.assert_allclose(rsk.final_soc, det.final_soc, atol=1e-9)
+    np.testing.assert_allclose(rsk.power_cost, det.power_cost, rtol=1e-9)
+    # a feasible route's expected reward is its reward (every draw gets home)
+    np.testing.assert_allclose(rsk.reward, det.reward, atol=1e-9)
+
+
+def test_carried_states_give_the_whole_route_numbers(table3_10):
+    base = VehicleSimulator(table3_10)
+    risk = RiskSimulator(base, draw(base, 40, seed=2))
+    routes = [(4, 1), (4, 1, 7), (2,), ()]
+    whole = risk.evaluate(routes)
+    fresh = RiskSimulator(base, risk.draws)  # no memo
+    for b, r in enumerate(routes):
+        st = fresh.start_state(1)
+        for w in r:
+            st, _ = fresh.advance(st, np.array([w]))
+        out = fresh.home(st)
+        assert out.feasible[0] == whole.feasible[b]
+        assert out.reward[0] == pytest.approx(whole.reward[b], abs=1e-12)
+        np.testing.assert_allclose(out.final_soc[0], whole.final_soc[b], atol=1e-12)
+
+
+def test_risk_plan_keeps_the_bound_where_the_nominal_plan_does_not(table3_10):
+    base = VehicleSimulator(table3_10)
+    risk = RiskSimulator(base, draw(base, 200, seed=5), max_failure_probability=0.02)
+    nominal = particle_filter(base, particles=30, seed=0)
+    nominal_risk = risk.risk_of(nominal.route)
+    # the nominal plan promises the reserve but misses it on many draws
+    assert nominal.feasible
+    assert nominal_risk["landing_soc_quantiles"]["soc"][0] < table3_10.limits.landing_reserve_soc
+    plan = run_risk_bounded("pf", risk, seed=0)
+    r = plan.stats["risk"]
+    assert plan.feasible and r["samples"] == 200
+    assert r["p_failure"] <= 0.02
+    assert r["landing_soc_quantiles"]["soc"][0] >= table3_10.limits.landing_reserve_soc
+    assert plan.reward == pytest.approx(r["expected_reward"])
+
+
+def test_exact_search_on_the_risk_objective_matches_brute_force():
+    sc = table3_scenario(true_parameters(), 10)
+    sc = sc.subset([w.number for w in sc.waypoints][:5])
+    base = VehicleSimulator(sc)
+    risk = RiskSimulator(base, draw(base, 24, seed=3), max_failure_probability=0.05)
+    routes = [r for k in range(6) for r in itertools.permutations(range(base.n), k)]
+    ev = RiskSimulator(base, risk.draws, max_failure_probability=0.05).evaluate(routes)
+    obj = ev.objective()
+    i = rank(np.where(ev.feasible, ev.reward, -1.0), np.where(ev.feasible, obj, -np.inf))
+    best = exact_search(risk)
+    assert best.reward == pytest.approx(float(ev.reward[i]), abs=1e-9)
+    assert best.feasible == bool(ev.feasible[i])
+
+
+def test_unsupported_vehicle_and_bad_settings_are_refused(table3_10):
+    base = VehicleSimulator(table3_10)
+    dr = draw(base, 4, seed=0)
+    with pytest.raises(ValueError, match="max_failure_probability"):
+        RiskSimulator(base, dr, max_failure_probability=1.5)
+    with pytest.raises(ValueError, match="reserve_quantile"):
+        RiskSimulator(base, dr, reserve_quantile=0.0)

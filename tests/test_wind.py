@@ -1,0 +1,250 @@
+"""Wind (issue 31, part 3): read from the autopilot or estimated, flown by the planner and the
+simulated vehicle, reported in /status."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gcs_pdm.estimation.wind import WindEstimator
+from gcs_pdm.frames import AirdataFrame, PositionFrame, WindFrame
+from gcs_pdm.mavlink.mapping import FrameMapper
+from gcs_pdm.mavlink.wire import split_packet
+from gcs_pdm.models.wind import ground_speed, speed_direction, wind_from_speed_direction, wind_from_triangle
+from gcs_pdm.planning.planners import plan_scenario
+from gcs_pdm.planning.scenario import Scenario
+from gcs_pdm.planning.simulator import VehicleSimulator
+from gcs_pdm.planning.table3_scenario import table3_scenario
+from gcs_pdm.sim.truth import true_parameters
+
+sys.path.insert(0, str(Path(__file__).parent / "mavlink"))
+from mavlink_builders import PacketFactory  # noqa: E402
+
+
+def _angle_diff(a: float, b: float) -> float:
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+# ---- the triangle and the conventions ------------------------------------------------------------
+
+def test_from_direction_and_velocity_are_one_convention():
+    # a westerly (from 270) blows towards the east
+    e, n = wind_from_speed_direction(8.0, 270.0)
+    assert e == pytest.approx(8.0) and n == pytest.approx(0.0, abs=1e-12)
+    assert speed_direction(e, n) == pytest.approx((8.0, 270.0))
+    assert speed_direction(0.0, -5.0) == pytest.approx((5.0, 0.0))  # a northerly
+
+
+def test_ground_speed_from_the_wind_triangle():
+    # into a 10 m/s headwind at 25 m/s airspeed: 15 m/s; with it: 35 m/s
+    assert float(ground_speed(1.0, 0.0, 25.0, (-10.0, 0.0))) == pytest.approx(15.0)
+    assert float(ground_speed(1.0, 0.0, 25.0, (10.0, 0.0))) == pytest.approx(35.0)
+    # a pure crosswind of 15 m/s at 25 m/s: crab, sqrt(25² - 15²) = 20 m/s along the track
+    assert float(ground_speed(0.0, 1.0, 25.0, (15.0, 0.0))) == pytest.approx(20.0)
+    # a crosswind above the airspeed, or a headwind that stops the aircraft: not flyable
+    assert np.isnan(ground_speed(0.0, 1.0, 12.0, (15.0, 0.0)))
+    assert np.isnan(ground_speed(1.0, 0.0, 12.0, (-12.0, 0.0)))
+    # the triangle inverted: ground velocity minus the airspeed vector gives the wind back
+    we, wn = wind_from_triangle((3.0 + 25.0, -4.0), 25.0, 90.0)
+    assert (we, wn) == pytest.approx((3.0, -4.0))
+
+
+# ---- reading the autopilot's estimate ----------------------------------------------------------
+
+def _feed(mapper, packet, recv_s):
+    p = split_packet(packet)
+    return list(mapper.feed(recv_s, p.msgid, p.sysid, p.compid, p.payload))
+
+
+def test_ardupilot_wind_and_px4_wind_cov_become_one_frame():
+    v, m = PacketFactory(), FrameMapper()
+    _feed(m, v.heartbeat(), 100.0)
+    for _ in range(10):
+        _feed(m, v.position(5000), 100.0)
+    # ArduPilot: from -90 (= 270, a westerly) at 8 m/s
+    frames = _feed(m, v.pack(v.mav.wind_encode(-90.0, 8.0, 0.0)), 100.1)
+    assert len(frames) == 1 and isinstance(frames[0], WindFrame)
+    assert frames[0].speed_mps == pytest.approx(8.0) and frames[0].from_deg == pytest.approx(270.0)
+    # PX4: the air's velocity north 0, east 8 (blowing east) is the same westerly
+    frames = _feed(m, v.pack(v.mav.wind_cov_encode(5_000_000, 0.0, 8.0, 0.0, 0.1, 0.1, 100.0, 1.0, 1.0)), 100.2)
+    assert frames[0].speed_mps == pytest.approx(8.0) and frames[0].from_deg == pytest.approx(270.0)
+    # PX4 without an estimate sends NaN: unknown, not calm
+    frames = _feed(m, v.pack(v.mav.wind_cov_encode(5_000_000, float("nan"), float("nan"), 0.0, 0.0, 0.0, 0.0,
+                                                   0.0, 0.0)), 100.3)
+    assert frames[0].speed_mps is None and frames[0].from_deg is None
+
+
+def test_estimator_prefers_the_autopilot_then_falls_back_to_the_triangle():
+    rng = np.random.default_rng(1)
+    wind = (5.0, -3.0)
+    est = WindEstimator()
+    assert est.estimate(0.0) is None  # unknown, not calm
+    t = 0.0
+    for k in range(120):  # a circle at 22 m/s through the wind, 4 Hz, with airspeed noise
+        t = k * 0.25
+        heading = (k * 3.0) % 360.0
+        h = math.radians(heading)
+        ve, vn = 22.0 * math.sin(h) + wind[0], 22.0 * math.cos(h) + wind[1]
+        est.consume(AirdataFrame(t, 22.0 + rng.normal(0, 0.3), None, None, None, heading))
+        est.consume(PositionFrame(t, 0.0, 0.0, 100.0, 100.0, vn, ve, 0.0))
+    tri = est.estimate(t)
+    assert tri.source == "triangle"
+    assert tri.en == pytest.approx(wind, abs=0.5)
+    est.consume(WindFrame(t, 8.0, 270.0))
+    assert est.estimate(t).source == "autopilot" and est.estimate(t).en == pytest.approx((8.0, 0.0), abs=1e-9)
+    # the autopilot goes quiet: the triangle again (still fed)
+    assert est.estimate(t + 30.0) is None or est.estimate(t + 30.0).source == "triangle"
+
+
+# ---- the planner flies the wind --------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def table3_7() -> Scenario:
+    return table3_scenario(true_parameters(), 7)
+
+
+def test_scenario_wind_round_trips_and_calm_files_are_unchanged(table3_7):
+    assert "wind" not in table3_7.to_dict()
+    windy = table3_7.with_wind(8.0, 0.0)
+    back = Scenario.from_json(windy.to_json())
+    assert back.wind_en_mps == (8.0, 0.0)
+    d = table3_7.to_dict()
+    d["wind"] = {"speed_mps": 8.0, "from_deg": 270.0}
+    assert Scenario.from_dict(d).wind_en_mps == pytest.approx((8.0, 0.0))
+
+
+def test_leg_times_follow_the_wind_triangle(table3_7):
+    calm = VehicleSimulator(table3_7)
+    windy = VehicleSimulator(table3_7.with_wind(0.0, 6.0))  # blowing north
+    home = calm.landing_node
+    for i, w in enumerate(table3_7.waypoints):
+        d = calm.legs.distance_m[i, home]
+        track = np.array([-w.east_m, -w.north_m]) / d
+        vg = float(ground_speed(track[0], track[1], table3_7.return_airspeed_mps, (0.0, 6.0)))
+        assert windy.legs.duration_s[i, home] == pytest.approx(d / vg, rel=1e-9)
+        assert calm.legs.duration_s[i, home] == pytest.approx(d / table3_7.return_airspeed_mps, rel=1e-9)
+
+
+def test_the_planners_choice_changes_where_the_wind_makes_its_calm_route_infeasible(table3_7):
+    calm_plan = plan_scenario(table3_7, "exact")
+    assert calm_plan.feasible
+    windy = table3_7.with_wind(*wind_from_speed_direction(8.0, 270.0))
+    windy_sim = VehicleSimulator(windy)
+    ev = windy_sim.evaluate([calm_plan.route])
+    assert not ev.feasible[0], "the calm optimum must not get home with its reserve in this wind"
+    windy_plan = plan_scenario(windy, "exact")
+    assert windy_plan.feasible and windy_plan.route != calm_plan.route
+
+
+def test_a_headwind_route_reaches_cutoff_sooner_than_in_calm_air(table3_7):
+    """One long leg east, beyond what the packs can fly: in a headwind (from the east) the airspeed
+    optimisation flies faster to keep the ground speed, which draws more power, so the packs reach
+    their cut-off sooner, in the planner's simulator and in the Monte Carlo prediction of the route."""
+    from gcs_pdm.estimation.prediction import load_for_route, predict
+    from gcs_pdm.planning.scenario import Waypoint
+
+    far = dataclasses.replace(table3_7, waypoints=(Waypoint(number=1, east_m=table3_7.start.east_m + 60_000.0,
+                                                            north_m=table3_7.start.north_m, alt_m=100.0,
+                                                            reward=50.0),))
+    headwind = far.with_wind(*wind_from_speed_direction(8.0, 90.0))
+    calm_sim = VehicleSimulator(far, optimise_airspeed=True)
+    head_sim = VehicleSimulator(headwind, optimise_airspeed=True)
+    calm, head = calm_sim.evaluate([[0]]), head_sim.evaluate([[0]])
+    assert calm.fail_leg[0] == 0 and head.fail_leg[0] == 0  # both cut off on the way out
+    assert head.flight_time_s[0] < calm.flight_time_s[0]
+    # the prediction (state and parameter uncertainty) of each route's load
+    x = calm_sim.initial.pack_state
+    times = []
+    for sim in (calm_sim, head_sim):
+        pred = predict(far.parameter_set(), x, np.zeros((4, 4, 4)), np.asarray(calm_sim.initial.motor_temp_c),
+                       np.zeros(2), load_for_route(sim, [0]), rng=np.random.default_rng(3), n_samples=64,
+                       fault=np.array([0.0, 0.7]), trajectories=False)
+        times.append(pred.time_to_failure_s[1])
+    assert times[1] < times[0]
+
+
+def test_airspeed_optimisation_flies_faster_into_a_headwind(table3_7):
+    calm = VehicleSimulator(table3_7, optimise_airspeed=True)
+    south = VehicleSimulator(table3_7.with_wind(0.0, -12.0), optimise_airspeed=True)  # from the north
+    north_legs = [i for i, w in enumerate(table3_7.waypoints) if w.north_m - table3_7.start.north_m > 1000]
+    s = calm.start_node
+    for i in north_legs:
+        assert south.legs.airspeed[s, i] > calm.legs.airspeed[s, i]
+
+
+# ---- the simulated vehicle flies and reports it; /status shows it ----------------------------------
+
+def test_sim_wind_option_and_gusts():
+    from gcs_pdm.sim.cli import parse_wind
+    from gcs_pdm.sim.model import SimConfig, VehicleModel
+
+    assert parse_wind("8@270") == pytest.approx((8.0, 0.0))
+    assert parse_wind("1,2") == (1.0, 2.0)
+    with pytest.raises(SystemExit):
+        parse_wind("8@west")
+    model = VehicleModel(SimConfig(wind_en_mps=(8.0, 0.0), wind_gust_mps=1.5))
+    seen = []
+    for _ in range(3000):
+        model.step(0.1)
+        seen.append(model.wind_en)
+    seen = np.array(seen)
+    assert seen[:, 0].mean() == pytest.approx(8.0, abs=0.8)
+    assert 0.8 < seen[:, 0].std() < 2.2  # gusty, about its 1.5 m/s sigma
+    steady = VehicleModel(SimConfig(wind_en_mps=(8.0, 0.0)))
+    steady.step(0.1)
+    assert steady.wind_en == (8.0, 0.0)
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("send_wind", [True, False], ids=["autopilot", "triangle"])
+def test_status_reports_the_simulators_wind(tmp_path, send_wind):
+    """``sim --wind 8@270``: /status reports the wind within 1 m/s and 20°, from the vehicle's WIND, or
+    (a vehicle that sends none) from the wind triangle."""
+    from gcs_pdm.service.config import load_config
+    from gcs_pdm.service.demo import sim_config, table3_mission
+    from gcs_pdm.service.runtime import Service
+    from gcs_pdm.service.server import start_mavlink, stop_mavlink
+    from gcs_pdm.sim.cli import parse_wind
+    from gcs_pdm.sim.telemetry import DEFAULT_RATES, TelemetryConfig
+    from gcs_pdm.sim.vehicle import SimulatedVehicle
+
+    scenario, mission = table3_mission()
+    port = _free_udp_port()
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="wind-token-0123456789abcdef",
+                              policy="advise", mavlink_url=f"udpin:127.0.0.1:{port}", record_tlog=False,
+                              vehicle="edge540"))
+    svc.load_objectives_scenario(scenario)
+    start_mavlink(svc)
+    wind = parse_wind("8@270")
+    config = dataclasses.replace(sim_config(scenario, mission), faults=(), wind_en_mps=wind, wind_gust_mps=1.2)
+    rates = dict(DEFAULT_RATES, WIND=1.0 if send_wind else 0.0)
+    vehicle = SimulatedVehicle(config, f"udpout:127.0.0.1:{port}", speedup=8.0,
+                               telemetry=TelemetryConfig(rates_hz=rates)).start()
+    try:
+        deadline = time.monotonic() + 150.0  # a loaded 2-CPU machine
+        reported = None
+        while time.monotonic() < deadline:
+            w = svc.state.get("wind")
+            if "speed_mps" in w and w["source"] == ("autopilot" if send_wind else "triangle") \
+                    and vehicle.state.time_s > 90.0:
+                reported = w
+                break
+            time.sleep(0.2)
+        assert reported is not None, f"no wind in /status: {svc.state.get('wind')}"
+        assert reported["speed_mps"] == pytest.approx(8.0, abs=1.0)
+        assert _angle_diff(reported["from_deg"], 270.0) <= 20.0
+    finally:
+        vehicle.stop()
+        stop_mavlink(svc)
+        svc.close()
