@@ -1,0 +1,406 @@
+"""Self-calibrating pack estimation: state and parameters of a pack nobody has fitted (issue 29).
+
+Per pack, one extended Kalman filter over the joint state
+
+    x = [SoC, v₁, R₀, ΔV, k, g]
+
+— state of charge, the polarisation pair's voltage, the series resistance at 25 °C (pack, Ω), the
+open-circuit curve's offset (V per cell) and scale (about the curve's mid-point), and the inverse
+capacity scale g = Q_prior / Q — with the chemistry's rested curve (``models.chemistry``) as the
+open-circuit voltage:
+
+    OCV_cell(SoC) = ocv(SoC) + ΔV + k (ocv(SoC) − ocv(½))
+    V = S · OCV_cell(SoC) − v₁ − R₀ f(T) I,      f(T) = exp(E (1/T − 1/298.15))
+    SoC' = SoC − g I Δt / Q_prior,   v₁' = a v₁ + (1 − a) ρ R₀ f(T) I,   a = exp(−Δt/τ₁)
+
+The parameters are random walks with small steps; their priors come from the chemistry, the
+description (cells, capacity: the autopilot's BATT_CAPACITY when the description was derived from
+it) and, when given, the pack's own history (``PackPrior``). After every update they are held
+inside what the chemistry allows (``PARAM_BOUNDS``: a LiPo never rests above 4.25 V per cell).
+
+**The charge count is the floor.** The filter's SoC is a charge count (SoC' above) that the
+voltage corrects. The voltage is trusted only while it carries information the model can follow:
+
+* *it falls as charge is drawn*: from 30 s after the pack left rest, a least-squares fit of the
+  loaded voltage on [1, I, charge drawn / Q_prior] gives the voltage's fall per unit of charge; once
+  ``DRAIN_MIN_FRACTION`` of the capacity has been drawn it must be at least ``DRAIN_MIN_RATIO`` of
+  the fall the chemistry's curve has over that span (ArduPlane SITL's battery never drains: its
+  voltage holds while the autopilot's count falls 99 % → 48 %);
+* *the model follows it*: the mean normalised squared innovation over the last
+  ``NIS_WINDOW`` updates stays under ``NIS_RAISE``;
+* *it does not contradict the charge count beyond the capacity's uncertainty*: the filter's SoC
+  stays within ``REFEREE_SIGMAS`` σ of a pure charge count from the same start (prior capacity).
+
+Otherwise the voltage updates stop (``voltage_model`` leaves the evidence, the reason is kept) and
+the SoC follows the charge drawn from where the charge count stands, its σ growing with the
+capacity's uncertainty (g's variance). A mismatch never withholds the SoC: it is an advisory.
+
+**On the ground** (current under ``rest_current_a`` for ``REST_SETTLE_S``) the rested voltage sets
+the SoC through the chemistry curve (the filter's voltage updates at zero current do it, the
+curve's offset bounding how sure they make it), and the charge count's start is re-anchored there:
+take-off continues from it, without a jump.
+
+``evidence`` says what the SoC rests on now: ``rest_voltage`` (the start came from a rested
+voltage), ``loaded_voltage`` (from a voltage under load: no rest seen), ``coulomb`` (the charge
+drawn is counted), ``voltage_model`` (the voltage is correcting it now), ``prior`` (the capacity and
+curve are the prior's, not yet learned).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gcs_pdm.models.chemistry import Chemistry, chemistry
+
+# state indices
+I_SOC, I_V1, I_R0, I_DV, I_K, I_G = range(6)
+N_STATE = 6
+STATE_NAMES = ("soc", "v1", "r0", "ocv_offset", "ocv_scale", "inv_capacity_scale")
+
+#: voltage trusted only once this much of the capacity has been drawn with the voltage falling
+DRAIN_MIN_FRACTION = 0.06
+#: ... by at least this share of the chemistry curve's fall over the same span
+DRAIN_MIN_RATIO = 0.3
+#: seconds after leaving rest before loaded samples enter the drain fit (the polarisation settles)
+DRAIN_SETTLE_S = 30.0
+NIS_WINDOW = 60
+NIS_RAISE = 4.0
+NIS_CLEAR = 1.5
+REFEREE_SIGMAS = 3.0
+REST_SETTLE_S = 10.0
+#: an innovation beyond this many σ is not applied (a spike), counted
+GATE_SIGMAS = 5.0
+
+
+@dataclass(frozen=True)
+class PackPrior:
+    """Where a pack's estimate starts: the chemistry, cells, capacity (C) and its relative σ, and —
+    from the pack's own history when the pack-life records give it — a resistance, curve offset and
+    scale, and a capacity with a tighter σ. ``soc``/``soc_sd``: a known starting SoC (else the first
+    voltage sets it)."""
+
+    chemistry: str
+    cells: int
+    capacity_c: float
+    capacity_rel_sd: float = 0.15
+    r0_ohm: float | None = None
+    r0_rel_sd: float = 0.5
+    ocv_offset_v: float = 0.0
+    ocv_offset_sd: float = 0.015
+    ocv_scale: float = 0.0
+    ocv_scale_sd: float = 0.05
+    soc: float | None = None
+    soc_sd: float = 0.05
+    #: what the capacity rests on, said in the evidence (e.g. "BATT_CAPACITY")
+    capacity_source: str = "description"
+
+    @property
+    def chem(self) -> Chemistry:
+        return chemistry(self.chemistry)
+
+    @property
+    def r0_prior(self) -> float:
+        if self.r0_ohm is not None:
+            return self.r0_ohm
+        return self.cells * self.chem.r0_cell_ah / max(self.capacity_c / 3600.0, 1e-3)
+
+
+def prior_of_spec(spec, capacity_rel_sd: float | None = None) -> PackPrior:
+    """A description's pack (``vehicle.description.PackSpec``) as a prior: its chemistry, cells and
+    capacity; a provisional description's capacity (the autopilot's parameter or a charge-drawn
+    estimate) is less sure than a written one."""
+    sd = capacity_rel_sd if capacity_rel_sd is not None else 0.15
+    return PackPrior(chemistry=spec.chemistry, cells=int(spec.cells_series), capacity_c=float(spec.capacity_c),
+                     capacity_rel_sd=sd)
+
+
+@dataclass
+class _Drain:
+    """Running normal equations of V ≈ a + b I + c (drawn / Q_prior) over loaded samples."""
+
+    ata: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    atv: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    n: int = 0
+
+    def add(self, current: float, frac: float, v: float) -> None:
+        a = np.array([1.0, current, frac])
+        self.ata += np.outer(a, a)
+        self.atv += a * v
+        self.n += 1
+
+    def slope(self) -> float:
+        """c: the voltage's change per unit of capacity drawn (NaN while not determined)."""
+        if self.n < 20:
+            return math.nan
+        try:
+            return float(np.linalg.solve(self.ata + 1e-9 * np.eye(3), self.atv)[2])
+        except np.linalg.LinAlgError:
+            return math.nan
+
+
+class PackCalibrator:
+    """One pack's joint state and parameter filter (see the module doc)."""
+
+    def __init__(self, prior: PackPrior, *, sigma_v: float | None = None):
+        self.prior = prior
+        self.chem = prior.chem
+        self.cells = prior.cells
+        self.q0 = prior.capacity_c
+        self.table = self.chem.table
+        self.mid = self.chem.ocv(0.5)
+        self.r0p = prior.r0_prior
+        self.sigma_v = sigma_v if sigma_v is not None else 0.02 + 0.012 * self.cells
+        self.rest_current_a = max(0.3, 0.05 * self.q0 / 3600.0)
+        # bounds: what the chemistry allows
+        top = self.chem.ocv(1.0)
+        self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6])
+        self.hi = np.array([1.0, 5.0, 5.0 * self.r0p, self.chem.max_rest_cell_v - top, 0.25, 1.0 / 0.5])
+        self.x = np.zeros(N_STATE)
+        self.P = np.zeros((N_STATE, N_STATE))
+        self.initialised = False
+        self.time_s = -math.inf
+        # charge count from the last rest (the referee): its start SoC and variance, charge drawn since
+        self.count_start = math.nan
+        self.count_start_var = math.nan
+        self.drawn_c = 0.0
+        self.total_drawn_c = 0.0
+        self.rest_since = math.nan
+        self.left_rest_s = math.nan
+        self.start_kind = ""
+        self.drain = _Drain()
+        self.nis: list[float] = []
+        self.voltage_trusted = True
+        self.why_not_voltage: str | None = None
+        self.drain_failed = False
+        self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0}
+        self.last_voltage_update_s = -math.inf
+
+    # ---- model ---------------------------------------------------------------------------------
+    def _ocv(self, soc: float) -> tuple[float, float]:
+        """(chemistry ocv, its slope) at soc."""
+        s = min(max(soc, 0.0), 1.0)
+        return float(np.interp(s, _GRID, self.table)), self.chem.slope(s)
+
+    def _temp_factor(self, temperature_c: float) -> float:
+        if not math.isfinite(temperature_c):
+            return 1.0
+        return math.exp(self.chem.r_activation_k * (1.0 / (temperature_c + 273.15) - 1.0 / 298.15))
+
+    def _voltage(self, x: np.ndarray, current: float, ft: float) -> tuple[float, np.ndarray]:
+        ocv, slope = self._ocv(x[I_SOC])
+        s = self.cells
+        v = s * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_R0] * ft * current
+        h = np.array([s * slope * (1.0 + x[I_K]), -1.0, -ft * current, s, s * (ocv - self.mid), 0.0])
+        return v, h
+
+    # ---- frames --------------------------------------------------------------------------------
+    def initialise(self, t: float, voltage: float, current: float, temperature_c: float) -> None:
+        p = self.prior
+        ft = self._temp_factor(temperature_c)
+        i = current if math.isfinite(current) else 0.0
+        at_rest = abs(i) < self.rest_current_a
+        r0 = self.r0p
+        # polarisation settled at the present current (a log that starts in flight)
+        v1 = self.chem.r1_ratio * r0 * ft * i
+        ocv_cell = (voltage + r0 * ft * i + v1) / self.cells - p.ocv_offset_v
+        soc = p.soc if p.soc is not None else self.chem.soc_at(ocv_cell)
+        self.x = np.array([soc, v1, r0, p.ocv_offset_v, p.ocv_scale, 1.0])
+        soc_sd = p.soc_sd if p.soc is not None else (0.05 if at_rest else 0.15)
+        self.P = np.diag([soc_sd ** 2, (0.5 * v1) ** 2 + 0.01 ** 2, (p.r0_rel_sd * r0) ** 2, p.ocv_offset_sd ** 2,
+                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2])
+        self.start_kind = "history" if p.soc is not None else ("rest_voltage" if at_rest else "loaded_voltage")
+        self.initialised = True
+        self.time_s = t
+        self.rest_since = t if at_rest else math.nan
+        self._anchor()
+        self.voltage_trusted, self.why_not_voltage, self.drain_failed = True, None, False
+        self.nis.clear()
+        self._clip()
+        if math.isfinite(voltage):
+            self._update(voltage, i, ft, t)
+
+    def _anchor(self) -> None:
+        """The charge count starts again from the filter's SoC (at rest, or a start)."""
+        self.count_start = float(self.x[I_SOC])
+        self.count_start_var = float(self.P[I_SOC, I_SOC])
+        self.drawn_c = 0.0
+        self.drain = _Drain()
+        self.left_rest_s = math.nan
+
+    def step(self, t: float, dt: float, current: float, voltage: float, temperature_c: float) -> None:
+        """Advance by ``dt`` at ``current`` (A, discharge positive), then take ``voltage`` (NaN: none)."""
+        i = current if math.isfinite(current) else 0.0
+        ft = self._temp_factor(temperature_c)
+        if dt > 0:
+            self._predict(dt, i, ft)
+            self.drawn_c += i * dt
+            self.total_drawn_c += i * dt
+        self.time_s = t
+        at_rest = abs(i) < self.rest_current_a
+        if at_rest:
+            if not math.isfinite(self.rest_since):
+                self.rest_since = t
+            self.left_rest_s = math.nan
+        else:
+            if math.isfinite(self.rest_since):  # take-off: the count starts from the rested SoC
+                self._anchor()
+                self.left_rest_s = t
+            elif not math.isfinite(self.left_rest_s):  # a log that starts under load
+                self.left_rest_s = t
+            self.rest_since = math.nan
+        settled = at_rest and t - self.rest_since >= REST_SETTLE_S
+        if settled:
+            # on the ground: the rested voltage speaks; the count starts from here
+            if not self.voltage_trusted:
+                self.counters["rest_anchors"] += 1
+            self.voltage_trusted, self.why_not_voltage, self.drain_failed = True, None, False
+            self.nis.clear()
+        if math.isfinite(voltage):
+            if not at_rest and math.isfinite(self.left_rest_s) and t - self.left_rest_s >= DRAIN_SETTLE_S:
+                self.drain.add(i, self.drawn_c / self.q0, voltage)
+                self._check_drain()
+            self._update(voltage, i, ft, t)
+        if settled:
+            self._anchor()
+            self.start_kind = "rest_voltage"
+        elif self.voltage_trusted:
+            self._referee()
+
+    def _predict(self, dt: float, i: float, ft: float) -> None:
+        x, P = self.x, self.P
+        a = math.exp(-dt / self.chem.tau1_s)
+        rho = self.chem.r1_ratio
+        F = np.eye(N_STATE)
+        F[I_SOC, I_G] = -i * dt / self.q0
+        F[I_V1, I_V1] = a
+        F[I_V1, I_R0] = (1.0 - a) * rho * ft * i
+        x[I_SOC] -= x[I_G] * i * dt / self.q0
+        x[I_V1] = a * x[I_V1] + (1.0 - a) * rho * x[I_R0] * ft * i
+        q = np.array([(0.002 * abs(i) * dt / self.q0) ** 2 + 1e-9 * dt, (0.002) ** 2 * dt,
+                      (0.002 * self.r0p) ** 2 * dt, (2e-5) ** 2 * dt, (2e-5) ** 2 * dt, (2e-5) ** 2 * dt])
+        self.P = F @ P @ F.T + np.diag(q)
+        self._clip()
+
+    def _update(self, v: float, i: float, ft: float, t: float) -> None:
+        pred, h = self._voltage(self.x, i, ft)
+        ph = self.P @ h
+        s = float(h @ ph) + self.sigma_v ** 2
+        nu = v - pred
+        nis = nu * nu / s
+        self.nis.append(min(nis, 25.0))
+        if len(self.nis) > NIS_WINDOW:
+            del self.nis[0]
+        if len(self.nis) == NIS_WINDOW:
+            mean = sum(self.nis) / NIS_WINDOW
+            if self.voltage_trusted and mean > NIS_RAISE:
+                self._suspend(f"the model cannot follow the voltage (mean normalised innovation {mean:.1f} over "
+                              f"{NIS_WINDOW} updates, bound {NIS_RAISE:g})")
+            elif not self.voltage_trusted and not self.drain_failed and mean < NIS_CLEAR:
+                self.voltage_trusted, self.why_not_voltage = True, None
+        if not self.voltage_trusted:
+            return
+        if nis > GATE_SIGMAS ** 2:
+            self.counters["voltage_gated"] += 1
+            return
+        k = ph / s
+        self.x = self.x + k * nu
+        ikh = np.eye(N_STATE) - np.outer(k, h)
+        self.P = ikh @ self.P @ ikh.T + np.outer(k, k) * self.sigma_v ** 2
+        self._clip()
+        self.counters["voltage_updates"] += 1
+        self.last_voltage_update_s = t
+
+    def _clip(self) -> None:
+        np.clip(self.x, self.lo, self.hi, out=self.x)
+
+    def _count(self) -> tuple[float, float]:
+        """The pure charge count from the last anchor: (SoC, variance) with the prior capacity."""
+        frac = self.drawn_c / self.q0
+        return (self.count_start - frac,
+                self.count_start_var + (frac * self.prior.capacity_rel_sd) ** 2)
+
+    def _referee(self) -> None:
+        soc, var = self._count()
+        sd = math.sqrt(var)
+        if abs(self.x[I_SOC] - soc) > REFEREE_SIGMAS * sd + 0.02:
+            self._suspend(f"the voltage contradicts the charge count beyond the capacity's uncertainty "
+                          f"(voltage {self.x[I_SOC]:.2f}, count {soc:.2f} ± {sd:.2f})")
+
+    def _check_drain(self) -> None:
+        frac = self.drawn_c / self.q0
+        if frac < DRAIN_MIN_FRACTION or self.drain_failed:
+            return
+        c = self.drain.slope()
+        if not math.isfinite(c):
+            return
+        s0 = self.count_start
+        expected = self.cells * (self.chem.ocv(s0) - self.chem.ocv(s0 - frac)) / frac
+        if -c < DRAIN_MIN_RATIO * expected:
+            self.drain_failed = True
+            self._suspend(f"the voltage does not fall as charge is drawn ({-c:.2f} V per capacity drawn, the "
+                          f"{self.chem.name} curve falls {expected:.2f} over {frac:.0%} drawn)")
+
+    def _suspend(self, why: str) -> None:
+        """Stop trusting the voltage: the SoC continues as the charge count from the last anchor
+        (prior capacity, its σ growing with the capacity's uncertainty); the learned parameters go
+        back to their priors (what they learned followed a voltage the model could not)."""
+        if not self.voltage_trusted:
+            return
+        self.voltage_trusted, self.why_not_voltage = False, why
+        self.counters["voltage_suspended"] += 1
+        soc, var = self._count()
+        p = self.prior
+        self.x = np.array([soc, 0.0, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0])
+        self.P = np.diag([self.count_start_var, 0.01 ** 2, (p.r0_rel_sd * self.r0p) ** 2, p.ocv_offset_sd ** 2,
+                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2])
+        frac = self.drawn_c / self.q0
+        # the SoC's dependence on the capacity since the anchor: SoC = start − g·frac
+        self.P[I_SOC, I_G] = self.P[I_G, I_SOC] = -frac * p.capacity_rel_sd ** 2
+        self.P[I_SOC, I_SOC] = var
+        self._clip()
+
+    # ---- read-outs -----------------------------------------------------------------------------
+    @property
+    def soc(self) -> float:
+        return float(self.x[I_SOC]) if self.initialised else math.nan
+
+    @property
+    def soc_sd(self) -> float:
+        return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0)) if self.initialised else math.nan
+
+    def evidence(self, now: float | None = None) -> list[str]:
+        if not self.initialised:
+            return []
+        now = self.time_s if now is None else now
+        out = [self.start_kind] if self.start_kind else []
+        if self.total_drawn_c > 0:
+            out.append("coulomb")
+        if self.voltage_trusted and now - self.last_voltage_update_s <= 10.0:
+            out.append("voltage_model")
+        if self.P[I_G, I_G] > 0.8 * self.prior.capacity_rel_sd ** 2:
+            out.append("prior")
+        return out
+
+    def report(self) -> dict:
+        """JSON-ready: SoC, σ, evidence, the learned parameters with their σ, why the voltage is not
+        trusted (None while it is)."""
+        sd = np.sqrt(np.maximum(np.diag(self.P), 0.0))
+
+        def r(v, nd=4):
+            return round(float(v), nd) if math.isfinite(float(v)) else None
+
+        return {"soc": r(self.soc), "soc_sd": r(self.soc_sd), "evidence": self.evidence(),
+                "chemistry": self.chem.name, "voltage_trusted": self.voltage_trusted,
+                "voltage_not_trusted_because": self.why_not_voltage,
+                "capacity_ah": r(self.q0 / 3600.0 / self.x[I_G], 3),
+                "capacity_rel_sd": r(sd[I_G] / self.x[I_G], 3),
+                "capacity_source": self.prior.capacity_source,
+                "series_resistance_ohm": r(self.x[I_R0], 5), "series_resistance_sd": r(sd[I_R0], 5),
+                "ocv_offset_v_per_cell": r(self.x[I_DV]), "ocv_offset_sd": r(sd[I_DV]),
+                "ocv_scale": r(self.x[I_K]), "ocv_scale_sd": r(sd[I_K]),
+                "counters": dict(self.counters)}
+
+
+_GRID = np.linspace(0.0, 1.0, 21)
