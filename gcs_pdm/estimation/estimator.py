@@ -45,6 +45,14 @@ SOC_SLACK = 0.05
 #: its initial value is restarted (``StateEstimator._relock_left_sane``): one re-lock from the
 #: initial state stays under it, compounded re-locks do not
 RELOCK_CEILING = 4.0
+#: a temperature no sensor measures is the thermal model's: its rise over the air carries the
+#: model's own doubt — an unfitted description's heat capacity, cooling and resistance can each be
+#: off by half (1σ of the rise), and the air temperature is a default unless one was heard
+MODELLED_RISE_REL_SIGMA = 0.4
+UNKNOWN_AMBIENT_SIGMA_C = 5.0
+HEARD_AMBIENT_SIGMA_C = 1.0
+#: an ambient reading older than this is no longer the air's
+AMBIENT_FRESH_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -768,6 +776,12 @@ class StateEstimator:
             if cal is not None:  # its σ carries the capacity's uncertainty itself
                 soc[b], soc_sd[b] = cal.soc, cal.soc_sd
         tm, tm_sd = self.motors.temperature()
+        modelled = tuple(n for b, n in enumerate(self.pack_names)
+                         if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
+        self._modelled_spread(tp, tp_sd, [b for b, n in enumerate(self.pack_names) if n in modelled])
+        self._modelled_spread(tm, tm_sd, [q for q, n in enumerate(self.motor_names)
+                                          if self.time_s - self.seen.get(f"{n}.temperature", -math.inf)
+                                          > self.config.stale_after_s])
         none = ~self.packs.initialised
         for a in (soc, soc_sd, tp, tp_sd, v):
             a[none] = np.nan
@@ -777,14 +791,25 @@ class StateEstimator:
         counters["pack_temperature_gated"] = int(self.packs.rejected_total[:, 1].sum())
         counters["motor_temperature_gated"] = int(self.motors.rejected_total.sum())
         counters["relocks"] = int(self.packs.relocks.sum() + self.motors.relocks.sum())
-        modelled = tuple(n for b, n in enumerate(self.pack_names)
-                         if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
         return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c,
                         self.missing() if details else (), counters,
                         pack_names=self.pack_names, motor_names=self.motor_names, modelled_temperature=modelled,
                         mismatch=mismatch, motor_current_a=self.motor_current, motor_rpm=self.motor_rpm,
                         model_mismatch=self.model_mismatch() if details else {},
                         evidence=self.evidence() if details else {})
+
+    def _modelled_spread(self, temp: np.ndarray, sd: np.ndarray, rows: list[int]) -> None:
+        """A temperature no sensor measures (``rows``): its σ is the thermal model's, not the
+        filter's (which only knows the process noise): the rise over the air ×
+        ``MODELLED_RISE_REL_SIGMA``, and the air's own doubt (a default, or a reading)."""
+        if not rows:
+            return
+        heard = self.time_s - self.seen.get("ambient", -math.inf) <= AMBIENT_FRESH_S
+        air = HEARD_AMBIENT_SIGMA_C if heard else UNKNOWN_AMBIENT_SIGMA_C
+        for k in rows:
+            if math.isfinite(temp[k]):
+                rise = abs(float(temp[k]) - self.ambient_c)
+                sd[k] = math.sqrt(float(sd[k]) ** 2 + (MODELLED_RISE_REL_SIGMA * rise) ** 2 + air ** 2)
 
     def _range_guard(self, soc, soc_sd, tp, tp_sd, v) -> tuple[str, ...]:
         """Clip a SoC that is in [0, 1] within its noise; withhold (NaN) and report a pack whose
