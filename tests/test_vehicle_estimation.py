@@ -1,7 +1,7 @@
 """The estimator follows a vehicle description: stock ArduPlane SITL replayed with the single-battery
 preset gives one pack with a SoC in [0, 1] falling, a modelled temperature, the motor's current and rpm
 from ESC index 2 and a time to cut-off; a pack whose voltage the model cannot follow keeps a SoC (the
-charge count) with an advisory; readiness is said out loud.""" 
+charge count) with an advisory; readiness is said out loud."""
 from __future__ import annotations
 
 import math

@@ -63,12 +63,13 @@ STATE_NAMES = ("soc", "v1", "r0", "ocv_offset", "ocv_scale", "inv_capacity_scale
 DRAIN_MIN_FRACTION = 0.06
 #: ... by at least this share of the chemistry curve's fall over the same span
 DRAIN_MIN_RATIO = 0.3
+DRAIN_SIGMAS = 3.0
 #: seconds after leaving rest before loaded samples enter the drain fit (the polarisation settles)
 DRAIN_SETTLE_S = 30.0
 NIS_WINDOW = 60
 NIS_RAISE = 4.0
 NIS_CLEAR = 1.5
-REFEREE_SIGMAS = 3.0
+REFEREE_SIGMAS = 4.0
 REST_SETTLE_S = 10.0
 #: an innovation beyond this many σ is not applied (a spike), counted
 GATE_SIGMAS = 5.0
@@ -86,7 +87,7 @@ class PackPrior:
     capacity_c: float
     capacity_rel_sd: float = 0.15
     r0_ohm: float | None = None
-    r0_rel_sd: float = 0.5
+    r0_rel_sd: float = 1.0
     ocv_offset_v: float = 0.0
     ocv_offset_sd: float = 0.015
     ocv_scale: float = 0.0
@@ -95,10 +96,13 @@ class PackPrior:
     soc_sd: float = 0.05
     #: what the capacity rests on, said in the evidence (e.g. "BATT_CAPACITY")
     capacity_source: str = "description"
+    #: the curve and circuit priors when they are not the chemistry table's: a described pack's own
+    #: model (``described_chemistry``)
+    curve: Chemistry | None = None
 
     @property
     def chem(self) -> Chemistry:
-        return chemistry(self.chemistry)
+        return self.curve if self.curve is not None else chemistry(self.chemistry)
 
     @property
     def r0_prior(self) -> float:
@@ -107,13 +111,32 @@ class PackPrior:
         return self.cells * self.chem.r0_cell_ah / max(self.capacity_c / 3600.0, 1e-3)
 
 
-def prior_of_spec(spec, capacity_rel_sd: float | None = None) -> PackPrior:
+def described_chemistry(spec, pack_vector: np.ndarray) -> Chemistry:
+    """The priors a described pack's own model gives (``kernel.PACK_PARAMS`` vector): its rested
+    curve (the bulk voltage over the cells: the paper variant's is linear in charge), its series
+    resistance and its concentration pair — what a vehicle the user described, or a simulated vehicle
+    flying its description, is. Bounds from the chemistry the description names."""
+    from gcs_pdm.models import kernel
+
+    grid = np.linspace(0.0, 1.0, 21)
+    rows = np.repeat(np.asarray(pack_vector, dtype=np.float64)[None], grid.size, axis=0)
+    rest = kernel.terminal_voltage(rows, kernel.initial_pack_state(rows, grid, 25.0, 0.0)) / spec.cells_series
+    base = chemistry(spec.chemistry)
+    q_ah = float(spec.capacity_c) / 3600.0
+    r_s, r_cp = float(pack_vector[kernel.I_RS]), float(kernel.concentration_resistance(rows[:1], 0.5)[0])
+    return Chemistry(f"{base.name} (described model)", tuple(float(v) for v in rest), float(rest[-1]),
+                     base.cutoff_cell_v, max(base.max_rest_cell_v, float(rest[-1]) + 0.05),
+                     r_s * q_ah / spec.cells_series, r_cp / r_s, float(r_cp * pack_vector[kernel.I_CCP]),
+                     base.r_activation_k, "the description's own pack model (its parameter set's rested curve)")
+
+
+def prior_of_spec(spec, pack_vector: np.ndarray | None = None, capacity_rel_sd: float = 0.15) -> PackPrior:
     """A description's pack (``vehicle.description.PackSpec``) as a prior: its chemistry, cells and
-    capacity; a provisional description's capacity (the autopilot's parameter or a charge-drawn
-    estimate) is less sure than a written one."""
-    sd = capacity_rel_sd if capacity_rel_sd is not None else 0.15
+    capacity; with ``pack_vector`` (a described, not derived, pack) the curve and circuit of its own
+    model, else the chemistry table's."""
     return PackPrior(chemistry=spec.chemistry, cells=int(spec.cells_series), capacity_c=float(spec.capacity_c),
-                     capacity_rel_sd=sd)
+                     capacity_rel_sd=capacity_rel_sd,
+                     curve=None if pack_vector is None else described_chemistry(spec, pack_vector))
 
 
 @dataclass
@@ -122,22 +145,29 @@ class _Drain:
 
     ata: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
     atv: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    vv: float = 0.0
     n: int = 0
 
     def add(self, current: float, frac: float, v: float) -> None:
         a = np.array([1.0, current, frac])
         self.ata += np.outer(a, a)
         self.atv += a * v
+        self.vv += v * v
         self.n += 1
 
-    def slope(self) -> float:
-        """c: the voltage's change per unit of capacity drawn (NaN while not determined)."""
+    def slope(self) -> tuple[float, float]:
+        """(c, its standard error): the voltage's change per unit of capacity drawn (NaN while not
+        determined). The error treats the residuals as independent: a lower bound, so a fall
+        judged missing is missing by more than it says."""
         if self.n < 20:
-            return math.nan
+            return math.nan, math.nan
         try:
-            return float(np.linalg.solve(self.ata + 1e-9 * np.eye(3), self.atv)[2])
+            inv = np.linalg.inv(self.ata + 1e-12 * np.eye(3))
         except np.linalg.LinAlgError:
-            return math.nan
+            return math.nan, math.nan
+        beta = inv @ self.atv
+        s2 = max(self.vv - float(beta @ self.atv), 0.0) / (self.n - 3)
+        return float(beta[2]), math.sqrt(max(s2 * inv[2, 2], 0.0))
 
 
 class PackCalibrator:
@@ -323,8 +353,8 @@ class PackCalibrator:
 
     def _referee(self) -> None:
         soc, var = self._count()
-        sd = math.sqrt(var)
-        if abs(self.x[I_SOC] - soc) > REFEREE_SIGMAS * sd + 0.02:
+        sd = math.sqrt(var + self.P[I_SOC, I_SOC])
+        if abs(self.x[I_SOC] - soc) > REFEREE_SIGMAS * sd + 0.03:
             self._suspend(f"the voltage contradicts the charge count beyond the capacity's uncertainty "
                           f"(voltage {self.x[I_SOC]:.2f}, count {soc:.2f} ± {sd:.2f})")
 
@@ -332,12 +362,13 @@ class PackCalibrator:
         frac = self.drawn_c / self.q0
         if frac < DRAIN_MIN_FRACTION or self.drain_failed:
             return
-        c = self.drain.slope()
+        c, se = self.drain.slope()
         if not math.isfinite(c):
             return
         s0 = self.count_start
         expected = self.cells * (self.chem.ocv(s0) - self.chem.ocv(s0 - frac)) / frac
-        if -c < DRAIN_MIN_RATIO * expected:
+        # missing beyond its own noise (DRAIN_SIGMAS standard errors), not a noisy slope's luck
+        if -c + DRAIN_SIGMAS * se < DRAIN_MIN_RATIO * expected:
             self.drain_failed = True
             self._suspend(f"the voltage does not fall as charge is drawn ({-c:.2f} V per capacity drawn, the "
                           f"{self.chem.name} curve falls {expected:.2f} over {frac:.0%} drawn)")

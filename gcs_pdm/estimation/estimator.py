@@ -198,10 +198,12 @@ class StateEstimator:
             self._min_references = 1
         self._base_pack_matrix = np.array(pack_matrix, copy=True)
         #: per pack: its self-calibrating filter (None: the paper filter's SoC, the paper aircraft's
-        #: fitted set). The paper filter then carries the pack's temperature and, for the users of
+        #: fitted set). A derived (provisional) description's packs start from the chemistry table's
+        #: curve; a described pack from its own model's. The paper filter then carries the pack's temperature and, for the users of
         #: its layout (predictions, the planner), the calibrated SoC (``_sync_paper``)
         self.calib: list[PackCalibrator | None] = (
-            [PackCalibrator(prior_of_spec(p)) for p in vehicle.packs]
+            [PackCalibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
+             for b, p in enumerate(vehicle.packs)]
             if vehicle is not None and config.self_calibrate else [None] * len(self.pack_names))
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
