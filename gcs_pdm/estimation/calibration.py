@@ -71,6 +71,10 @@ NIS_RAISE = 4.0
 NIS_CLEAR = 1.5
 REFEREE_SIGMAS = 4.0
 REST_SETTLE_S = 10.0
+#: the capacity and the curve's scale learn once this share of the capacity is drawn since the rest
+LEARN_AFTER_FRACTION = 0.1
+#: share of the loaded sag counted as model error (measurement noise) in a voltage update
+LOAD_MODEL_SIGMA = 0.5
 #: an innovation beyond this many σ is not applied (a spike), counted
 GATE_SIGMAS = 5.0
 
@@ -316,7 +320,11 @@ class PackCalibrator:
     def _update(self, v: float, i: float, ft: float, t: float) -> None:
         pred, h = self._voltage(self.x, i, ft)
         ph = self.P @ h
-        s = float(h @ ph) + self.sigma_v ** 2
+        # under load the model's error grows with the current: its circuit is a first-order guess
+        # of a cell's dynamics (diffusion, a second time constant); LOAD_MODEL_SIGMA of the loaded
+        # sag is counted as measurement noise, so a loaded voltage cannot drag the SoC far
+        r_meas = self.sigma_v ** 2 + (LOAD_MODEL_SIGMA * (1.0 + self.chem.r1_ratio) * self.r0p * i) ** 2
+        s = float(h @ ph) + r_meas
         nu = v - pred
         nis = nu * nu / s
         self.nis.append(min(nis, 25.0))
@@ -335,9 +343,16 @@ class PackCalibrator:
             self.counters["voltage_gated"] += 1
             return
         k = ph / s
+        if self.drawn_c < LEARN_AFTER_FRACTION * self.q0:
+            # the capacity and the curve's scale are not observable until a span of the curve has
+            # been drawn: earlier, every model error would be read as them (measured: the capacity
+            # halved within 200 s on a PyBaMM cell). Held (their gain zero; the Joseph form keeps
+            # the covariance right for any gain) until LEARN_AFTER_FRACTION is drawn
+            k[I_G] = 0.0
+            k[I_K] = 0.0
         self.x = self.x + k * nu
         ikh = np.eye(N_STATE) - np.outer(k, h)
-        self.P = ikh @ self.P @ ikh.T + np.outer(k, k) * self.sigma_v ** 2
+        self.P = ikh @ self.P @ ikh.T + np.outer(k, k) * r_meas
         self._clip()
         self.counters["voltage_updates"] += 1
         self.last_voltage_update_s = t
@@ -391,6 +406,26 @@ class PackCalibrator:
         self.P[I_SOC, I_G] = self.P[I_G, I_SOC] = -frac * p.capacity_rel_sd ** 2
         self.P[I_SOC, I_SOC] = var
         self._clip()
+
+    def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0) -> float:
+        """Seconds until the terminal voltage at a held ``current`` reaches ``cutoff_v``, on this
+        filter's own model (its curve, resistance and capacity; the polarisation settled), from
+        its mean state: the SoC at which S·OCV_cell − (R₀ + ρR₀) f(T) I = cutoff, reached at the
+        charge count's rate. NaN at no current; 0 if already below."""
+        if not self.initialised or not current > 0:
+            return math.nan
+        x = self.x
+        sag = (1.0 + self.chem.r1_ratio) * x[I_R0] * self._temp_factor(temperature_c) * current
+        target = (cutoff_v + sag) / self.cells
+        grid = _GRID
+        curve = self.table + x[I_DV] + x[I_K] * (self.table - self.mid)
+        if target <= curve[0]:
+            soc_cut = 0.0
+        else:
+            soc_cut = float(np.interp(target, curve, grid))
+        if soc_cut >= x[I_SOC]:
+            return 0.0
+        return (x[I_SOC] - soc_cut) * self.q0 / (x[I_G] * current)
 
     # ---- read-outs -----------------------------------------------------------------------------
     @property

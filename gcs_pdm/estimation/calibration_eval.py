@@ -177,3 +177,47 @@ def simulated_pack_soc(preset: str, *, capacity_scale: float, resistance_scale: 
         e = est.estimate(details=False)
         out.append((t, e.soc[0], e.soc_sd[0], soc_true[k]))
     return PackTrack(spec.name, *(np.array(c, dtype=float) for c in zip(*out)))
+
+
+#: PyBaMM parameter set -> the chemistry a user would name for such a cell (the prior it starts from):
+#: Chen2020 is an LG M50 (NMC811, Li-ion), Marquis2019 a Kokam LCO pouch (a LiPo)
+PYBAMM_CHEMISTRY = {"Chen2020": "liion", "Marquis2019": "lipo"}
+
+
+def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: str | None = None,
+                      cells: int = 5) -> tuple[PackTrack, dict]:
+    """A PyBaMM flight (``fixtures/pybamm``) through a ``PackCalibrator`` started from a chemistry
+    prior only: the chemistry's table, the pack's nominal capacity, nothing fitted. Truth SoC: the
+    flight's initial SoC less the charge drawn over the nominal capacity. Also the time to cut-off
+    predicted from half-way at the mean current of the last 60 s against the flight's own (flights
+    that reach cut-off)."""
+    import pyarrow.parquet as pq
+
+    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+
+    table = pq.read_table(Path(root) / flight["file"]).to_pydict()
+    t = np.asarray(table["time_s"], dtype=float)
+    i = np.asarray(table["current_a"], dtype=float)
+    v = np.asarray(table["voltage_v"], dtype=float)
+    temp = np.asarray(table["temperature_c"], dtype=float)
+    s = sets[flight["set"]]
+    capacity_c = s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0
+    chem = chemistry or PYBAMM_CHEMISTRY[flight["set"]]
+    cal = PackCalibrator(PackPrior(chem, cells, capacity_c))
+    dt = np.diff(t, prepend=t[0])
+    drawn = np.concatenate([[0.0], np.cumsum(0.5 * (i[1:] + i[:-1]) * np.diff(t))])
+    truth = flight["initial_soc"] - drawn / capacity_c
+    out = []
+    ttc = {}
+    half = t[0] + 0.5 * (t[-1] - t[0])
+    for k in range(t.size):
+        if not cal.initialised:
+            cal.initialise(t[k], v[k], i[k], temp[k])
+        else:
+            cal.step(t[k], dt[k], i[k], v[k], temp[k])
+        out.append((t[k], cal.soc, cal.soc_sd, truth[k]))
+        if flight.get("reached_cutoff") and not ttc and t[k] >= half:
+            recent = (t >= t[k] - 60.0) & (t <= t[k])
+            predicted = cal.time_to_cutoff(float(np.mean(i[recent])), cells * flight["cell_cutoff_v"], temp[k])
+            ttc = {"predicted_s": predicted, "true_s": float(t[-1] - t[k])}
+    return PackTrack(flight["flight"], *(np.array(c, dtype=float) for c in zip(*out))), ttc

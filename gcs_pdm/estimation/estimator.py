@@ -830,10 +830,13 @@ class StateEstimator:
             if bad:
                 out.append(f"pack {name}: {', '.join(bad)}: the model does not fit this pack "
                            f"(check its cells, capacity and parameter set)")
-                for a in (soc, soc_sd, tp, tp_sd, v):
+                # a self-calibrated pack's SoC rests on its own evidence (at worst the charge count):
+                # a temperature the thermal model cannot hold withholds the temperature alone
+                withheld = (tp, tp_sd) if self.calib[b] is not None else (soc, soc_sd, tp, tp_sd, v)
+                for a in withheld:
                     a[b] = np.nan
                 self.counters["model_mismatch"] += 1
-            else:
+            if np.isfinite(soc[b]):
                 soc[b] = min(max(soc[b], lo), hi)
         return tuple(out)
 
@@ -856,6 +859,10 @@ class StateEstimator:
                     and not (n in self._motor_reports and not self._motor_reports[n].temperature)]
         state = "ready" if not waiting else "waiting for " + ", ".join(waiting)
         mismatch = self.estimate(details=False).mismatch if not waiting else ()
+        # a self-calibrated pack's mismatch is an advisory: its SoC (at worst the charge count) still
+        # supports a prediction and a plan
+        calibrated = tuple(f"pack {n}:" for n, cal in zip(self.pack_names, self.calib) if cal is not None)
+        mismatch = tuple(m for m in mismatch if not m.startswith(calibrated)) if calibrated else mismatch
         prediction = state if not mismatch else "model mismatch: " + "; ".join(mismatch)
         # the filters integrate a held current through a silence, but a prediction from it would be
         # a guess: say whose current is not being read
