@@ -782,8 +782,7 @@ class StateEstimator:
                          if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
         self._modelled_spread(tp, tp_sd, [b for b, n in enumerate(self.pack_names) if n in modelled])
         self._modelled_spread(tm, tm_sd, [q for q, n in enumerate(self.motor_names)
-                                          if self.time_s - self.seen.get(f"{n}.temperature", -math.inf)
-                                          > self.config.stale_after_s])
+                                          if f"{n}.temperature" not in self.seen])
         none = ~self.packs.initialised
         for a in (soc, soc_sd, tp, tp_sd, v):
             a[none] = np.nan
