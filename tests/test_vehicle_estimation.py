@@ -142,8 +142,20 @@ def test_range_guard_withholds_states_the_model_cannot_hold():
     assert 0.0 <= est.estimate().soc[0] <= 1.0 and not est.estimate().mismatch
     est.packs.mean[0, 3] = -1.4e69          # what a 5S model made of a 3S pack once
     e = est.estimate()
-    assert math.isnan(e.pack_temp_c[0]) and math.isnan(e.soc[0])
+    # the temperature the thermal model cannot hold is withheld; the self-calibrated SoC rests on its
+    # own evidence and stays (issue 29: a mismatch never withholds the SoC, a prediction or a plan)
+    assert math.isnan(e.pack_temp_c[0]) and 0.0 <= e.soc[0] <= 1.0
     assert "temperature" in e.mismatch[0] and e.counters["model_mismatch"] == 1
+    assert est.readiness()["prediction"] == "waiting for motor m1 temperature, motor m2 temperature, " \
+                                            "motor m3 temperature, motor m4 temperature"
+    # the paper filter's own packs (no self-calibration) are withheld whole, as before
+    from gcs_pdm.estimation.estimator import EstimatorConfig
+
+    est = StateEstimator(vehicle=PRESETS["quad-4s"], config=EstimatorConfig(self_calibrate=False))
+    est.consume(PackFrame(1.0, "battery", 16.0, 5.0, 25.0))
+    est.packs.mean[0, 3] = -1.4e69
+    e = est.estimate()
+    assert math.isnan(e.pack_temp_c[0]) and math.isnan(e.soc[0])
 
 
 def test_monte_carlo_prediction_flies_the_description():
