@@ -126,11 +126,6 @@ def described_chemistry(spec, pack_vector: np.ndarray) -> Chemistry:
     rows = np.repeat(np.asarray(pack_vector, dtype=np.float64)[None], grid.size, axis=0)
     rest = kernel.terminal_voltage(rows, kernel.initial_pack_state(rows, grid, 25.0, 0.0)) / spec.cells_series
     base = chemistry(spec.chemistry)
-    if rest[-1] > base.max_rest_cell_v:
-        # a description whose full cell is above what its chemistry allows (the plane-3s preset's
-        # 4.35 V "LiPo", set so SITL's stiff pack stayed inside the paper model): the curve is moved
-        # down to the chemistry's full cell, its shape kept
-        rest = rest - (rest[-1] - base.full_cell_v)
     q_ah = float(spec.capacity_c) / 3600.0
     r_s, r_cp = float(pack_vector[kernel.I_RS]), float(kernel.concentration_resistance(rows[:1], 0.5)[0])
     return Chemistry(f"{base.name} (described model)", tuple(float(v) for v in rest), float(rest[-1]),
