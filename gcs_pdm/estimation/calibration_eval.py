@@ -40,12 +40,13 @@ class PackTrack:
         err = np.abs(self.soc - self.reference)[late]
         fin = np.isfinite(err)
         inside = np.abs(self.soc - self.reference)[late] <= 2.0 * self.soc_sd[late]
+        known = self.reference[np.isfinite(self.reference)]
         return {"pack": self.name, "samples": int(late.sum()), "null_after_60s": int((~np.isfinite(self.soc[late])).sum()),
                 "max_abs_error": round(float(err[fin].max()), 4) if fin.any() else None,
                 "mean_abs_error": round(float(err[fin].mean()), 4) if fin.any() else None,
                 "within_2sd": round(float(inside[fin].mean()), 3) if fin.any() else None,
-                "reference_start": round(float(self.reference[0]), 3) if self.reference.size else None,
-                "reference_end": round(float(self.reference[-1]), 3) if self.reference.size else None}
+                "reference_start": round(float(known[0]), 3) if known.size else None,
+                "reference_end": round(float(known[-1]), 3) if known.size else None}
 
 
 def real_log_soc(path: str | Path) -> tuple[dict, list[PackTrack]]:
