@@ -51,6 +51,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from gcs_pdm.models.chemistry import Chemistry, chemistry
 
@@ -64,6 +65,8 @@ DRAIN_MIN_FRACTION = 0.06
 #: ... by at least this share of the chemistry curve's fall over the same span
 DRAIN_MIN_RATIO = 0.3
 DRAIN_SIGMAS = 3.0
+#: the drain fit is solved every this many loaded samples (its sums grow at every one)
+DRAIN_CHECK_EVERY = 5
 #: seconds after leaving rest before loaded samples enter the drain fit (the polarisation settles)
 DRAIN_SETTLE_S = 30.0
 NIS_WINDOW = 60
@@ -152,10 +155,19 @@ class _Drain:
     vv: float = 0.0
     n: int = 0
 
+    #: plain-float running sums (a per-frame call): Σi, Σf, Σi², Σif, Σf², Σv, Σiv, Σfv
+    sums: list = field(default_factory=lambda: [0.0] * 8)
+
     def add(self, current: float, frac: float, v: float) -> None:
-        a = np.array([1.0, current, frac])
-        self.ata += np.outer(a, a)
-        self.atv += a * v
+        s = self.sums
+        s[0] += current
+        s[1] += frac
+        s[2] += current * current
+        s[3] += current * frac
+        s[4] += frac * frac
+        s[5] += v
+        s[6] += current * v
+        s[7] += frac * v
         self.vv += v * v
         self.n += 1
 
@@ -165,6 +177,9 @@ class _Drain:
         judged missing is missing by more than it says."""
         if self.n < 20:
             return math.nan, math.nan
+        s = self.sums
+        self.ata = np.array([[self.n, s[0], s[1]], [s[0], s[2], s[3]], [s[1], s[3], s[4]]], dtype=float)
+        self.atv = np.array([s[5], s[6], s[7]])
         try:
             inv = np.linalg.inv(self.ata + 1e-12 * np.eye(3))
         except np.linalg.LinAlgError:
@@ -303,30 +318,20 @@ class PackCalibrator:
             self._referee()
 
     def _predict(self, dt: float, i: float, ft: float) -> None:
-        x, P = self.x, self.P
-        a = math.exp(-dt / self.chem.tau1_s)
-        rho = self.chem.r1_ratio
-        F = np.eye(N_STATE)
-        F[I_SOC, I_G] = -i * dt / self.q0
-        F[I_V1, I_V1] = a
-        F[I_V1, I_R0] = (1.0 - a) * rho * ft * i
-        x[I_SOC] -= x[I_G] * i * dt / self.q0
-        x[I_V1] = a * x[I_V1] + (1.0 - a) * rho * x[I_R0] * ft * i
-        q = np.array([(0.002 * abs(i) * dt / self.q0) ** 2 + 1e-9 * dt, (0.002) ** 2 * dt,
-                      (0.002 * self.r0p) ** 2 * dt, (2e-5) ** 2 * dt, (2e-5) ** 2 * dt, (2e-5) ** 2 * dt])
-        self.P = F @ P @ F.T + np.diag(q)
-        self._clip()
+        _predict_core(self.x, self.P, dt, i, ft, self.q0, self.chem.tau1_s, self.chem.r1_ratio, self.r0p)
+        np.clip(self.x, self.lo, self.hi, out=self.x)
 
     def _update(self, v: float, i: float, ft: float, t: float) -> None:
-        pred, h = self._voltage(self.x, i, ft)
-        ph = self.P @ h
         # under load the model's error grows with the current: its circuit is a first-order guess
         # of a cell's dynamics (diffusion, a second time constant); LOAD_MODEL_SIGMA of the loaded
         # sag is counted as measurement noise, so a loaded voltage cannot drag the SoC far
         r_meas = self.sigma_v ** 2 + (LOAD_MODEL_SIGMA * (1.0 + self.chem.r1_ratio) * self.r0p * i) ** 2
-        s = float(h @ ph) + r_meas
-        nu = v - pred
-        nis = nu * nu / s
+        # the capacity and the curve's scale are not observable until a span of the curve has been
+        # drawn: earlier, every model error would be read as them (measured: the capacity halved
+        # within 200 s on a PyBaMM cell). Held (their gain zero; the Joseph form keeps the covariance
+        # right for any gain) until LEARN_AFTER_FRACTION is drawn
+        hold = self.drawn_c < LEARN_AFTER_FRACTION * self.q0
+        nis = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, ft, r_meas)
         self.nis.append(min(nis, 25.0))
         if len(self.nis) > NIS_WINDOW:
             del self.nis[0]
@@ -342,18 +347,8 @@ class PackCalibrator:
         if nis > GATE_SIGMAS ** 2:
             self.counters["voltage_gated"] += 1
             return
-        k = ph / s
-        if self.drawn_c < LEARN_AFTER_FRACTION * self.q0:
-            # the capacity and the curve's scale are not observable until a span of the curve has
-            # been drawn: earlier, every model error would be read as them (measured: the capacity
-            # halved within 200 s on a PyBaMM cell). Held (their gain zero; the Joseph form keeps
-            # the covariance right for any gain) until LEARN_AFTER_FRACTION is drawn
-            k[I_G] = 0.0
-            k[I_K] = 0.0
-        self.x = self.x + k * nu
-        ikh = np.eye(N_STATE) - np.outer(k, h)
-        self.P = ikh @ self.P @ ikh.T + np.outer(k, k) * r_meas
-        self._clip()
+        _update_core(self.x, self.P, self.table, self.cells, self.mid, v, i, ft, r_meas, hold)
+        np.clip(self.x, self.lo, self.hi, out=self.x)
         self.counters["voltage_updates"] += 1
         self.last_voltage_update_s = t
 
@@ -375,7 +370,7 @@ class PackCalibrator:
 
     def _check_drain(self) -> None:
         frac = self.drawn_c / self.q0
-        if frac < DRAIN_MIN_FRACTION or self.drain_failed:
+        if frac < DRAIN_MIN_FRACTION or self.drain_failed or self.drain.n % DRAIN_CHECK_EVERY:
             return
         c, se = self.drain.slope()
         if not math.isfinite(c):
@@ -470,3 +465,87 @@ class PackCalibrator:
 
 
 _GRID = np.linspace(0.0, 1.0, 21)
+
+
+# ---- the compiled numeric core (one pack, one frame; the class keeps the bookkeeping) ---------------
+@njit(cache=True, nogil=True)
+def _curve(table, soc):
+    """(chemistry ocv, its segment slope) at soc on the 21-point grid."""
+    s = min(max(soc, 0.0), 1.0)
+    k = min(int(s * 20.0), 19)
+    slope = (table[k + 1] - table[k]) * 20.0
+    return table[k] + slope * (s - k / 20.0), slope
+
+
+@njit(cache=True, nogil=True)
+def _predict_core(x, P, dt, i, ft, q0, tau1, rho, r0p):
+    a = math.exp(-dt / tau1)
+    f_sg = -i * dt / q0
+    f_vr = (1.0 - a) * rho * ft * i
+    x[0] += x[5] * f_sg
+    x[1] = a * x[1] + (1.0 - a) * rho * x[2] * ft * i
+    # P <- F P F' with F = I except F[0,5] = f_sg, F[1,1] = a, F[1,2] = f_vr: rows then columns
+    for c in range(6):
+        P[0, c] += f_sg * P[5, c]
+        P[1, c] = a * P[1, c] + f_vr * P[2, c]
+    for r in range(6):
+        P[r, 0] += f_sg * P[r, 5]
+        P[r, 1] = a * P[r, 1] + f_vr * P[r, 2]
+    P[0, 0] += (0.002 * abs(i) * dt / q0) ** 2 + 1e-9 * dt
+    P[1, 1] += 0.002 ** 2 * dt
+    P[2, 2] += (0.002 * r0p) ** 2 * dt
+    P[3, 3] += 2e-5 ** 2 * dt
+    P[4, 4] += 2e-5 ** 2 * dt
+    P[5, 5] += 2e-5 ** 2 * dt
+
+
+@njit(cache=True, nogil=True)
+def _measurement(x, table, cells, mid, i, ft, h):
+    ocv, slope = _curve(table, x[0])
+    h[0] = cells * slope * (1.0 + x[4])
+    h[1] = -1.0
+    h[2] = -ft * i
+    h[3] = cells
+    h[4] = cells * (ocv - mid)
+    h[5] = 0.0
+    return cells * (ocv + x[3] + x[4] * (ocv - mid)) - x[1] - x[2] * ft * i
+
+
+@njit(cache=True, nogil=True)
+def _innovation_core(x, P, table, cells, mid, v, i, ft, r_meas):
+    """ν²/S of the voltage ``v`` against the mean state."""
+    h = np.empty(6)
+    pred = _measurement(x, table, cells, mid, i, ft, h)
+    s = r_meas
+    for r in range(6):
+        for c in range(6):
+            s += h[r] * P[r, c] * h[c]
+    nu = v - pred
+    return nu * nu / s
+
+
+@njit(cache=True, nogil=True)
+def _update_core(x, P, table, cells, mid, v, i, ft, r_meas, hold):
+    """The Kalman update of the voltage (Joseph form; with ``hold`` the capacity's and the curve
+    scale's gains are zero)."""
+    h = np.empty(6)
+    pred = _measurement(x, table, cells, mid, i, ft, h)
+    ph = P @ h
+    s = r_meas
+    for r in range(6):
+        s += h[r] * ph[r]
+    k = ph / s
+    if hold:
+        k[5] = 0.0
+        k[4] = 0.0
+    nu = v - pred
+    for r in range(6):
+        x[r] += k[r] * nu
+    ikh = np.eye(6)
+    for r in range(6):
+        for c in range(6):
+            ikh[r, c] -= k[r] * h[c]
+    newp = ikh @ P @ ikh.T
+    for r in range(6):
+        for c in range(6):
+            P[r, c] = newp[r, c] + k[r] * k[c] * r_meas
