@@ -151,8 +151,9 @@ def test_simulated_pack_started_partly_charged_is_followed(preset):
     assert abs(track.soc[29] - 0.75) <= 0.03  # on the ground, before take-off
 
 
-@pytest.mark.parametrize("preset", PRESET_NAMES)
+@pytest.mark.parametrize("preset", [p for p in PRESET_NAMES if p != "edge540"])
 def test_simulated_pack_with_its_capacity_30_percent_under_the_description(preset):
+    # (edge540, the paper's aircraft, keeps its fitted parameter set's filter: no self-calibration)
     # truth's capacity 0.7x, resistance 0.5x, starting full. Issue 29 asks 0.05 after 120 s of flight;
     # measured 0.058 (the capacity learns only once 10 % is drawn: benchmarks/bench_soc_calibration.py):
     # this guards what is reached, the 2σ band holds the truth throughout
