@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gcs_pdm.estimation.calibration import PackCalibrator, prior_of_spec
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
 from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
@@ -44,6 +45,14 @@ SOC_SLACK = 0.05
 #: its initial value is restarted (``StateEstimator._relock_left_sane``): one re-lock from the
 #: initial state stays under it, compounded re-locks do not
 RELOCK_CEILING = 4.0
+#: a temperature no sensor measures is the thermal model's: its rise over the air carries the
+#: model's own doubt — an unfitted description's heat capacity, cooling and resistance can each be
+#: off by half (1σ of the rise), and the air temperature is a default unless one was heard
+MODELLED_RISE_REL_SIGMA = 0.4
+UNKNOWN_AMBIENT_SIGMA_C = 5.0
+HEARD_AMBIENT_SIGMA_C = 1.0
+#: an ambient reading older than this is no longer the air's
+AMBIENT_FRESH_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -70,6 +79,10 @@ class EstimatorConfig:
     #: voltage-to-charge map adds to it, and with 0.12 the measured 2σ coverage is still only
     #: 89-94 % (docs/estimation.md), so a smaller value would be overconfident
     capacity_rel_sigma: float = 0.12
+    #: a described vehicle's packs (not the paper aircraft's fitted set) are estimated by the
+    #: self-calibrating filter (``estimation.calibration``): chemistry curve, adapted capacity,
+    #: resistance and curve, the charge count as its floor (issue 29)
+    self_calibrate: bool = True
 
 
 @dataclass(frozen=True)
@@ -97,6 +110,8 @@ class Estimate:
     motor_rpm: np.ndarray | None = None
     #: per pack name: the model-consistency test and its evidence (``StateEstimator.model_check``)
     model_mismatch: dict = field(default_factory=dict)
+    #: per self-calibrated pack name: what its SoC rests on (``calibration.PackCalibrator.evidence``)
+    evidence: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         def r(a, nd=4):
@@ -108,7 +123,8 @@ class Estimate:
                           "temperature_c": r([self.pack_temp_c[i]], 2)[0], "temperature_sd": r([self.pack_temp_sd[i]], 2)[0],
                           "voltage_v": r([self.pack_voltage_v[i]], 3)[0],
                           **({"temperature_source": "model"} if n in self.modelled_temperature else {}),
-                          **({"model_mismatch": self.model_mismatch[n]} if n in self.model_mismatch else {})}
+                          **({"model_mismatch": self.model_mismatch[n]} if n in self.model_mismatch else {}),
+                          **({"evidence": list(self.evidence[n])} if n in self.evidence else {})}
                       for i, n in enumerate(self.pack_names)},
             "motors": {n: {"temperature_c": r([self.motor_temp_c[i]], 2)[0],
                            "temperature_sd": r([self.motor_temp_sd[i]], 2)[0],
@@ -181,6 +197,15 @@ class StateEstimator:
             self._motor_reports = {}
             self._min_references = 1
         self._base_pack_matrix = np.array(pack_matrix, copy=True)
+        #: per pack: its self-calibrating filter (None: the paper filter's SoC: the paper aircraft,
+        #: edge540, with or without its description, keeps its fitted set's path). A derived (provisional) description's packs start from the chemistry table's
+        #: curve; a described pack from its own model's. The paper filter then carries the pack's temperature and, for the users of
+        #: its layout (predictions, the planner), the calibrated SoC (``_sync_paper``)
+        self.calib: list[PackCalibrator | None] = (
+            [PackCalibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
+             for b, p in enumerate(vehicle.packs)]
+            if vehicle is not None and config.self_calibrate and not _is_paper_aircraft(vehicle)
+            else [None] * len(self.pack_names))
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
         # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper
@@ -388,9 +413,13 @@ class StateEstimator:
         packs = self.packs
         initialised = packs.initialised[b]
         ext_row = self._ext_row_of[b]
+        cal = self.calib[b]
+        v_paper = v if cal is None else math.nan
         if initialised and t - last > self._restart_after_s:
             self._restart("pack", f.pack, t - last)
             packs.initialised[b] = initialised = False
+            if cal is not None:
+                cal.initialised = False
             if ext_row >= 0:
                 self.ext.initialised[ext_row] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
@@ -403,6 +432,9 @@ class StateEstimator:
                                         self.ambient_c)
                     self._ext_cov_ceiling[ext_row] = (np.diag(self.ext.cov[ext_row])
                                                       * (RELOCK_CEILING * self.ext.config.relock_inflation))
+                if cal is not None:
+                    cal.initialise(t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+                    self._sync_paper(b)
                 self._pack_time[b] = t
             if t > self.time_s:
                 self.time_s = t
@@ -422,7 +454,7 @@ class StateEstimator:
         ambient = self.ambient_c
         # the compiled steps say when a consistency state flipped (nearly never): only then is it read
         try:
-            flipped = packs.step_one(b, dt, i_used, ambient, v, temp)
+            flipped = packs.step_one(b, dt, i_used, ambient, v_paper, temp)
             if ext_row >= 0:
                 flipped = self.ext.step_one(ext_row, dt, i_used, ambient, v, temp)
             broken = None
@@ -436,6 +468,8 @@ class StateEstimator:
             # restarts from the next reading, as after a long silence
             self._filter_failed("pack", f.pack, t, broken)
             packs.initialised[b] = False
+            if cal is not None:
+                cal.initialised = False
             if ext_row >= 0:
                 self.ext.initialised[ext_row] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
@@ -445,15 +479,36 @@ class StateEstimator:
             return b
         self._charge_c[b] += i_used * dt
         self._pack_time[b] = t
+        if cal is not None:
+            cal.step(t, dt, i_used, v, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+            self._sync_paper(b)
+            flipped = (not cal.voltage_trusted) != self._mismatch_active[b]
         if flipped or self._mismatch_active[b]:
             self._mismatch_changed(b, t)
         if t > self.time_s:
             self.time_s = t
         return b
 
+    def _sync_paper(self, b: int) -> None:
+        """The paper filter of a self-calibrated pack carries its SoC (mean and variance of q_b) for
+        the users of the kernel's layout: predictions fly the kernel from it."""
+        cal = self.calib[b]
+        soc, sd = cal.soc, cal.soc_sd
+        if not math.isfinite(soc):
+            return
+        p, mean, cov = self.packs.params[b], self.packs.mean, self.packs.cov
+        mean[b, kernel.S_QB] = p[kernel.I_QMAX] - (1.0 - soc) * p[kernel.I_CMAX]
+        cov[b, kernel.S_QB, :] = 0.0
+        cov[b, :, kernel.S_QB] = 0.0
+        cov[b, kernel.S_QB, kernel.S_QB] = (sd * p[kernel.I_CMAX]) ** 2
+
     def _mismatch_changed(self, b: int, t: float) -> None:
-        window, row = self._window_of(b)
-        now = bool(window.active[row].any())
+        cal = self.calib[b]
+        if cal is not None:
+            now = not cal.voltage_trusted
+        else:
+            window, row = self._window_of(b)
+            now = bool(window.active[row].any())
         if now == self._mismatch_active[b]:
             return
         self._mismatch_active[b] = now
@@ -569,6 +624,8 @@ class StateEstimator:
         squared normalised innovation, clipped; ≈ 0.3-0.5 on a pack that matches) against its bound,
         the mean residual (measured − predicted, mV and K), the message time of the last raise or
         clear, the factor applied to the prediction's state spread, and what to do about it."""
+        if self.calib[b] is not None:
+            return self._calibration_check(b)
         w, row = self._window_of(b)
         stat, res = w.statistic()[row], w.mean_residual()[row]
         name = self.pack_names[b]
@@ -603,6 +660,30 @@ class StateEstimator:
             out["state"] = "matches"
         return out
 
+    def _calibration_check(self, b: int) -> dict:
+        """``model_check`` of a self-calibrated pack: whether its voltage is trusted, and why not."""
+        cal = self.calib[b]
+        rep = cal.report()
+        active = self._mismatch_active[b]
+        out = {"active": active, "model": f"chemistry:{cal.chem.name}", "statistic": None, "bound": None,
+               "channels": ["voltage"] if active else [],
+               "since_s": None if not math.isfinite(self._mismatch_since[b]) else round(float(self._mismatch_since[b]), 3),
+               "prediction_inflation": 1.0, "calibration": rep}
+        if not cal.initialised:
+            out["state"], out["reason"] = "unknown", "not judged yet: no voltage reading"
+        elif active:
+            out["state"] = "mismatch"
+            out["reason"] = (f"pack {self.pack_names[b]}: {cal.why_not_voltage}; its SoC follows the charge drawn "
+                             f"(σ grows with the capacity's uncertainty)")
+            out["suggestion"] = refit_suggestion(self.pack_names[b])
+        else:
+            out["state"] = "matches"
+        return out
+
+    def evidence(self) -> dict[str, list[str]]:
+        """What each self-calibrated pack's SoC rests on now (``PackCalibrator.evidence``)."""
+        return {n: cal.evidence() for n, cal in zip(self.pack_names, self.calib) if cal is not None}
+
     @property
     def model_mismatch_active(self) -> np.ndarray:
         """(packs,) bool: the pack fails its model-consistency test now (a copy)."""
@@ -622,7 +703,7 @@ class StateEstimator:
         times more variable than the filter believes, so its state is that much less certain
         (covariance matching). ``prediction.predict_from_estimator`` applies it."""
         worst = np.ones(len(self.pack_names))
-        for b in (b for b, on in enumerate(self._mismatch_active) if on):
+        for b in (b for b, on in enumerate(self._mismatch_active) if on and self.calib[b] is None):
             w, row = self._window_of(b)
             worst[b] = np.nanmax(np.where(w.active[row], w.statistic()[row], 1.0))
         return np.maximum(worst, 1.0)
@@ -694,7 +775,15 @@ class StateEstimator:
             soc[rows], soc_sd[rows], tp[rows], tp_sd[rows] = e_soc[order], e_sd[order], e_t[order], e_tsd[order]
             v[rows] = self.ext.voltage(np.nan_to_num(self.pack_current[rows]))[order]
         soc_sd = np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
+        for b, cal in enumerate(self.calib):
+            if cal is not None:  # its σ carries the capacity's uncertainty itself
+                soc[b], soc_sd[b] = cal.soc, cal.soc_sd
         tm, tm_sd = self.motors.temperature()
+        modelled = tuple(n for b, n in enumerate(self.pack_names)
+                         if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
+        self._modelled_spread(tp, tp_sd, [b for b, n in enumerate(self.pack_names) if n in modelled])
+        self._modelled_spread(tm, tm_sd, [q for q, n in enumerate(self.motor_names)
+                                          if f"{n}.temperature" not in self.seen])
         none = ~self.packs.initialised
         for a in (soc, soc_sd, tp, tp_sd, v):
             a[none] = np.nan
@@ -704,13 +793,25 @@ class StateEstimator:
         counters["pack_temperature_gated"] = int(self.packs.rejected_total[:, 1].sum())
         counters["motor_temperature_gated"] = int(self.motors.rejected_total.sum())
         counters["relocks"] = int(self.packs.relocks.sum() + self.motors.relocks.sum())
-        modelled = tuple(n for b, n in enumerate(self.pack_names)
-                         if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)
         return Estimate(self.time_s, soc, soc_sd, tp, tp_sd, v, tm, tm_sd, self.ambient_c,
                         self.missing() if details else (), counters,
                         pack_names=self.pack_names, motor_names=self.motor_names, modelled_temperature=modelled,
                         mismatch=mismatch, motor_current_a=self.motor_current, motor_rpm=self.motor_rpm,
-                        model_mismatch=self.model_mismatch() if details else {})
+                        model_mismatch=self.model_mismatch() if details else {},
+                        evidence=self.evidence() if details else {})
+
+    def _modelled_spread(self, temp: np.ndarray, sd: np.ndarray, rows: list[int]) -> None:
+        """A temperature no sensor measures (``rows``): its σ is the thermal model's, not the
+        filter's (which only knows the process noise): the rise over the air ×
+        ``MODELLED_RISE_REL_SIGMA``, and the air's own doubt (a default, or a reading)."""
+        if not rows:
+            return
+        heard = self.time_s - self.seen.get("ambient", -math.inf) <= AMBIENT_FRESH_S
+        air = HEARD_AMBIENT_SIGMA_C if heard else UNKNOWN_AMBIENT_SIGMA_C
+        for k in rows:
+            if math.isfinite(temp[k]):
+                rise = abs(float(temp[k]) - self.ambient_c)
+                sd[k] = math.sqrt(float(sd[k]) ** 2 + (MODELLED_RISE_REL_SIGMA * rise) ** 2 + air ** 2)
 
     def _range_guard(self, soc, soc_sd, tp, tp_sd, v) -> tuple[str, ...]:
         """Clip a SoC that is in [0, 1] within its noise; withhold (NaN) and report a pack whose
@@ -729,10 +830,13 @@ class StateEstimator:
             if bad:
                 out.append(f"pack {name}: {', '.join(bad)}: the model does not fit this pack "
                            f"(check its cells, capacity and parameter set)")
-                for a in (soc, soc_sd, tp, tp_sd, v):
+                # a self-calibrated pack's SoC rests on its own evidence (at worst the charge count):
+                # a temperature the thermal model cannot hold withholds the temperature alone
+                withheld = (tp, tp_sd) if self.calib[b] is not None else (soc, soc_sd, tp, tp_sd, v)
+                for a in withheld:
                     a[b] = np.nan
                 self.counters["model_mismatch"] += 1
-            else:
+            if np.isfinite(soc[b]):
                 soc[b] = min(max(soc[b], lo), hi)
         return tuple(out)
 
@@ -755,6 +859,10 @@ class StateEstimator:
                     and not (n in self._motor_reports and not self._motor_reports[n].temperature)]
         state = "ready" if not waiting else "waiting for " + ", ".join(waiting)
         mismatch = self.estimate(details=False).mismatch if not waiting else ()
+        # a self-calibrated pack's mismatch is an advisory: its SoC (at worst the charge count) still
+        # supports a prediction and a plan
+        calibrated = tuple(f"pack {n}:" for n, cal in zip(self.pack_names, self.calib) if cal is not None)
+        mismatch = tuple(m for m in mismatch if not m.startswith(calibrated)) if calibrated else mismatch
         prediction = state if not mismatch else "model mismatch: " + "; ".join(mismatch)
         # the filters integrate a held current through a silence, but a prediction from it would be
         # a guess: say whose current is not being read
@@ -777,6 +885,13 @@ class StateEstimator:
         tm = self.motors.mean[:, 0]
         return PowertrainState(pack_state=self.packs.mean.copy(),
                                motor_temp_c=np.where(np.isfinite(tm), tm, self.ambient_c))
+
+
+def _is_paper_aircraft(vehicle) -> bool:
+    """The ``edge540`` description: the paper's aircraft keeps its fitted parameter set's filter."""
+    from gcs_pdm.vehicle.presets import is_paper_aircraft
+
+    return is_paper_aircraft(vehicle)
 
 
 def refit_suggestion(pack: str) -> str:

@@ -65,6 +65,9 @@ class PackStatus(BaseModel):
     soc_sd: float | None = None
     time_to_cutoff_s: float | None = Field(None, description="predicted time to the voltage cut-off at the present load")
     time_to_cutoff_sd: float | None = None
+    evidence: list[str] | None = Field(None, description=(
+        "what the SoC rests on (a self-calibrated pack, docs/estimation.md): rest_voltage, loaded_voltage, history, "
+        "coulomb, voltage_model, prior"))
     model_config = ConfigDict(extra="allow")
 
 

@@ -201,7 +201,9 @@ class TelemetryIntake:
             for i, n in enumerate(self.estimator.pack_names):
                 st.update_nested("packs", n, soc=float(est.soc[i]), soc_sd=float(est.soc_sd[i]),
                                  temperature_c=float(est.pack_temp_c[i]), temperature_sd=float(est.pack_temp_sd[i]),
-                                 model_mismatch=est.model_mismatch.get(n))
+                                 model_mismatch=est.model_mismatch.get(n),
+                                 # what the SoC rests on (a self-calibrated pack; None: the paper filter)
+                                 evidence=est.evidence.get(n))
             # same keys every time, so LiveState's one-level merge replaces it whole
             st.update(model_mismatch=model_mismatch_summary(est.model_mismatch))
             st.update(fit_envelope=self._envelope_watch().update(**estimator_readings(self.estimator, est)))

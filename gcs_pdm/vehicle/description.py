@@ -33,6 +33,7 @@ CHEMISTRY_CELL_VOLTAGE: dict[str, tuple[float, float]] = {
     "lipo": (4.2, 3.5),
     "lihv": (4.35, 3.5),
     "liion": (4.2, 3.0),
+    "lifepo4": (3.45, 2.8),
 }
 
 
@@ -67,7 +68,7 @@ class PackSpec(_Strict):
     cells_series: int = Field(ge=1, le=24)
     cells_parallel: int = Field(default=1, ge=1, le=16)
     capacity_mah: float = Field(gt=0)
-    chemistry: Literal["lipo", "lihv", "liion"] = "lipo"
+    chemistry: Literal["lipo", "lihv", "liion", "lifepo4"] = "lipo"
     #: resting voltage per cell of a full pack, V, when it is not the chemistry's (4.2 for LiPo)
     full_cell_voltage: float | None = Field(default=None, gt=3.0, le=4.5)
     #: terminal voltage per cell below which the pack has failed (under load), V

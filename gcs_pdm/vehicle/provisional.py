@@ -14,7 +14,11 @@ name and a field dict, as ``msg.to_dict()`` gives them, or as the link layer dec
   the reported remaining percentage when it fell by 10 % or more, otherwise *unknown*: no number is
   made up; ``waiting_for`` and ``derive`` say why (the pack model — SoC by coulomb counting, time to
   cut-off, planning — needs it);
-- a pack resting at boot above a LiPo's full cell: that rest voltage as its full-cell voltage;
+- the chemistry from the rest voltage at boot (``models.chemistry``): a LiPo unless the pack rests
+  above a LiPo's highest rested cell (4.25 V), then a LiHV (4.35 V full); never a full-cell voltage
+  above what the chemistry allows (a pack that holds more voltage under load than the chemistry's
+  model is said in the notes; the estimator learns its resistance and curve in flight);
+- cells from the per-cell voltages when BATTERY_STATUS carries them (each entry one cell);
 - motors from the ESC_TELEMETRY_* indices that carried any non-zero value, with the readings
   that were non-zero (current, rpm, temperature);
 - the airframe's aerodynamic figures and the mass from the matching preset (said in the notes).
@@ -31,7 +35,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-from gcs_pdm.vehicle.description import CHEMISTRY_CELL_VOLTAGE, VehicleDescription, VehicleError, from_dict
+from gcs_pdm.models.chemistry import CHEMISTRIES, chemistry_of_rest_voltage
+from gcs_pdm.vehicle.description import VehicleDescription, VehicleError, from_dict
 
 #: MAV_TYPE -> rotor count, for the multirotor types
 MULTIROTOR_ROTORS = {2: 4, 3: 2, 13: 6, 14: 8, 15: 3}
@@ -44,6 +49,8 @@ _MAV_AUTOPILOT_INVALID = 8
 #: the highest resting voltage of a cell: a full LiHV (4.35 V); a LiPo rests at 4.2, ArduPilot SITL's at 4.24
 MAX_CELL_VOLTAGE = 4.35
 _UINT16_MAX = 65535
+#: a BATTERY_STATUS voltages entry that is one cell's, mV (a pack voltage in one entry is above)
+_CELL_MV = (2000, 4600)
 _INT16_MAX = 32767
 _ESC_MESSAGES = {"ESC_TELEMETRY_1_TO_4": 0, "ESC_TELEMETRY_5_TO_8": 4, "ESC_TELEMETRY_9_TO_12": 8,
                  "ESC_TELEMETRY_13_TO_16": 12}
@@ -90,6 +97,9 @@ class _PackSeen:
     frames: int = 0
     #: (voltage V, current A, the autopilot's remaining fraction) under load
     loaded: list = field(default_factory=list)
+    #: cells the BATTERY_STATUS voltages array counts, when it carries one cell per entry (0: it
+    #: does not — a pack voltage in the first entry, as ArduPilot sends it without cell monitoring)
+    cells_reported: int = 0
 
 
 @dataclass
@@ -167,6 +177,8 @@ class ProvisionalObserver:
         seen.frames += 1
         cells = [c for c in [*(f.get("voltages") or ()), *(f.get("voltages_ext") or ())] if c != 0 and c != _UINT16_MAX]
         volts = sum(cells) / 1000.0
+        if len(cells) > 1 and all(_CELL_MV[0] <= c <= _CELL_MV[1] for c in cells):
+            seen.cells_reported = max(seen.cells_reported, len(cells))
         if cells:
             seen.max_voltage = max(seen.max_voltage, volts)
             if len(seen.first_voltages) < FIRST_READINGS:
@@ -203,6 +215,7 @@ class ProvisionalObserver:
         valid = (cells != 0) & (cells != _UINT16_MAX)
         has_cells = valid.any(axis=1)
         volts = np.where(valid, cells, 0).sum(axis=1) / 1000.0
+        per_cell = (valid.sum(axis=1) > 1) & np.all(~valid | ((cells >= _CELL_MV[0]) & (cells <= _CELL_MV[1])), axis=1)
         temperature = np.asarray(columns["temperature"]).astype(np.int64)
         current = np.asarray(columns["current_battery"]).astype(np.int64)
         remaining = np.asarray(columns["battery_remaining"]).astype(np.int64)
@@ -213,6 +226,8 @@ class ProvisionalObserver:
             mine = ids == pack_id
             seen = self.packs.setdefault(pack_id, _PackSeen())
             seen.frames += int(mine.sum())
+            if (mine & per_cell).any():
+                seen.cells_reported = max(seen.cells_reported, int(valid[mine & per_cell].sum(axis=1).max()))
             reported = volts[mine & has_cells]
             if reported.size:
                 seen.max_voltage = max(seen.max_voltage, float(reported.max()))
@@ -300,9 +315,11 @@ class ProvisionalObserver:
         packs = []
         for i, seen in packs_seen.items():
             boot_v = sorted(seen.first_voltages)[len(seen.first_voltages) // 2]
-            cells = max(1, math.ceil(boot_v / MAX_CELL_VOLTAGE - CELL_COUNT_SLACK))
+            cells = seen.cells_reported or max(1, math.ceil(boot_v / MAX_CELL_VOLTAGE - CELL_COUNT_SLACK))
             pack = {"name": f"battery{i}", "mavlink_battery_id": i, "cells_series": cells,
                     "reports_temperature": seen.temperature_reported}
+            if seen.cells_reported:
+                notes.append(f"pack battery{i}: {cells} cells from the per-cell voltages it reports")
             capacity = (Capacity(float(capacities[i]), "as given by the user") if capacities and i in capacities
                         else self.capacity(i))
             if capacity.mah is None:
@@ -313,13 +330,15 @@ class ProvisionalObserver:
             pack["capacity_mah"] = capacity.mah
             how = capacity.source
             rest_cell_v = boot_v / cells
-            if rest_cell_v > CHEMISTRY_CELL_VOLTAGE["lipo"][0] + STIFFNESS_GAP_CELL_V:
-                # a pack cannot rest above its full voltage: a LiPo model full at 4.2 V/cell would read
-                # this pack above full (a SoC over 1, withheld by the estimator) from the first reading
-                pack["full_cell_voltage"] = min(4.5, round(rest_cell_v + 0.005, 2))
-                notes.append(f"pack battery{i}: rests at {rest_cell_v:.3f} V/cell at boot, above a LiPo's full "
-                             f"{CHEMISTRY_CELL_VOLTAGE['lipo'][0]} V: full-cell voltage set to "
-                             f"{pack['full_cell_voltage']:.2f} V")
+            chem = chemistry_of_rest_voltage(rest_cell_v)
+            if chem != "lipo":
+                pack["chemistry"] = chem
+                notes.append(f"pack battery{i}: rests at {rest_cell_v:.3f} V/cell at boot, above a LiPo's "
+                             f"{CHEMISTRIES['lipo'].max_rest_cell_v} V: a {chem} pack "
+                             f"({CHEMISTRIES[chem].full_cell_v} V full)")
+            elif rest_cell_v > CHEMISTRIES["lihv"].max_rest_cell_v:
+                notes.append(f"pack battery{i}: rests at {rest_cell_v:.3f} V/cell at boot, above any chemistry's "
+                             f"full cell: check its cell count and voltage sensor")
             notes.append(f"pack battery{i}: {cells} cells from {boot_v:.2f} V at boot, "
                          f"capacity {pack['capacity_mah']:.0f} mAh {how}, chemistry-default parameters"
                          + ("" if seen.temperature_reported else "; temperature not reported (estimated)"))
@@ -346,10 +365,11 @@ class ProvisionalObserver:
 
 
 def _raise_full_cell_voltage(data: dict, loaded: list[list], notes: list[str]) -> None:
-    """A pack that holds more voltage under load than its model can at the SoC the autopilot
-    reports would be estimated above full: raise its full-cell voltage by the median gap per cell
-    (the model's voltage rises one for one with it), within the description's 4.5 V limit, and say
-    so. The model's loaded voltage is the kernel's (R–C pairs settled at the reading's current)."""
+    """A pack that holds more voltage under load than its model at the SoC the autopilot reports:
+    raise its full-cell voltage by the median gap per cell (the model's voltage rises one for one
+    with it) — never above the full cell its chemistry allows (issue 29: a 4.50 V/cell LiPo was
+    derived for a SITL pack whose voltage does not sag at all) — and say so. The model's loaded
+    voltage is the kernel's (R–C pairs settled at the reading's current)."""
     if not any(len(samples) >= FIRST_READINGS for samples in loaded):
         return
     import numpy as np
@@ -369,10 +389,18 @@ def _raise_full_cell_voltage(data: dict, loaded: list[list], notes: list[str]) -
         gap = float(np.median(v - modelled)) / pack["cells_series"]
         if gap <= STIFFNESS_GAP_CELL_V:
             continue
-        pack["full_cell_voltage"] = min(4.5, round(desc.packs[k].full_cell_v + gap + 0.005, 2))
+        spec = desc.packs[k]
+        allowed = CHEMISTRIES[spec.chemistry].full_cell_v if spec.chemistry in CHEMISTRIES else spec.full_cell_v
+        raised = min(allowed, round(spec.full_cell_v + gap + 0.005, 2))
+        if raised > spec.full_cell_v:
+            pack["full_cell_voltage"] = raised
         notes.append(f"pack {pack['name']}: held {gap:.2f} V/cell more under load than the chemistry default "
-                     f"at the SoC the autopilot reported (stiffer than that model): full-cell voltage raised "
-                     f"to {pack['full_cell_voltage']:.2f} V; fit the pack for a real model (docs/vehicles.md)")
+                     f"at the SoC the autopilot reported (stiffer than that model)"
+                     + (f": full-cell voltage raised to {raised:.2f} V, the {spec.chemistry} limit"
+                        if raised > spec.full_cell_v else f"; its full cell stays the {spec.chemistry}'s "
+                                                         f"{spec.full_cell_v:.2f} V")
+                     + "; the estimator learns its resistance and curve in flight, a fit gives a real model "
+                       "(docs/vehicles.md)")
 
 
 def derive_provisional(messages: Iterable[tuple[str, Mapping[str, Any]]], name: str = "provisional",

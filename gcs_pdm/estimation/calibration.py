@@ -1,0 +1,551 @@
+"""Self-calibrating pack estimation: state and parameters of a pack nobody has fitted (issue 29).
+
+Per pack, one extended Kalman filter over the joint state
+
+    x = [SoC, v₁, R₀, ΔV, k, g]
+
+— state of charge, the polarisation pair's voltage, the series resistance at 25 °C (pack, Ω), the
+open-circuit curve's offset (V per cell) and scale (about the curve's mid-point), and the inverse
+capacity scale g = Q_prior / Q — with the chemistry's rested curve (``models.chemistry``) as the
+open-circuit voltage:
+
+    OCV_cell(SoC) = ocv(SoC) + ΔV + k (ocv(SoC) − ocv(½))
+    V = S · OCV_cell(SoC) − v₁ − R₀ f(T) I,      f(T) = exp(E (1/T − 1/298.15))
+    SoC' = SoC − g I Δt / Q_prior,   v₁' = a v₁ + (1 − a) ρ R₀ f(T) I,   a = exp(−Δt/τ₁)
+
+The parameters are random walks with small steps; their priors come from the chemistry, the
+description (cells, capacity: the autopilot's BATT_CAPACITY when the description was derived from
+it) and, when given, the pack's own history (``PackPrior``). After every update they are held
+inside what the chemistry allows (``PARAM_BOUNDS``: a LiPo never rests above 4.25 V per cell).
+
+**The charge count is the floor.** The filter's SoC is a charge count (SoC' above) that the
+voltage corrects. The voltage is trusted only while it carries information the model can follow:
+
+* *it falls as charge is drawn*: from 30 s after the pack left rest, a least-squares fit of the
+  loaded voltage on [1, I, charge drawn / Q_prior] gives the voltage's fall per unit of charge; once
+  ``DRAIN_MIN_FRACTION`` of the capacity has been drawn it must be at least ``DRAIN_MIN_RATIO`` of
+  the fall the chemistry's curve has over that span (ArduPlane SITL's battery never drains: its
+  voltage holds while the autopilot's count falls 99 % → 48 %);
+* *the model follows it*: the mean normalised squared innovation over the last
+  ``NIS_WINDOW`` updates stays under ``NIS_RAISE``;
+* *it does not contradict the charge count beyond the capacity's uncertainty*: the filter's SoC
+  stays within ``REFEREE_SIGMAS`` σ of a pure charge count from the same start (prior capacity).
+
+Otherwise the voltage updates stop (``voltage_model`` leaves the evidence, the reason is kept) and
+the SoC follows the charge drawn from where the charge count stands, its σ growing with the
+capacity's uncertainty (g's variance). A mismatch never withholds the SoC: it is an advisory.
+
+**On the ground** (current under ``rest_current_a`` for ``REST_SETTLE_S``) the rested voltage sets
+the SoC through the chemistry curve (the filter's voltage updates at zero current do it, the
+curve's offset bounding how sure they make it), and the charge count's start is re-anchored there:
+take-off continues from it, without a jump.
+
+``evidence`` says what the SoC rests on now: ``rest_voltage`` (the start came from a rested
+voltage), ``loaded_voltage`` (from a voltage under load: no rest seen), ``coulomb`` (the charge
+drawn is counted), ``voltage_model`` (the voltage is correcting it now), ``prior`` (the capacity and
+curve are the prior's, not yet learned).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from gcs_pdm.models.chemistry import Chemistry, chemistry
+
+# state indices
+I_SOC, I_V1, I_R0, I_DV, I_K, I_G = range(6)
+N_STATE = 6
+STATE_NAMES = ("soc", "v1", "r0", "ocv_offset", "ocv_scale", "inv_capacity_scale")
+
+#: voltage trusted only once this much of the capacity has been drawn with the voltage falling
+DRAIN_MIN_FRACTION = 0.06
+#: ... by at least this share of the chemistry curve's fall over the same span
+DRAIN_MIN_RATIO = 0.3
+DRAIN_SIGMAS = 3.0
+#: the drain fit is solved every this many loaded samples (its sums grow at every one)
+DRAIN_CHECK_EVERY = 5
+#: seconds after leaving rest before loaded samples enter the drain fit (the polarisation settles)
+DRAIN_SETTLE_S = 30.0
+NIS_WINDOW = 60
+NIS_RAISE = 4.0
+NIS_CLEAR = 1.5
+REFEREE_SIGMAS = 4.0
+REST_SETTLE_S = 10.0
+#: the capacity and the curve's scale learn once this share of the capacity is drawn since the rest
+LEARN_AFTER_FRACTION = 0.1
+#: share of the loaded sag counted as model error (measurement noise) in a voltage update
+LOAD_MODEL_SIGMA = 0.5
+#: an innovation beyond this many σ is not applied (a spike), counted
+GATE_SIGMAS = 5.0
+
+
+@dataclass(frozen=True)
+class PackPrior:
+    """Where a pack's estimate starts: the chemistry, cells, capacity (C) and its relative σ, and —
+    from the pack's own history when the pack-life records give it — a resistance, curve offset and
+    scale, and a capacity with a tighter σ. ``soc``/``soc_sd``: a known starting SoC (else the first
+    voltage sets it)."""
+
+    chemistry: str
+    cells: int
+    capacity_c: float
+    capacity_rel_sd: float = 0.15
+    r0_ohm: float | None = None
+    r0_rel_sd: float = 1.0
+    ocv_offset_v: float = 0.0
+    ocv_offset_sd: float = 0.015
+    ocv_scale: float = 0.0
+    ocv_scale_sd: float = 0.05
+    soc: float | None = None
+    soc_sd: float = 0.05
+    #: what the capacity rests on, said in the evidence (e.g. "BATT_CAPACITY")
+    capacity_source: str = "description"
+    #: the curve and circuit priors when they are not the chemistry table's: a described pack's own
+    #: model (``described_chemistry``)
+    curve: Chemistry | None = None
+
+    @property
+    def chem(self) -> Chemistry:
+        return self.curve if self.curve is not None else chemistry(self.chemistry)
+
+    @property
+    def r0_prior(self) -> float:
+        if self.r0_ohm is not None:
+            return self.r0_ohm
+        return self.cells * self.chem.r0_cell_ah / max(self.capacity_c / 3600.0, 1e-3)
+
+
+def described_chemistry(spec, pack_vector: np.ndarray) -> Chemistry:
+    """The priors a described pack's own model gives (``kernel.PACK_PARAMS`` vector): its rested
+    curve (the bulk voltage over the cells: the paper variant's is linear in charge), its series
+    resistance and its concentration pair — what a vehicle the user described, or a simulated vehicle
+    flying its description, is. Bounds from the chemistry the description names."""
+    from gcs_pdm.models import kernel
+
+    grid = np.linspace(0.0, 1.0, 21)
+    rows = np.repeat(np.asarray(pack_vector, dtype=np.float64)[None], grid.size, axis=0)
+    rest = kernel.terminal_voltage(rows, kernel.initial_pack_state(rows, grid, 25.0, 0.0)) / spec.cells_series
+    base = chemistry(spec.chemistry)
+    q_ah = float(spec.capacity_c) / 3600.0
+    r_s, r_cp = float(pack_vector[kernel.I_RS]), float(kernel.concentration_resistance(rows[:1], 0.5)[0])
+    return Chemistry(f"{base.name} (described model)", tuple(float(v) for v in rest), float(rest[-1]),
+                     base.cutoff_cell_v, max(base.max_rest_cell_v, float(rest[-1]) + 0.05),
+                     r_s * q_ah / spec.cells_series, r_cp / r_s, float(r_cp * pack_vector[kernel.I_CCP]),
+                     base.r_activation_k, "the description's own pack model (its parameter set's rested curve)")
+
+
+def prior_of_spec(spec, pack_vector: np.ndarray | None = None, capacity_rel_sd: float = 0.15) -> PackPrior:
+    """A description's pack (``vehicle.description.PackSpec``) as a prior: its chemistry, cells and
+    capacity; with ``pack_vector`` (a described, not derived, pack) the curve and circuit of its own
+    model, else the chemistry table's."""
+    return PackPrior(chemistry=spec.chemistry, cells=int(spec.cells_series), capacity_c=float(spec.capacity_c),
+                     capacity_rel_sd=capacity_rel_sd,
+                     curve=None if pack_vector is None else described_chemistry(spec, pack_vector))
+
+
+@dataclass
+class _Drain:
+    """Running normal equations of V ≈ a + b I + c (drawn / Q_prior) over loaded samples."""
+
+    ata: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    atv: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    vv: float = 0.0
+    n: int = 0
+
+    #: plain-float running sums (a per-frame call): Σi, Σf, Σi², Σif, Σf², Σv, Σiv, Σfv
+    sums: list = field(default_factory=lambda: [0.0] * 8)
+
+    def add(self, current: float, frac: float, v: float) -> None:
+        s = self.sums
+        s[0] += current
+        s[1] += frac
+        s[2] += current * current
+        s[3] += current * frac
+        s[4] += frac * frac
+        s[5] += v
+        s[6] += current * v
+        s[7] += frac * v
+        self.vv += v * v
+        self.n += 1
+
+    def slope(self) -> tuple[float, float]:
+        """(c, its standard error): the voltage's change per unit of capacity drawn (NaN while not
+        determined). The error treats the residuals as independent: a lower bound, so a fall
+        judged missing is missing by more than it says."""
+        if self.n < 20:
+            return math.nan, math.nan
+        s = self.sums
+        self.ata = np.array([[self.n, s[0], s[1]], [s[0], s[2], s[3]], [s[1], s[3], s[4]]], dtype=float)
+        self.atv = np.array([s[5], s[6], s[7]])
+        try:
+            inv = np.linalg.inv(self.ata + 1e-12 * np.eye(3))
+        except np.linalg.LinAlgError:
+            return math.nan, math.nan
+        beta = inv @ self.atv
+        s2 = max(self.vv - float(beta @ self.atv), 0.0) / (self.n - 3)
+        return float(beta[2]), math.sqrt(max(s2 * inv[2, 2], 0.0))
+
+
+class PackCalibrator:
+    """One pack's joint state and parameter filter (see the module doc)."""
+
+    def __init__(self, prior: PackPrior, *, sigma_v: float | None = None):
+        self.prior = prior
+        self.chem = prior.chem
+        self.cells = prior.cells
+        self.q0 = prior.capacity_c
+        self.table = self.chem.table
+        self.mid = self.chem.ocv(0.5)
+        self.r0p = prior.r0_prior
+        self.sigma_v = sigma_v if sigma_v is not None else 0.02 + 0.012 * self.cells
+        self.rest_current_a = max(0.3, 0.05 * self.q0 / 3600.0)
+        # bounds: what the chemistry allows
+        top = self.chem.ocv(1.0)
+        self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6])
+        self.hi = np.array([1.0, 5.0, 5.0 * self.r0p, self.chem.max_rest_cell_v - top, 0.25, 1.0 / 0.5])
+        self.x = np.zeros(N_STATE)
+        self.P = np.zeros((N_STATE, N_STATE))
+        self.initialised = False
+        self.time_s = -math.inf
+        # charge count from the last rest (the referee): its start SoC and variance, charge drawn since
+        self.count_start = math.nan
+        self.count_start_var = math.nan
+        self.drawn_c = 0.0
+        self.total_drawn_c = 0.0
+        self.rest_since = math.nan
+        self.left_rest_s = math.nan
+        self.start_kind = ""
+        self.drain = _Drain()
+        self.nis: list[float] = []
+        self.voltage_trusted = True
+        self.why_not_voltage: str | None = None
+        self.drain_failed = False
+        self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0}
+        self.last_voltage_update_s = -math.inf
+
+    # ---- model ---------------------------------------------------------------------------------
+    def _ocv(self, soc: float) -> tuple[float, float]:
+        """(chemistry ocv, its slope) at soc."""
+        s = min(max(soc, 0.0), 1.0)
+        return float(np.interp(s, _GRID, self.table)), self.chem.slope(s)
+
+    def _temp_factor(self, temperature_c: float) -> float:
+        if not math.isfinite(temperature_c):
+            return 1.0
+        return math.exp(self.chem.r_activation_k * (1.0 / (temperature_c + 273.15) - 1.0 / 298.15))
+
+    def _voltage(self, x: np.ndarray, current: float, ft: float) -> tuple[float, np.ndarray]:
+        ocv, slope = self._ocv(x[I_SOC])
+        s = self.cells
+        v = s * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_R0] * ft * current
+        h = np.array([s * slope * (1.0 + x[I_K]), -1.0, -ft * current, s, s * (ocv - self.mid), 0.0])
+        return v, h
+
+    # ---- frames --------------------------------------------------------------------------------
+    def initialise(self, t: float, voltage: float, current: float, temperature_c: float) -> None:
+        p = self.prior
+        ft = self._temp_factor(temperature_c)
+        i = current if math.isfinite(current) else 0.0
+        at_rest = abs(i) < self.rest_current_a
+        r0 = self.r0p
+        # polarisation settled at the present current (a log that starts in flight)
+        v1 = self.chem.r1_ratio * r0 * ft * i
+        ocv_cell = (voltage + r0 * ft * i + v1) / self.cells - p.ocv_offset_v
+        soc = p.soc if p.soc is not None else self.chem.soc_at(ocv_cell)
+        self.x = np.array([soc, v1, r0, p.ocv_offset_v, p.ocv_scale, 1.0])
+        soc_sd = p.soc_sd if p.soc is not None else (0.05 if at_rest else 0.15)
+        self.P = np.diag([soc_sd ** 2, (0.5 * v1) ** 2 + 0.01 ** 2, (p.r0_rel_sd * r0) ** 2, p.ocv_offset_sd ** 2,
+                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2])
+        self.start_kind = "history" if p.soc is not None else ("rest_voltage" if at_rest else "loaded_voltage")
+        self.initialised = True
+        self.time_s = t
+        self.rest_since = t if at_rest else math.nan
+        self._anchor()
+        self.voltage_trusted, self.why_not_voltage, self.drain_failed = True, None, False
+        self.nis.clear()
+        self._clip()
+        if math.isfinite(voltage):
+            self._update(voltage, i, ft, t)
+
+    def _anchor(self) -> None:
+        """The charge count starts again from the filter's SoC (at rest, or a start)."""
+        self.count_start = float(self.x[I_SOC])
+        self.count_start_var = float(self.P[I_SOC, I_SOC])
+        self.drawn_c = 0.0
+        self.drain = _Drain()
+        self.left_rest_s = math.nan
+
+    def step(self, t: float, dt: float, current: float, voltage: float, temperature_c: float) -> None:
+        """Advance by ``dt`` at ``current`` (A, discharge positive), then take ``voltage`` (NaN: none)."""
+        i = current if math.isfinite(current) else 0.0
+        ft = self._temp_factor(temperature_c)
+        if dt > 0:
+            self._predict(dt, i, ft)
+            self.drawn_c += i * dt
+            self.total_drawn_c += i * dt
+        self.time_s = t
+        at_rest = abs(i) < self.rest_current_a
+        if at_rest:
+            if not math.isfinite(self.rest_since):
+                self.rest_since = t
+            self.left_rest_s = math.nan
+        else:
+            if math.isfinite(self.rest_since):  # take-off: the count starts from the rested SoC
+                self._anchor()
+                self.left_rest_s = t
+            elif not math.isfinite(self.left_rest_s):  # a log that starts under load
+                self.left_rest_s = t
+            self.rest_since = math.nan
+        settled = at_rest and t - self.rest_since >= REST_SETTLE_S
+        if settled:
+            # on the ground: the rested voltage speaks; the count starts from here
+            if not self.voltage_trusted:
+                self.counters["rest_anchors"] += 1
+            self.voltage_trusted, self.why_not_voltage, self.drain_failed = True, None, False
+            self.nis.clear()
+        if math.isfinite(voltage):
+            if not at_rest and math.isfinite(self.left_rest_s) and t - self.left_rest_s >= DRAIN_SETTLE_S:
+                self.drain.add(i, self.drawn_c / self.q0, voltage)
+                self._check_drain()
+            self._update(voltage, i, ft, t)
+        if settled:
+            self._anchor()
+            self.start_kind = "rest_voltage"
+        elif self.voltage_trusted:
+            self._referee()
+
+    def _predict(self, dt: float, i: float, ft: float) -> None:
+        _predict_core(self.x, self.P, dt, i, ft, self.q0, self.chem.tau1_s, self.chem.r1_ratio, self.r0p)
+        np.clip(self.x, self.lo, self.hi, out=self.x)
+
+    def _update(self, v: float, i: float, ft: float, t: float) -> None:
+        # under load the model's error grows with the current: its circuit is a first-order guess
+        # of a cell's dynamics (diffusion, a second time constant); LOAD_MODEL_SIGMA of the loaded
+        # sag is counted as measurement noise, so a loaded voltage cannot drag the SoC far
+        r_meas = self.sigma_v ** 2 + (LOAD_MODEL_SIGMA * (1.0 + self.chem.r1_ratio) * self.r0p * i) ** 2
+        # the capacity and the curve's scale are not observable until a span of the curve has been
+        # drawn: earlier, every model error would be read as them (measured: the capacity halved
+        # within 200 s on a PyBaMM cell). Held (their gain zero; the Joseph form keeps the covariance
+        # right for any gain) until LEARN_AFTER_FRACTION is drawn
+        hold = self.drawn_c < LEARN_AFTER_FRACTION * self.q0
+        nis = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, ft, r_meas)
+        self.nis.append(min(nis, 25.0))
+        if len(self.nis) > NIS_WINDOW:
+            del self.nis[0]
+        if len(self.nis) == NIS_WINDOW:
+            mean = sum(self.nis) / NIS_WINDOW
+            if self.voltage_trusted and mean > NIS_RAISE:
+                self._suspend(f"the model cannot follow the voltage (mean normalised innovation {mean:.1f} over "
+                              f"{NIS_WINDOW} updates, bound {NIS_RAISE:g})")
+            elif not self.voltage_trusted and not self.drain_failed and mean < NIS_CLEAR:
+                self.voltage_trusted, self.why_not_voltage = True, None
+        if not self.voltage_trusted:
+            return
+        if nis > GATE_SIGMAS ** 2:
+            self.counters["voltage_gated"] += 1
+            return
+        _update_core(self.x, self.P, self.table, self.cells, self.mid, v, i, ft, r_meas, hold)
+        np.clip(self.x, self.lo, self.hi, out=self.x)
+        self.counters["voltage_updates"] += 1
+        self.last_voltage_update_s = t
+
+    def _clip(self) -> None:
+        np.clip(self.x, self.lo, self.hi, out=self.x)
+
+    def _count(self) -> tuple[float, float]:
+        """The pure charge count from the last anchor: (SoC, variance) with the prior capacity."""
+        frac = self.drawn_c / self.q0
+        return (self.count_start - frac,
+                self.count_start_var + (frac * self.prior.capacity_rel_sd) ** 2)
+
+    def _referee(self) -> None:
+        soc, var = self._count()
+        sd = math.sqrt(var + self.P[I_SOC, I_SOC])
+        if abs(self.x[I_SOC] - soc) > REFEREE_SIGMAS * sd + 0.03:
+            self._suspend(f"the voltage contradicts the charge count beyond the capacity's uncertainty "
+                          f"(voltage {self.x[I_SOC]:.2f}, count {soc:.2f} ± {sd:.2f})")
+
+    def _check_drain(self) -> None:
+        frac = self.drawn_c / self.q0
+        if frac < DRAIN_MIN_FRACTION or self.drain_failed or self.drain.n % DRAIN_CHECK_EVERY:
+            return
+        c, se = self.drain.slope()
+        if not math.isfinite(c):
+            return
+        s0 = self.count_start
+        expected = self.cells * (self.chem.ocv(s0) - self.chem.ocv(s0 - frac)) / frac
+        # missing beyond its own noise (DRAIN_SIGMAS standard errors), not a noisy slope's luck
+        if -c + DRAIN_SIGMAS * se < DRAIN_MIN_RATIO * expected:
+            self.drain_failed = True
+            self._suspend(f"the voltage does not fall as charge is drawn ({-c:.2f} V per capacity drawn, the "
+                          f"{self.chem.name} curve falls {expected:.2f} over {frac:.0%} drawn)")
+
+    def _suspend(self, why: str) -> None:
+        """Stop trusting the voltage: the SoC continues as the charge count from the last anchor
+        (prior capacity, its σ growing with the capacity's uncertainty); the learned parameters go
+        back to their priors (what they learned followed a voltage the model could not)."""
+        if not self.voltage_trusted:
+            return
+        self.voltage_trusted, self.why_not_voltage = False, why
+        self.counters["voltage_suspended"] += 1
+        soc, var = self._count()
+        p = self.prior
+        self.x = np.array([soc, 0.0, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0])
+        self.P = np.diag([self.count_start_var, 0.01 ** 2, (p.r0_rel_sd * self.r0p) ** 2, p.ocv_offset_sd ** 2,
+                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2])
+        frac = self.drawn_c / self.q0
+        # the SoC's dependence on the capacity since the anchor: SoC = start − g·frac
+        self.P[I_SOC, I_G] = self.P[I_G, I_SOC] = -frac * p.capacity_rel_sd ** 2
+        self.P[I_SOC, I_SOC] = var
+        self._clip()
+
+    def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0) -> float:
+        """Seconds until the terminal voltage at a held ``current`` reaches ``cutoff_v``, on this
+        filter's own model (its curve, resistance and capacity; the polarisation settled), from
+        its mean state: the SoC at which S·OCV_cell − (R₀ + ρR₀) f(T) I = cutoff, reached at the
+        charge count's rate. NaN at no current; 0 if already below."""
+        if not self.initialised or not current > 0:
+            return math.nan
+        x = self.x
+        sag = (1.0 + self.chem.r1_ratio) * x[I_R0] * self._temp_factor(temperature_c) * current
+        target = (cutoff_v + sag) / self.cells
+        grid = _GRID
+        curve = self.table + x[I_DV] + x[I_K] * (self.table - self.mid)
+        if target <= curve[0]:
+            soc_cut = 0.0
+        else:
+            soc_cut = float(np.interp(target, curve, grid))
+        if soc_cut >= x[I_SOC]:
+            return 0.0
+        return (x[I_SOC] - soc_cut) * self.q0 / (x[I_G] * current)
+
+    # ---- read-outs -----------------------------------------------------------------------------
+    @property
+    def soc(self) -> float:
+        return float(self.x[I_SOC]) if self.initialised else math.nan
+
+    @property
+    def soc_sd(self) -> float:
+        return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0)) if self.initialised else math.nan
+
+    def evidence(self, now: float | None = None) -> list[str]:
+        if not self.initialised:
+            return []
+        now = self.time_s if now is None else now
+        out = [self.start_kind] if self.start_kind else []
+        if self.total_drawn_c > 0:
+            out.append("coulomb")
+        if self.voltage_trusted and now - self.last_voltage_update_s <= 10.0:
+            out.append("voltage_model")
+        if self.P[I_G, I_G] > 0.8 * self.prior.capacity_rel_sd ** 2:
+            out.append("prior")
+        return out
+
+    def report(self) -> dict:
+        """JSON-ready: SoC, σ, evidence, the learned parameters with their σ, why the voltage is not
+        trusted (None while it is)."""
+        sd = np.sqrt(np.maximum(np.diag(self.P), 0.0))
+
+        def r(v, nd=4):
+            return round(float(v), nd) if math.isfinite(float(v)) else None
+
+        return {"soc": r(self.soc), "soc_sd": r(self.soc_sd), "evidence": self.evidence(),
+                "chemistry": self.chem.name, "voltage_trusted": self.voltage_trusted,
+                "voltage_not_trusted_because": self.why_not_voltage,
+                "capacity_ah": r(self.q0 / 3600.0 / self.x[I_G], 3),
+                "capacity_rel_sd": r(sd[I_G] / self.x[I_G], 3),
+                "capacity_source": self.prior.capacity_source,
+                "series_resistance_ohm": r(self.x[I_R0], 5), "series_resistance_sd": r(sd[I_R0], 5),
+                "ocv_offset_v_per_cell": r(self.x[I_DV]), "ocv_offset_sd": r(sd[I_DV]),
+                "ocv_scale": r(self.x[I_K]), "ocv_scale_sd": r(sd[I_K]),
+                "counters": dict(self.counters)}
+
+
+_GRID = np.linspace(0.0, 1.0, 21)
+
+
+# ---- the compiled numeric core (one pack, one frame; the class keeps the bookkeeping) ---------------
+@njit(cache=True, nogil=True)
+def _curve(table, soc):
+    """(chemistry ocv, its segment slope) at soc on the 21-point grid."""
+    s = min(max(soc, 0.0), 1.0)
+    k = min(int(s * 20.0), 19)
+    slope = (table[k + 1] - table[k]) * 20.0
+    return table[k] + slope * (s - k / 20.0), slope
+
+
+@njit(cache=True, nogil=True)
+def _predict_core(x, P, dt, i, ft, q0, tau1, rho, r0p):
+    a = math.exp(-dt / tau1)
+    f_sg = -i * dt / q0
+    f_vr = (1.0 - a) * rho * ft * i
+    x[0] += x[5] * f_sg
+    x[1] = a * x[1] + (1.0 - a) * rho * x[2] * ft * i
+    # P <- F P F' with F = I except F[0,5] = f_sg, F[1,1] = a, F[1,2] = f_vr: rows then columns
+    for c in range(6):
+        P[0, c] += f_sg * P[5, c]
+        P[1, c] = a * P[1, c] + f_vr * P[2, c]
+    for r in range(6):
+        P[r, 0] += f_sg * P[r, 5]
+        P[r, 1] = a * P[r, 1] + f_vr * P[r, 2]
+    P[0, 0] += (0.002 * abs(i) * dt / q0) ** 2 + 1e-9 * dt
+    P[1, 1] += 0.002 ** 2 * dt
+    P[2, 2] += (0.002 * r0p) ** 2 * dt
+    P[3, 3] += 2e-5 ** 2 * dt
+    P[4, 4] += 2e-5 ** 2 * dt
+    P[5, 5] += 2e-5 ** 2 * dt
+
+
+@njit(cache=True, nogil=True)
+def _measurement(x, table, cells, mid, i, ft, h):
+    ocv, slope = _curve(table, x[0])
+    h[0] = cells * slope * (1.0 + x[4])
+    h[1] = -1.0
+    h[2] = -ft * i
+    h[3] = cells
+    h[4] = cells * (ocv - mid)
+    h[5] = 0.0
+    return cells * (ocv + x[3] + x[4] * (ocv - mid)) - x[1] - x[2] * ft * i
+
+
+@njit(cache=True, nogil=True)
+def _innovation_core(x, P, table, cells, mid, v, i, ft, r_meas):
+    """ν²/S of the voltage ``v`` against the mean state."""
+    h = np.empty(6)
+    pred = _measurement(x, table, cells, mid, i, ft, h)
+    s = r_meas
+    for r in range(6):
+        for c in range(6):
+            s += h[r] * P[r, c] * h[c]
+    nu = v - pred
+    return nu * nu / s
+
+
+@njit(cache=True, nogil=True)
+def _update_core(x, P, table, cells, mid, v, i, ft, r_meas, hold):
+    """The Kalman update of the voltage (Joseph form; with ``hold`` the capacity's and the curve
+    scale's gains are zero)."""
+    h = np.empty(6)
+    pred = _measurement(x, table, cells, mid, i, ft, h)
+    ph = P @ h
+    s = r_meas
+    for r in range(6):
+        s += h[r] * ph[r]
+    k = ph / s
+    if hold:
+        k[5] = 0.0
+        k[4] = 0.0
+    nu = v - pred
+    for r in range(6):
+        x[r] += k[r] * nu
+    ikh = np.eye(6)
+    for r in range(6):
+        for c in range(6):
+            ikh[r, c] -= k[r] * h[c]
+    newp = ikh @ P @ ikh.T
+    for r in range(6):
+        for c in range(6):
+            P[r, c] = newp[r, c] + k[r] * k[c] * r_meas

@@ -1,0 +1,224 @@
+"""How well the self-calibrating estimator does (issue 29's harness; tests and
+``benchmarks/bench_soc_calibration.py`` call these).
+
+* ``real_log_soc``: a real autopilot's tlog replayed as ``gcs-pdm replay`` does without
+  ``--vehicle`` (the provisional description, the diagnosis pipeline); at every pack frame the SoC
+  against the autopilot's own charge count (``BATTERY_STATUS.battery_remaining``, carried beside the
+  pack frame by an extra rule of the frame mapping, so both share the frame's message time).
+* ``simulated_pack_soc``: a preset's pack flown by the kernel with its truth off the description
+  (capacity, resistance, a partly charged start), with noise, through the estimator on the
+  description; SoC against the truth.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gcs_pdm.frames import PackFrame
+
+#: the pack frames that carry the autopilot's count are named with this prefix
+_COUNT_PREFIX = "autopilot-count:"
+
+
+@dataclass
+class PackTrack:
+    """One pack's samples: message time, SoC, σ, and the reference (the autopilot's count or the truth)."""
+
+    name: str
+    time_s: np.ndarray
+    soc: np.ndarray
+    soc_sd: np.ndarray
+    reference: np.ndarray
+
+    def summary(self, after_s: float = 60.0) -> dict:
+        t0 = self.time_s[0] if self.time_s.size else 0.0
+        late = self.time_s >= t0 + after_s
+        err = np.abs(self.soc - self.reference)[late]
+        fin = np.isfinite(err)
+        inside = np.abs(self.soc - self.reference)[late] <= 2.0 * self.soc_sd[late]
+        known = self.reference[np.isfinite(self.reference)]
+        return {"pack": self.name, "samples": int(late.sum()), "null_after_60s": int((~np.isfinite(self.soc[late])).sum()),
+                "max_abs_error": round(float(err[fin].max()), 4) if fin.any() else None,
+                "mean_abs_error": round(float(err[fin].mean()), 4) if fin.any() else None,
+                "within_2sd": round(float(inside[fin].mean()), 3) if fin.any() else None,
+                "reference_start": round(float(known[0]), 3) if known.size else None,
+                "reference_end": round(float(known[-1]), 3) if known.size else None}
+
+
+def real_log_soc(path: str | Path) -> tuple[dict, list[PackTrack]]:
+    """(what the replay derived, one track per pack) for a tlog replayed without ``--vehicle``.
+    A log from which no description is derived gives no tracks (``about["why"]`` says why)."""
+    from gcs_pdm.mavlink.mapping import FrameMapper
+    from gcs_pdm.mavlink.replay import replay_tlog
+    from gcs_pdm.vehicle.replay import pipeline_for, replay_vehicle
+    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+
+    path = Path(path)
+    if path.suffix.lower() in (".bin", ".ulg"):
+        return _autopilot_log_soc(path)
+    desc, about = replay_vehicle(path, None)
+    if desc is None:
+        return about, []
+    pipeline = pipeline_for(desc)
+    est = pipeline.estimator
+    mapping = frame_mapping(desc)
+    rule = copy.deepcopy(mapping["BATTERY_STATUS"][0])
+    rule["key"]["map"] = {k: _COUNT_PREFIX + v for k, v in rule["key"]["map"].items()}
+    rule["fields"] = {"voltage_v": {"field": "battery_remaining", "scale": 0.01, "missing": [-1]},
+                      "current_a": {"field": "current_consumed", "scale": 1.0, "missing": [-1]},
+                      "temperature_c": {"field": "temperature", "scale": 0.01, "missing": [32767]}}
+    mapping["BATTERY_STATUS"] = [*mapping["BATTERY_STATUS"], rule]
+    mapper = FrameMapper(mapping, envelope=envelope(desc))
+    count: dict[str, float] = {}
+    rows: dict[str, list] = {n: [] for n in est.pack_names}
+
+    def consume(frame) -> None:
+        if isinstance(frame, PackFrame) and frame.pack.startswith(_COUNT_PREFIX):
+            if frame.voltage_v is not None and math.isfinite(frame.voltage_v):
+                count[frame.pack[len(_COUNT_PREFIX):]] = float(frame.voltage_v)
+            return
+        pipeline.consume(frame)
+        if isinstance(frame, PackFrame) and frame.pack in rows:
+            e = est.estimate(details=False)
+            b = est.pack_names.index(frame.pack)
+            rows[frame.pack].append((frame.time_s, e.soc[b], e.soc_sd[b], count.get(frame.pack, math.nan)))
+
+    replay_tlog(path, mapper=mapper, frame_consumer=consume)
+    tracks = [PackTrack(n, *(np.array(c, dtype=float) for c in zip(*r))) for n, r in rows.items() if r]
+    return about, tracks
+
+
+def _autopilot_log_soc(path: Path) -> tuple[dict, list[PackTrack]]:
+    """``real_log_soc`` of an autopilot's own log (DataFlash, ULog): the description derived from it
+    (``vehicle.from_log``), its battery instances mapped to the description's packs by instance, and
+    the autopilot's count as 1 − consumed / the capacity parameter (the log carries no remaining %)."""
+    from gcs_pdm.logs.reader import read_log
+    from gcs_pdm.vehicle.description import VehicleError
+    from gcs_pdm.vehicle.from_log import observe_log
+    from gcs_pdm.vehicle.replay import pipeline_for
+
+    try:
+        desc, notes = observe_log(path)
+    except VehicleError as exc:
+        return {"source": "none", "why": f"no description could be derived from the log: {exc}"}, []
+    about = {"name": desc.name, "source": "provisional", "notes": notes}
+    series = read_log(path)
+    pipeline = pipeline_for(desc)
+    est = pipeline.estimator
+    frames = []
+    for spec in desc.packs:
+        b = series.batteries.get(spec.mavlink_battery_id)
+        if b is None:
+            continue
+        capacity = spec.capacity_mah
+        count = 1.0 - b.consumed_mah / capacity if capacity else np.full(b.time_s.size, np.nan)
+        frames += [(float(t), spec.name, PackFrame(float(t), spec.name, _opt(v), _opt(i), _opt(c)), float(n))
+                   for t, v, i, c, n in zip(b.time_s, b.voltage_v, b.current_a, b.temperature_c, count)]
+    frames.sort(key=lambda r: r[0])
+    rows: dict[str, list] = {n: [] for n in est.pack_names}
+    for t, name, frame, counted in frames:
+        pipeline.consume(frame)
+        e = est.estimate(details=False)
+        b = est.pack_names.index(name)
+        rows[name].append((t, e.soc[b], e.soc_sd[b], counted))
+    return about, [PackTrack(n, *(np.array(c, dtype=float) for c in zip(*r))) for n, r in rows.items() if r]
+
+
+def _opt(v) -> float | None:
+    return float(v) if v is not None and np.isfinite(v) else None
+
+
+def simulated_pack_soc(preset: str, *, capacity_scale: float, resistance_scale: float, start_soc: float,
+                       seed: int, duration_s: float = 900.0, rest_s: float = 30.0, dt: float = 1.0,
+                       c_rate: tuple[float, float] = (0.5, 2.5)) -> PackTrack:
+    """A preset's first pack, its truth off the description by ``capacity_scale`` and
+    ``resistance_scale``, resting ``rest_s`` at ``start_soc`` then flying legs of 20-120 s at
+    ``c_rate`` (of the description's capacity) until ``duration_s`` or cut-off; voltage noise 10 mV +
+    2 mV per cell, current noise 1 %; through ``StateEstimator`` on the preset. SoC against the
+    truth's (the fraction of the true capacity left)."""
+    from gcs_pdm.estimation.estimator import StateEstimator
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.pack_scaling import scale_pack_vector
+    from gcs_pdm.vehicle.model_inputs import model_inputs
+    from gcs_pdm.vehicle.presets import PRESETS
+
+    desc = PRESETS[preset]
+    spec = desc.packs[0]
+    inputs = model_inputs(desc)
+    base = inputs.pack_matrix[0]
+    truth = scale_pack_vector(base, spec.cells_series, spec.capacity_c, spec.cells_series,
+                              spec.capacity_c * capacity_scale, spec.full_cell_v)
+    truth = truth * 1.0
+    for k in (kernel.I_RS, kernel.I_RCP0, kernel.I_RCP1):
+        truth[k] *= resistance_scale
+    rng = np.random.default_rng(seed)
+    amps = spec.capacity_c / 3600.0
+    current = [0.0] * int(rest_s / dt)
+    while len(current) * dt < duration_s:
+        current += [rng.uniform(*c_rate) * amps] * int(rng.uniform(20, 120) / dt)
+    current = np.array(current[: int(duration_s / dt)])
+    n = current.size
+    x0 = kernel.initial_pack_state(truth[None], start_soc, 25.0, 0.0)
+    sim = kernel.simulate_packs(truth[None], x0, np.full(n, dt), current[None], np.full(n, 25.0))
+    v_true, soc_true = sim.voltage[0], sim.soc[0]
+    alive = np.flatnonzero(v_true < spec.cutoff_voltage)
+    end = int(alive[0]) if alive.size else n
+    est = StateEstimator(vehicle=desc)
+    sd_v = 0.01 + 0.002 * spec.cells_series
+    out = []
+    for k in range(end):
+        t = (k + 1) * dt
+        v = float(v_true[k] + rng.normal(0.0, sd_v))
+        i = float(current[k] * (1.0 + rng.normal(0.0, 0.01)))
+        est.consume(PackFrame(t, spec.name, v, i, None))
+        e = est.estimate(details=False)
+        out.append((t, e.soc[0], e.soc_sd[0], soc_true[k]))
+    return PackTrack(spec.name, *(np.array(c, dtype=float) for c in zip(*out)))
+
+
+#: PyBaMM parameter set -> the chemistry a user would name for such a cell (the prior it starts from):
+#: Chen2020 is an LG M50 (NMC811, Li-ion), Marquis2019 a Kokam LCO pouch (a LiPo)
+PYBAMM_CHEMISTRY = {"Chen2020": "liion", "Marquis2019": "lipo"}
+
+
+def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: str | None = None,
+                      cells: int = 5) -> tuple[PackTrack, dict]:
+    """A PyBaMM flight (``fixtures/pybamm``) through a ``PackCalibrator`` started from a chemistry
+    prior only: the chemistry's table, the pack's nominal capacity, nothing fitted. Truth SoC: the
+    flight's initial SoC less the charge drawn over the nominal capacity. Also the time to cut-off
+    predicted from half-way at the mean current of the last 60 s against the flight's own (flights
+    that reach cut-off)."""
+    import pyarrow.parquet as pq
+
+    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+
+    table = pq.read_table(Path(root) / flight["file"]).to_pydict()
+    t = np.asarray(table["time_s"], dtype=float)
+    i = np.asarray(table["current_a"], dtype=float)
+    v = np.asarray(table["voltage_v"], dtype=float)
+    temp = np.asarray(table["temperature_c"], dtype=float)
+    s = sets[flight["set"]]
+    capacity_c = s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0
+    chem = chemistry or PYBAMM_CHEMISTRY[flight["set"]]
+    cal = PackCalibrator(PackPrior(chem, cells, capacity_c))
+    dt = np.diff(t, prepend=t[0])
+    drawn = np.concatenate([[0.0], np.cumsum(0.5 * (i[1:] + i[:-1]) * np.diff(t))])
+    truth = flight["initial_soc"] - drawn / capacity_c
+    out = []
+    ttc = {}
+    half = t[0] + 0.5 * (t[-1] - t[0])
+    for k in range(t.size):
+        if not cal.initialised:
+            cal.initialise(t[k], v[k], i[k], temp[k])
+        else:
+            cal.step(t[k], dt[k], i[k], v[k], temp[k])
+        out.append((t[k], cal.soc, cal.soc_sd, truth[k]))
+        if flight.get("reached_cutoff") and not ttc and t[k] >= half:
+            recent = (t >= t[k] - 60.0) & (t <= t[k])
+            predicted = cal.time_to_cutoff(float(np.mean(i[recent])), cells * flight["cell_cutoff_v"], temp[k])
+            ttc = {"predicted_s": predicted, "true_s": float(t[-1] - t[k])}
+    return PackTrack(flight["flight"], *(np.array(c, dtype=float) for c in zip(*out))), ttc
