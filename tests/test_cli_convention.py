@@ -16,7 +16,8 @@ TLOG = REPO / "fixtures" / "flights" / "learn_01.tlog"
 
 #: every command (and subcommand), as typed
 COMMAND_LINES = ["replay", "plan", "experiment", "fit battery", "fit motor", "fit set", "serve", "demo", "sim",
-                 "vehicle show", "vehicle check", "vehicle init"]
+                 "vehicle show", "vehicle check", "vehicle init", "packs ingest", "packs list", "packs show",
+                 "packs assign", "signing init"]
 
 
 def test_every_command_is_listed_here():
@@ -68,15 +69,21 @@ def _text_tlog(tmp_path: Path) -> Path:
     (["sim", "--vehicle", "nosuch"], "neither a preset"),
     (["serve", "--http", "nonsense"], "expected HOST:PORT"),
     (["demo", "--vehicle", "nosuch"], "neither a preset"),
+    (["packs", "--database", "{db}", "show", "nosuch"], "no pack 'nosuch'"),
+    (["packs", "--database", "{db}", "ingest", "{empty_dir}"], "no logs found"),
+    (["signing", "init", "--key-file", str(README)], "exists"),
 ], ids=lambda v: " ".join(v[:3]) if isinstance(v, list) else None)
 def test_input_errors_are_one_prefixed_line_and_exit_2(argv, words, tmp_path, capsys):
     text_bin = tmp_path / "notes.bin"
     text_bin.write_text("not a DataFlash log")
     names = {"missing": str(tmp_path / "missing.tlog"), "out": str(tmp_path / "out"),
-             "text_tlog": str(_text_tlog(tmp_path)), "text_bin": str(text_bin)}
+             "text_tlog": str(_text_tlog(tmp_path)), "text_bin": str(text_bin),
+             "db": str(tmp_path / "packs.sqlite3"), "empty_dir": str(tmp_path / "empty")}
+    (tmp_path / "empty").mkdir()
     argv = [a.format(**names) if a.startswith("{") else a for a in argv]
     code, _, err = _run(argv, capsys)
-    command = " ".join(argv[:2]) if argv[0] in ("vehicle", "fit") else argv[0]
+    words_typed = [a for a in argv if not a.startswith("-") and a != names["db"]]
+    command = " ".join(words_typed[:2]) if argv[0] in ("vehicle", "fit", "packs", "signing") else argv[0]
     errors = [line for line in err.splitlines() if ": error: " in line]
     assert code == 2, err
     assert len(errors) == 1 and errors[0].startswith(f"gcs-pdm {command}: error: "), err

@@ -3,8 +3,9 @@ the vehicle and the ground station (gcs_pdm.mavlink.signing)."""
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
+
+from gcs_pdm.command_errors import error
 
 DEFAULT_KEY_FILE = "gcs-pdm-data/signing.key"
 
@@ -27,10 +28,8 @@ def _init(args: argparse.Namespace) -> int:
     try:
         path = write_key_file(args.key_file, passphrase, overwrite=args.force)
     except FileExistsError:
-        print(f"gcs-pdm signing init: {args.key_file} exists (the key in use?); --force replaces it", file=sys.stderr)
-        return 2
+        return error("signing init", f"{args.key_file} exists (the key in use?); --force replaces it")
     except OSError as exc:
-        print(f"gcs-pdm signing init: {args.key_file}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
+        return error("signing init", f"{args.key_file}: {exc.strerror or exc}")
     print(setup_instructions(passphrase, path.resolve(), args.target_system))
     return 0

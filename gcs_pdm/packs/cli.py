@@ -3,8 +3,9 @@ assign a pack to a slot."""
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
+
+from gcs_pdm.command_errors import error
 
 
 def register(subparsers) -> None:
@@ -72,8 +73,7 @@ def _run(args) -> int:
             try:
                 r = records.summary(args.pack, **thresholds)
             except KeyError:
-                print(f"no pack {args.pack!r} in {db}", file=sys.stderr)
-                return 1
+                return error("packs show", f"no pack {args.pack!r} in {db}")
             if args.json:
                 print(json.dumps(r, indent=1))
                 return 0
@@ -131,13 +131,11 @@ def _ingest(args, records) -> int:
     for a in args.assign:
         slot, sep, pack = a.partition("=")
         if not sep or not slot or not pack:
-            print(f"--assign {a!r}: expected SLOT=PACK", file=sys.stderr)
-            return 2
+            return error("packs ingest", f"--assign {a!r}: expected SLOT=PACK")
         assignments.append((slot, pack))
     paths = find_logs(args.logs)
     if not paths:
-        print("no logs found (tlog, .bin, .ulg)", file=sys.stderr)
-        return 1
+        return error("packs ingest", "no logs found (tlog, .bin, .ulg)")
     settings = IngestSettings(default_capacity_ah=args.capacity_ah, assignments=tuple(assignments))
     bad = []
 
