@@ -45,6 +45,11 @@ SOC_SLACK = 0.05
 #: its initial value is restarted (``StateEstimator._relock_left_sane``): one re-lock from the
 #: initial state stays under it, compounded re-locks do not
 RELOCK_CEILING = 4.0
+#: a self-calibrated pack's resistance follows its temperature, so a reading a pack's thermal mass
+#: cannot reach (faster than this slew, K/s, beyond the slack, K) is held at the last one believed: a
+#: loose thermistor flapping 30 <-> 100 °C would otherwise move the calibrator's SoC by 0.5
+CALIBRATOR_TEMP_SLEW_K_PER_S = 2.0
+CALIBRATOR_TEMP_SLACK_K = 3.0
 #: a temperature no sensor measures is the thermal model's: its rise over the air carries the
 #: model's own doubt — an unfitted description's heat capacity, cooling and resistance can each be
 #: off by half (1σ of the rise), and the air temperature is a default unless one was heard
@@ -238,6 +243,8 @@ class StateEstimator:
         self._motor_current_time = [-math.inf] * n_motors
         self._motor_rpm = [math.nan] * n_motors
         self._charge_c = [0.0] * n_packs
+        #: per pack: (time, °C) of the last temperature reading the calibrator believed
+        self._calibrator_temp = [(-math.inf, math.nan)] * n_packs
         # currents of the frames that arrived while message time stood still (a link that stamps
         # untimed messages with the last timed one): their mean is the current over the next step
         self._i_sum = [0.0] * n_packs
@@ -433,7 +440,9 @@ class StateEstimator:
                     self._ext_cov_ceiling[ext_row] = (np.diag(self.ext.cov[ext_row])
                                                       * (RELOCK_CEILING * self.ext.config.relock_inflation))
                 if cal is not None:
-                    cal.initialise(t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+                    if not cal.initialised:
+                        cal.initialise(t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+                        self._calibrator_temp[b] = (t, temp)
                     self._sync_paper(b)
                 self._pack_time[b] = t
             if t > self.time_s:
@@ -467,9 +476,9 @@ class StateEstimator:
             # the filter's state cannot be trusted (re-locks compounded, or its covariance broke): it
             # restarts from the next reading, as after a long silence
             self._filter_failed("pack", f.pack, t, broken)
+            # a self-calibrated pack's calibrator keeps its state (and its charge count): the paper
+            # filter that broke only carries the calibrator's SoC for the kernel's users
             packs.initialised[b] = False
-            if cal is not None:
-                cal.initialised = False
             if ext_row >= 0:
                 self.ext.initialised[ext_row] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
@@ -480,7 +489,7 @@ class StateEstimator:
         self._charge_c[b] += i_used * dt
         self._pack_time[b] = t
         if cal is not None:
-            cal.step(t, dt, i_used, v, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+            cal.step(t, dt, i_used, v, self._calibrator_temperature(b, t, temp))
             self._sync_paper(b)
             flipped = (not cal.voltage_trusted) != self._mismatch_active[b]
         if flipped or self._mismatch_active[b]:
@@ -488,6 +497,20 @@ class StateEstimator:
         if t > self.time_s:
             self.time_s = t
         return b
+
+    def _calibrator_temperature(self, b: int, t: float, temp: float) -> float:
+        """The pack temperature the calibrator steps with: the reading, unless it jumped further than
+        the pack can heat or cool since the last reading believed (then that one, counted); the
+        thermal model's temperature when nothing is read."""
+        if not math.isfinite(temp):
+            return float(self.packs.mean[b, kernel.S_T])
+        last_t, last = self._calibrator_temp[b]
+        if math.isfinite(last) and abs(temp - last) > (CALIBRATOR_TEMP_SLEW_K_PER_S * (t - last_t)
+                                                       + CALIBRATOR_TEMP_SLACK_K):
+            self.counters["temperature_jumps_held"] += 1
+            return last
+        self._calibrator_temp[b] = (t, temp)
+        return temp
 
     def _sync_paper(self, b: int) -> None:
         """The paper filter of a self-calibrated pack carries its SoC (mean and variance of q_b) for
@@ -729,6 +752,10 @@ class StateEstimator:
             over = np.diag(cov) > ceiling
             if not temperature_measured:
                 over[kernel.S_T] = False  # the same column in both variants (S_T == X_T)
+            if bank is self.packs and self.calib[b] is not None:
+                # a self-calibrated pack's charge state is its calibrator's, copied in (``_sync_paper``)
+                # with the calibrator's own bounded spread: not something this filter's re-locks grew
+                over[kernel.S_QB] = False
             if over.any():
                 return (f"re-locks compounded its variances past {RELOCK_CEILING:g}x one re-lock's inflation "
                         f"of their initial values (states {np.flatnonzero(over).tolist()}): a sensor flapping "
