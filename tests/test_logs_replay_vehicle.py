@@ -102,7 +102,7 @@ def test_an_unreadable_autopilot_log_exits_2(tmp_path):
     bad.write_bytes(b"not a dataflash log at all")
     status, summary, err = _replay(str(bad), "--vehicle", "plane-3s", timeout=120)
     assert status == 2 and summary is None
-    assert "not an ArduPilot DataFlash log" in err
+    assert "not a MAVLink (tlog), DataFlash (.bin) or ULog (.ulg) log" in err  # docs/cli.md
 
 
 @needs_logs

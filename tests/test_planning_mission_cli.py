@@ -84,7 +84,7 @@ def test_cli_plan_bad_file_is_a_clear_error(capsys, tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text('{"name": "x"}')
     assert main(["plan", str(bad)]) == 2
-    assert "missing field 'start'" in capsys.readouterr().out
+    assert "missing field 'start'" in capsys.readouterr().err  # docs/cli.md: errors on stderr
 
 
 def test_cli_experiment_table3_small(capsys, tmp_path):

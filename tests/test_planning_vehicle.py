@@ -77,4 +77,4 @@ def test_plan_cli_takes_a_vehicle(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["feasible"] and list(out["final_soc"]) == ["battery"]
     assert main(["plan", str(path), "--vehicle", "quad-4s", "--motor-fault", "fwd=0.3"]) == 2
-    assert "no motor 'fwd'" in capsys.readouterr().out
+    assert "no motor 'fwd'" in capsys.readouterr().err  # docs/cli.md: errors on stderr

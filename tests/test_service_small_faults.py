@@ -116,4 +116,4 @@ def test_a_read_only_data_directory_is_one_line_and_exit_2(tmp_path):
         subprocess.run(["umount", "-l", str(ro)], check=False)
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("gcs-pdm serve: database ") and "writable" in lines[0], out.stderr
+    assert len(lines) == 1 and lines[0].startswith("gcs-pdm serve: error: database ") and "writable" in lines[0], out.stderr

@@ -43,7 +43,7 @@ def test_serve_refuses_the_shipped_placeholder_in_one_line(tmp_path):
                          capture_output=True, text=True, cwd=REPO, env=env, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("gcs-pdm serve: api_token: is a known placeholder"), out.stderr
+    assert len(lines) == 1 and lines[0].startswith("gcs-pdm serve: error: api_token: is a known placeholder"), out.stderr
     assert not (tmp_path / "data").exists()  # refused before anything was opened
 
 

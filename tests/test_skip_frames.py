@@ -20,7 +20,7 @@ import gcs_pdm.mavlink.frame_columns as frame_columns  # noqa: E402
 from gcs_pdm.diagnosis.pipeline import CONSUMED_FRAME_TYPES, DiagnosisPipeline  # noqa: E402
 from gcs_pdm.estimation.estimator import ignore_frame  # noqa: E402
 from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, MotorFrame, PackFrame,  # noqa: E402
-                            PositionFrame, StatusFrame, StatusTextFrame, FRAME_KINDS)
+                            PositionFrame, WindFrame, StatusFrame, StatusTextFrame, FRAME_KINDS)
 from gcs_pdm.mavlink.mapping import FrameMapper  # noqa: E402
 from gcs_pdm.mavlink.replay import replay_tlog  # noqa: E402
 from gcs_pdm.vehicle.presets import PRESETS  # noqa: E402
@@ -42,6 +42,7 @@ EXAMPLES = {
     StatusFrame: StatusFrame(1.0, True, "AUTO", 4),
     MissionProgressFrame: MissionProgressFrame(1.0, 3, None),
     StatusTextFrame: StatusTextFrame(1.0, 6, "hello"),
+    WindFrame: WindFrame(1.0, 6.0, 270.0),
 }
 
 

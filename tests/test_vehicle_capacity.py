@@ -144,5 +144,5 @@ def test_init_takes_the_users_capacity(tmp_path, capsys):
     assert main(["vehicle", "init", "--from", str(STOCK_TLOG), "--capacity-mah", "0=2200", "--out", str(out)]) == 0
     assert load(out).packs[0].capacity_mah == 2200.0 and "as given by the user" in capsys.readouterr().err
     assert main(["vehicle", "init", "--from", str(STOCK_TLOG), "--capacity-mah", "0=lots", "--out",
-                 str(tmp_path / "w.toml")]) == 1
+                 str(tmp_path / "w.toml")]) == 2  # an input error (docs/cli.md)
     assert "expected [ID=]MAH" in capsys.readouterr().err

@@ -119,7 +119,7 @@ def upload_kind(filename: str) -> tuple[str, str]:
     kind = UPLOAD_KINDS.get(Path(name).suffix.lower())
     if not name or kind is None:
         raise UploadRefused(422, f"expected a .csv, .parquet or .tlog file, got {name!r}")
-    if not re.search(r"[A-Za-z0-9]", name[:-len(Path(name).suffix)]):  # ..csv, _.parquet, " .tlog"
+    if not any(c.isalnum() for c in name[:-len(Path(name).suffix)]):  # ..csv, _.parquet, " .tlog" (any script's letters count)
         raise UploadRefused(422, f"file name {name!r} has no letter or digit before its suffix")
     return name, kind
 
