@@ -133,11 +133,11 @@ def test_a_failing_tlog_write_stops_the_recording_not_the_telemetry(tmp_path, mo
     run_full_disk(link, clock, full, free, caplog)
 
 
-def _can_mount_tmpfs(path: Path) -> bool:
+def _can_mount_tmpfs(path: Path, size: str = "256k") -> bool:
     if os.geteuid() != 0:
         return False
     path.mkdir(parents=True, exist_ok=True)
-    ok = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(path)],
+    ok = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
                         capture_output=True).returncode == 0
     return ok
 
@@ -295,7 +295,8 @@ def test_a_database_on_a_full_tmpfs_answers_507_and_keeps_what_it_stored(tmp_pat
     from gcs_pdm.service.runtime import Service
 
     disk_dir = tmp_path / "disk"
-    if not _can_mount_tmpfs(disk_dir):
+    # room for the service's whole schema (flights, packs) before the filler takes the rest
+    if not _can_mount_tmpfs(disk_dir, size="2m"):
         pytest.skip("cannot mount a tmpfs here (needs root and CAP_SYS_ADMIN)")
     svc = None
     try:

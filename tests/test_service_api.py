@@ -89,7 +89,7 @@ def test_faults_declare_list_clear(client, service):
 
 
 def test_missions_without_a_link(client, service):
-    assert client.get("/missions/current").json() == {"items": None, "source": "none", "time_s": None}
+    assert client.get("/missions/current").json() == {"items": None, "source": "none", "time_s": None, "waypoints": None}
     assert client.get("/missions/proposed").json() == []
     item = {"seq": 0, "frame": 6, "command": 16, "current": 1, "autocontinue": 1, "param1": 0.0, "param2": 0.0,
             "param3": 0.0, "param4": None, "x": 370870000, "y": -763800000, "z": 100.0, "mission_type": 0}

@@ -23,7 +23,7 @@ def _mission(*places):
 
 
 def _service(tmp_path, items, catalogue=None) -> Service:
-    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="t" * 32))
+    svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="mission-numbers-Tk7q2"))
     svc.loop = SimpleNamespace(mission_items=items, mission_time_s=5.0,
                                executor=SimpleNamespace(catalogue=catalogue), stop=lambda: None)
     return svc
