@@ -223,7 +223,7 @@ def test_status_reports_the_simulators_wind(tmp_path, send_wind):
     port = _free_udp_port()
     svc = Service(load_config(env={}, data_dir=str(tmp_path), api_token="wind-token-0123456789abcdef",
                               policy="advise", mavlink_url=f"udpin:127.0.0.1:{port}", record_tlog=False,
-                              vehicle="edge540"))
+                              vehicle="edge540", request_streams=send_wind))  # not asked: it sends none
     svc.load_objectives_scenario(scenario)
     start_mavlink(svc)
     wind = parse_wind("8@270")

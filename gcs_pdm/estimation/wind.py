@@ -17,6 +17,9 @@ from gcs_pdm.models.wind import speed_direction, wind_from_speed_direction, wind
 
 #: an autopilot estimate older than this (message time) gives way to the triangle
 AUTOPILOT_STALE_S = 10.0
+#: averaging time constant of the autopilot's estimate, s: the planner flies legs of minutes and wants
+#: the mean wind, while a 1 Hz estimate carries the gusts
+AUTOPILOT_TAU_S = 10.0
 #: averaging time constant of the triangle estimate, s
 TRIANGLE_TAU_S = 30.0
 #: a triangle needs an airspeed and a ground velocity at most this far apart in time, and flight
@@ -62,6 +65,10 @@ class WindEstimator:
         if isinstance(frame, WindFrame):
             if frame.speed_mps is not None and frame.from_deg is not None and math.isfinite(frame.speed_mps):
                 e, n = wind_from_speed_direction(frame.speed_mps, frame.from_deg)
+                prev = self._autopilot
+                if prev is not None and 0.0 <= frame.time_s - prev.time_s <= AUTOPILOT_STALE_S:
+                    a = math.exp(-(frame.time_s - prev.time_s) / AUTOPILOT_TAU_S)
+                    e, n = a * prev.east_mps + (1 - a) * e, a * prev.north_mps + (1 - a) * n
                 self._autopilot = WindEstimate(frame.time_s, e, n, "autopilot")
         elif isinstance(frame, AirdataFrame):
             if frame.airspeed is not None and frame.heading_deg is not None:
