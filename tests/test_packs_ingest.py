@@ -121,7 +121,7 @@ def test_the_cli_ingests_lists_and_shows(logs, tmp_path, capsys):
     assert main(["packs", "--database", str(db), "show", "PK-A"]) == 0
     text = capsys.readouterr().out
     assert "pack PK-A: 3 flight(s)" in text and "retirement:" in text
-    assert main(["packs", "--database", str(db), "show", "nope"]) == 1
+    assert main(["packs", "--database", str(db), "show", "nope"]) == 2  # an input error (docs/cli.md)
 
 
 @pytest.mark.skipif(not (SHARED / "logs").is_dir(), reason="no shared logs")
