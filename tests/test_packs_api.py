@@ -59,7 +59,7 @@ def test_packs_over_http_with_trend_and_assignments(tmp_path):
         assert client.delete("/packs/assignments/battery0", headers=AUTH).status_code == 404
         assert client.get("/packs/assignments").json() == {}
         page = client.get("/console/packs.html")
-        assert page.status_code == 200 and "packs.js" in page.text
+        assert page.status_code == 200 and "packs.js" in page.text and 'id="slot-priors"' in page.text
         assert client.get("/console/packs.js").status_code == 200
         assert "/console/packs.html" in client.get("/").text
     finally:
@@ -83,6 +83,6 @@ def test_a_live_flight_leaves_a_health_point_for_the_assigned_pack(tmp_path):
         assert abs(h["capacity_ah"] / cap - 1.0) < 0.03
         assert abs(h["resistance_25c_ohm"] / r - 1.0) < 0.1
         priors = TestClient(create_app(svc)).get("/packs/priors").json()
-        assert priors[spec.name]["capacity_ah"] == h["capacity_ah"]
+        assert priors[spec.name]["capacity_ah"] == h["capacity_ah"] and priors[spec.name]["pack_id"] == "Q-1"
     finally:
         svc.close()
