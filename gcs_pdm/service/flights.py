@@ -77,7 +77,7 @@ class PackSerials:
         self.close()
         subscribe = getattr(link, "subscribe", None)  # a test's stand-in link may not relay messages
         if subscribe is not None:
-            self._link, self._sub = link, subscribe(SERIAL_MESSAGES, maxsize=100)
+            self._link, self._sub = link, subscribe(SERIAL_MESSAGES)
 
     def close(self) -> None:
         if self._sub is not None:
