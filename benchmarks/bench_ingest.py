@@ -63,13 +63,15 @@ def make_logs(out: Path, n: int, distinct: int, minutes: float) -> list[Path]:
 def run(paths, workdir: Path, name: str, **engine) -> dict:
     db_path = workdir / f"{name}.sqlite3"
     db = PackRecords(db_path)
+    load_before = os.getloadavg()[0]  # the machine may be shared: what else ran is part of the figure
     t0 = time.perf_counter()
     summary = run_ingest(paths, IngestSettings(), known=db.known_log, on_result=db.add_log_result, **engine)
     seconds = time.perf_counter() - t0
     records = sum(db.summary(p)["flights"] for p in db.pack_ids())
     db.close()
     return {"seconds": round(seconds, 2), "logs_per_min": round(len(paths) / seconds * 60.0, 1),
-            "ingested": summary["ingested"], "bad": summary["bad"], "records": records, "engine": summary["engine"]}
+            "ingested": summary["ingested"], "bad": summary["bad"], "records": records, "engine": summary["engine"],
+            "load_avg_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)]}
 
 
 def main(argv=None) -> int:

@@ -14,6 +14,7 @@ from gcs_pdm.service.config import load_config
 from gcs_pdm.service.live import LiveLoop
 from gcs_pdm.service.runtime import Service
 from gcs_pdm.service.storage import Store
+from service_stand_ins import FakeLink, NoMissions  # tests/service_stand_ins.py
 
 TOKEN = "flights-test-token-0123456789"
 
@@ -66,26 +67,6 @@ def test_split_flights_of_a_log():
 
 
 # --- the service across a restart -----------------------------------------------------------------
-
-class FakeLink:
-    def __init__(self):
-        from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-
-        self.mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=195)
-        self.sent = []
-        self.received = 0
-        self.target_system, self.target_component = 1, 1
-
-    def add_frame_listener(self, cb):
-        pass
-
-    def send(self, msg):
-        self.sent.append(msg)
-
-
-class NoMissions:
-    def download(self):
-        return []
 
 
 def make_service(tmp_path):

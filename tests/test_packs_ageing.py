@@ -39,13 +39,16 @@ def test_each_flights_capacity_is_near_the_truth(results):
     for name, r in results.items():
         errors = r["capacity_errors"]
         assert all(e == e for e in errors), f"{name}: a flight's capacity unknown"
-        # measured (docs/packs.md): O'Kane 41/44 within 3 %, worst 3.6 %, mean 1.2 %; Chen 57/64, worst
-        # 4.1 %, mean 1.7 % (a bias of +1-2 %: the C/20 truth ends before the equilibrium's cut-off)
-        assert r["capacity_within_3pct"] >= 0.85 * r["flights"], (name, errors)
-        assert r["capacity_abs_error_max"] < 0.05, (name, errors)
+        # measured (docs/notes/2026-11-27-pack-capacity.md): O'Kane 44/44 within 3 %, worst 2.9 %;
+        # Chen 60/64, worst 4.1 %, mean 1.7 % (a bias of +1-2 %: the C/20 truth ends before the
+        # equilibrium's cut-off). With the best-fitting state instead of the likelihood-weighted
+        # mean: 41/44 and 57/64
+        assert r["capacity_within_3pct"] >= 0.93 * r["flights"], (name, errors)
+        assert r["capacity_abs_error_max"] < 0.045, (name, errors)
         assert r["capacity_abs_error_mean"] < 0.02, (name, errors)
-        # the σ is a claim: 2σ covers the truth (measured 44/44 and 62/64)
-        assert r["capacity_truth_within_2sd"] >= 0.9 * r["flights"], name
+        # the σ is a claim: 2σ covers the truth (measured 44/44 and 64/64)
+        assert r["capacity_truth_within_2sd"] >= 0.97 * r["flights"], name
+    assert results["OKane2022"]["capacity_abs_error_max"] <= 0.03
 
 
 def test_the_resistance_trend_follows_the_truth(results):

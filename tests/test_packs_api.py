@@ -5,39 +5,19 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from fastapi.testclient import TestClient
 
-from gcs_pdm.frames import PackFrame, StatusFrame
-from gcs_pdm.packs.health import GENERIC_OCV
 from gcs_pdm.packs.ingest import IngestSettings, run_ingest
 from gcs_pdm.packs.synthetic import SyntheticPack, write_pack_tlog
 from gcs_pdm.service.api import create_app
 from gcs_pdm.service.config import load_config
 from gcs_pdm.service.live import LiveLoop
 from gcs_pdm.service.runtime import Service
+from service_stand_ins import FakeLink, NoMissions, fly_rested_pack  # tests/service_stand_ins.py
 
 TOKEN = "packs-api-test-token-0123456789"
 
 
-class FakeLink:
-    def __init__(self):
-        from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-
-        self.mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=195)
-        self.sent, self.received = [], 0
-        self.target_system, self.target_component = 1, 1
-
-    def add_frame_listener(self, cb):
-        pass
-
-    def send(self, msg):
-        self.sent.append(msg)
-
-
-class NoMissions:
-    def download(self):
-        return []
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 
@@ -79,7 +59,7 @@ def test_packs_over_http_with_trend_and_assignments(tmp_path):
         assert client.delete("/packs/assignments/battery0", headers=AUTH).status_code == 404
         assert client.get("/packs/assignments").json() == {}
         page = client.get("/console/packs.html")
-        assert page.status_code == 200 and "packs.js" in page.text
+        assert page.status_code == 200 and "packs.js" in page.text and 'id="slot-priors"' in page.text
         assert client.get("/console/packs.js").status_code == 200
         assert "/console/packs.html" in client.get("/").text
     finally:
@@ -96,21 +76,13 @@ def test_a_live_flight_leaves_a_health_point_for_the_assigned_pack(tmp_path):
     svc.attach_loop(loop)
     try:
         cap, r, cells = spec.capacity_mah / 1000.0 * 0.9, 0.03, spec.cells_series
-        drawn = 0.0
-        for t in np.arange(0.0, 2400.0, 1.0):
-            armed = 120 <= t < 1000
-            i = 0.0 if not armed or t < 130 or t > 990 else (25.0 if t < 190 else 12.0)
-            drawn += i / 3600.0
-            ocv = np.interp(1.0 - drawn / cap, GENERIC_OCV.soc, GENERIC_OCV.voltage_v) * cells
-            if int(t) % 1 == 0:
-                loop.process(StatusFrame(float(t), armed, "AUTO", 4))
-            loop.process(PackFrame(float(t), spec.name, float(ocv - i * r), i, 25.0))
+        fly_rested_pack(loop, spec.name, cells, cap, r, until_s=2400.0)
         pack = svc.packs.summary("Q-1")
         h = pack["history"][0]
         assert pack["flights"] == 1 and h["identity"] == "operator assignment" and h["flight_id"] == 1
         assert abs(h["capacity_ah"] / cap - 1.0) < 0.03
         assert abs(h["resistance_25c_ohm"] / r - 1.0) < 0.1
         priors = TestClient(create_app(svc)).get("/packs/priors").json()
-        assert priors[spec.name]["capacity_ah"] == h["capacity_ah"]
+        assert priors[spec.name]["capacity_ah"] == h["capacity_ah"] and priors[spec.name]["pack_id"] == "Q-1"
     finally:
         svc.close()

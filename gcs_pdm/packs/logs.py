@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs_pdm.fitting.tables import FlightDataError
+from gcs_pdm.packs.identity import serial_text
 
 LOG_KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}
 MAV_AUTOPILOT_INVALID, MAV_TYPE_GCS = 8, 6
@@ -134,8 +135,7 @@ def _read_tlog(path: Path) -> PackLog:
         inst = int(s.slot[len("battery"):])
         info = smart.get(inst)
         if info is not None:
-            serial = str(info.get("serial_number", "")).strip("\x00").strip()
-            s.serial = serial or None
+            s.serial = serial_text(info.get("serial_number"))
             cap = max(float(info.get("capacity_full_specification", -1)), 0.0) or max(float(info.get("capacity_full", -1)), 0.0)
             s.rated_capacity_ah = cap / 1000.0 if cap > 0 else None
             cells = int(info.get("cells_in_series", 0) or 0)

@@ -23,7 +23,7 @@ import numpy as np
 from gcs_pdm.frames import PackFrame
 from gcs_pdm.packs.flights import Boundary, FlightBoundaries
 from gcs_pdm.packs.health import HealthSettings, health_point
-from gcs_pdm.packs.identity import identify
+from gcs_pdm.packs.identity import SERIAL_MESSAGES, identify, serial_text
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,82 @@ class PackSamples:
         return a
 
 
+class PackSerials:
+    """The pack serial numbers the autopilot reports (SMART_BATTERY_INFO / BATTERY_INFO), per slot of
+    the vehicle description, with the message time each was heard: a flight's health point goes to
+    the pack that was in the slot during that flight (packs are swapped on the ground).
+
+    ``listen(link)`` subscribes to the messages; ``drain`` (telemetry thread) reads what came."""
+
+    def __init__(self, service):
+        self.service = service
+        self._sub = None
+        self._link = None
+        #: per slot: [(message time heard, serial)], the newest last
+        self.heard: dict[str, list[tuple[float, str]]] = {}
+        #: battery ids that named a serial but are no pack of the description (counted, once logged)
+        self.unmapped_ids: dict[int, int] = {}
+
+    def listen(self, link) -> None:
+        self.close()
+        subscribe = getattr(link, "subscribe", None)  # a test's stand-in link may not relay messages
+        if subscribe is not None:
+            self._link, self._sub = link, subscribe(SERIAL_MESSAGES)
+
+    def close(self) -> None:
+        if self._sub is not None:
+            self._sub.close()
+            self._sub = None
+
+    def drain(self, time_s: float) -> None:
+        """The serials heard since the last call, at message time ``time_s`` (the messages carry none)."""
+        while self._sub is not None:
+            msg = self._sub.get(timeout=0)
+            if msg is None:
+                return
+            target = getattr(self._link, "target_system", None)
+            if target is not None and msg.get_srcSystem() != target:
+                continue  # another vehicle's (a smart battery is a component of its vehicle's system)
+            self.add(int(getattr(msg, "id", 0)), getattr(msg, "serial_number", None), time_s)
+
+    def add(self, battery_id: int, raw_serial, time_s: float) -> None:
+        serial = serial_text(raw_serial)
+        if serial is None:
+            return
+        vehicle = self.service.vehicle
+        slot = next((p.name for p in (vehicle.packs if vehicle is not None else ())
+                     if p.mavlink_battery_id == battery_id), None)
+        if slot is None:
+            self.unmapped_ids[battery_id] = self.unmapped_ids.get(battery_id, 0) + 1
+            if self.unmapped_ids[battery_id] == 1:
+                log.warning("battery %d reports serial %s but is no pack of the vehicle description: not used",
+                            battery_id, serial)
+            return
+        seen = self.heard.setdefault(slot, [])
+        if not seen or seen[-1][1] != serial:
+            if seen:
+                log.info("slot %s: pack serial %s replaces %s at t=%.1f s", slot, serial, seen[-1][1], time_s)
+            seen.append((time_s, serial))
+
+    def at(self, slot: str, time_s: float) -> str | None:
+        """The serial heard in ``slot`` last before ``time_s`` (else the first heard after it: the
+        message may come only once the link is up); None: the autopilot has not said."""
+        seen = self.heard.get(slot)
+        if not seen:
+            return None
+        before = [s for t, s in seen if t <= time_s]
+        return before[-1] if before else seen[0][1]
+
+    def restart_clock(self) -> None:
+        """A vehicle reboot: message times start again; each slot keeps the serial heard last (the
+        pack is still in it until the autopilot says otherwise)."""
+        self.heard = {slot: [(-math.inf, seen[-1][1])] for slot, seen in self.heard.items() if seen}
+
+    def latest(self, slot: str) -> str | None:
+        seen = self.heard.get(slot)
+        return seen[-1][1] if seen else None
+
+
 def _num(x) -> float:
     return float(x) if x is not None else math.nan
 
@@ -72,6 +148,7 @@ class FlightRecorder:
                                            open_until_s=opened["last_s"] if opened else None)
         self._touched_s = -math.inf
         self.samples = PackSamples()
+        self.serials = PackSerials(service)
         #: ended flights whose health points wait for the rest after landing: (id, start, end)
         self._pending: list[tuple[int, float, float]] = []
         self._flight_start_s: float | None = opened["started_s"] if opened else None
@@ -94,6 +171,7 @@ class FlightRecorder:
         """A pack's sample (telemetry thread): kept for the flight's health point."""
         self.samples.add(frame)
         t = frame.time_s
+        self.serials.drain(t)
         if self._pending and t - self._pending[0][2] >= HEALTH_AFTER_END_S:
             self.make_health_points()
         if self.flight_id is None and not self._pending:
@@ -117,7 +195,7 @@ class FlightRecorder:
                         log.warning("flight %d: pack %s is not in the vehicle description: no rated capacity, "
                                     "no health point", fid, pack)
                     continue
-                ident = identify(pack, None, assignments)
+                ident = identify(pack, self.serials.at(pack, end), assignments)
                 if ident.warning:
                     log.warning("flight %d: %s", fid, ident.warning)
                 try:
@@ -169,6 +247,7 @@ class FlightRecorder:
             self.make_health_points()
         if b.reason.startswith("vehicle reboot"):
             self.samples = PackSamples()  # the old clock's samples are not comparable
+            self.serials.restart_clock()
         fid, closed, carried = self.service.store.begin_flight(b.time_s, b.reason)
         self._flight_start_s = b.time_s
         self.flight_id, self._touched_s = fid, b.time_s

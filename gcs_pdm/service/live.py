@@ -72,6 +72,9 @@ class LiveLoop:
         self.telemetry.on_pack = service.flights.pack_frame
         self.telemetry.on_silent = lambda silent_s: service.flights.silent(silent_s)
         service.flights.on_begin = self._flight_began
+        service.flights.serials.listen(link)
+        if self._owns_filters:
+            self._start_packs_from_history()
         # wiring (late-bound through self, so a replaced method is the one called)
         self.telemetry.on_reached = self.executor.reached
         self.telemetry.on_tick = self._tick
@@ -94,6 +97,7 @@ class LiveLoop:
             self.discovery.stop()
         self.telemetry.stop()
         self.executor.stop()
+        self.service.flights.serials.close()
 
     # --- the vehicle description and readiness ----------------------------------------------------
 
@@ -109,6 +113,7 @@ class LiveLoop:
             part.estimator, part.diagnoser = self.estimator, self.diagnoser
         self.faults.diagnoser = self.diagnoser
         self.service.adopt_vehicle(desc, "provisional", notes)
+        self._start_packs_from_history()
         self.publish_readiness()
 
     def _flight_began(self, flight_id: int, boundary, kept_fault_ids: set = frozenset()) -> None:
@@ -123,8 +128,21 @@ class LiveLoop:
             for part in (self.telemetry, self.executor):
                 part.estimator, part.diagnoser = self.estimator, self.diagnoser
             self.faults.diagnoser = self.diagnoser
+            self._start_packs_from_history()
         self._flights_begun += 1
         self.faults.new_flight(kept_fault_ids)
+
+    def _start_packs_from_history(self) -> None:
+        """The packs' filters start from each pack's latest health (docs/packs.md), published as
+        ``/status.pack_priors``; a failure leaves the description's priors (logged)."""
+        from gcs_pdm.packs.priors import start_from_history
+
+        try:
+            started = start_from_history(self.estimator, self.service.pack_priors())
+        except Exception:  # noqa: BLE001 - the description's priors are still a working start
+            log.exception("the packs' filters could not start from their history; the description's priors")
+            return
+        self.service.state.update(pack_priors=started)
 
     def readiness(self) -> dict[str, str]:
         """What the service can do now and why not ("ready" or the reason), per capability."""

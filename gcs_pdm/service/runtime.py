@@ -170,7 +170,12 @@ class Service:
 
         assigned = {k: v["pack_id"] for k, v in self.packs.assignments().items()}
         slots = [p.name for p in self.vehicle.packs] if self.vehicle is not None else sorted(assigned)
-        return {slot: estimator_priors(self.packs.points(identify(slot, None, assigned).pack_id)) for slot in slots}
+        out = {}
+        for slot in slots:
+            pack_id = identify(slot, self.flights.serials.latest(slot), assigned).pack_id
+            priors = estimator_priors(self.packs.points(pack_id))
+            out[slot] = None if priors is None else {**priors, "pack_id": pack_id}
+        return out
 
     def carry_over_fault(self, fault_id: int, note: str = "") -> int:
         """The operator carries a motor fault of an earlier flight into the present one (a damaged

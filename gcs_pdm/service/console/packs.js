@@ -123,6 +123,20 @@ async function loadAssignments() {
   }
 }
 
+async function loadPriors() {
+  const priors = await getJSON("/packs/priors");
+  const ul = $("slot-priors");
+  ul.textContent = "";
+  for (const [slot, p] of Object.entries(priors)) {
+    const li = document.createElement("li");
+    li.textContent = p === null
+      ? `${slot}: no flight of its pack has told its health: the vehicle description's values`
+      : `${slot}: pack ${p.pack_id}, capacity ${fmt(p.capacity_ah)} ± ${fmt(p.capacity_sd_ah, 2)} Ah, ` +
+        `resistance at 25 °C ${fmt(p.resistance_25c_ohm === null ? null : p.resistance_25c_ohm * 1e3)} mΩ`;
+    ul.appendChild(li);
+  }
+}
+
 $("assign-form").addEventListener("submit", async (ev) => {
   ev.preventDefault();
   let token = sessionStorage.getItem(TOKEN_KEY);
@@ -138,6 +152,7 @@ $("assign-form").addEventListener("submit", async (ev) => {
   if (r.status === 401) sessionStorage.removeItem(TOKEN_KEY);
   $("assign-message").textContent = r.ok ? `slot ${slot}: pack ${pack}` : `refused: ${r.status} ${(await r.text()).slice(0, 200)}`;
   loadAssignments();
+  loadPriors();
 });
 
 async function loadFlights() {
@@ -155,4 +170,4 @@ async function loadFlights() {
   }
 }
 
-Promise.all([loadPacks(), loadAssignments(), loadFlights()]).catch((e) => console.error(e));
+Promise.all([loadPacks(), loadAssignments(), loadPriors(), loadFlights()]).catch((e) => console.error(e));

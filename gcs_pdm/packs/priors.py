@@ -1,0 +1,72 @@
+"""The next flight's estimator starts from each pack's latest health (issue 30).
+
+A pack's latest health point (``trend.estimator_priors``: capacity and resistance at 25 °C, each
+with its σ) replaces what the vehicle description alone would give the self-calibrating filter
+(``estimation.calibration.PackPrior``): the capacity with the stored σ, the series resistance
+with the stored σ and no less than what reading a 1-s pulse as a series resistance leaves open.
+
+The health point's resistance is a 1-s pulse resistance (``packs.health``): the series resistance
+R0 plus what the polarisation pair builds in that second, R0 ρ (1 − e^(−1/τ₁)) in the filter's own
+model (``calibration``: v₁' = a v₁ + (1 − a) ρ R0 I). So R0 = R_pulse / (1 + ρ (1 − e^(−1/τ₁))),
+with the pair's share of the pulse counted as its uncertainty (the pair's ρ and τ₁ are the
+chemistry's, not this pack's).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+#: the pulse a health point's resistance is read over (s): one sample step at the autopilot's rate
+PULSE_S = 1.0
+
+
+def series_resistance_of_pulse(pulse_ohm: float, r1_ratio: float, tau1_s: float) -> tuple[float, float]:
+    """(R0, the pair's share of the pulse as a fraction): R_pulse = R0 (1 + ρ (1 − e^(−t/τ₁)))."""
+    pair = r1_ratio * (1.0 - math.exp(-PULSE_S / max(tau1_s, 1e-6)))
+    return pulse_ohm / (1.0 + pair), pair / (1.0 + pair)
+
+
+def prior_with_history(base, history: dict | None, pack_id: str | None = None):
+    """``base`` (a ``PackPrior`` from the description) with the pack's latest health; ``base``
+    itself when no flight has told (None, or neither quantity known)."""
+    if not history:
+        return base
+    changes = {}
+    cap, cap_sd = history.get("capacity_ah"), history.get("capacity_sd_ah")
+    if cap is not None and cap > 0 and cap_sd is not None and math.isfinite(cap_sd):
+        changes.update(capacity_c=float(cap) * 3600.0, capacity_rel_sd=max(float(cap_sd) / float(cap), 1e-4),
+                       capacity_source=f"pack history ({pack_id or 'this pack'})")
+    res, res_sd = history.get("resistance_25c_ohm"), history.get("resistance_sd_ohm")
+    if res is not None and res > 0 and res_sd is not None and math.isfinite(res_sd):
+        chem = base.chem
+        r0, pair_share = series_resistance_of_pulse(float(res), chem.r1_ratio, chem.tau1_s)
+        changes.update(r0_ohm=r0, r0_rel_sd=math.hypot(float(res_sd) / float(res), pair_share))
+    return replace(base, **changes) if changes else base
+
+
+def start_from_history(estimator, priors_by_slot: dict[str, dict | None]) -> dict[str, str]:
+    """Restart each self-calibrated pack's filter of ``estimator`` (a ``StateEstimator`` that has
+    not yet taken a frame of that pack) from its pack's latest health; per pack slot, what it
+    starts from. ``priors_by_slot``: ``Service.pack_priors()`` ({slot: estimator_priors + pack_id})."""
+    from gcs_pdm.estimation.calibration import PackCalibrator
+
+    calib = getattr(estimator, "calib", None)
+    names = getattr(estimator, "pack_names", ())
+    out = {}
+    for b, slot in enumerate(names):
+        cal = calib[b] if calib is not None and b < len(calib) else None
+        history = priors_by_slot.get(slot)
+        if cal is None:
+            out[slot] = "not self-calibrated (the paper aircraft's fitted set): the description's priors"
+        elif cal.initialised:
+            out[slot] = "its filter has already started: the description's priors"
+        elif not history:
+            out[slot] = "no flight of this pack has told its health: the description's priors"
+        else:
+            prior = prior_with_history(cal.prior, history, history.get("pack_id"))
+            if prior is cal.prior:
+                out[slot] = "its health has no capacity or resistance known: the description's priors"
+                continue
+            calib[b] = PackCalibrator(prior, sigma_v=cal.sigma_v)
+            out[slot] = f"pack history ({history.get('pack_id') or slot}, flight ending t={history.get('from_flight_end_s')})"
+    return out
