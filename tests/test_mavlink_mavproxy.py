@@ -34,8 +34,10 @@ from mavlink_peers import free_udp_port  # noqa: E402
 
 
 def _mavproxy() -> str | None:
-    for candidate in (shutil.which("mavproxy.py"), os.environ.get("GCS_PDM_MAVPROXY"),
-                      "/work/venv-mavproxy/bin/mavproxy.py"):
+    # beside this interpreter first: the test extra installs it into the running venv, which need
+    # not be on PATH (``/path/to/venv/bin/python -m pytest`` without activating it)
+    for candidate in (str(Path(sys.executable).parent / "mavproxy.py"), shutil.which("mavproxy.py"),
+                      os.environ.get("GCS_PDM_MAVPROXY")):
         if candidate and Path(candidate).is_file():
             return candidate
     return None
@@ -44,7 +46,7 @@ def _mavproxy() -> str | None:
 MAVPROXY = _mavproxy()
 pytestmark = [
     pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy not installed (pip install MAVProxy; test extra), "
-                       "nor found in $GCS_PDM_MAVPROXY or /work/venv-mavproxy/bin"),
+                       "nor found on PATH or in $GCS_PDM_MAVPROXY"),
     pytest.mark.slow,
 ]
 
