@@ -270,23 +270,16 @@ class PackCalibrator:
     # ---- frames --------------------------------------------------------------------------------
     def initialise(self, t: float, voltage: float, current: float, temperature_c: float) -> None:
         p = self.prior
-        ea = self.chem.r_activation_k
-        u = self._temp_u(temperature_c)
-        ft = math.exp(ea * u)
+        ft = math.exp(self.chem.r_activation_k * self._temp_u(temperature_c))
         i = current if math.isfinite(current) else 0.0
         at_rest = abs(i) < self.rest_current_a
-        r0 = self.r0p
-        # polarisation settled at the present current (a log that starts in flight)
+        # the fast pair settled at the present current (a log that starts in flight); the slow pair
+        # starts empty (its prior resistance is 0)
         v1 = self.r1p * ft * i
-        ocv_cell = (voltage + r0 * ft * i + v1 + self.r2p * ft * i) / self.cells - p.ocv_offset_v
+        ocv_cell = (voltage + self.r0p * ft * i + v1) / self.cells - p.ocv_offset_v
         soc = p.soc if p.soc is not None else self.chem.soc_at(ocv_cell)
-        v2 = self.r2p * ft * i
-        self.x = np.array([soc, v1, r0, p.ocv_offset_v, p.ocv_scale, 1.0, self.r1p, v2, self.r2p, ea])
         soc_sd = p.soc_sd if p.soc is not None else (0.05 if at_rest else 0.15)
-        self.P = np.diag([soc_sd ** 2, (0.5 * v1) ** 2 + 0.01 ** 2, (p.r0_rel_sd * r0) ** 2, p.ocv_offset_sd ** 2,
-                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2, (p.r0_rel_sd * self.r1p) ** 2,
-                          (0.5 * v2) ** 2 + 0.01 ** 2, (R2_SD * self.r1p) ** 2,
-                          (ACTIVATION_REL_SD * ea) ** 2])
+        self._to_prior(soc, soc_sd ** 2, v1, (0.5 * v1) ** 2 + 0.01 ** 2)
         self.start_kind = "history" if p.soc is not None else ("rest_voltage" if at_rest else "loaded_voltage")
         self.initialised = True
         self.time_s = t
@@ -296,7 +289,7 @@ class PackCalibrator:
         self.nis.clear()
         self._clip()
         if math.isfinite(voltage):
-            self._update(voltage, i, u, t)
+            self._update(voltage, i, self.last_u, t)
 
     def _anchor(self) -> None:
         """The charge count starts again from the filter's SoC (at rest, or a start)."""
@@ -384,6 +377,14 @@ class PackCalibrator:
         self.counters["voltage_updates"] += 1
         self.last_voltage_update_s = t
 
+    def _to_prior(self, soc: float, soc_var: float, v1: float, v1_var: float) -> None:
+        """State and covariance at ``soc`` and fast-pair voltage ``v1``, every parameter at its prior."""
+        p, ea = self.prior, self.chem.r_activation_k
+        self.x = np.array([soc, v1, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0, self.r1p, 0.0, self.r2p, ea])
+        self.P = np.diag([soc_var, v1_var, (p.r0_rel_sd * self.r0p) ** 2, p.ocv_offset_sd ** 2, p.ocv_scale_sd ** 2,
+                          p.capacity_rel_sd ** 2, (p.r0_rel_sd * self.r1p) ** 2, 0.01 ** 2, (R2_SD * self.r1p) ** 2,
+                          (ACTIVATION_REL_SD * ea) ** 2])
+
     def _clip(self) -> None:
         np.clip(self.x, self.lo, self.hi, out=self.x)
 
@@ -425,10 +426,7 @@ class PackCalibrator:
         self.counters["voltage_suspended"] += 1
         soc, var = self._count()
         p = self.prior
-        self.x = np.array([soc, 0.0, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0, self.r1p, 0.0, self.r2p, self.chem.r_activation_k])
-        self.P = np.diag([self.count_start_var, 0.01 ** 2, (p.r0_rel_sd * self.r0p) ** 2, p.ocv_offset_sd ** 2,
-                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2, (p.r0_rel_sd * self.r1p) ** 2,
-                          0.01 ** 2, (R2_SD * self.r1p) ** 2, (ACTIVATION_REL_SD * self.chem.r_activation_k) ** 2])
+        self._to_prior(soc, self.count_start_var, 0.0, 0.01 ** 2)
         frac = self.drawn_c / self.q0
         # the SoC's dependence on the capacity since the anchor: SoC = start − g·frac
         self.P[I_SOC, I_G] = self.P[I_G, I_SOC] = -frac * p.capacity_rel_sd ** 2
@@ -438,7 +436,7 @@ class PackCalibrator:
     def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0) -> float:
         """Seconds until the terminal voltage at a held ``current`` reaches ``cutoff_v``, on this
         filter's own model (its curve, resistance and capacity; the polarisation settled), from
-        its mean state: the SoC at which S·OCV_cell − (R₀ + ρR₀) f(T) I = cutoff, reached at the
+        its mean state: the SoC at which S·OCV_cell − (R₀ + R₁ + R₂) f(T) I = cutoff, reached at the
         charge count's rate. NaN at no current; 0 if already below."""
         if not self.initialised or not current > 0:
             return math.nan
