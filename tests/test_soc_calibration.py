@@ -155,14 +155,15 @@ def test_simulated_pack_started_partly_charged_is_followed(preset):
 def test_simulated_pack_with_its_capacity_30_percent_under_the_description(preset):
     # (edge540, the paper's aircraft, keeps its fitted parameter set's filter: no self-calibration)
     # truth's capacity 0.7x, resistance 0.5x, starting full. Issue 29 asks 0.05 after 120 s of flight;
-    # measured 0.068-0.072 over these 600 s (0.058 before the slow polarisation pair, which takes part
-    # of a fast-falling voltage for a growing sag until the capacity is learned; by 900 s 0.039-0.051,
-    # benchmarks/bench_soc_calibration.py): this guards what is reached, the 2σ band holds the truth
+    # measured 0.056-0.063 over these 600 s (the slow polarisation pair takes part of a fast-falling
+    # voltage for a growing sag until the capacity is learned; the 900 s flights of
+    # benchmarks/bench_soc_calibration.py, whose noise draws differ, 0.04-0.05): this guards what is
+    # reached, the 2σ band holds the truth
     track = simulated_pack_soc(preset, capacity_scale=0.7, resistance_scale=0.5, start_soc=1.0, seed=1,
                                duration_s=600.0)
     late = track.time_s >= track.time_s[0] + 150.0
     err = np.abs(track.soc - track.reference)[late]
-    assert err.max() <= 0.075
+    assert err.max() <= 0.07
     assert (err <= 2.0 * track.soc_sd[late]).mean() >= 0.9
 
 
@@ -198,7 +199,8 @@ def _heating_flight(activation_k: float, seconds: int = 1200, amps: float = 12.0
 
 
 def _calibrate(rows):
-    cal = PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600))
+    # the capacity known (σ 5 %): the SoC's error is the resistance's
+    cal = PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600, capacity_rel_sd=0.05))
     errors = []
     for t, i, v, temp, soc in rows:
         if cal.initialised:
@@ -215,13 +217,13 @@ def test_the_resistances_temperature_factor_is_learned_while_the_pack_heats(monk
     rows = _heating_flight(0.0)  # a pack whose resistance does not fall as it heats (the prior: 2500 K)
     cal, err = _calibrate(rows)
     assert cal.report()["resistance_activation_k"] < 1000.0
-    assert err[150:].max() <= 0.01
+    assert err[150:].max() <= 0.006
     # held at the chemistry's, the resistance the filter expects falls as the pack heats: the sag it
     # no longer explains is read as charge drawn
     monkeypatch.setattr(calibration, "ACTIVATION_REL_SD", 1e-6)
     fixed, fixed_err = _calibrate(rows)
     assert fixed.report()["resistance_activation_k"] == pytest.approx(2500.0)
-    assert fixed_err[150:].max() > 1.5 * err[150:].max()
+    assert fixed_err[150:].max() > 2.0 * err[150:].max()
 
 
 def test_pybamm_truth_is_a_fraction_of_the_cells_true_capacity():

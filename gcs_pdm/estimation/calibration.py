@@ -98,6 +98,8 @@ R0_WALK = 0.002
 #: the pairs' voltages' random walk, V per √s (more, 0.005-0.02 per cell, lets them take the SoC's
 #: evidence: no better on the PyBaMM flights)
 V1_WALK = 0.002
+#: the capacity prior's relative σ when nothing tighter is known (a pack's history can give one)
+CAPACITY_PRIOR_REL_SD = 0.25
 #: an innovation beyond this many σ is not applied (a spike), counted
 GATE_SIGMAS = 5.0
 
@@ -112,7 +114,9 @@ class PackPrior:
     chemistry: str
     cells: int
     capacity_c: float
-    capacity_rel_sd: float = 0.15
+    #: a label's or BATT_CAPACITY's capacity can be 30 % off an aged or mislabelled pack (issue 29's
+    #: range): at 0.15 that was a 2.9σ capacity (g = 1/0.7) the filter would not learn in time
+    capacity_rel_sd: float = CAPACITY_PRIOR_REL_SD
     r0_ohm: float | None = None
     r0_rel_sd: float = 1.0
     ocv_offset_v: float = 0.0
@@ -157,7 +161,8 @@ def described_chemistry(spec, pack_vector: np.ndarray) -> Chemistry:
                      base.r_activation_k, "the description's own pack model (its parameter set's rested curve)")
 
 
-def prior_of_spec(spec, pack_vector: np.ndarray | None = None, capacity_rel_sd: float = 0.15) -> PackPrior:
+def prior_of_spec(spec, pack_vector: np.ndarray | None = None,
+                  capacity_rel_sd: float = CAPACITY_PRIOR_REL_SD) -> PackPrior:
     """A description's pack (``vehicle.description.PackSpec``) as a prior: its chemistry, cells and
     capacity; with ``pack_vector`` (a described, not derived, pack) the curve and circuit of its own
     model, else the chemistry table's."""
