@@ -102,6 +102,20 @@ def flight_profile(rng: np.random.Generator, c_rate: float, duration_s: int, bur
     return i
 
 
+def window_capacity_ah(pv) -> float:
+    """The charge between the set's 0 % and 100 % stoichiometries (what ``set_initial_state``'s SoC
+    is a fraction of), Ah: the negative electrode's lithium over that window. Not the nominal
+    capacity: Marquis2019's window holds 0.873 Ah where its nominal is 0.681 (Chen2020 5.15 / 5.0)."""
+    import pybamm
+
+    x_0, x_100 = pybamm.lithium_ion.get_min_max_stoichiometries(pv)[:2]
+    area = pv["Electrode width [m]"] * pv["Electrode height [m]"]
+    area *= pv.get("Number of electrodes connected in parallel to make a cell", 1)
+    lithium = (pv["Negative electrode active material volume fraction"]
+               * pv["Maximum concentration in negative electrode [mol.m-3]"] * pv["Negative electrode thickness [m]"])
+    return float(abs(x_100 - x_0) * lithium * area * 96485.33212 / 3600.0)
+
+
 def simulate_cell(pybamm, set_name: str, t: np.ndarray, cell_current: np.ndarray, ambient_k: float, soc0: float):
     model = pybamm.lithium_ion.SPMe(options={"thermal": "lumped"})
     pv = pybamm.ParameterValues(set_name)
@@ -231,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
         (out / set_name).mkdir(parents=True, exist_ok=True)
         cell_ah = float(pybamm.ParameterValues(set_name)["Nominal cell capacity [A.h]"])
         parallel = PACK_CAPACITY_AH / cell_ah
-        manifest["sets"][set_name] = {"cell_capacity_ah": cell_ah, "cells_parallel": parallel}
+        manifest["sets"][set_name] = {"cell_capacity_ah": cell_ah, "cells_parallel": parallel,
+                                      "cell_window_capacity_ah": window_capacity_ah(pybamm.ParameterValues(set_name))}
         n = args.flights
         # spread the conditions over the flights, then shuffle which flight lands in which split
         ambients = np.linspace(0.0, 35.0, n)

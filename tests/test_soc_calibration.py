@@ -155,11 +155,97 @@ def test_simulated_pack_started_partly_charged_is_followed(preset):
 def test_simulated_pack_with_its_capacity_30_percent_under_the_description(preset):
     # (edge540, the paper's aircraft, keeps its fitted parameter set's filter: no self-calibration)
     # truth's capacity 0.7x, resistance 0.5x, starting full. Issue 29 asks 0.05 after 120 s of flight;
-    # measured 0.058 (the capacity learns only once 10 % is drawn: benchmarks/bench_soc_calibration.py):
-    # this guards what is reached, the 2σ band holds the truth throughout
+    # measured 0.056-0.063 over these 600 s (the slow polarisation pair takes part of a fast-falling
+    # voltage for a growing sag until the capacity is learned; the 900 s flights of
+    # benchmarks/bench_soc_calibration.py, whose noise draws differ, 0.04-0.05): this guards what is
+    # reached, the 2σ band holds the truth
     track = simulated_pack_soc(preset, capacity_scale=0.7, resistance_scale=0.5, start_soc=1.0, seed=1,
                                duration_s=600.0)
     late = track.time_s >= track.time_s[0] + 150.0
     err = np.abs(track.soc - track.reference)[late]
-    assert err.max() <= 0.065
+    assert err.max() <= 0.07
     assert (err <= 2.0 * track.soc_sd[late]).mean() >= 0.9
+
+
+@pytest.mark.parametrize("preset", ["quad-4s", "plane-3s"])
+def test_simulated_pack_with_three_times_its_resistance(preset):
+    # issue 29's resistance x3 from 80 %: the polarisation pair's time constant grows with its
+    # resistance (the pair keeps its capacitance); a filter whose pair kept the prior's time
+    # constant and ratio to R0 read the slow part of the sag as charge (0.27 off here)
+    track = simulated_pack_soc(preset, capacity_scale=1.0, resistance_scale=3.0, start_soc=0.8, seed=9,
+                               duration_s=600.0)
+    late = track.time_s >= track.time_s[0] + 150.0
+    err = np.abs(track.soc - track.reference)[late]
+    assert err.max() <= 0.05
+    assert (err <= 2.0 * track.soc_sd[late]).mean() >= 0.9
+
+
+def _heating_flight(activation_k: float, seconds: int = 1200, amps: float = 12.0, cells: int = 4, q_ah: float = 5.0):
+    """A LiPo pack on the calibrator's own circuit whose resistance follows ``activation_k`` while it
+    heats 25 -> 60 °C: (t, I, V, °C, true SoC) rows."""
+    chem = CHEMISTRIES["lipo"]
+    rng = np.random.default_rng(0)
+    r0 = cells * chem.r0_cell_ah / q_ah
+    r1, a = chem.r1_ratio * r0, math.exp(-1.0 / chem.tau1_s)
+    soc, v1, rows = 0.95, 0.0, []
+    for k in range(seconds):
+        i = 0.0 if k < 30 else amps * (1.0 + 0.3 * math.sin(k / 40.0))
+        temp = 25.0 + 35.0 * min(max(k - 30, 0) / 900.0, 1.0)
+        f = math.exp(activation_k * (1.0 / (temp + 273.15) - 1.0 / 298.15))
+        soc -= i / (q_ah * 3600.0)
+        v1 = a * v1 + (1.0 - a) * r1 * f * i
+        rows.append((k + 1.0, i, cells * chem.ocv(soc) - v1 - r0 * f * i + rng.normal(0.0, 0.01), temp, soc))
+    return rows
+
+
+def _calibrate(rows):
+    # the capacity known (σ 5 %): the SoC's error is the resistance's
+    cal = PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600, capacity_rel_sd=0.05))
+    errors = []
+    for t, i, v, temp, soc in rows:
+        if cal.initialised:
+            cal.step(t, 1.0, i, v, temp)
+        else:
+            cal.initialise(t, v, i, temp)
+        errors.append(abs(cal.soc - soc))
+    return cal, np.array(errors)
+
+
+def test_the_resistances_temperature_factor_is_learned_while_the_pack_heats(monkeypatch):
+    from gcs_pdm.estimation import calibration
+
+    rows = _heating_flight(0.0)  # a pack whose resistance does not fall as it heats (the prior: 2500 K)
+    cal, err = _calibrate(rows)
+    assert cal.report()["resistance_activation_k"] < 1000.0
+    assert err[150:].max() <= 0.006
+    # held at the chemistry's, the resistance the filter expects falls as the pack heats: the sag it
+    # no longer explains is read as charge drawn
+    monkeypatch.setattr(calibration, "ACTIVATION_REL_SD", 1e-6)
+    fixed, fixed_err = _calibrate(rows)
+    assert fixed.report()["resistance_activation_k"] == pytest.approx(2500.0)
+    assert fixed_err[150:].max() > 2.0 * err[150:].max()
+
+
+def test_pybamm_truth_is_a_fraction_of_the_cells_true_capacity():
+    # a flight that reached its cut-off ends near empty, never below it: on the nominal capacity
+    # Marquis2019's flights ended at SoC -0.17 to -0.20 (its cells hold 1.28x their nominal)
+    import json
+
+    import pyarrow.parquet as pq
+
+    from gcs_pdm.estimation.calibration_eval import pybamm_truth_soc
+
+    root = Path(__file__).parents[1] / "fixtures" / "pybamm"
+    manifest = json.loads((root / "manifest.json").read_text())
+    ends = {}
+    for flight in manifest["flights"]:
+        if flight["reached_cutoff"]:
+            table = pq.read_table(root / flight["file"], columns=["time_s", "current_a"]).to_pydict()
+            truth = pybamm_truth_soc(np.asarray(table["time_s"]), np.asarray(table["current_a"]), flight,
+                                     manifest["sets"][flight["set"]])
+            ends[flight["flight"]] = float(truth[-1])
+    sets = {n.split("_")[0] for n in ends}
+    assert sets == {"chen2020", "marquis2019"}
+    assert all(e >= -0.01 for e in ends.values()), ends  # never below empty
+    for name in sets:  # and each set's deepest flight ends near empty (a cold flight cuts off early)
+        assert min(e for n, e in ends.items() if n.startswith(name)) <= 0.10, ends

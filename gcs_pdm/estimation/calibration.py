@@ -2,16 +2,21 @@
 
 Per pack, one extended Kalman filter over the joint state
 
-    x = [SoC, v₁, R₀, ΔV, k, g]
+    x = [SoC, v₁, R₀, ΔV, k, g, R₁, v₂, R₂, E]
 
-— state of charge, the polarisation pair's voltage, the series resistance at 25 °C (pack, Ω), the
-open-circuit curve's offset (V per cell) and scale (about the curve's mid-point), and the inverse
-capacity scale g = Q_prior / Q — with the chemistry's rested curve (``models.chemistry``) as the
-open-circuit voltage:
+— state of charge; the series resistance at 25 °C (pack, Ω); two polarisation pairs, a fast one
+(voltage v₁, resistance R₁, the chemistry's τ₁ scaled by R₁ / its prior: the pair keeps its
+capacitance) and a slow one (v₂, R₂, τ₂ = ``TAU2_FACTOR`` τ₁: an SPMe cell's diffusion sag grows for
+minutes); the open-circuit curve's offset (V per cell) and scale (about the curve's mid-point); the
+inverse capacity scale g = Q_prior / Q; and the resistances' Arrhenius factor E (K) — with the
+chemistry's rested curve (``models.chemistry``) as the open-circuit voltage:
 
     OCV_cell(SoC) = ocv(SoC) + ΔV + k (ocv(SoC) − ocv(½))
-    V = S · OCV_cell(SoC) − v₁ − R₀ f(T) I,      f(T) = exp(E (1/T − 1/298.15))
-    SoC' = SoC − g I Δt / Q_prior,   v₁' = a v₁ + (1 − a) ρ R₀ f(T) I,   a = exp(−Δt/τ₁)
+    V = S · OCV_cell(SoC) − v₁ − v₂ − R₀ f(T) I,      f(T) = exp(E (1/T − 1/298.15))
+    SoC' = SoC − g I Δt / Q_prior,   vⱼ' = aⱼ vⱼ + (1 − aⱼ) Rⱼ f(T) I,   aⱼ = exp(−Δt/τⱼ)
+
+E is observable only while the pack's temperature moves (a pack at 25 °C, or one with no
+temperature, keeps its prior, the chemistry's).
 
 The parameters are random walks with small steps; their priors come from the chemistry, the
 description (cells, capacity: the autopilot's BATT_CAPACITY when the description was derived from
@@ -56,9 +61,18 @@ from numba import njit
 from gcs_pdm.models.chemistry import Chemistry, chemistry
 
 # state indices
-I_SOC, I_V1, I_R0, I_DV, I_K, I_G = range(6)
-N_STATE = 6
-STATE_NAMES = ("soc", "v1", "r0", "ocv_offset", "ocv_scale", "inv_capacity_scale")
+I_SOC, I_V1, I_R0, I_DV, I_K, I_G, I_R1, I_V2, I_R2, I_E = range(10)
+N_STATE = 10
+STATE_NAMES = ("soc", "v1", "r0", "ocv_offset", "ocv_scale", "inv_capacity_scale", "r1", "v2", "r2", "activation_k")
+#: the resistance's Arrhenius factor E starts at the chemistry's with this relative σ; it is learned
+#: where the pack's temperature moves (a PyBaMM LG M50 heating 32 -> 68 °C keeps more of its
+#: resistance than E = 3000 K says: fixed, the lost sag read as charge, SoC 0.27 low)
+ACTIVATION_REL_SD = 0.5
+#: the slow pair (diffusion in the particles: an SPMe cell's sag grows for minutes): its time
+#: constant a multiple of the fast pair's; its resistance starts at 0 with σ = the fast pair's prior
+#: (a pack that has none, as the kernel's, keeps it near 0)
+TAU2_FACTOR = 10.0
+R2_SD = 1.0
 
 #: voltage trusted only once this much of the capacity has been drawn with the voltage falling
 DRAIN_MIN_FRACTION = 0.06
@@ -78,6 +92,14 @@ REST_SETTLE_S = 10.0
 LEARN_AFTER_FRACTION = 0.1
 #: share of the loaded sag counted as model error (measurement noise) in a voltage update
 LOAD_MODEL_SIGMA = 0.5
+#: the series resistance's random walk, share of its prior per √s (more lets the SoC trade
+#: against it: 0.01 met 3 of quad-4s's 8 off-prior cases where 0.002 meets 7)
+R0_WALK = 0.002
+#: the pairs' voltages' random walk, V per √s (more, 0.005-0.02 per cell, lets them take the SoC's
+#: evidence: no better on the PyBaMM flights)
+V1_WALK = 0.002
+#: the capacity prior's relative σ when nothing tighter is known (a pack's history can give one)
+CAPACITY_PRIOR_REL_SD = 0.25
 #: an innovation beyond this many σ is not applied (a spike), counted
 GATE_SIGMAS = 5.0
 
@@ -92,7 +114,9 @@ class PackPrior:
     chemistry: str
     cells: int
     capacity_c: float
-    capacity_rel_sd: float = 0.15
+    #: a label's or BATT_CAPACITY's capacity can be 30 % off an aged or mislabelled pack (issue 29's
+    #: range): at 0.15 that was a 2.9σ capacity (g = 1/0.7) the filter would not learn in time
+    capacity_rel_sd: float = CAPACITY_PRIOR_REL_SD
     r0_ohm: float | None = None
     r0_rel_sd: float = 1.0
     ocv_offset_v: float = 0.0
@@ -137,7 +161,8 @@ def described_chemistry(spec, pack_vector: np.ndarray) -> Chemistry:
                      base.r_activation_k, "the description's own pack model (its parameter set's rested curve)")
 
 
-def prior_of_spec(spec, pack_vector: np.ndarray | None = None, capacity_rel_sd: float = 0.15) -> PackPrior:
+def prior_of_spec(spec, pack_vector: np.ndarray | None = None,
+                  capacity_rel_sd: float = CAPACITY_PRIOR_REL_SD) -> PackPrior:
     """A description's pack (``vehicle.description.PackSpec``) as a prior: its chemistry, cells and
     capacity; with ``pack_vector`` (a described, not derived, pack) the curve and circuit of its own
     model, else the chemistry table's."""
@@ -200,12 +225,14 @@ class PackCalibrator:
         self.table = self.chem.table
         self.mid = self.chem.ocv(0.5)
         self.r0p = prior.r0_prior
+        self.r1p = self.chem.r1_ratio * self.r0p
+        self.r2p = 0.0
         self.sigma_v = sigma_v if sigma_v is not None else 0.02 + 0.012 * self.cells
         self.rest_current_a = max(0.3, 0.05 * self.q0 / 3600.0)
         # bounds: what the chemistry allows
         top = self.chem.ocv(1.0)
-        self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6])
-        self.hi = np.array([1.0, 5.0, 5.0 * self.r0p, self.chem.max_rest_cell_v - top, 0.25, 1.0 / 0.5])
+        self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6, 0.2 * self.r1p, -5.0, 0.0, 0.0])
+        self.hi = np.array([1.0, 5.0, 5.0 * self.r0p, self.chem.max_rest_cell_v - top, 0.25, 1.0 / 0.5, 5.0 * self.r1p, 5.0, 5.0 * self.r1p, 3.0 * self.chem.r_activation_k])
         self.x = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
         self.initialised = False
@@ -225,6 +252,7 @@ class PackCalibrator:
         self.drain_failed = False
         self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0}
         self.last_voltage_update_s = -math.inf
+        self.last_u = 0.0
 
     # ---- model ---------------------------------------------------------------------------------
     def _ocv(self, soc: float) -> tuple[float, float]:
@@ -232,33 +260,31 @@ class PackCalibrator:
         s = min(max(soc, 0.0), 1.0)
         return float(np.interp(s, _GRID, self.table)), self.chem.slope(s)
 
-    def _temp_factor(self, temperature_c: float) -> float:
-        if not math.isfinite(temperature_c):
-            return 1.0
-        return math.exp(self.chem.r_activation_k * (1.0 / (temperature_c + 273.15) - 1.0 / 298.15))
+    def _temp_u(self, temperature_c: float) -> float:
+        """1/T − 1/298.15 of the pack's temperature (the Arrhenius factor's argument); a missing
+        reading is the last one (0 — 25 °C — before any)."""
+        if math.isfinite(temperature_c):
+            self.last_u = 1.0 / (temperature_c + 273.15) - 1.0 / 298.15
+        return self.last_u
 
-    def _voltage(self, x: np.ndarray, current: float, ft: float) -> tuple[float, np.ndarray]:
-        ocv, slope = self._ocv(x[I_SOC])
-        s = self.cells
-        v = s * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_R0] * ft * current
-        h = np.array([s * slope * (1.0 + x[I_K]), -1.0, -ft * current, s, s * (ocv - self.mid), 0.0])
-        return v, h
+    def _temp_factor(self, temperature_c: float) -> float:
+        """The learned Arrhenius factor at ``temperature_c`` (the last reading's when NaN)."""
+        u = 1.0 / (temperature_c + 273.15) - 1.0 / 298.15 if math.isfinite(temperature_c) else self.last_u
+        return math.exp(self.x[I_E] * u)
 
     # ---- frames --------------------------------------------------------------------------------
     def initialise(self, t: float, voltage: float, current: float, temperature_c: float) -> None:
         p = self.prior
-        ft = self._temp_factor(temperature_c)
+        ft = math.exp(self.chem.r_activation_k * self._temp_u(temperature_c))
         i = current if math.isfinite(current) else 0.0
         at_rest = abs(i) < self.rest_current_a
-        r0 = self.r0p
-        # polarisation settled at the present current (a log that starts in flight)
-        v1 = self.chem.r1_ratio * r0 * ft * i
-        ocv_cell = (voltage + r0 * ft * i + v1) / self.cells - p.ocv_offset_v
+        # the fast pair settled at the present current (a log that starts in flight); the slow pair
+        # starts empty (its prior resistance is 0)
+        v1 = self.r1p * ft * i
+        ocv_cell = (voltage + self.r0p * ft * i + v1) / self.cells - p.ocv_offset_v
         soc = p.soc if p.soc is not None else self.chem.soc_at(ocv_cell)
-        self.x = np.array([soc, v1, r0, p.ocv_offset_v, p.ocv_scale, 1.0])
         soc_sd = p.soc_sd if p.soc is not None else (0.05 if at_rest else 0.15)
-        self.P = np.diag([soc_sd ** 2, (0.5 * v1) ** 2 + 0.01 ** 2, (p.r0_rel_sd * r0) ** 2, p.ocv_offset_sd ** 2,
-                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2])
+        self._to_prior(soc, soc_sd ** 2, v1, (0.5 * v1) ** 2 + 0.01 ** 2)
         self.start_kind = "history" if p.soc is not None else ("rest_voltage" if at_rest else "loaded_voltage")
         self.initialised = True
         self.time_s = t
@@ -268,7 +294,7 @@ class PackCalibrator:
         self.nis.clear()
         self._clip()
         if math.isfinite(voltage):
-            self._update(voltage, i, ft, t)
+            self._update(voltage, i, self.last_u, t)
 
     def _anchor(self) -> None:
         """The charge count starts again from the filter's SoC (at rest, or a start)."""
@@ -281,9 +307,9 @@ class PackCalibrator:
     def step(self, t: float, dt: float, current: float, voltage: float, temperature_c: float) -> None:
         """Advance by ``dt`` at ``current`` (A, discharge positive), then take ``voltage`` (NaN: none)."""
         i = current if math.isfinite(current) else 0.0
-        ft = self._temp_factor(temperature_c)
+        u = self._temp_u(temperature_c)
         if dt > 0:
-            self._predict(dt, i, ft)
+            self._predict(dt, i, u)
             self.drawn_c += i * dt
             self.total_drawn_c += i * dt
         self.time_s = t
@@ -308,30 +334,34 @@ class PackCalibrator:
             self.nis.clear()
         if math.isfinite(voltage):
             if not at_rest and math.isfinite(self.left_rest_s) and t - self.left_rest_s >= DRAIN_SETTLE_S:
-                self.drain.add(i, self.drawn_c / self.q0, voltage)
+                # the polarisation the filter carries is added back: a fit of the raw voltage on
+                # [1, I, drawn] reads the pair's slow settling after each step as a flatter fall
+                # (quad-4s, C x1.2 from half: 0.27 where the curve falls 1.23, judged not falling)
+                self.drain.add(i, self.drawn_c / self.q0, voltage + float(self.x[I_V1] + self.x[I_V2]))
                 self._check_drain()
-            self._update(voltage, i, ft, t)
+            self._update(voltage, i, u, t)
         if settled:
             self._anchor()
             self.start_kind = "rest_voltage"
         elif self.voltage_trusted:
             self._referee()
 
-    def _predict(self, dt: float, i: float, ft: float) -> None:
-        _predict_core(self.x, self.P, dt, i, ft, self.q0, self.chem.tau1_s, self.chem.r1_ratio, self.r0p)
+    def _predict(self, dt: float, i: float, u: float) -> None:
+        _predict_core(self.x, self.P, dt, i, u, self.q0, self.chem.tau1_s, TAU2_FACTOR * self.chem.tau1_s, self.r0p, self.r1p,
+                      R0_WALK, V1_WALK)
         np.clip(self.x, self.lo, self.hi, out=self.x)
 
-    def _update(self, v: float, i: float, ft: float, t: float) -> None:
+    def _update(self, v: float, i: float, u: float, t: float) -> None:
         # under load the model's error grows with the current: its circuit is a first-order guess
         # of a cell's dynamics (diffusion, a second time constant); LOAD_MODEL_SIGMA of the loaded
         # sag is counted as measurement noise, so a loaded voltage cannot drag the SoC far
-        r_meas = self.sigma_v ** 2 + (LOAD_MODEL_SIGMA * (1.0 + self.chem.r1_ratio) * self.r0p * i) ** 2
+        r_meas = self.sigma_v ** 2 + (LOAD_MODEL_SIGMA * (self.r0p + self.r1p) * i) ** 2
         # the capacity and the curve's scale are not observable until a span of the curve has been
         # drawn: earlier, every model error would be read as them (measured: the capacity halved
         # within 200 s on a PyBaMM cell). Held (their gain zero; the Joseph form keeps the covariance
         # right for any gain) until LEARN_AFTER_FRACTION is drawn
         hold = self.drawn_c < LEARN_AFTER_FRACTION * self.q0
-        nis = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, ft, r_meas)
+        nis = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas)
         self.nis.append(min(nis, 25.0))
         if len(self.nis) > NIS_WINDOW:
             del self.nis[0]
@@ -347,10 +377,18 @@ class PackCalibrator:
         if nis > GATE_SIGMAS ** 2:
             self.counters["voltage_gated"] += 1
             return
-        _update_core(self.x, self.P, self.table, self.cells, self.mid, v, i, ft, r_meas, hold)
+        _update_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas, hold)
         np.clip(self.x, self.lo, self.hi, out=self.x)
         self.counters["voltage_updates"] += 1
         self.last_voltage_update_s = t
+
+    def _to_prior(self, soc: float, soc_var: float, v1: float, v1_var: float) -> None:
+        """State and covariance at ``soc`` and fast-pair voltage ``v1``, every parameter at its prior."""
+        p, ea = self.prior, self.chem.r_activation_k
+        self.x = np.array([soc, v1, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0, self.r1p, 0.0, self.r2p, ea])
+        self.P = np.diag([soc_var, v1_var, (p.r0_rel_sd * self.r0p) ** 2, p.ocv_offset_sd ** 2, p.ocv_scale_sd ** 2,
+                          p.capacity_rel_sd ** 2, (p.r0_rel_sd * self.r1p) ** 2, 0.01 ** 2, (R2_SD * self.r1p) ** 2,
+                          (ACTIVATION_REL_SD * ea) ** 2])
 
     def _clip(self) -> None:
         np.clip(self.x, self.lo, self.hi, out=self.x)
@@ -393,9 +431,7 @@ class PackCalibrator:
         self.counters["voltage_suspended"] += 1
         soc, var = self._count()
         p = self.prior
-        self.x = np.array([soc, 0.0, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0])
-        self.P = np.diag([self.count_start_var, 0.01 ** 2, (p.r0_rel_sd * self.r0p) ** 2, p.ocv_offset_sd ** 2,
-                          p.ocv_scale_sd ** 2, p.capacity_rel_sd ** 2])
+        self._to_prior(soc, self.count_start_var, 0.0, 0.01 ** 2)
         frac = self.drawn_c / self.q0
         # the SoC's dependence on the capacity since the anchor: SoC = start − g·frac
         self.P[I_SOC, I_G] = self.P[I_G, I_SOC] = -frac * p.capacity_rel_sd ** 2
@@ -405,12 +441,12 @@ class PackCalibrator:
     def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0) -> float:
         """Seconds until the terminal voltage at a held ``current`` reaches ``cutoff_v``, on this
         filter's own model (its curve, resistance and capacity; the polarisation settled), from
-        its mean state: the SoC at which S·OCV_cell − (R₀ + ρR₀) f(T) I = cutoff, reached at the
+        its mean state: the SoC at which S·OCV_cell − (R₀ + R₁ + R₂) f(T) I = cutoff, reached at the
         charge count's rate. NaN at no current; 0 if already below."""
         if not self.initialised or not current > 0:
             return math.nan
         x = self.x
-        sag = (1.0 + self.chem.r1_ratio) * x[I_R0] * self._temp_factor(temperature_c) * current
+        sag = (x[I_R0] + x[I_R1] + x[I_R2]) * self._temp_factor(temperature_c) * current
         target = (cutoff_v + sag) / self.cells
         grid = _GRID
         curve = self.table + x[I_DV] + x[I_K] * (self.table - self.mid)
@@ -459,6 +495,9 @@ class PackCalibrator:
                 "capacity_rel_sd": r(sd[I_G] / self.x[I_G], 3),
                 "capacity_source": self.prior.capacity_source,
                 "series_resistance_ohm": r(self.x[I_R0], 5), "series_resistance_sd": r(sd[I_R0], 5),
+                "polarisation_resistance_ohm": r(self.x[I_R1], 5), "polarisation_resistance_sd": r(sd[I_R1], 5),
+                "slow_polarisation_resistance_ohm": r(self.x[I_R2], 5), "slow_polarisation_resistance_sd": r(sd[I_R2], 5),
+                "resistance_activation_k": r(self.x[I_E], 0), "resistance_activation_sd": r(sd[I_E], 0),
                 "ocv_offset_v_per_cell": r(self.x[I_DV]), "ocv_offset_sd": r(sd[I_DV]),
                 "ocv_scale": r(self.x[I_K]), "ocv_scale_sd": r(sd[I_K]),
                 "counters": dict(self.counters)}
@@ -478,74 +517,100 @@ def _curve(table, soc):
 
 
 @njit(cache=True, nogil=True)
-def _predict_core(x, P, dt, i, ft, q0, tau1, rho, r0p):
-    a = math.exp(-dt / tau1)
+def _predict_core(x, P, dt, i, u, q0, tau1, tau2, r0p, r1p, r0_walk, v1_walk):
+    # the pair keeps its prior's capacitance: its time constant follows its learned resistance
+    # (tau = tau1 R1 / R1_prior), as the pack model's own concentration pair does (tau_cp = R_cp C_cp).
+    # With tau fixed, a pack of 3x the resistance sags 3x slower than the filter expects and the
+    # slow part of its sag reads as charge drawn (SoC 0.18 low, quad-4s R x3)
+    n = x.size
+    ft = math.exp(x[9] * u)
+    r1 = max(x[6], 1e-9)
+    tau = tau1 * r1 / r1p
+    a = math.exp(-dt / tau)
     f_sg = -i * dt / q0
-    f_vr = (1.0 - a) * rho * ft * i
+    # d v1'/d R1: the steady state's (1 - a) f I and the time constant's a dt / (tau R1) (v1 - R1 f I)
+    f_vr = (1.0 - a) * ft * i + a * dt / (tau * r1) * (x[1] - r1 * ft * i)
+    a2 = math.exp(-dt / tau2)
+    f_v2r = (1.0 - a2) * ft * i
+    # d/dE of the pairs' steady states: R f(T) I (1/T − 1/298.15)
+    f_v1e = (1.0 - a) * r1 * ft * i * u
+    f_v2e = (1.0 - a2) * x[8] * ft * i * u
     x[0] += x[5] * f_sg
-    x[1] = a * x[1] + (1.0 - a) * rho * x[2] * ft * i
-    # P <- F P F' with F = I except F[0,5] = f_sg, F[1,1] = a, F[1,2] = f_vr: rows then columns
-    for c in range(6):
+    x[1] = a * x[1] + (1.0 - a) * r1 * ft * i
+    x[7] = a2 * x[7] + (1.0 - a2) * x[8] * ft * i
+    # P <- F P F' with F = I except F[0,5] = f_sg, F[1,1] = a, F[1,6] = f_vr: rows then columns
+    for c in range(n):
         P[0, c] += f_sg * P[5, c]
-        P[1, c] = a * P[1, c] + f_vr * P[2, c]
-    for r in range(6):
+        P[1, c] = a * P[1, c] + f_vr * P[6, c] + f_v1e * P[9, c]
+        P[7, c] = a2 * P[7, c] + f_v2r * P[8, c] + f_v2e * P[9, c]
+    for r in range(n):
         P[r, 0] += f_sg * P[r, 5]
-        P[r, 1] = a * P[r, 1] + f_vr * P[r, 2]
+        P[r, 1] = a * P[r, 1] + f_vr * P[r, 6] + f_v1e * P[r, 9]
+        P[r, 7] = a2 * P[r, 7] + f_v2r * P[r, 8] + f_v2e * P[r, 9]
     P[0, 0] += (0.002 * abs(i) * dt / q0) ** 2 + 1e-9 * dt
-    P[1, 1] += 0.002 ** 2 * dt
-    P[2, 2] += (0.002 * r0p) ** 2 * dt
+    P[1, 1] += v1_walk ** 2 * dt
+    P[2, 2] += (r0_walk * r0p) ** 2 * dt
     P[3, 3] += 2e-5 ** 2 * dt
     P[4, 4] += 2e-5 ** 2 * dt
     P[5, 5] += 2e-5 ** 2 * dt
+    P[6, 6] += (r0_walk * r1p) ** 2 * dt
+    P[7, 7] += v1_walk ** 2 * dt
+    P[8, 8] += (r0_walk * r1p) ** 2 * dt
 
 
 @njit(cache=True, nogil=True)
-def _measurement(x, table, cells, mid, i, ft, h):
+def _measurement(x, table, cells, mid, i, u, h):
     ocv, slope = _curve(table, x[0])
+    ft = math.exp(x[9] * u)
     h[0] = cells * slope * (1.0 + x[4])
     h[1] = -1.0
     h[2] = -ft * i
     h[3] = cells
     h[4] = cells * (ocv - mid)
     h[5] = 0.0
-    return cells * (ocv + x[3] + x[4] * (ocv - mid)) - x[1] - x[2] * ft * i
+    h[6] = 0.0
+    h[7] = -1.0
+    h[8] = 0.0
+    h[9] = -x[2] * ft * i * u
+    return cells * (ocv + x[3] + x[4] * (ocv - mid)) - x[1] - x[2] * ft * i - x[7]
 
 
 @njit(cache=True, nogil=True)
-def _innovation_core(x, P, table, cells, mid, v, i, ft, r_meas):
+def _innovation_core(x, P, table, cells, mid, v, i, u, r_meas):
     """ν²/S of the voltage ``v`` against the mean state."""
-    h = np.empty(6)
-    pred = _measurement(x, table, cells, mid, i, ft, h)
+    h = np.empty(x.size)
+    pred = _measurement(x, table, cells, mid, i, u, h)
     s = r_meas
-    for r in range(6):
-        for c in range(6):
+    for r in range(x.size):
+        for c in range(x.size):
             s += h[r] * P[r, c] * h[c]
     nu = v - pred
     return nu * nu / s
 
 
 @njit(cache=True, nogil=True)
-def _update_core(x, P, table, cells, mid, v, i, ft, r_meas, hold):
+def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold):
     """The Kalman update of the voltage (Joseph form; with ``hold`` the capacity's and the curve
     scale's gains are zero)."""
-    h = np.empty(6)
-    pred = _measurement(x, table, cells, mid, i, ft, h)
+    n = x.size
+    h = np.empty(n)
+    pred = _measurement(x, table, cells, mid, i, u, h)
     ph = P @ h
     s = r_meas
-    for r in range(6):
+    for r in range(n):
         s += h[r] * ph[r]
     k = ph / s
     if hold:
         k[5] = 0.0
         k[4] = 0.0
     nu = v - pred
-    for r in range(6):
+    for r in range(n):
         x[r] += k[r] * nu
-    ikh = np.eye(6)
-    for r in range(6):
-        for c in range(6):
+    ikh = np.eye(n)
+    for r in range(n):
+        for c in range(n):
             ikh[r, c] -= k[r] * h[c]
     newp = ikh @ P @ ikh.T
-    for r in range(6):
-        for c in range(6):
+    for r in range(n):
+        for c in range(n):
             P[r, c] = newp[r, c] + k[r] * k[c] * r_meas

@@ -185,13 +185,22 @@ def simulated_pack_soc(preset: str, *, capacity_scale: float, resistance_scale: 
 PYBAMM_CHEMISTRY = {"Chen2020": "liion", "Marquis2019": "lipo"}
 
 
+def pybamm_truth_soc(t: np.ndarray, current: np.ndarray, flight: dict, pack_set: dict) -> np.ndarray:
+    """A PyBaMM flight's true SoC at each sample: its initial SoC less the charge drawn over the
+    set's true capacity — the charge between its 0 % and 100 % stoichiometries (``set_initial_state``'s
+    SoC is a fraction of it), not the nominal capacity: Marquis2019 holds 1.28x its nominal (counted on
+    the nominal, its flights went to SoC −0.19 without reaching cut-off), Chen2020 1.03x."""
+    true_capacity_c = pack_set.get("cell_window_capacity_ah", pack_set["cell_capacity_ah"]) * pack_set["cells_parallel"] * 3600.0
+    drawn = np.concatenate([[0.0], np.cumsum(0.5 * (current[1:] + current[:-1]) * np.diff(t))])
+    return flight["initial_soc"] - drawn / true_capacity_c
+
+
 def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: str | None = None,
                       cells: int = 5) -> tuple[PackTrack, dict]:
     """A PyBaMM flight (``fixtures/pybamm``) through a ``PackCalibrator`` started from a chemistry
-    prior only: the chemistry's table, the pack's nominal capacity, nothing fitted. Truth SoC: the
-    flight's initial SoC less the charge drawn over the nominal capacity. Also the time to cut-off
-    predicted from half-way at the mean current of the last 60 s against the flight's own (flights
-    that reach cut-off)."""
+    prior only: the chemistry's table, the pack's nominal capacity, nothing fitted. Truth SoC:
+    ``pybamm_truth_soc``. Also the time to cut-off predicted from half-way at the mean current of
+    the last 60 s against the flight's own (flights that reach cut-off)."""
     import pyarrow.parquet as pq
 
     from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
@@ -202,12 +211,12 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     v = np.asarray(table["voltage_v"], dtype=float)
     temp = np.asarray(table["temperature_c"], dtype=float)
     s = sets[flight["set"]]
+    # the prior: the nominal capacity, what a user reads on the pack (the truth's is not it)
     capacity_c = s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0
     chem = chemistry or PYBAMM_CHEMISTRY[flight["set"]]
     cal = PackCalibrator(PackPrior(chem, cells, capacity_c))
     dt = np.diff(t, prepend=t[0])
-    drawn = np.concatenate([[0.0], np.cumsum(0.5 * (i[1:] + i[:-1]) * np.diff(t))])
-    truth = flight["initial_soc"] - drawn / capacity_c
+    truth = pybamm_truth_soc(t, i, flight, s)
     out = []
     ttc = {}
     half = t[0] + 0.5 * (t[-1] - t[0])
