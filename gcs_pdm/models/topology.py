@@ -303,11 +303,27 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                                                 ext_decay[r, 2], ext_decay[r, 3], ext_decay[r, 4])
                 elif is_ext[b]:
                     v[r] = _ext_advance(ep[e_row[lane] + b], ky[r], kd[r], x[r], i_pack[r], amb, np.nan, h, max_dt)
-                else:
-                    v[r] = kernel._pack_advance_cached(pp, p_row[lane] + b, x, r, i_pack[r], amb, h, max_dt, v[r],
-                                                       step_cache)
-            if n_together > 0:
+                elif not h <= 0.0:  # as _pack_advance_cached: a NaN interval steps (to NaN)
+                    i = p_row[lane] + b
+                    if h != step_cache[r, kernel.C_DT]:  # _pack_advance_cached's cache, set as it sets it
+                        n_sub, h_sub = kernel._substeps(h, max_dt)
+                        step_cache[r, kernel.C_NSUB] = n_sub
+                        step_cache[r, kernel.C_H] = h_sub
+                        step_cache[r, kernel.C_DECAY_S], step_cache[r, kernel.C_DECAY_T] = kernel._fixed_decays(
+                            pp, i, h_sub, step_cache[r, kernel.C_TAU_S])
+                        step_cache[r, kernel.C_DT] = h
+                    if step_cache[r, kernel.C_NSUB] == 1:  # one step: with the other lanes below
+                        lane_p[n_together] = i
+                        lane_r[n_together] = r
+                        lane_i[n_together] = i_pack[r]
+                        lane_amb[n_together] = amb
+                        n_together += 1
+                    else:
+                        v[r] = kernel._pack_advance_cached(pp, i, x, r, i_pack[r], amb, h, max_dt, v[r], step_cache)
+            if n_together > 0 and is_ext[b]:
                 _ext_step_lanes(ep, lane_p, ky, kd, x, lane_r, n_together, lane_i, lane_amb, ext_decay, v, lane_work)
+            elif n_together > 0:
+                kernel._pack_step_lanes(pp, lane_p, x, lane_r, n_together, lane_i, lane_amb, step_cache, v, lane_work)
         # the checks and the motors' temperatures, lane by lane
         for lane in range(nl):
             if not moving[lane]:
