@@ -197,6 +197,42 @@ def _pack_advance_cached(p, i, x, r, current, ambient, dt, max_dt, v, cache):
     return _terminal_voltage(p, i, x, r)
 
 
+@njit(inline="always", **_JIT)
+def _pack_step_lanes(p, p_rows, x, rows, n_lanes, current, ambient, cache, v, work):
+    """``_pack_advance_cached`` of ``n_lanes`` packs at once, each taking one step (``dt`` > 0 and
+    one sub-step, its step cache already set for the interval): lane l is state, cache and voltage
+    row ``rows[l]`` with parameters ``p[p_rows[l]]``, terminal current ``current[l]`` and ambient
+    ``ambient[l]``. ``_pack_step``'s operations per lane in its order (the same numbers, bit for
+    bit), stage by stage over the lanes so that their exponentials overlap. ``work`` is (3, n)."""
+    i_b, e, decay_cp = work[0], work[1], work[2]
+    for l in range(n_lanes):
+        i, r = p_rows[l], rows[l]
+        i_b[l] = current[l] + v[r] / p[i, I_RP]
+        e[l] = p[i, I_RCP2] * (1.0 - _soc(p, i, x[r, S_QB] - 0.5 * i_b[l] * cache[r, C_H]))
+    for l in range(n_lanes):
+        e[l] = math.exp(e[l])
+    for l in range(n_lanes):
+        i, r = p_rows[l], rows[l]
+        e[l] = p[i, I_RCP0] + p[i, I_RCP1] * e[l]  # r_cp
+        decay_cp[l] = -cache[r, C_H] / (e[l] * p[i, I_CCP])
+    for l in range(n_lanes):
+        decay_cp[l] = math.exp(decay_cp[l])
+    for l in range(n_lanes):
+        i, r = p_rows[l], rows[l]
+        ib = i_b[l]
+        h = cache[r, C_H]
+        tau_s = cache[r, C_TAU_S]
+        r_cp = e[l]
+        tau_cp = r_cp * p[i, I_CCP]
+        x[r, S_QS] = ib * tau_s + (x[r, S_QS] - ib * tau_s) * cache[r, C_DECAY_S]
+        x[r, S_QCP] = ib * tau_cp + (x[r, S_QCP] - ib * tau_cp) * decay_cp[l]
+        x[r, S_QB] -= ib * h
+        heat = (p[i, I_RS] + r_cp) * current[l] * current[l]
+        t_inf = ambient[l] + heat / p[i, I_H]
+        x[r, S_T] = t_inf + (x[r, S_T] - t_inf) * cache[r, C_DECAY_T]
+        v[r] = _terminal_voltage(p, i, x, r)
+
+
 #: vectors a driver advances together, time loop outside (see ``_simulate_pack_block``)
 LANES = 16
 
@@ -552,12 +588,18 @@ def _ocv_knots(p, y, d):
 @njit(inline="always", **_JIT)
 def _ocv_eval(y, d, soc):
     """Open-circuit voltage (V, pack) at ``soc`` from knots; linear beyond the end knots."""
+    return _ocv_eval_at(y.reshape((1, y.shape[0])), d.reshape((1, d.shape[0])), 0, soc)
+
+
+@njit(inline="always", **_JIT)
+def _ocv_eval_at(y, d, i, soc):
+    """``_ocv_eval`` of row ``i`` of knot tables ``y`` and ``d`` (indexed, not viewed: see ``_ext_substeps_at``)."""
     xs = EXT_OCV_SOC
     last = N_OCV_KNOTS - 1
     if soc <= xs[0]:
-        return y[0] + (soc - xs[0]) * d[0]
+        return y[i, 0] + (soc - xs[0]) * d[i, 0]
     if soc >= xs[last]:
-        return y[last] + (soc - xs[last]) * d[last]
+        return y[i, last] + (soc - xs[last]) * d[i, last]
     k, hi = 0, last
     while hi - k > 1:  # bisection: the knot interval holding soc
         mid = (k + hi) // 2
@@ -569,14 +611,19 @@ def _ocv_eval(y, d, soc):
     t = (soc - xs[k]) / hk
     t2 = t * t
     t3 = t2 * t
-    return ((2.0 * t3 - 3.0 * t2 + 1.0) * y[k] + (t3 - 2.0 * t2 + t) * hk * d[k]
-            + (-2.0 * t3 + 3.0 * t2) * y[k + 1] + (t3 - t2) * hk * d[k + 1])
+    return ((2.0 * t3 - 3.0 * t2 + 1.0) * y[i, k] + (t3 - 2.0 * t2 + t) * hk * d[i, k]
+            + (-2.0 * t3 + 3.0 * t2) * y[i, k + 1] + (t3 - t2) * hk * d[i, k + 1])
 
 
 @njit(inline="always", **_JIT)
 def _low_charge(p, soc):
     """Rise of the resistances and of the exchange current's inverse as the (surface) SoC empties."""
-    return 1.0 + p[E_KSOC] * math.exp(-max(soc, 0.0) / p[E_KNEE])
+    return _low_charge_of(p[E_KSOC], p[E_KNEE], soc)
+
+
+@njit(inline="always", **_JIT)
+def _low_charge_of(k_soc, knee, soc):
+    return 1.0 + k_soc * math.exp(-max(soc, 0.0) / knee)
 
 
 @njit(inline="always", **_JIT)
@@ -587,13 +634,18 @@ def _resistance_factor(p, temperature_c, soc):
 
 @njit(inline="always", **_JIT)
 def _kinetic_rho(p, current, temperature_c, rho):
+    return _kinetic_of(p[E_ECT], p[E_BCT], p[E_ICT], current, temperature_c, rho)
+
+
+@njit(inline="always", **_JIT)
+def _kinetic_of(e_ct, b_ct, i_ct, current, temperature_c, rho):
     """Butler–Volmer overpotential b_ct (T/T_ref) asinh(I g / i_ct): the slope is the thermal voltage
     (∝ T), and the exchange current has its own activation temperature E_ct (charge transfer is
     activated differently from the electrolyte's and contacts' resistance) and falls as the surface
     empties (``rho``, the same low-charge factor as the resistances)."""
     t_k = temperature_c + 273.15
-    g = math.exp(p[E_ECT] * (1.0 / t_k - 1.0 / EXT_T_REF_K)) * rho
-    return p[E_BCT] * (t_k / EXT_T_REF_K) * math.asinh(current * g / p[E_ICT])
+    g = math.exp(e_ct * (1.0 / t_k - 1.0 / EXT_T_REF_K)) * rho
+    return b_ct * (t_k / EXT_T_REF_K) * math.asinh(current * g / i_ct)
 
 
 @njit(inline="always", **_JIT)
@@ -632,39 +684,110 @@ def _ext_decays(p, dt, max_dt):
 
 @njit(inline="always", **_JIT)
 def _ext_substeps(p, y, d, x, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_d, decay_t):
-    d_soc = current * h / p[E_CMAX]
-    s_inf = current * p[E_KD] / p[E_CMAX]
+    return _ext_substeps_at(p.reshape((1, p.shape[0])), 0, y.reshape((1, y.shape[0])), d.reshape((1, d.shape[0])), 0,
+                            x.reshape((1, x.shape[0])), 0, current, ambient, t_drive, n_sub, h, decay_1, decay_2,
+                            decay_d, decay_t)
+
+
+@njit(inline="always", **_JIT)
+def _ext_substeps_at(p, i, y, d, m, x, r, current, ambient, t_drive, n_sub, h, decay_1, decay_2, decay_d, decay_t):
+    """The extended step of state row ``x[r]`` (parameters ``p[i]``, OCV knots ``y[m]`` and ``d[m]``),
+    in place; returns the terminal voltage at its end. Tables indexed by row, not viewed: in numba
+    each row view costs two atomic reference counts, which in a driver's inner loop cost more than
+    the step's arithmetic."""
+    d_soc = current * h / p[i, E_CMAX]
+    s_inf = current * p[i, E_KD] / p[i, E_CMAX]
     v = 0.0
     for _ in range(n_sub):
-        t_res = x[X_T] if math.isnan(t_drive) else t_drive
-        s_d = s_inf + (x[X_SD] - s_inf) * decay_d
+        t_res = x[r, X_T] if math.isnan(t_drive) else t_drive
+        s_d = s_inf + (x[r, X_SD] - s_inf) * decay_d
         # the low-charge rise follows the particles' surface SoC (the exchange current falls as the
         # surface empties), so at high current it arrives early and steep, as the knee does
-        surface_mid = x[X_SOC] - 0.5 * d_soc - 0.5 * (x[X_SD] + s_d)
-        rho = _low_charge(p, surface_mid)
-        f = math.exp(p[E_ER] * (1.0 / (t_res + 273.15) - 1.0 / EXT_T_REF_K)) * rho
-        i1 = current * p[E_R1] * f
-        i2 = current * p[E_R2] * f
-        v1 = i1 + (x[X_V1] - i1) * decay_1
-        v2 = i2 + (x[X_V2] - i2) * decay_2
+        surface_mid = x[r, X_SOC] - 0.5 * d_soc - 0.5 * (x[r, X_SD] + s_d)
+        rho = _low_charge_of(p[i, E_KSOC], p[i, E_KNEE], surface_mid)
+        f = math.exp(p[i, E_ER] * (1.0 / (t_res + 273.15) - 1.0 / EXT_T_REF_K)) * rho
+        i1 = current * p[i, E_R1] * f
+        i2 = current * p[i, E_R2] * f
+        v1 = i1 + (x[r, X_V1] - i1) * decay_1
+        v2 = i2 + (x[r, X_V2] - i2) * decay_2
         # heat over the step: I (OCV(surface) - V) at the step's mean overpotential, minus the entropic
         # term. The surface-depletion drop OCV(SoC) - OCV(SoC - s_d) is not heat: its energy sits in the
         # particles' concentration gradient (the heat of mixing, released slowly as it relaxes and
         # neglected, as in the usual cell energy balance). Counting it as heat over-heated the packs
         # by kelvins in the last minutes before the cut-off, where the OCV is steep.
-        eta = current * p[E_R0] * f + _kinetic_rho(p, current, t_res, rho)
-        soc_new = x[X_SOC] - d_soc
-        ocv_surface = _ocv_eval(y, d, soc_new - s_d)
-        over = eta + 0.5 * (x[X_V1] + v1 + x[X_V2] + v2)
-        heat = current * over - current * (x[X_T] + 273.15) * p[E_DUDT]
-        t_inf = ambient + heat / p[E_H]
-        x[X_T] = t_inf + (x[X_T] - t_inf) * decay_t
-        x[X_V1] = v1
-        x[X_V2] = v2
-        x[X_SD] = s_d
-        x[X_SOC] = soc_new
+        eta = current * p[i, E_R0] * f + _kinetic_of(p[i, E_ECT], p[i, E_BCT], p[i, E_ICT], current, t_res, rho)
+        soc_new = x[r, X_SOC] - d_soc
+        ocv_surface = _ocv_eval_at(y, d, m, soc_new - s_d)
+        over = eta + 0.5 * (x[r, X_V1] + v1 + x[r, X_V2] + v2)
+        heat = current * over - current * (x[r, X_T] + 273.15) * p[i, E_DUDT]
+        t_inf = ambient + heat / p[i, E_H]
+        x[r, X_T] = t_inf + (x[r, X_T] - t_inf) * decay_t
+        x[r, X_V1] = v1
+        x[r, X_V2] = v2
+        x[r, X_SD] = s_d
+        x[r, X_SOC] = soc_new
         v = ocv_surface - eta - v1 - v2
     return v
+
+
+@njit(inline="always", **_JIT)
+def _ext_step_lanes(p, p_rows, y, d, x, rows, n_lanes, current, ambient, decay, v_out, work):
+    """One step (a single sub-step) of ``n_lanes`` extended packs at once: lane l is state row
+    ``x[rows[l]]`` with its OCV knots at the same row of ``y``/``d`` and parameters ``p[p_rows[l]]``,
+    terminal current ``current[l]``, ambient ``ambient[l]`` and ``decay[rows[l]]`` = (sub-step
+    length, R1, R2, diffusion and thermal decays); the model's own temperature drives it. Writes
+    the terminal voltages to ``v_out[rows[l]]``.
+
+    ``_ext_substeps_at``'s operations per lane, in its order (the same numbers, bit for bit), taken
+    stage by stage over the lanes: one pack's step is a chain of three exponentials, an asinh and
+    seven divisions that wait on each other; over independent lanes they overlap in the processor.
+    ``work`` is (8, n) scratch."""
+    a_rho, a_f, a_g, arg, s_d, d_soc, t_k = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    for l in range(n_lanes):
+        i, r = p_rows[l], rows[l]
+        cur = current[l]
+        h = decay[r, 0]
+        d_soc[l] = cur * h / p[i, E_CMAX]
+        s_inf = cur * p[i, E_KD] / p[i, E_CMAX]
+        s_d[l] = s_inf + (x[r, X_SD] - s_inf) * decay[r, 3]
+        surface_mid = x[r, X_SOC] - 0.5 * d_soc[l] - 0.5 * (x[r, X_SD] + s_d[l])
+        a_rho[l] = -max(surface_mid, 0.0) / p[i, E_KNEE]
+        a_f[l] = p[i, E_ER] * (1.0 / (x[r, X_T] + 273.15) - 1.0 / EXT_T_REF_K)
+        t_k[l] = x[r, X_T] + 273.15
+        a_g[l] = p[i, E_ECT] * (1.0 / t_k[l] - 1.0 / EXT_T_REF_K)
+    for l in range(n_lanes):
+        a_rho[l] = math.exp(a_rho[l])
+    for l in range(n_lanes):
+        a_f[l] = math.exp(a_f[l])
+    for l in range(n_lanes):
+        a_g[l] = math.exp(a_g[l])
+    for l in range(n_lanes):
+        i = p_rows[l]
+        rho = 1.0 + p[i, E_KSOC] * a_rho[l]
+        a_f[l] = a_f[l] * rho  # f
+        arg[l] = current[l] * (a_g[l] * rho) / p[i, E_ICT]
+    for l in range(n_lanes):
+        arg[l] = math.asinh(arg[l])
+    for l in range(n_lanes):
+        i, r = p_rows[l], rows[l]
+        cur = current[l]
+        f = a_f[l]
+        i1 = cur * p[i, E_R1] * f
+        i2 = cur * p[i, E_R2] * f
+        v1 = i1 + (x[r, X_V1] - i1) * decay[r, 1]
+        v2 = i2 + (x[r, X_V2] - i2) * decay[r, 2]
+        eta = cur * p[i, E_R0] * f + p[i, E_BCT] * (t_k[l] / EXT_T_REF_K) * arg[l]
+        soc_new = x[r, X_SOC] - d_soc[l]
+        ocv_surface = _ocv_eval_at(y, d, r, soc_new - s_d[l])
+        over = eta + 0.5 * (x[r, X_V1] + v1 + x[r, X_V2] + v2)
+        heat = cur * over - cur * (x[r, X_T] + 273.15) * p[i, E_DUDT]
+        t_inf = ambient[l] + heat / p[i, E_H]
+        x[r, X_T] = t_inf + (x[r, X_T] - t_inf) * decay[r, 4]
+        x[r, X_V1] = v1
+        x[r, X_V2] = v2
+        x[r, X_SD] = s_d[l]
+        x[r, X_SOC] = soc_new
+        v_out[r] = ocv_surface - eta - v1 - v2
 
 
 @njit(inline="always", **_JIT)
@@ -676,6 +799,9 @@ def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, volta
     y = np.empty(N_OCV_KNOTS)
     d = np.empty(N_OCV_KNOTS)
     _ocv_knots(p, y, d)
+    # the steps' one-row tables (``_ext_substeps_at`` indexes rows instead of taking views)
+    p_row, x_row = p.reshape((1, N_EXT_PARAMS)), x.reshape((1, N_EXT_STATE))
+    y_row, d_row = y.reshape((1, N_OCV_KNOTS)), d.reshape((1, N_OCV_KNOTS))
     ci = j if current.shape[0] > 1 else 0
     ai = j if ambient.shape[0] > 1 else 0
     di = j if dt.shape[0] > 1 else 0
@@ -692,8 +818,8 @@ def _simulate_one_ext(j, params, x0, dt, current, ambient, t_meas, max_dt, volta
             if dtk != last_dt:
                 n_sub, h, decay_1, decay_2, decay_d, decay_t = _ext_decays(p, dtk, max_dt)
                 last_dt = dtk
-            voltage[j, k] = _ext_substeps(p, y, d, x, current[ci, k], ambient[ai, k], t_meas[ti, k], n_sub, h,
-                                          decay_1, decay_2, decay_d, decay_t)
+            voltage[j, k] = _ext_substeps_at(p_row, 0, y_row, d_row, 0, x_row, 0, current[ci, k], ambient[ai, k],
+                                             t_meas[ti, k], n_sub, h, decay_1, decay_2, decay_d, decay_t)
         temperature[j, k] = x[X_T]
         soc[j, k] = x[X_SOC]
         if record_states:

@@ -27,9 +27,9 @@ from gcs_pdm.models import kernel
 from gcs_pdm.models.kernel import (_JIT, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAIL_NONE, FAIL_PACK_OVERTEMP,
                                    FAIL_POWER, FAIL_UNDERVOLTAGE, M_I0, M_RW, N_MOTOR_PARAMS, N_PACK_PARAMS,
                                    N_PACK_STATE, S_QB, S_T, PowertrainRun, _motor_current, _rows, _soc,
-                                   _terminal_voltage)
+                                   _terminal_voltage as _terminal_voltage_at)
 from gcs_pdm.models.kernel import (N_EXT_PARAMS, N_EXT_STATE, N_OCV_KNOTS, X_SOC, _ext_advance, _ext_decays,
-                                   _ext_substeps,  # extended block
+                                   _ext_step_lanes, _ext_substeps_at,  # extended block
                                    _ocv_knots)
 
 
@@ -66,22 +66,25 @@ PAPER_TOPOLOGY = Topology(bus_of_pack=kernel.STRING_OF_PACK.copy(), bus_of_motor
 
 
 @njit(inline="always", **_JIT)
-def _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min, n_least, inv_m,
-                    fault_drag, share, imot, ibus, h, energy):
+def _motor_currents(mp, q0, f, fr, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min, n_least, inv_m,
+                    fault_drag, share, imot, ibus, lane, h, energy):
     """The motors' shares of the demanded power and their currents from the bus voltages (the rules
-    of the powertrain); adds each motor's current to its bus. Returns (failure cause, ``energy`` plus the energy drawn over ``h``)."""
+    of the powertrain); adds each motor's current to its bus. Motor q's parameters are row
+    ``q0 + q`` of ``mp``, its fault ``f[fr, q]``, its capability ``cap[lane, q]``, its current goes to
+    ``imot[lane, q]`` and its bus's ``ibus[lane]`` (tables indexed, not viewed: see ``_simulate``).
+    Returns (failure cause, ``energy`` plus the energy drawn over ``h``)."""
     n_motors = share.shape[0]
     p_tot = p_dem
     if p_dem > 0.0:
         # Σ f_q V_q I0_q, written as (Σ f_q V_q (I0_q / I0_0)) I0_0 so that motors sharing
         # one I_0 (the paper's) round exactly as the four-pack kernel always has
         unpowered = 0.0
-        i0_ref = mp[0, M_I0]
+        i0_ref = mp[q0, M_I0]
         for q in range(n_motors):
             if i0_ref > 0.0:
-                unpowered += f[q] * vbus[bus_of_motor[q]] * (mp[q, M_I0] / i0_ref)
+                unpowered += f[fr, q] * vbus[bus_of_motor[q]] * (mp[q0 + q, M_I0] / i0_ref)
             else:
-                unpowered += f[q] * vbus[bus_of_motor[q]] * mp[q, M_I0]
+                unpowered += f[fr, q] * vbus[bus_of_motor[q]] * mp[q0 + q, M_I0]
         if i0_ref > 0.0:
             unpowered *= i0_ref
         p_tot = p_dem * (1.0 + inv_m * fault_drag * fault_sum) + unpowered
@@ -94,21 +97,25 @@ def _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum,
     else:
         shortfall = p_tot
         for q in range(n_motors):
-            share[q] = inv_m * p_tot * cap[q]
+            share[q] = inv_m * p_tot * cap[lane, q]
             shortfall -= share[q]
         for q in range(n_motors):
-            if f[q] == f_min:
+            if f[fr, q] == f_min:
                 share[q] += shortfall / n_least
     for q in range(n_motors):
         u = bus_of_motor[q]
-        i_q = _motor_current(mp, q, vbus[u], share[q], cap[q])
+        i_q = _motor_current(mp, q0 + q, vbus[u], share[q], cap[lane, q])
         if i_q < 0.0:
             cause = FAIL_POWER
-            i_q = vbus[u] / (2.0 * mp[q, M_RW])  # the peak-power current
-        imot[q] = i_q
-        ibus[u] += i_q
+            i_q = vbus[u] / (2.0 * mp[q0 + q, M_RW])  # the peak-power current
+        imot[lane, q] = i_q
+        ibus[lane, u] += i_q
         energy += vbus[u] * i_q * h
     return cause, energy
+
+
+#: samples ``_simulate`` flies together, time loop outside (as ``kernel.LANES`` for the packs' driver)
+LANES = 16
 
 
 @njit(**_JIT)
@@ -117,161 +124,265 @@ def _simulate(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_
               rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt,
               final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed,
               end_k, end_energy, peak_tp, peak_tm):
-    n_vec = x0.shape[0]
+    """Every sample in blocks of ``LANES``: ``_simulate_lanes``."""
+    n_packs = x0.shape[1]
+    n_motors = tm0.shape[1]
+    # parameter tables as rows (sample-major: sample j's pack b is row j * n_packs + b), so the steps
+    # index rows instead of taking row views (two atomic reference counts each, in the inner loop)
+    pp = pack_params.reshape((pack_params.shape[0] * n_packs, N_PACK_PARAMS))
+    ep = ext_params.reshape((ext_params.shape[0] * n_packs, N_EXT_PARAMS))
+    mp = motor_params.reshape((motor_params.shape[0] * n_motors, N_MOTOR_PARAMS))
+    for j0 in range(0, x0.shape[0], LANES):
+        _simulate_lanes(j0, pp, pack_params.shape[0] > 1, ep, ext_params.shape[0] > 1, is_ext, mp,
+                        motor_params.shape[0] > 1, x0, tm0, dt, shaft_power, fault, ambient, bus_of_pack,
+                        bus_of_motor, bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag, max_dt,
+                        stop_on_failure, slot_of_step, rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt, final_x, final_tm,
+                        min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed, end_k, end_energy,
+                        peak_tp, peak_tm)
+
+
+@njit(**_JIT)
+def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt, shaft_power, fault, ambient,
+                    bus_of_pack, bus_of_motor, bus_parallel, cutoff_v, pack_max_t, motor_max_t, fault_drag, max_dt,
+                    stop_on_failure, slot_of_step, rec_v, rec_i, rec_t, rec_soc, rec_mi, rec_mt, final_x, final_tm,
+                    min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed, end_k, end_energy, peak_tp,
+                    peak_tm):
+    """Samples j0 … j0 + LANES - 1 (those that exist) over the profile, one time step at a time.
+
+    One sample's step is a chain of dependent steps (bus voltage, motor currents, each pack's
+    exponentials); the block's samples take each step together, pack by pack over the lanes, so
+    the lanes' independent chains overlap in the processor instead of waiting on each other. Per
+    sample the operations are those of one sample flown alone, in its order (the same numbers, bit
+    for bit). A lane stops at its first failure with ``stop_on_failure``; the block ends when every
+    lane has."""
     n = shaft_power.shape[1]
     n_packs = x0.shape[1]
     n_motors = tm0.shape[1]
     n_bus = bus_parallel.shape[0]
+    nl = min(LANES, x0.shape[0] - j0)
     record = slot_of_step.shape[0] == n
     # a paper pack's state is PACK_STATE (its first four columns when the run has extended packs), an
-    # extended pack's EXT_PACK_STATE; the temperature is column 3 in both (S_T == X_T)
+    # extended pack's EXT_PACK_STATE; the temperature is column 3 in both (S_T == X_T). Lane l's pack
+    # b is row l * n_packs + b of the state, knot and step-cache tables
     width = x0.shape[2]
-    x = np.empty((n_packs, width))
-    ky = np.empty((n_packs, N_OCV_KNOTS))  # an extended pack's OCV knots and slopes
-    kd = np.empty((n_packs, N_OCV_KNOTS))
-    step_cache = np.empty((n_packs, kernel.N_STEP_CACHE))
+    x = np.empty((LANES * n_packs, width))
+    ky = np.empty((LANES * n_packs, N_OCV_KNOTS))  # an extended pack's OCV knots and slopes
+    kd = np.empty((LANES * n_packs, N_OCV_KNOTS))
+    step_cache = np.empty((LANES * n_packs, kernel.N_STEP_CACHE))
     # an extended pack's sub-steps and decays depend on the interval only: kept while it repeats
-    ext_dt = np.empty(n_packs)
-    ext_n_sub = np.empty(n_packs, dtype=np.int64)
-    ext_decay = np.empty((n_packs, 5))  # sub-step length, then the R1, R2, diffusion and thermal decays
-    tm = np.empty(n_motors)
-    motor_dt = np.empty(n_motors)
-    motor_decay = np.empty(n_motors)
-    v = np.empty(n_packs)
+    ext_dt = np.empty(LANES * n_packs)
+    ext_n_sub = np.empty(LANES * n_packs, dtype=np.int64)
+    ext_decay = np.empty((LANES * n_packs, 5))  # sub-step length, then the R1, R2, diffusion and thermal decays
+    v = np.empty(LANES * n_packs)
+    i_pack = np.empty(LANES * n_packs)
+    # one extended pack's lanes that take a single step together (``kernel._ext_step_lanes``)
+    lane_p = np.empty(LANES, dtype=np.int64)
+    lane_r = np.empty(LANES, dtype=np.int64)
+    lane_i = np.empty(LANES)
+    lane_amb = np.empty(LANES)
+    lane_work = np.empty((8, LANES))
+    tm = np.empty((LANES, n_motors))
+    motor_dt = np.empty((LANES, n_motors))
+    motor_decay = np.empty((LANES, n_motors))
     vbus = np.empty(n_bus)
-    ibus = np.empty(n_bus)
+    ibus = np.empty((LANES, n_bus))
     packs_on_bus = np.zeros(n_bus)
     for b in range(n_packs):
         packs_on_bus[bus_of_pack[b]] += 1.0
-    imot = np.empty(n_motors)
+    imot = np.empty((LANES, n_motors))
     share = np.empty(n_motors)
-    cap = np.empty(n_motors)
+    cap = np.empty((LANES, n_motors))
+    f_min = np.empty(LANES)
+    n_least = np.empty(LANES)
+    cap_total = np.empty(LANES)
+    fault_sum = np.empty(LANES)
+    cause = np.empty(LANES, dtype=np.int64)
+    t = np.zeros(LANES)
+    moving = np.zeros(LANES, dtype=np.bool_)  # still flying (or, without stop_on_failure, not at the end)
+    # per lane: its rows' offsets in the parameter tables
+    p_row = np.empty(LANES, dtype=np.int64)
+    e_row = np.empty(LANES, dtype=np.int64)
+    m_row = np.empty(LANES, dtype=np.int64)
     inv_m = 1.0 / n_motors
-    for j in range(n_vec):
-        pp = pack_params[j if pack_params.shape[0] > 1 else 0]
-        ep = ext_params[j if ext_params.shape[0] > 1 else 0]
-        mp = motor_params[j if motor_params.shape[0] > 1 else 0]
+    for lane in range(nl):
+        j = j0 + lane
+        p_row[lane] = (j if pp_own else 0) * n_packs
+        e_row[lane] = (j if ep_own else 0) * n_packs
+        m_row[lane] = (j if mp_own else 0) * n_motors
         f = fault[j if fault.shape[0] > 1 else 0]
-        di = j if dt.shape[0] > 1 else 0
-        si = j if shaft_power.shape[0] > 1 else 0
-        ai = j if ambient.shape[0] > 1 else 0
         for b in range(n_packs):
+            r = lane * n_packs + b
             for s in range(width):
-                x[b, s] = x0[j, b, s]
+                x[r, s] = x0[j, b, s]
             if is_ext[b]:
-                _ocv_knots(ep[b], ky[b], kd[b])
-                v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], 0.0, 0.0, np.nan, 0.0, max_dt)
-                ext_dt[b] = -1.0  # no interval seen yet
+                _ocv_knots(ep[e_row[lane] + b], ky[r], kd[r])
+                v[r] = _ext_advance(ep[e_row[lane] + b], ky[r], kd[r], x[r], 0.0, 0.0, np.nan, 0.0, max_dt)
+                ext_dt[r] = -1.0  # no interval seen yet
             else:
-                v[b] = _terminal_voltage(pp, b, x, b)
-                kernel._reset_step_cache(pp, b, step_cache, b)
-            min_v[j, b] = v[b]
-            max_tp[j, b] = x[b, S_T]
+                v[r] = _terminal_voltage_at(pp, p_row[lane] + b, x, r)
+                kernel._reset_step_cache(pp, p_row[lane] + b, step_cache, r)
+            min_v[j, b] = v[r]
+            max_tp[j, b] = x[r, S_T]
             charge[j, b] = 0.0
             end_k[j, b] = -1
             end_energy[j, b] = 0.0
             peak_tp[j, b] = -np.inf
-        f_min = 1.0
-        cap_total = 0.0
-        fault_sum = 0.0
+        f_min[lane] = 1.0
+        cap_total[lane] = 0.0
+        fault_sum[lane] = 0.0
         for q in range(n_motors):
-            tm[q] = tm0[j, q]
-            motor_dt[q] = -1.0  # no interval seen yet
-            max_tm[j, q] = tm[q]
+            tm[lane, q] = tm0[j, q]
+            motor_dt[lane, q] = -1.0  # no interval seen yet
+            max_tm[j, q] = tm[lane, q]
             peak_tm[j, q] = -np.inf
-            cap[q] = 1.0 - f[q]
-            cap_total += cap[q]
-            fault_sum += f[q]
-            if f[q] < f_min:
-                f_min = f[q]
-        n_least = 0.0
+            cap[lane, q] = 1.0 - f[q]
+            cap_total[lane] += cap[lane, q]
+            fault_sum[lane] += f[q]
+            if f[q] < f_min[lane]:
+                f_min[lane] = f[q]
+        n_least[lane] = 0.0
         for q in range(n_motors):
-            if f[q] == f_min:
-                n_least += 1.0
+            if f[q] == f_min[lane]:
+                n_least[lane] += 1.0
         energy[j] = 0.0
         fail_k[j] = -1
         fail_cause[j] = FAIL_NONE
-        t = 0.0
-        for k in range(n):
-            h = dt[di, k]
-            p_dem = shaft_power[si, k]
-            # a sample up to and including the first failure still counts for the peaks
-            flying = fail_k[j] < 0
-            slot = slot_of_step[k] if record else -1
+        moving[lane] = True
+    n_moving = nl
+    k = 0
+    while k < n and n_moving > 0:
+        # the buses and motors, lane by lane
+        for lane in range(nl):
+            if not moving[lane]:
+                continue
+            j = j0 + lane
+            h = dt[j if dt.shape[0] > 1 else 0, k]
+            p_dem = shaft_power[j if shaft_power.shape[0] > 1 else 0, k]
             for u in range(n_bus):
                 vbus[u] = 0.0
-                ibus[u] = 0.0
+                ibus[lane, u] = 0.0
             for b in range(n_packs):
-                vbus[bus_of_pack[b]] += v[b]
+                vbus[bus_of_pack[b]] += v[lane * n_packs + b]
             for u in range(n_bus):
                 if bus_parallel[u]:
                     vbus[u] = vbus[u] / packs_on_bus[u]
-            cause, energy[j] = _motor_currents(mp, f, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min,
-                                               n_least, inv_m, fault_drag, share, imot, ibus, h, energy[j])
+            cause[lane], energy[j] = _motor_currents(
+                mp, m_row[lane], fault, j if fault.shape[0] > 1 else 0, vbus, bus_of_motor, p_dem, cap,
+                cap_total[lane], fault_sum[lane], f_min[lane], n_least[lane], inv_m, fault_drag, share, imot, ibus,
+                lane, h, energy[j])
             for b in range(n_packs):
                 u = bus_of_pack[b]
-                i_b = ibus[u] / packs_on_bus[u] if bus_parallel[u] else ibus[u]
+                i_pack[lane * n_packs + b] = ibus[lane, u] / packs_on_bus[u] if bus_parallel[u] else ibus[lane, u]
+        # the packs, each over the lanes: the lanes' chains are independent
+        for b in range(n_packs):
+            n_together = 0
+            for lane in range(nl):
+                if not moving[lane]:
+                    continue
+                j = j0 + lane
+                r = lane * n_packs + b
+                h = dt[j if dt.shape[0] > 1 else 0, k]
+                amb = ambient[j if ambient.shape[0] > 1 else 0, k]
                 if is_ext[b] and h > 0.0:
                     # _ext_advance's two halves, its decays computed once per interval
-                    if h != ext_dt[b]:
-                        n_sub, h_sub, d1, d2, dd, dtt = _ext_decays(ep[b], h, max_dt)
-                        ext_n_sub[b] = n_sub
-                        ext_decay[b, 0], ext_decay[b, 1], ext_decay[b, 2] = h_sub, d1, d2
-                        ext_decay[b, 3], ext_decay[b, 4] = dd, dtt
-                        ext_dt[b] = h
-                    v[b] = _ext_substeps(ep[b], ky[b], kd[b], x[b], i_b, ambient[ai, k], np.nan, ext_n_sub[b],
-                                         ext_decay[b, 0], ext_decay[b, 1], ext_decay[b, 2], ext_decay[b, 3],
-                                         ext_decay[b, 4])
-                    soc_b = x[b, X_SOC]
+                    if h != ext_dt[r]:
+                        n_sub, h_sub, d1, d2, dd, dtt = _ext_decays(ep[e_row[lane] + b], h, max_dt)
+                        ext_n_sub[r] = n_sub
+                        ext_decay[r, 0], ext_decay[r, 1], ext_decay[r, 2] = h_sub, d1, d2
+                        ext_decay[r, 3], ext_decay[r, 4] = dd, dtt
+                        ext_dt[r] = h
+                    if ext_n_sub[r] == 1:  # one step: with the other lanes below
+                        lane_p[n_together] = e_row[lane] + b
+                        lane_r[n_together] = r
+                        lane_i[n_together] = i_pack[r]
+                        lane_amb[n_together] = amb
+                        n_together += 1
+                    else:
+                        v[r] = _ext_substeps_at(ep, e_row[lane] + b, ky, kd, r, x, r, i_pack[r], amb,
+                                                np.nan, ext_n_sub[r], ext_decay[r, 0], ext_decay[r, 1],
+                                                ext_decay[r, 2], ext_decay[r, 3], ext_decay[r, 4])
                 elif is_ext[b]:
-                    v[b] = _ext_advance(ep[b], ky[b], kd[b], x[b], i_b, ambient[ai, k], np.nan, h, max_dt)
-                    soc_b = x[b, X_SOC]
-                else:
-                    v[b] = kernel._pack_advance_cached(pp, b, x, b, i_b, ambient[ai, k], h, max_dt, v[b], step_cache)
-                    soc_b = _soc(pp, b, x[b, S_QB])
+                    v[r] = _ext_advance(ep[e_row[lane] + b], ky[r], kd[r], x[r], i_pack[r], amb, np.nan, h, max_dt)
+                elif not h <= 0.0:  # as _pack_advance_cached: a NaN interval steps (to NaN)
+                    i = p_row[lane] + b
+                    if h != step_cache[r, kernel.C_DT]:  # _pack_advance_cached's cache, set as it sets it
+                        n_sub, h_sub = kernel._substeps(h, max_dt)
+                        step_cache[r, kernel.C_NSUB] = n_sub
+                        step_cache[r, kernel.C_H] = h_sub
+                        step_cache[r, kernel.C_DECAY_S], step_cache[r, kernel.C_DECAY_T] = kernel._fixed_decays(
+                            pp, i, h_sub, step_cache[r, kernel.C_TAU_S])
+                        step_cache[r, kernel.C_DT] = h
+                    if step_cache[r, kernel.C_NSUB] == 1:  # one step: with the other lanes below
+                        lane_p[n_together] = i
+                        lane_r[n_together] = r
+                        lane_i[n_together] = i_pack[r]
+                        lane_amb[n_together] = amb
+                        n_together += 1
+                    else:
+                        v[r] = kernel._pack_advance_cached(pp, i, x, r, i_pack[r], amb, h, max_dt, v[r], step_cache)
+            if n_together > 0 and is_ext[b]:
+                _ext_step_lanes(ep, lane_p, ky, kd, x, lane_r, n_together, lane_i, lane_amb, ext_decay, v, lane_work)
+            elif n_together > 0:
+                kernel._pack_step_lanes(pp, lane_p, x, lane_r, n_together, lane_i, lane_amb, step_cache, v, lane_work)
+        # the checks and the motors' temperatures, lane by lane
+        for lane in range(nl):
+            if not moving[lane]:
+                continue
+            j = j0 + lane
+            h = dt[j if dt.shape[0] > 1 else 0, k]
+            amb = ambient[j if ambient.shape[0] > 1 else 0, k]
+            # a sample up to and including the first failure still counts for the peaks
+            flying = fail_k[j] < 0
+            slot = slot_of_step[k] if record else -1
+            c = cause[lane]
+            for b in range(n_packs):
+                r = lane * n_packs + b
+                i_b = i_pack[r]
+                soc_b = x[r, X_SOC] if is_ext[b] else _soc(pp, p_row[lane] + b, x[r, S_QB])
                 charge[j, b] += i_b * h
-                if v[b] < min_v[j, b]:
-                    min_v[j, b] = v[b]
-                if x[b, S_T] > max_tp[j, b]:
-                    max_tp[j, b] = x[b, S_T]
+                if v[r] < min_v[j, b]:
+                    min_v[j, b] = v[r]
+                if x[r, S_T] > max_tp[j, b]:
+                    max_tp[j, b] = x[r, S_T]
                 if end_k[j, b] < 0:
-                    w = v[b] * i_b
+                    w = v[r] * i_b
                     end_energy[j, b] += (w if math.isfinite(w) else 0.0) * h
-                    if v[b] < cutoff_v[b] or soc_b <= 0.0:
+                    if v[r] < cutoff_v[b] or soc_b <= 0.0:
                         end_k[j, b] = k
-                if flying and x[b, S_T] > peak_tp[j, b]:
-                    peak_tp[j, b] = x[b, S_T]
-                if cause == FAIL_NONE:
+                if flying and x[r, S_T] > peak_tp[j, b]:
+                    peak_tp[j, b] = x[r, S_T]
+                if c == FAIL_NONE:
                     if soc_b <= 0.0:
-                        cause = FAIL_DEPLETED
-                    elif v[b] < cutoff_v[b]:
-                        cause = FAIL_UNDERVOLTAGE
-                    elif x[b, S_T] > pack_max_t[b]:
-                        cause = FAIL_PACK_OVERTEMP
+                        c = FAIL_DEPLETED
+                    elif v[r] < cutoff_v[b]:
+                        c = FAIL_UNDERVOLTAGE
+                    elif x[r, S_T] > pack_max_t[b]:
+                        c = FAIL_PACK_OVERTEMP
                 if slot >= 0:
-                    rec_v[j, slot, b] = v[b]
+                    rec_v[j, slot, b] = v[r]
                     rec_i[j, slot, b] = i_b
-                    rec_t[j, slot, b] = x[b, S_T]
+                    rec_t[j, slot, b] = x[r, S_T]
                     rec_soc[j, slot, b] = soc_b
             for q in range(n_motors):
                 if not h <= 0.0:
-                    if h != motor_dt[q]:
-                        motor_decay[q] = kernel._motor_decay(mp, q, h)
-                        motor_dt[q] = h
-                    tm[q] = kernel._thermal_step(mp, q, tm[q], imot[q], ambient[ai, k], motor_decay[q])
-                if tm[q] > max_tm[j, q]:
-                    max_tm[j, q] = tm[q]
-                if flying and tm[q] > peak_tm[j, q]:
-                    peak_tm[j, q] = tm[q]
-                if cause == FAIL_NONE and tm[q] > motor_max_t[q]:
-                    cause = FAIL_MOTOR_OVERTEMP
+                    if h != motor_dt[lane, q]:
+                        motor_decay[lane, q] = kernel._motor_decay(mp, m_row[lane] + q, h)
+                        motor_dt[lane, q] = h
+                    tm[lane, q] = kernel._thermal_step(mp, m_row[lane] + q, tm[lane, q], imot[lane, q], amb,
+                                                       motor_decay[lane, q])
+                if tm[lane, q] > max_tm[j, q]:
+                    max_tm[j, q] = tm[lane, q]
+                if flying and tm[lane, q] > peak_tm[j, q]:
+                    peak_tm[j, q] = tm[lane, q]
+                if c == FAIL_NONE and tm[lane, q] > motor_max_t[q]:
+                    c = FAIL_MOTOR_OVERTEMP
                 if slot >= 0:
-                    rec_mi[j, slot, q] = imot[q]
-                    rec_mt[j, slot, q] = tm[q]
-            t += h
-            if cause != FAIL_NONE and fail_k[j] < 0:
+                    rec_mi[j, slot, q] = imot[lane, q]
+                    rec_mt[j, slot, q] = tm[lane, q]
+            t[lane] += h
+            if c != FAIL_NONE and fail_k[j] < 0:
                 fail_k[j] = k
-                fail_cause[j] = cause
+                fail_cause[j] = c
                 if stop_on_failure:
                     if record:
                         for kk in range(k + 1, n):
@@ -286,13 +397,17 @@ def _simulate(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_
                             for q in range(n_motors):
                                 rec_mi[j, slot, q] = np.nan
                                 rec_mt[j, slot, q] = np.nan
-                    break
+                    moving[lane] = False
+                    n_moving -= 1
+        k += 1
+    for lane in range(nl):
+        j = j0 + lane
         for b in range(n_packs):
             for s in range(width):
-                final_x[j, b, s] = x[b, s]
+                final_x[j, b, s] = x[lane * n_packs + b, s]
         for q in range(n_motors):
-            final_tm[j, q] = tm[q]
-        elapsed[j] = t
+            final_tm[j, q] = tm[lane, q]
+        elapsed[j] = t[lane]
 
 
 def simulate_vehicle(inputs: "Topology | ModelInputs", pack_params: np.ndarray | None, motor_params: np.ndarray | None, x0: np.ndarray,

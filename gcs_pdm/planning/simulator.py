@@ -26,6 +26,7 @@ cost ``C_p`` is the electrical energy drawn, in MJ.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Sequence
 
 import numpy as np
@@ -172,6 +173,12 @@ class VehicleSimulator:
             self._mp = self.params.motor_vector()[None]
             self._fault = fault_vector(list(scenario.faults))[None]
             self.initial = state if state is not None else scenario.start.powertrain(self.params)
+            # the kernel's topology flies it (edge540's, the same numbers as a description of it)
+            self._motor_rows = np.repeat(self._mp[:, None, :], kernel.N_MOTORS, axis=1)
+            self._free_topology = topology.PAPER_TOPOLOGY
+            self._limit_topology = topology.PAPER_TOPOLOGY.with_limits(*scenario.limits.kernel_limits().as_tuple())
+            self._base_reserve = scenario.limits.landing_reserve_soc
+            self._vehicle_power = partial(shaft_power, airframe=self.airframe)
         else:
             self._init_vehicle(vehicle, motor_faults or {}, state)
         self._set_verdict_limits()
@@ -185,7 +192,10 @@ class VehicleSimulator:
         if unknown:
             raise ValueError(f"motor_faults: no motor {sorted(unknown)[0]!r}; have {', '.join(inputs.motor_names)}")
         self._pp = inputs.pack_matrix[None]
-        self._mp = inputs.motor_matrix[None]
+        self._mp = self._motor_rows = inputs.motor_matrix[None]
+        self._free_topology = inputs.topology.with_limits(-np.inf, np.inf, np.inf)
+        self._limit_topology = inputs.topology
+        self._base_reserve = vehicle.landing_reserve
         self._fault = np.array([[float(motor_faults.get(n, 0.0)) for n in inputs.motor_names]])
         if state is None:
             t0 = self._t_ground
@@ -197,21 +207,13 @@ class VehicleSimulator:
 
     def _shaft_power(self, airspeed: float, climb: float, rho: float) -> float:
         """The airframe's power model: the drag polar, or momentum theory for a multirotor."""
-        if self.vehicle is None:
-            return float(shaft_power(airspeed, climb, rho, self.airframe))
         return float(self._vehicle_power(airspeed, climb, rho))
 
     def _simulate(self, x: np.ndarray, motor_temp: np.ndarray, dt: np.ndarray, power: np.ndarray,
                   ambient: np.ndarray, *, verdict: bool) -> kernel.PowertrainRun:
         """One batched kernel call; ``verdict``: with the verdict limits, stopping at a failure."""
-        if self._inputs is None:
-            if verdict:
-                return topology.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
-                                                  limits=self._limits, max_dt=self.dt_s, stop_on_failure=True)
-            return topology.simulate_powertrain(self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
-                                              fault_drag=0.1, max_dt=self.dt_s)
-        topo = self._topology if verdict else self._inputs.topology.with_limits(-np.inf, np.inf, np.inf)
-        return simulate_vehicle(topo, self._pp, self._mp, x, motor_temp, dt, power, ambient, self._fault,
+        topo = self._topology if verdict else self._free_topology
+        return simulate_vehicle(topo, self._pp, self._motor_rows, x, motor_temp, dt, power, ambient, self._fault,
                                 max_dt=self.dt_s, stop_on_failure=verdict)
 
     def _set_verdict_limits(self) -> None:
@@ -220,18 +222,14 @@ class VehicleSimulator:
         # 10 s vs 1 s). A plan must never be feasible at the planning step yet fail at fine steps:
         # coarse verdicts get a margin of several times that bias.
         coarse = self.dt_s > 1.0
-        if self._inputs is not None:
-            topo = self._inputs.topology
-            self._topology = replace(topo, pack_cutoff_v=topo.pack_cutoff_v + (VERDICT_MARGIN_V if coarse else 0.0),
-                                     pack_max_temp_c=topo.pack_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0),
-                                     motor_max_temp_c=topo.motor_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0))
-            self._reserve = self.vehicle.landing_reserve + (VERDICT_MARGIN_SOC if coarse else 0.0)
-            return
-        lim = self.scenario.limits.kernel_limits().as_tuple()
-        self._limits = (lim[0] + (VERDICT_MARGIN_V if coarse else 0.0),
-                        lim[1] - (VERDICT_MARGIN_C if coarse else 0.0),
-                        lim[2] - (VERDICT_MARGIN_C if coarse else 0.0))
-        self._reserve = self.scenario.limits.landing_reserve_soc + (VERDICT_MARGIN_SOC if coarse else 0.0)
+        topo = self._limit_topology
+        self._topology = replace(topo, pack_cutoff_v=topo.pack_cutoff_v + (VERDICT_MARGIN_V if coarse else 0.0),
+                                 pack_max_temp_c=topo.pack_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0),
+                                 motor_max_temp_c=topo.motor_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0))
+        self._reserve = self._base_reserve + (VERDICT_MARGIN_SOC if coarse else 0.0)
+        # one limit per pack and motor as a triple, for the paper layout's kernel call (planning/risk.py)
+        self._limits = (float(self._topology.pack_cutoff_v[0]), float(self._topology.pack_max_temp_c[0]),
+                        float(self._topology.motor_max_temp_c[0]))
 
     # ---- legs -----------------------------------------------------------------------------------
     def _places(self) -> np.ndarray:
@@ -360,11 +358,8 @@ class VehicleSimulator:
         return self._stress(state) + (1.0 - soc), state.energy_j / 1e6
 
     def _stress(self, state: FlightState) -> np.ndarray:
-        if self._inputs is None:
-            pack_max, motor_max = self.scenario.limits.pack_max_temp_c, self.scenario.limits.motor_max_temp_c
-        else:
-            pack_max = float(self._inputs.pack_max_temp_c.min())
-            motor_max = float(self._inputs.motor_max_temp_c.min())
+        pack_max = float(self._limit_topology.pack_max_temp_c.min())
+        motor_max = float(self._limit_topology.motor_max_temp_c.min())
         t0 = self._t_ground
         stress = np.maximum((state.peak_pack_c - t0) / max(pack_max - t0, 1e-6),
                             (state.peak_motor_c - t0) / max(motor_max - t0, 1e-6))

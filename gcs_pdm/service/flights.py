@@ -36,6 +36,13 @@ GROUND_WINDOW_S = 600.0
 HEALTH_AFTER_END_S = HealthSettings().min_rest_after_s + 30.0
 
 
+
+def pack_specs(service) -> dict:
+    """The described packs by slot name; none while the service has not yet identified its vehicle
+    (it derives a description from the first telemetry)."""
+    vehicle = service.vehicle
+    return {p.name: p for p in vehicle.packs} if vehicle is not None else {}
+
 class PackSamples:
     """Each pack's (time, current, voltage, temperature) as heard: the ground window before a flight,
     the flight, and the rest after it, for the flight's health points."""
@@ -99,9 +106,8 @@ class PackSerials:
         serial = serial_text(raw_serial)
         if serial is None:
             return
-        vehicle = self.service.vehicle
-        slot = next((p.name for p in (vehicle.packs if vehicle is not None else ())
-                     if p.mavlink_battery_id == battery_id), None)
+        slot = next((name for name, p in pack_specs(self.service).items() if p.mavlink_battery_id == battery_id),
+                    None)
         if slot is None:
             self.unmapped_ids[battery_id] = self.unmapped_ids.get(battery_id, 0) + 1
             if self.unmapped_ids[battery_id] == 1:
@@ -183,8 +189,7 @@ class FlightRecorder:
         skipped with a warning."""
         made = 0
         packs_store = getattr(self.service, "packs", None)
-        vehicle = self.service.vehicle
-        specs = {p.name: p for p in vehicle.packs} if vehicle is not None else {}
+        specs = pack_specs(self.service)
         assignments = {k: v["pack_id"] for k, v in packs_store.assignments().items()} if packs_store else {}
         for fid, start, end in self._pending:
             for pack in list(self.samples.rows):
