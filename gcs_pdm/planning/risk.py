@@ -365,7 +365,7 @@ class RiskSimulator:
         """The risk figures of one route, for the plan's record."""
         state = self.start_state(1)
         for w in route:
-            state = self._fly(state, np.array([int(w)]))
+            state = self._fly_memo(state, np.array([int(w)]))  # flown already when it was evaluated
         out = self.home(state)
         return {"p_failure": float(out.p_failure[0]), "p_success": float(out.p_success[0]),
                 "landing_soc_quantiles": {"q": [self.reserve_quantile, 0.5, 0.95],
@@ -396,12 +396,40 @@ def plan_risk_bounded(search: Callable[..., Plan], sim: RiskSimulator, *,
     ranked = sorted(search_sim.seen.items(), key=lambda kv: (not kv[1][0], -kv[1][1], -kv[1][2]))
     routes = [found.route, ()] + [r for r, v in ranked[:finalists] if v[0]]
     routes = list(dict.fromkeys(tuple(r) for r in routes))
-    ev = sim.evaluate(routes)
+    flown, ev = _decide_on_all_draws(sim, routes)
     obj = ev.objective(theta)
     i = rank(np.where(ev.feasible, ev.reward, -1.0), np.where(ev.feasible, obj, -np.inf))
-    stats = dict(found.stats, search_samples=search_sim.S, finalists=len(routes), searched_planner=found.planner,
-                 risk=sim.risk_of(routes[i]))
-    return make_plan(sim, routes[i], f"{found.planner}_risk", theta, **stats)
+    stats = dict(found.stats, search_samples=search_sim.S, finalists=len(routes), finalists_flown=len(flown),
+                 searched_planner=found.planner, risk=sim.risk_of(flown[i]))
+    return make_plan(sim, flown[i], f"{found.planner}_risk", theta, **stats)
+
+
+#: finalists flown on all the draws per batch, best nominal reward first
+FINALIST_BATCH = 3
+
+
+def _decide_on_all_draws(sim: RiskSimulator, routes: list[tuple]) -> tuple[list[tuple], RouteEvaluation]:
+    """The finalists that can still be the decision, flown on all the draws: best nominal reward
+    first, in batches, until the best feasible expected reward so far exceeds every remaining
+    route's nominal reward (an expected reward is at most the nominal one, so none of those could
+    rank first: the decision is the one flying them all would give). Returns the routes flown and
+    their evaluation."""
+    nominal = [float(sum(sim.rewards[w] for w in r)) for r in routes]
+    order = sorted(range(len(routes)), key=lambda k: -nominal[k])
+    flown: list[tuple] = []
+    parts: list[RouteEvaluation] = []
+    best = -np.inf
+    for start in range(0, len(order), FINALIST_BATCH):
+        batch = order[start:start + FINALIST_BATCH]
+        if nominal[batch[0]] < best:
+            break
+        ev = sim.evaluate([routes[k] for k in batch])
+        flown += [routes[k] for k in batch]
+        parts.append(ev)
+        if ev.feasible.any():
+            best = max(best, float(ev.reward[ev.feasible].max()))
+    return flown, RouteEvaluation(**{f: np.concatenate([getattr(e, f) for e in parts])
+                                     for f in RouteEvaluation.__dataclass_fields__})
 
 
 #: routes whose flown states are remembered (about 40 kB each at 200 draws)
