@@ -326,12 +326,14 @@ class RiskSimulator:
             cause[b] = int(np.bincount(fc).argmax()) if p_fail[b] > self.eps and fc.size else FAIL_RESERVE
         expected = final.reward * p_success
         health = (self._stress(final) + 1.0 - low).mean(axis=1) if B else np.zeros(0)
-        med = (lambda a: np.median(a, axis=1)) if B else (lambda a: a[:, 0])
+        # the medians over the draws, in one pass: SoC (4), pack temperatures (4), motor temperatures (2), time
+        per_draw = np.concatenate([soc, final.x[..., kernel.S_T], final.motor_temp, final.time_s[..., None]], axis=2)
+        med = np.median(per_draw, axis=1) if B else per_draw[:, 0]
         return RiskOutcome(feasible=feasible, cause=cause, reward=np.where(feasible, expected, 0.0),
                            reward_reached=expected, health_cost=health,
                            power_cost=final.energy_j.mean(axis=1) / 1e6 if B else np.zeros(0),
-                           final_soc=med(soc), final_pack_temp=med(final.x[..., kernel.S_T]),
-                           final_motor_temp=med(final.motor_temp), flight_time_s=med(final.time_s),
+                           final_soc=med[:, :4], final_pack_temp=med[:, 4:8],
+                           final_motor_temp=med[:, 8:10], flight_time_s=med[:, 10],
                            p_failure=p_fail, p_success=p_success, landing_soc_q=q, nominal_reward=final.reward)
 
     # ---- whole routes ----------------------------------------------------------------------------
