@@ -18,6 +18,12 @@ numbers moved, both on ``degraded_packs``: the LLF20 resistance-rise raise event
 1.1392 -> 1.1367 (that check's fit is warm: only a check whose verdict changes is re-done cold,
 and the raise is the third strong check) and, through the estimator adopting that estimate, a
 model_mismatch advisory's temperature residual 0.07 -> 0.08 K (one step of its rounding).
+
+Re-recorded after the pack filter's temperature noise was made the sensor's (issue 31: 0.4 °C per
+sample and 0.012 °C/√s, was 0.5 and 0.02; the 2σ band held 99.6 %): every fault, time, magnitude and
+event equal; on ``degraded_packs`` the two model_mismatch advisories' temperature evidence moved
+(statistic 0.368 -> 0.601 and 0.439 -> 0.692, residual +0.01-0.02 K): the same innovations over a
+smaller expected variance.
 """
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from gcs_pdm.service.demo import http_json, run_demo
+from gcs_pdm.service.demo import http_json, run_demo, uploaded_promise
 
 
 @pytest.mark.slow
@@ -66,6 +66,11 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     assert all(p["time_to_cutoff_s"] is None for p in http["/status"]["packs"].values())
     assert http["/status"]["prediction"]["reason"] == "not flying: disarmed (HEARTBEAT)"
     assert http["/status"]["link"]["frames"] > 1000 and http["/status"]["link"]["frames_dropped"] == 0
+    # the promise held (issue 31): the last upload's p05-p95 of the lowest pack's landing SoC holds
+    # the vehicle's TRUE lowest pack, which kept the reserve (benchmarks/bench_demo_landing.py: seeds 0-3)
+    promise = uploaded_promise(http["/missions/history"], http["/missions/uploads"])
+    lo, _, hi = promise["landing_soc_p05_p50_p95"]
+    assert lo <= min(r.landing_soc) <= hi and min(r.landing_soc) >= promise["reserve_soc"], (promise, r.landing_soc)
 
 
 @pytest.mark.slow

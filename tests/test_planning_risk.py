@@ -94,3 +94,31 @@ def test_unsupported_vehicle_and_bad_settings_are_refused(table3_10):
         RiskSimulator(base, dr, max_failure_probability=1.5)
     with pytest.raises(ValueError, match="reserve_quantile"):
         RiskSimulator(base, dr, reserve_quantile=0.0)
+
+
+def test_step_groups_cover_every_row_once_and_split_only_where_padding_costs_more_than_a_call():
+    from gcs_pdm.planning.risk import CALL_COST_ROW_STEPS, _step_groups
+
+    rows = np.arange(100, 400)
+    steps = np.r_[np.full(150, 2), np.full(150, 40)][np.random.default_rng(0).permutation(300)]
+    groups = _step_groups(rows, steps)
+    flat = np.concatenate(groups)
+    assert sorted(flat.tolist()) == rows.tolist()
+    # 150 rows padded from 2 to 40 steps cost far more than one more call: two calls, each one length
+    assert len(groups) == 2 and all(np.unique(steps[g - 100]).size == 1 for g in groups)
+    # a few short rows among long ones: padding them is cheaper than a call of their own
+    few = np.r_[np.full(3, 38), np.full(297, 40)]
+    assert 3 * 2 < CALL_COST_ROW_STEPS and len(_step_groups(rows, few)) == 1
+    assert _step_groups(rows[:0], steps[:0]) == []
+
+
+def test_a_failed_draw_is_not_flown_on(table3_10):
+    base = VehicleSimulator(table3_10)
+    risk = RiskSimulator(base, draw(base, 8, seed=1))
+    st = risk.start_state(1)
+    failed = np.zeros((1, 8), dtype=bool)
+    failed[0, [2, 5]] = True
+    st = type(st)(**{**{f: getattr(st, f) for f in st.__dataclass_fields__}, "failed": failed})
+    nxt = risk._fly(st, np.array([3]))
+    assert np.array_equal(nxt.x[0, [2, 5]], st.x[0, [2, 5]]) and np.all(nxt.time_s[0, [2, 5]] == 0.0)
+    assert np.all(nxt.time_s[0, [0, 1, 3, 4, 6, 7]] > 0.0) and nxt.failed[0, [2, 5]].all()

@@ -918,8 +918,13 @@ def test_auto_policy_does_not_upload_a_plan_that_went_stale_while_planning(tmp_p
         plans = {p["id"]: p for p in svc.store.plans(limit=100)}
         stale = [p for p in plans.values() if p["status"] == "superseded" and p["trigger"].startswith("fault:")]
         assert stale, [(p["id"], p["trigger"], p["status"]) for p in plans.values()]
-        again = [p for p in plans.values() if p["trigger"] == f"plan {stale[0]['id']} went stale while planning"]
-        assert again and again[0]["time_s"] > stale[0]["time_s"]
-        assert vehicle.uploads and again[0]["status"] == "uploaded"
+        # each re-plan starts from a later state; one that finishes while the replay still runs goes
+        # stale too (how many do depends on the planner's speed against the replay's): the last is uploaded
+        chain = [stale[0]]
+        while again := [p for p in plans.values() if p["trigger"] == f"plan {chain[-1]['id']} went stale while planning"]:
+            assert again[0]["time_s"] > chain[-1]["time_s"]
+            chain.append(again[0])
+        assert len(chain) >= 2 and all(p["status"] == "superseded" for p in chain[:-1]), chain
+        assert vehicle.uploads and chain[-1]["status"] == "uploaded"
     finally:
         svc.close()

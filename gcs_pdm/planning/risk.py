@@ -30,6 +30,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.estimation.prediction import restate, sample_parameters
 from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.wind import ground_speed
@@ -162,12 +163,16 @@ class RiskSimulator:
         self.rewards, self.dt_s = base.rewards, base.dt_s
         self.legs = base.legs  # nominal: the airspeeds flown (the mission's), distances
         self.S = len(draws)
-        self._memo: dict[tuple, RiskState] = {}
+        self._memo = _FlownRoutes()
         #: every distinct route closed by the landing so far: route -> (feasible, expected reward, objective)
         self.seen: dict[tuple, tuple[bool, float, float]] = {}
         self._reserve = base._reserve
         self._limits = base._limits
         self._t_ground = base._t_ground
+        # the paper's aircraft with the verdict's limits, and each draw's motor parameters on both
+        # motors: ``topology.simulate_powertrain``'s arguments, made once instead of per call
+        self._topology = topology.PAPER_TOPOLOGY.with_limits(*self._limits)
+        self._motor_params = np.repeat(draws.motor_params[:, None, :], kernel.N_MOTORS, axis=1)
         self._sample_legs()
 
     # ---- per-draw legs: the wind triangle at each leg's airspeed ---------------------------------
@@ -180,26 +185,25 @@ class RiskSimulator:
             unit = np.where(dist[..., None] > 0, d / np.where(dist > 0, dist, 1.0)[..., None], 0.0)
         used = legs.steps > 0
         M = dist.shape[0]
-        t = np.zeros((self.S, M, M))
         power = np.broadcast_to(legs.power[..., 0], (self.S, M, M)).copy()
         dz = np.abs(places[None, :, 2] - places[:, None, 2])
-        for s, wind in enumerate(self.draws.wind_en):
-            vg = ground_speed(unit[..., 0], unit[..., 1], legs.airspeed, (float(wind[0]), float(wind[1])))
-            with np.errstate(invalid="ignore", divide="ignore"):
-                ts = np.maximum(dist / vg, dz / sc.max_climb_rate_mps)
-            bad = used & ~np.isfinite(ts) & (dist > 0)
-            ts = np.where(used & (dist > 0), ts, legs.duration_s)
-            ts[bad] = UNFLYABLE_LEG_S
-            power[s][bad] = UNFLYABLE_POWER_W
-            t[s] = np.where(used, ts, 0.0)
+        we = self.draws.wind_en[:, 0, None, None]
+        wn = self.draws.wind_en[:, 1, None, None]
+        vg = ground_speed(unit[..., 0], unit[..., 1], legs.airspeed, (we, wn))       # (S, M, M)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ts = np.maximum(dist / vg, dz / sc.max_climb_rate_mps)
+        bad = used & ~np.isfinite(ts) & (dist > 0)
+        ts = np.where(used & (dist > 0), ts, legs.duration_s)
+        ts[bad] = UNFLYABLE_LEG_S
+        power[bad] = UNFLYABLE_POWER_W
+        t = np.where(used, ts, 0.0)
         steps = np.where(used, np.ceil(t / self.dt_s - 1e-9), 0).astype(np.int64)
-        L = max(int(steps.max()), 1)
-        k = np.arange(L)
-        on = k[None, None, None, :] < steps[..., None]
+        # a leg is flown in equal steps at a constant power and ambient: per draw and leg, its
+        # number of steps, their length and its power (the kernel's rows are built per call)
         self._steps = steps                                                  # (S, M, M)
-        self._dt = np.where(on, (t / np.maximum(steps, 1))[..., None], 0.0)  # (S, M, M, L)
-        self._power = np.where(on, power[..., None], 0.0)
-        self._ambient = np.where(on, legs.ambient[None, :, :, :1], 0.0)
+        self._step_s = np.where(used, t / np.maximum(steps, 1), 0.0)         # (S, M, M)
+        self._power = power                                                  # (S, M, M)
+        self._ambient = legs.ambient[..., 0]                                 # (M, M)
 
     # ---- flying ----------------------------------------------------------------------------------
     def start_state(self, batch: int = 1) -> RiskState:
@@ -214,33 +218,51 @@ class RiskSimulator:
                          route=_routes([()] * batch))
 
     def _fly(self, state: RiskState, to: np.ndarray) -> RiskState:
+        """Fly each route of the batch on to ``to[b]`` on every draw. Only the draws that still fly
+        and have a leg to fly go through the kernel, grouped by their number of steps
+        (``_step_groups``): the kernel steps every row of a call as often as its longest one, and a
+        padding step (no time passes) costs about half a flown one."""
         B, S = len(state), self.S
         to = np.asarray(to, dtype=np.int64)
         frm = state.node
-        used = max(int(self._steps[:, frm, to].max()) if B else 0, 1)
-        dt = np.transpose(self._dt[:, frm, to, :used], (1, 0, 2)).copy()      # (B, S, used)
-        dt[state.failed] = 0.0  # a failed draw stays where it failed
-        pw = np.transpose(self._power[:, frm, to, :used], (1, 0, 2))
-        am = np.transpose(self._ambient[:, frm, to, :used], (1, 0, 2))
+        n_steps = self._steps[:, frm, to].T.reshape(-1)                        # (B·S,)
+        rows = np.flatnonzero((n_steps > 0) & ~state.failed.reshape(-1))
+        x = state.x.reshape(B * S, *state.x.shape[2:]).copy()
+        tm = state.motor_temp.reshape(B * S, -1).copy()
+        energy, elapsed = np.zeros(B * S), np.zeros(B * S)
+        peak_pack, peak_motor = state.peak_pack_c.reshape(-1).copy(), state.peak_motor_c.reshape(-1).copy()
+        new_fail = np.zeros(B * S, dtype=bool)
+        cause = state.cause.reshape(-1).copy()
         dr = self.draws
-        pp = np.broadcast_to(dr.pack_params[None], (B,) + dr.pack_params.shape).reshape(B * S, *dr.pack_params.shape[1:])
-        mp = np.broadcast_to(dr.motor_params[None], (B,) + dr.motor_params.shape).reshape(B * S, -1)
-        fault = np.broadcast_to(dr.fault[None], (B,) + dr.fault.shape).reshape(B * S, -1)
-        run = topology.simulate_powertrain(np.ascontiguousarray(pp), np.ascontiguousarray(mp),
-                                           state.x.reshape(B * S, *state.x.shape[2:]),
-                                           state.motor_temp.reshape(B * S, -1), dt.reshape(B * S, used),
-                                           np.ascontiguousarray(pw).reshape(B * S, used),
-                                           np.ascontiguousarray(am).reshape(B * S, used), np.ascontiguousarray(fault),
-                                           limits=self._limits, fault_drag=0.1, max_dt=self.dt_s,
-                                           stop_on_failure=True)
-        new_fail = run.failed.reshape(B, S) & ~state.failed
+
+        def fly(group: np.ndarray):
+            used = int(n_steps[group].max())
+            b, s = group // S, group % S
+            leg = (s, frm[b], to[b])
+            on = np.arange(used)[None, :] < n_steps[group][:, None]          # the padding flies no time
+            return topology.simulate_vehicle(self._topology, dr.pack_params[s], self._motor_params[s], x[group],
+                                             tm[group], np.where(on, self._step_s[leg][:, None], 0.0),
+                                             np.where(on, self._power[leg][:, None], 0.0),
+                                             np.where(on, self._ambient[leg[1:]][:, None], 0.0), dr.fault[s],
+                                             fault_drag=0.1, max_dt=self.dt_s, stop_on_failure=True)
+
+        # the kernel releases the GIL: a large call is split over the threads available (rows are
+        # independent, so the numbers are one thread's)
+        calls = [piece for group in _step_groups(rows, n_steps[rows])
+                 for piece in np.array_split(group, _pieces(group.size * int(n_steps[group[-1]])))]
+        for group, run in zip(calls, thread_map(fly, calls)):
+            x[group], tm[group] = run.final_pack_state, run.final_motor_temp
+            energy[group], elapsed[group] = run.energy_j, run.elapsed_s
+            peak_pack[group] = np.maximum(peak_pack[group], run.max_pack_temp.max(axis=1))
+            peak_motor[group] = np.maximum(peak_motor[group], run.max_motor_temp.max(axis=1))
+            new_fail[group] = run.failed
+            cause[group] = np.where(run.failed, run.fail_cause, cause[group])
         return RiskState(
-            x=run.final_pack_state.reshape(state.x.shape), motor_temp=run.final_motor_temp.reshape(state.motor_temp.shape),
+            x=x.reshape(state.x.shape), motor_temp=tm.reshape(state.motor_temp.shape),
             node=to, reward=state.reward + self.rewards[to],
-            energy_j=state.energy_j + run.energy_j.reshape(B, S), time_s=state.time_s + run.elapsed_s.reshape(B, S),
-            peak_pack_c=np.maximum(state.peak_pack_c, run.max_pack_temp.max(axis=1).reshape(B, S)),
-            peak_motor_c=np.maximum(state.peak_motor_c, run.max_motor_temp.max(axis=1).reshape(B, S)),
-            failed=state.failed | new_fail, cause=np.where(new_fail, run.fail_cause.reshape(B, S), state.cause),
+            energy_j=state.energy_j + energy.reshape(B, S), time_s=state.time_s + elapsed.reshape(B, S),
+            peak_pack_c=peak_pack.reshape(B, S), peak_motor_c=peak_motor.reshape(B, S),
+            failed=state.failed | new_fail.reshape(B, S), cause=cause.reshape(B, S),
             route=_routes([r + (int(w),) for r, w in zip(state.route, to)]))
 
     def _fly_memo(self, state: RiskState, to: np.ndarray) -> RiskState:
@@ -255,10 +277,8 @@ class RiskSimulator:
             if len(self._memo) + len(missing) > MEMO_LIMIT:
                 self._memo.clear()
             rows = np.fromiter(missing.values(), dtype=np.int64, count=len(missing))
-            flown = self._fly(state.take(rows), np.asarray(to, dtype=np.int64)[rows])
-            for i, k in enumerate(missing):
-                self._memo[k] = flown.take(np.array([i]))
-        return RiskState.concat([self._memo[k] for k in keys])
+            self._memo.add(list(missing), self._fly(state.take(rows), np.asarray(to, dtype=np.int64)[rows]))
+        return self._memo.get(keys)
 
     def advance(self, state: RiskState, to: np.ndarray) -> tuple[RiskState, np.ndarray]:
         """Fly each route of the batch on to waypoint ``to[b]`` on every draw; ``ok``: its
@@ -306,12 +326,14 @@ class RiskSimulator:
             cause[b] = int(np.bincount(fc).argmax()) if p_fail[b] > self.eps and fc.size else FAIL_RESERVE
         expected = final.reward * p_success
         health = (self._stress(final) + 1.0 - low).mean(axis=1) if B else np.zeros(0)
-        med = (lambda a: np.median(a, axis=1)) if B else (lambda a: a[:, 0])
+        # the medians over the draws, in one pass: SoC (4), pack temperatures (4), motor temperatures (2), time
+        per_draw = np.concatenate([soc, final.x[..., kernel.S_T], final.motor_temp, final.time_s[..., None]], axis=2)
+        med = np.median(per_draw, axis=1) if B else per_draw[:, 0]
         return RiskOutcome(feasible=feasible, cause=cause, reward=np.where(feasible, expected, 0.0),
                            reward_reached=expected, health_cost=health,
                            power_cost=final.energy_j.mean(axis=1) / 1e6 if B else np.zeros(0),
-                           final_soc=med(soc), final_pack_temp=med(final.x[..., kernel.S_T]),
-                           final_motor_temp=med(final.motor_temp), flight_time_s=med(final.time_s),
+                           final_soc=med[:, :4], final_pack_temp=med[:, 4:8],
+                           final_motor_temp=med[:, 8:10], flight_time_s=med[:, 10],
                            p_failure=p_fail, p_success=p_success, landing_soc_q=q, nominal_reward=final.reward)
 
     # ---- whole routes ----------------------------------------------------------------------------
@@ -345,7 +367,7 @@ class RiskSimulator:
         """The risk figures of one route, for the plan's record."""
         state = self.start_state(1)
         for w in route:
-            state = self._fly(state, np.array([int(w)]))
+            state = self._fly_memo(state, np.array([int(w)]))  # flown already when it was evaluated
         out = self.home(state)
         return {"p_failure": float(out.p_failure[0]), "p_success": float(out.p_success[0]),
                 "landing_soc_quantiles": {"q": [self.reserve_quantile, 0.5, 0.95],
@@ -376,16 +398,120 @@ def plan_risk_bounded(search: Callable[..., Plan], sim: RiskSimulator, *,
     ranked = sorted(search_sim.seen.items(), key=lambda kv: (not kv[1][0], -kv[1][1], -kv[1][2]))
     routes = [found.route, ()] + [r for r, v in ranked[:finalists] if v[0]]
     routes = list(dict.fromkeys(tuple(r) for r in routes))
-    ev = sim.evaluate(routes)
+    flown, ev = _decide_on_all_draws(sim, routes)
     obj = ev.objective(theta)
     i = rank(np.where(ev.feasible, ev.reward, -1.0), np.where(ev.feasible, obj, -np.inf))
-    stats = dict(found.stats, search_samples=search_sim.S, finalists=len(routes), searched_planner=found.planner,
-                 risk=sim.risk_of(routes[i]))
-    return make_plan(sim, routes[i], f"{found.planner}_risk", theta, **stats)
+    stats = dict(found.stats, search_samples=search_sim.S, finalists=len(routes), finalists_flown=len(flown),
+                 searched_planner=found.planner, risk=sim.risk_of(flown[i]))
+    return make_plan(sim, flown[i], f"{found.planner}_risk", theta, **stats)
+
+
+#: finalists flown on all the draws per batch, best nominal reward first
+FINALIST_BATCH = 3
+
+
+def _decide_on_all_draws(sim: RiskSimulator, routes: list[tuple]) -> tuple[list[tuple], RouteEvaluation]:
+    """The finalists that can still be the decision, flown on all the draws: best nominal reward
+    first, in batches, until the best feasible expected reward so far exceeds every remaining
+    route's nominal reward (an expected reward is at most the nominal one, so none of those could
+    rank first: the decision is the one flying them all would give). Returns the routes flown and
+    their evaluation."""
+    nominal = [float(sum(sim.rewards[w] for w in r)) for r in routes]
+    order = sorted(range(len(routes)), key=lambda k: -nominal[k])
+    flown: list[tuple] = []
+    parts: list[RouteEvaluation] = []
+    best = -np.inf
+    for start in range(0, len(order), FINALIST_BATCH):
+        batch = order[start:start + FINALIST_BATCH]
+        if nominal[batch[0]] < best:
+            break
+        ev = sim.evaluate([routes[k] for k in batch])
+        flown += [routes[k] for k in batch]
+        parts.append(ev)
+        if ev.feasible.any():
+            best = max(best, float(ev.reward[ev.feasible].max()))
+    return flown, RouteEvaluation(**{f: np.concatenate([getattr(e, f) for e in parts])
+                                     for f in RouteEvaluation.__dataclass_fields__})
 
 
 #: routes whose flown states are remembered (about 40 kB each at 200 draws)
 MEMO_LIMIT = 20_000
+
+
+class _FlownRoutes:
+    """The states of the routes flown so far, one row each of growing arrays (a batch of them is
+    one gather per field, not one small array per route)."""
+
+    def __init__(self) -> None:
+        self._row: dict[tuple, int] = {}
+        self._rows: RiskState | None = None
+
+    def __len__(self) -> int:
+        return len(self._row)
+
+    def __contains__(self, route: tuple) -> bool:
+        return route in self._row
+
+    def clear(self) -> None:
+        self._row.clear()
+        self._rows = None
+
+    def add(self, routes: list[tuple], flown: RiskState) -> None:
+        start = len(self._row)
+        if self._rows is None:
+            self._rows = _grown(flown, max(64, len(routes)), 0)
+        elif start + len(routes) > len(self._rows):
+            self._rows = _grown(self._rows, 2 * (start + len(routes)), start)
+        for f in RiskState.__dataclass_fields__:
+            getattr(self._rows, f)[start:start + len(routes)] = getattr(flown, f)
+        self._row.update(zip(routes, range(start, start + len(routes))))
+
+    def get(self, routes: list[tuple]) -> RiskState:
+        return self._rows.take(np.fromiter((self._row[r] for r in routes), dtype=np.int64, count=len(routes)))
+
+
+def _grown(rows: RiskState, capacity: int, keep: int) -> RiskState:
+    """``rows``' arrays with room for ``capacity`` rows, the first ``keep`` copied over."""
+    out = {}
+    for f in RiskState.__dataclass_fields__:
+        a = getattr(rows, f)
+        out[f] = np.empty((capacity,) + a.shape[1:], dtype=a.dtype)
+        out[f][:keep] = a[:keep]
+    return RiskState(**out)
+
+
+#: the kernel call's fixed cost, in row-steps (about 100 µs against about 1 µs per row-step)
+CALL_COST_ROW_STEPS = 600
+
+
+#: a kernel call is split over the threads only when each piece keeps at least this many row-steps
+#: (about 2 ms: a thread's hand-over costs tens of µs)
+MIN_ROW_STEPS_PER_THREAD = 4000
+
+
+def _pieces(row_steps: int) -> int:
+    return max(1, min(available_threads(), row_steps // MIN_ROW_STEPS_PER_THREAD))
+
+
+def _step_groups(rows: np.ndarray, n_steps: np.ndarray) -> list[np.ndarray]:
+    """``rows`` split into kernel calls, each sorted by its number of steps (the last is the
+    longest), the split the cheapest in row-steps flown (padding included) plus
+    ``CALL_COST_ROW_STEPS`` per call: a dynamic programme over the distinct step counts."""
+    if rows.size == 0:
+        return []
+    order = np.argsort(n_steps, kind="stable")
+    values, counts = np.unique(n_steps[order], return_counts=True)
+    values, cum = values.tolist(), [0, *np.cumsum(counts).tolist()]
+    best, cut = [0.0], [0]
+    for j in range(1, len(values) + 1):  # best[j]: the first j step counts split; the last call flies values[j-1]
+        i = min(range(j), key=lambda i: best[i] + (cum[j] - cum[i]) * values[j - 1])
+        cut.append(i)
+        best.append(best[i] + (cum[j] - cum[i]) * values[j - 1] + CALL_COST_ROW_STEPS)
+    bounds, j = [], len(values)
+    while j > 0:
+        bounds.append((cum[cut[j]], cum[j]))
+        j = cut[j]
+    return [rows[order[a:b]] for a, b in reversed(bounds)]
 
 
 def _routes(items: Sequence[tuple]) -> np.ndarray:

@@ -52,6 +52,8 @@ class DemoResult:
     sim_time_s: float = 0.0
     wall_s: float = 0.0
     http: dict = field(default_factory=dict)          # what the HTTP API said at the end of the flight
+    landing_soc: list[float] = field(default_factory=list)  # each pack's TRUE SoC at the end (the vehicle's)
+    operator_answers: list = field(default_factory=list)    # (plan id, its age, HTTP status) per approval sent
 
 
 def table3_mission():
@@ -233,26 +235,38 @@ def http_json(base_url: str, path: str, body: dict | None = None, token: str | N
 
 
 class Operator(_Background):
-    """In ``advise`` mode, an operator at the HTTP API who approves every feasible proposal."""
+    """In ``advise`` mode, an operator at the HTTP API who approves every feasible proposal.
+
+    ``late_s``: the first proposal is approved only once it is that old in the vehicle's time (the
+    gate's ``age_s``): the try-out of docs/operations.md with a late operator, whose approval the
+    service refuses as stale and re-plans first; every later proposal is approved at once."""
 
     JOIN_S = 5.0
 
-    def __init__(self, base_url: str, token: str, out=print):
+    def __init__(self, base_url: str, token: str, out=print, late_s: float = 0.0):
         super().__init__("demo-operator")
         self.base_url = base_url
         self.token = token
         self.out = out
+        self.late_s = float(late_s)
         self.approved: list[int] = []
+        #: every approval sent: (plan id, the proposal's age in vehicle seconds, HTTP status)
+        self.answers: list[tuple[int, float | None, int]] = []
 
     def _run(self) -> None:
         while not self._stop.wait(0.1):
             try:
                 for plan in http_json(self.base_url, "/missions/proposed")[1]:
-                    if plan["chosen"]["feasible"] and plan["id"] not in self.approved:
-                        code, _ = http_json(self.base_url, f"/missions/plans/{plan['id']}/approve",
-                                            {"note": "demo operator"}, self.token)
-                        self.approved.append(plan["id"])
-                        self.out(f"[         ] OPERATOR approves plan {plan['id']} over HTTP: {code}")
+                    if not plan["chosen"]["feasible"] or plan["id"] in self.approved:
+                        continue
+                    age = (plan.get("gate") or {}).get("age_s")
+                    if not self.approved and self.late_s > 0 and (age is None or age < self.late_s):
+                        continue  # the late operator has not looked yet
+                    code, _ = http_json(self.base_url, f"/missions/plans/{plan['id']}/approve",
+                                        {"note": "demo operator"}, self.token)
+                    self.approved.append(plan["id"])
+                    self.answers.append((plan["id"], age, code))
+                    self.out(f"[         ] OPERATOR approves plan {plan['id']} over HTTP: {code}")
             except Exception as exc:  # noqa: BLE001 - the operator retries
                 log.debug("operator: %s", exc)
 
@@ -293,6 +307,25 @@ def summarise_predictions(service: Service) -> dict:
         out[c["name"]] = {"route": c["route"], "reward_on_truth": p.reward, "feasible_on_truth": p.feasible,
                           "failure_on_truth": p.failure, "reward_predicted": c["reward"]}
     return out
+
+
+def uploaded_promise(history: list[dict], uploads: list[dict]) -> dict | None:
+    """What the last confirmed upload promised (``/missions/history``, ``/missions/uploads``): its
+    plan's chosen route, the risk draws' p05/p50/p95 of the lowest pack's landing SoC (the
+    console's "gets home with X % (p05–p95)"), its P(failure) and the landing reserve it planned
+    for. None when nothing was uploaded or
+    its plan carries no risk figures (a deterministic plan)."""
+    confirmed = [u for u in uploads if u.get("status") == "confirmed" and u.get("plan_id") is not None]
+    if not confirmed:
+        return None
+    upload = max(confirmed, key=lambda u: u["id"])
+    plan = next((p for p in history if p["id"] == upload["plan_id"]), None)
+    risk = ((plan or {}).get("chosen") or {}).get("risk")
+    if risk is None:
+        return None
+    return {"plan_id": plan["id"], "time_s": plan["time_s"], "route": plan["chosen"]["route"],
+            "landing_soc_p05_p50_p95": risk["landing_soc_quantiles"]["soc"], "p_failure": risk["p_failure"],
+            "reserve_soc": plan["scenario"]["limits"]["landing_reserve_soc"]}
 
 
 LEARNED_SET = Path(__file__).resolve().parents[2] / "fixtures" / "params" / "learned_sim.json"
@@ -403,11 +436,14 @@ def close_demo(http, service, tmp) -> None:
 
 def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None = None, seed: int = 0,
              timeout_s: float = 170.0, out=print, compare: bool = True, params: str = "learned",
-             policy: str = "auto", hold_while_deciding: bool = False, prepare: bool = True) -> DemoResult:
+             policy: str = "auto", hold_while_deciding: bool = False, prepare: bool = True,
+             approve_late_s: float = 0.0) -> DemoResult:
     """The demo; ``hold_while_deciding`` stops the vehicle's clock while the service decides
     (:class:`DecisionHold`: deterministic under load; ``gcs-pdm demo`` holds unless ``--real-time``).
     ``prepare``: compile what the service and the vehicle will run before the vehicle exists
-    (``gcs_pdm.compiled``), so no thread compiles in flight; ``timeout_s`` counts from then."""
+    (``gcs_pdm.compiled``), so no thread compiles in flight; ``timeout_s`` counts from then.
+    ``approve_late_s`` (policy advise): the operator approves the first proposal that late
+    (:class:`Operator`; the held clock would wait for it, so combine with ``hold_while_deciding=False``)."""
     from gcs_pdm.service.adapters import start_sim_vehicle
     from gcs_pdm.service.server import start_mavlink, stop_mavlink
 
@@ -437,7 +473,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
         out("  clock: the vehicle's clock waits while the service catches up with its telemetry or decides "
             "(--real-time: it never waits)")
     printer = TerminalPrinter(service, out).start()
-    operator = Operator(http.url, token, out).start() if policy == "advise" else None
+    operator = Operator(http.url, token, out, late_s=approve_late_s).start() if policy == "advise" else None
     start_mavlink(service)
     hold = DecisionHold(service) if hold_while_deciding else None
     vehicle = start_sim_vehicle(cfg_sim, f"udpout:127.0.0.1:{port}", speedup, demo_telemetry(), hold=hold)
@@ -464,7 +500,9 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
                         reached=reached, reward_flown=reward, heard=heard, plans=len(service.store.plans()),
                         uploads=len([u for u in service.store.uploads() if u["status"] == "confirmed"]),
                         fault_detected_s=next((f["time_s"] for f in faults if f["kind"] == "motor_power_loss"), None),
-                        fault_injected_s=injected, sim_time_s=float(s.time_s))
+                        fault_injected_s=injected, sim_time_s=float(s.time_s),
+                        landing_soc=[float(v) for v in s.pack_soc],
+                        operator_answers=list(operator.answers) if operator is not None else [])
     result.predicted = summarise_predictions(service)
     try:
         result.http = {path: http_json(http.url, path)[1] for path in ("/status", "/faults", "/missions/history",

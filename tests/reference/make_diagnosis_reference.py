@@ -5,8 +5,9 @@
 Writes ``diagnosis_pipeline.json`` next to this file, first recorded before the diagnoser's speed work
 (which left it unchanged), re-recorded once after the model-mismatch advisory and the pack-current
 guard fix (issue 15: new ``model_mismatch`` advisories, prognosis timing on flights they widen), and
-after the pack-health warm start (issue 18: one event magnitude and one advisory residual moved, see
-tests/test_diagnosis_equivalence.py):
+after the pack-health warm start (issue 18: one event magnitude and one advisory residual moved) and
+after the pack filter's temperature noise change (issue 31: two advisories' temperature evidence
+moved), see tests/test_diagnosis_equivalence.py:
 - ``synthetic``: the paper aircraft's pipeline on seeded synthetic flights (motor faults, a fault-free
   flight, an infeasible mission, degraded packs), with and without a mission: every fault and event,
   and the prognosis' latest p_failure;
