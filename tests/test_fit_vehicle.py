@@ -10,7 +10,7 @@ from gcs_pdm.cli import main
 from gcs_pdm.fitting import problem as pb
 from gcs_pdm.fitting.procedure import FitSettings, evaluate_battery
 from gcs_pdm.fitting.search import SearchSettings
-from gcs_pdm.fitting.tables import BATTERY, flight_from_columns
+from gcs_pdm.logs.tables import BATTERY, flight_from_columns
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import ParameterError, ParameterSet
 from gcs_pdm.vehicle.description import from_dict, load

@@ -1,7 +1,7 @@
-"""Reading flight logs (CSV, Parquet, MAVLink tlog, autopilot .bin/.ulg via gcs_pdm.logs) into :class:`~gcs_pdm.fitting.tables.Flight` s,
+"""Reading flight logs (CSV, Parquet, MAVLink tlog, autopilot .bin/.ulg via gcs_pdm.logs) into :class:`~gcs_pdm.logs.tables.Flight` s,
 and writing a fit's outputs (``result.json``, ``predictions/<flight>.csv``, plots). Shell module: files.
 
-Tables: one flight per file with the columns of :mod:`gcs_pdm.fitting.tables` (extra columns are
+Tables: one flight per file with the columns of :mod:`gcs_pdm.logs.tables` (extra columns are
 ignored). Tlogs go through the MAVLink engineer's scanner and frame mapping (``gcs_pdm.mavlink``),
 stamped with the tlog record time (see ``_collect_tlog``): every pack's ``PackFrame`` becomes a battery flight (ambient from
 ``AmbientFrame``, interpolated to the pack's times), and the two ``MotorFrame`` streams become one
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import BATTERY, KINDS, MOTOR, Flight, FlightDataError, flight_from_columns
+from gcs_pdm.logs.tables import BATTERY, KINDS, MOTOR, Flight, FlightDataError, flight_from_columns
 from gcs_pdm.models.params import PACK_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover

@@ -16,7 +16,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from gcs_pdm.fitting.tables import FlightDataError
+from gcs_pdm.logs.tables import FlightDataError
 from gcs_pdm.frames import FRAME_KIND_OF
 
 log = logging.getLogger(__name__)

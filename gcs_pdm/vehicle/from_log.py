@@ -107,7 +107,7 @@ def observe_log(path: str | Path, name: str | None = None, capacities: Mapping[i
                 ) -> tuple[VehicleDescription, list[str]]:
     """The provisional description of the vehicle that wrote ``path`` (``.bin`` or ``.ulg``);
     ``capacities`` (mAh by battery id) for packs whose capacity the log does not give."""
-    from gcs_pdm.fitting.tables import FlightDataError
+    from gcs_pdm.logs.tables import FlightDataError
     from gcs_pdm.logs.reader import read_log
 
     try:
