@@ -19,7 +19,7 @@ from gcs_pdm.sim.core import VehicleCore
 from gcs_pdm.sim.model import MODE_MANUAL, MODE_RTL, vehicle_config
 from gcs_pdm.sim.routes import mission_from_enu
 from gcs_pdm.vehicle.presets import PRESETS
-from gcs_pdm.vehicle.telemetry import frame_mapping
+from gcs_pdm.mavlink.vehicle_mapping import frame_mapping
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_service_vehicle import _loop  # noqa: E402

@@ -24,8 +24,8 @@ from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, Mo
 from gcs_pdm.mavlink.mapping import FrameMapper  # noqa: E402
 from gcs_pdm.mavlink.replay import replay_tlog  # noqa: E402
 from gcs_pdm.vehicle.presets import PRESETS  # noqa: E402
-from gcs_pdm.vehicle.replay import TracedPipeline, pipeline_for, replay_vehicle  # noqa: E402
-from gcs_pdm.vehicle.telemetry import envelope, frame_mapping  # noqa: E402
+from gcs_pdm.replay.vehicle import TracedPipeline, pipeline_for, replay_vehicle  # noqa: E402
+from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO / ".." / "shared"

@@ -175,7 +175,7 @@ def run_vehicle(args: argparse.Namespace, settings, desc=None) -> int:
     from gcs_pdm.fitting.logs import read_flights, write_outputs
     from gcs_pdm.logs.tables import BATTERY, MOTOR, FlightDataError
     from gcs_pdm.vehicle.description import VehicleError
-    from gcs_pdm.vehicle.fit import fit_motors, fit_packs, start_soc_warnings, write_fitted
+    from gcs_pdm.fitting.vehicle import fit_motors, fit_packs, start_soc_warnings, write_fitted
     from gcs_pdm.vehicle.presets import resolve
 
     try:
@@ -240,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
         # an autopilot's own log names its vehicle: derived as replay and `vehicle init` derive it
         # (one derivation for tlog, .bin and .ulg), its packs by battery instance
         from gcs_pdm.vehicle.description import VehicleError
-        from gcs_pdm.vehicle.from_log import observe_file
+        from gcs_pdm.logs.provisional_vehicle import observe_file
 
         try:
             desc, notes = observe_file(args.train[0])

@@ -136,7 +136,7 @@ def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES,
     ids = {p: i for i, p in enumerate(PACK_NAMES)}
     mapping = None
     if vehicle is not None:
-        from gcs_pdm.vehicle.telemetry import frame_mapping
+        from gcs_pdm.mavlink.vehicle_mapping import frame_mapping
 
         ids = {p.name: p.mavlink_battery_id for p in vehicle.packs}
         mapping = frame_mapping(vehicle)

@@ -125,7 +125,7 @@ def observe_file(path: str | Path, name: str | None = None, capacities: Mapping[
                  ) -> tuple[VehicleDescription, list[str]]:
     """A tlog, DataFlash or ULog file, by its extension."""
     from gcs_pdm.logs.reader import LOG_SUFFIXES
-    from gcs_pdm.vehicle.provisional import observe_tlog
+    from gcs_pdm.mavlink.provisional_vehicle import observe_tlog
 
     if Path(path).suffix.lower() in LOG_SUFFIXES:
         return observe_log(path, name, capacities)

@@ -30,7 +30,7 @@ def replay_vehicle(log: Path, spec: str | None) -> tuple[VehicleDescription | No
     if spec:
         desc = resolve(spec)
         return desc, {"name": desc.name, "source": "given", "provisional": desc.provisional, "notes": []}
-    from gcs_pdm.vehicle.from_log import observe_file  # one derivation: tlog, DataFlash .bin, ULog .ulg
+    from gcs_pdm.logs.provisional_vehicle import observe_file  # one derivation: tlog, DataFlash .bin, ULog .ulg
 
     try:
         desc, notes = observe_file(log)
