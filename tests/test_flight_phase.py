@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from gcs_pdm.mavlink.mapping import FrameMapper
 from gcs_pdm.mavlink.replay import replay_tlog
-from gcs_pdm.service.flight_phase import FLYING_AIRSPEED_MPS, flight_phase
+from gcs_pdm.estimation.flight_phase import FLYING_AIRSPEED_MPS, flight_phase
 from gcs_pdm.sim.core import VehicleCore
 from gcs_pdm.sim.model import MODE_MANUAL, MODE_RTL, vehicle_config
 from gcs_pdm.sim.routes import mission_from_enu
