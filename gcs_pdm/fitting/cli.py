@@ -170,7 +170,7 @@ def _print_warnings(res, label: str | None) -> None:
 
 def run_vehicle(args: argparse.Namespace, settings, desc=None) -> int:
     """``fit battery --vehicle X``: each of the description's packs (or ``--pack``), a parameter set of
-    its packs and the description pointing at it (gcs_pdm/vehicle/fit.py). ``desc``: a description
+    its packs and the description pointing at it (gcs_pdm/fitting/vehicle.py). ``desc``: a description
     already at hand (derived from an autopilot log) instead of ``--vehicle``."""
     from gcs_pdm.fitting.logs import read_flights, write_outputs
     from gcs_pdm.logs.tables import BATTERY, MOTOR, FlightDataError
