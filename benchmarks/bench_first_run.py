@@ -42,7 +42,7 @@ def figure(name: str, argv: list[str], cache_dir: str) -> dict:
 def main() -> int:
     tlog = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_TLOG
     replay = [sys.executable, "-m", "gcs_pdm.cli", "replay", str(tlog), "--json"]
-    prepare = [sys.executable, "-c", "from gcs_pdm.compiled import DEMO_GROUPS, prepare; prepare(DEMO_GROUPS)"]
+    prepare = [sys.executable, "-c", "from gcs_pdm.compiled import prepare; from gcs_pdm.service.warm_up import DEMO_GROUPS; prepare(DEMO_GROUPS)"]
     out: dict = {"tlog": str(tlog.relative_to(REPO) if tlog.is_relative_to(REPO) else tlog), "cores": os.cpu_count()}
     with tempfile.TemporaryDirectory(prefix="numba-cold-") as cold:
         out["replay_cold"] = figure("replay, cold cache", replay, cold)

@@ -88,8 +88,8 @@ def replay_stages(path: Path) -> dict:
     threads, run on the calling thread here)."""
     import gcs_pdm.diagnosis.pack_health as pack_health
     import gcs_pdm.estimation.prediction as prediction
-    from gcs_pdm.vehicle.replay import TracedPipeline, replay_vehicle
-    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+    from gcs_pdm.replay.vehicle import TracedPipeline, replay_vehicle
+    from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
     spent = {"pack_health_check": 0.0, "trace_monte_carlo": 0.0}
 

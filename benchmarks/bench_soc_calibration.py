@@ -38,7 +38,7 @@ PRESETS = ["plane-3s", "quad-4s", "quad-6s", "hex-6s", "edge540"]
 
 
 def _real_logs(shared: Path) -> list[dict]:
-    from gcs_pdm.estimation.calibration_eval import real_log_soc
+    from gcs_pdm.replay.calibration_eval import real_log_soc
 
     out = []
     logs = sorted([*shared.glob("logs/*.tlog"), *shared.glob("tlogs/*.tlog"), *shared.glob("logs/*.bin"),
@@ -58,7 +58,7 @@ def _real_logs(shared: Path) -> list[dict]:
 
 
 def _simulated() -> list[dict]:
-    from gcs_pdm.estimation.calibration_eval import simulated_pack_soc
+    from gcs_pdm.replay.calibration_eval import simulated_pack_soc
 
     out = []
     for preset in PRESETS:
@@ -76,7 +76,7 @@ def _simulated() -> list[dict]:
 
 
 def _pybamm() -> list[dict]:
-    from gcs_pdm.estimation.calibration_eval import pybamm_flight_soc
+    from gcs_pdm.replay.calibration_eval import pybamm_flight_soc
 
     root = ROOT / "fixtures" / "pybamm"
     manifest = json.loads((root / "manifest.json").read_text())

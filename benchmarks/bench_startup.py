@@ -61,11 +61,11 @@ with command():
     mark("start")
     import numpy
     mark("import_numpy")
-    import gcs_pdm.cli, gcs_pdm.mavlink.cli, gcs_pdm.mavlink.replay
+    import gcs_pdm.cli, gcs_pdm.replay.cli, gcs_pdm.mavlink.replay
     mark("import_replay_command_mapping_pymavlink")
     import numba
     mark("import_numba")
-    import gcs_pdm.vehicle.replay
+    import gcs_pdm.replay.vehicle
     mark("import_vehicle_description_pydantic_models")
     from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
     mark("import_diagnosis_pipeline")

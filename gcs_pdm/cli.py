@@ -18,7 +18,7 @@ from gcs_pdm.command_errors import CommandError, error
 #: lines live here so that ``gcs-pdm --help`` imports no command module (they import numpy, numba,
 #: pydantic: a second); a command's own ``--help`` imports only its module.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "replay": ("gcs_pdm.mavlink.cli",
+    "replay": ("gcs_pdm.replay.cli",
                "replay a tlog (or an ArduPilot .bin / PX4 .ulg log) through the telemetry frames and summarise it"),
     "plan": ("gcs_pdm.planning.cli", "plan a route for a scenario file and print it"),
     "experiment": ("gcs_pdm.planning.cli", "rebuild the paper's Table III"),
@@ -26,8 +26,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("gcs_pdm.service.cli", "run the decision service beside a ground station (MAVLink + HTTP)"),
     "demo": ("gcs_pdm.service.cli", "simulated vehicle + service on loopback: the Table III flight, live"),
     "sim": ("gcs_pdm.sim.cli", "simulated MAVLink vehicle (fixed wing, system 1) on a UDP link"),
-    "vehicle": ("gcs_pdm.vehicle.cli", "print, validate and write vehicle descriptions (docs/vehicles.md)"),
-    "packs": ("gcs_pdm.packs.cli", "each pack's health across flights: ingest logs (pool or Dask), list, show, assign"),
+    "vehicle": ("gcs_pdm.vehicle_cli", "print, validate and write vehicle descriptions (docs/vehicles.md)"),
+    "packs": ("gcs_pdm.packs_cli", "each pack's health across flights: ingest logs (pool or Dask), list, show, assign"),
     "signing": ("gcs_pdm.mavlink.signing_cli", "MAVLink 2 signing: `signing init` writes a key and says how to set it up"),
 }
 

@@ -6,8 +6,9 @@ tens of seconds of CPU (docs/performance.md, "Compiling"), and it would land whe
 is first called: inside the live loop's telemetry thread while the vehicle flies on, or in a
 replay that says nothing meanwhile. So a command that will need them calls :func:`prepare` first:
 
-- each *group* below is a small real workload of the code paths a command runs (the same calls,
-  the same argument types, so the same compiled signatures);
+- each *group* (:class:`Group`) is a small real workload of the code paths a command runs (the
+  same calls, the same argument types, so the same compiled signatures), defined beside the code
+  it warms: ``gcs_pdm.replay.warm_up`` (the replay's), ``gcs_pdm.service.warm_up`` (the demo's);
 - when a group's cache is cold, the groups are compiled in parallel, one child process each (one
   per core at a time; numba's compiler holds a process-wide lock, so threads would not overlap),
   each writing numba's cache; then every group runs here, loading what the children wrote;
@@ -26,106 +27,38 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Callable
 
 log = logging.getLogger(__name__)
 
-REPO = Path(__file__).resolve().parents[1]
-#: a recorded flight of the paper's aircraft with a motor fault (4 packs, 2 ESCs): what the live
-#: loop's estimator, diagnoser and predictions see
-WARM_UP_TLOG = REPO / "fixtures" / "flights" / "fault_01.tlog"
 #: a progress line only once preparing has taken this long (s), then every PROGRESS_EVERY_S
 PROGRESS_AFTER_S = 2.0
 PROGRESS_EVERY_S = 30.0
 
 
-# --- the groups: small real workloads --------------------------------------------------------------
+@dataclass(frozen=True)
+class Group:
+    """A small real workload of the code paths a command runs, defined beside that code
+    (``gcs_pdm.replay.warm_up``, ``gcs_pdm.service.warm_up``): this module only runs groups, so it
+    imports no layer above it."""
+    name: str
+    #: a module-level function (a child process imports it by ``module:name``)
+    workload: Callable[[], None]
+    #: (module, compiled function) whose on-disk cache says whether the group is compiled already
+    probe: tuple[str, str]
 
-def _filters() -> None:
-    """The diagnosis pipeline (state estimator, motor and pack-health diagnosers) over a recorded
-    flight, as the live loop builds it (``adapters.make_diagnoser``) and a replay runs it."""
-    from gcs_pdm.mavlink.mapping import FrameMapper
-    from gcs_pdm.mavlink.replay import replay_tlog
-    from gcs_pdm.models.params import builtin
-    from gcs_pdm.service import adapters
-    from gcs_pdm.vehicle.presets import resolve
-
-    if not WARM_UP_TLOG.is_file():
-        return
-    diagnoser = adapters.make_diagnoser(builtin("paper_si"), vehicle=resolve("edge540"))
-    replay_tlog(WARM_UP_TLOG, mapper=FrameMapper(), frame_consumer=diagnoser.consume)
-    # a replay without --vehicle: the description derived from the log (its own motor layout)
-    from gcs_pdm.vehicle.replay import pipeline_for, replay_vehicle
-    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
-
-    desc, _ = replay_vehicle(WARM_UP_TLOG, None)
-    if desc is not None:
-        replay_tlog(WARM_UP_TLOG, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)),
-                    frame_consumer=pipeline_for(desc).consume)
+    @property
+    def reference(self) -> str:
+        return f"{self.workload.__module__}:{self.workload.__qualname__}"
 
 
-def _held_current() -> None:
-    """A replay's trace: the held-current Monte Carlo time to cut-off from an estimator."""
-    import numpy as np
-
-    from gcs_pdm.estimation.prediction import predict_packs_at_current
-    from gcs_pdm.models.params import builtin
-    from gcs_pdm.service import adapters
-
-    est = adapters.make_estimator(builtin("paper_si"))
-    n_packs = est.packs.params.shape[0]
-    predict_packs_at_current(est, np.full(n_packs, 15.0), current_a=np.full(n_packs, 10.0), horizon_s=120.0,
-                             rng=np.random.default_rng(0), n_samples=4)
-
-
-def _predictions() -> None:
-    """The live loop's Monte Carlo predictions from an estimator (time to cut-off, a route's risk),
-    the planner's vehicle simulator on the demo's Table III route (as ``demo.table3_mission`` plans
-    it) and the simulated vehicle's truth: the whole-vehicle simulation."""
-    from gcs_pdm.estimation.prediction import FutureLoad
-    from gcs_pdm.models.params import builtin
-    from gcs_pdm.planning.plan import make_plan
-    from gcs_pdm.planning.simulator import VehicleSimulator, original_order
-    from gcs_pdm.planning.table3_scenario import preflight_scenario
-    from gcs_pdm.service import adapters
-    from gcs_pdm.sim.core import warm_up_kernel
-    from gcs_pdm.sim.model import SimConfig
-    from gcs_pdm.sim.truth import true_parameters
-
-    import numpy as np
-
-    from gcs_pdm.estimation.prediction import predict_from_estimator
-
-    est = adapters.make_estimator(builtin("paper_si"))
-    adapters.prediction_job(est, 3000.0, 20.0, [])()
-    load = FutureLoad.constant(3000.0, 600.0, 10.0, 20.0)
-    adapters.route_risk(est, load, [], n_samples=8)
-    # the diagnoser's prognosis against the mission's load keeps its trajectories' medians
-    predict_from_estimator(est, load, rng=np.random.default_rng(0), n_samples=4, trajectories=True)
-    scenario = preflight_scenario(10)
-    make_plan(VehicleSimulator(scenario, true_parameters()), original_order(scenario), "original")
-    warm_up_kernel(SimConfig(limits=scenario.limits.kernel_limits()))
-
-
-#: group name -> workload; a child process runs ``python -m gcs_pdm.compiled GROUP``
-GROUPS: dict[str, Callable[[], None]] = {"filters": _filters, "held_current": _held_current,
-                                         "predictions": _predictions}
-#: a compiled function of each group whose cache says whether the group is compiled already
-_PROBES = {"filters": ("gcs_pdm.estimation.ukf", "pack_step_one"),
-           "held_current": ("gcs_pdm.estimation.prediction", "_held_current_to_cutoff_compiled"),
-           "predictions": ("gcs_pdm.models.topology", "_simulate")}
-#: what each command runs
-DEMO_GROUPS = ("filters", "held_current", "predictions")
-REPLAY_GROUPS = ("filters", "held_current")
-
-
-def cached(group: str) -> bool:
+def cached(group: Group) -> bool:
     """Whether numba's on-disk cache holds the group's probe function for this source (its index
     is read as numba reads it: a changed source or another numba makes it stale)."""
     import importlib
 
-    module, name = _PROBES[group]
+    module, name = group.probe
     try:
         dispatcher = getattr(importlib.import_module(module), name)
         return bool(dispatcher._cache._cache_file._load_index())
@@ -133,7 +66,7 @@ def cached(group: str) -> bool:
         return False
 
 
-def prepare(groups: tuple[str, ...], out: Callable[[str], None] | None = None, *, in_process: bool = True) -> float:
+def prepare(groups: tuple[Group, ...], out: Callable[[str], None] | None = None, *, in_process: bool = True) -> float:
     """Make ``groups`` compiled (module docstring); returns the wall seconds it took. ``out``: where
     the progress line goes (the log by default). ``in_process=False``: only fill the cache."""
     say = out or log.warning  # a CLI passes its own printer; library code does not print
@@ -144,7 +77,7 @@ def prepare(groups: tuple[str, ...], out: Callable[[str], None] | None = None, *
         _compile_in_children(cold, progress)
     if in_process:
         for g in groups:
-            GROUPS[g]()
+            g.workload()
             progress.tick()
     elapsed = time.monotonic() - started
     progress.done(elapsed)
@@ -166,16 +99,16 @@ class _Progress:
             self.say(f"compiled models ready in {elapsed:.0f} s (cached for the next run)")
 
 
-def _compile_in_children(groups: list[str], progress: _Progress) -> None:
+def _compile_in_children(groups: list[Group], progress: _Progress) -> None:
     """One child per group, at most one per core at a time; a child that fails is logged (the
     group then compiles here, in this process, as it would have anyway)."""
     waiting = list(groups)
-    running: dict[str, subprocess.Popen] = {}
+    running: dict[Group, subprocess.Popen] = {}
     parallel = max(1, min(os.cpu_count() or 1, len(groups)))
     while waiting or running:
         while waiting and len(running) < parallel:
             g = waiting.pop(0)
-            running[g] = subprocess.Popen([sys.executable, "-m", "gcs_pdm.compiled", g], stdin=subprocess.DEVNULL,
+            running[g] = subprocess.Popen([sys.executable, "-m", "gcs_pdm.compiled", g.reference], stdin=subprocess.DEVNULL,
                                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         time.sleep(0.25)
         progress.tick()
@@ -185,7 +118,7 @@ def _compile_in_children(groups: list[str], progress: _Progress) -> None:
             del running[g]
             if proc.returncode != 0:
                 err = proc.stderr.read().decode(errors="replace").strip().splitlines()
-                log.warning("compiling %s in a child process failed (%s); compiling it here", g,
+                log.warning("compiling %s in a child process failed (%s); compiling it here", g.name,
                             err[-1] if err else f"exit {proc.returncode}")
             proc.stderr.close()
 
@@ -223,10 +156,14 @@ def _hold_compiler() -> None:
 
 
 def main(argv: list[str]) -> int:
-    """``python -m gcs_pdm.compiled GROUP``: one group's workload in a child process (fills the cache)."""
+    """``python -m gcs_pdm.compiled MODULE:FUNCTION``: one group's workload in a child process (fills
+    the cache); the parent names it by ``Group.reference``."""
+    import importlib
+
     logging.basicConfig(level=logging.WARNING)
-    for g in argv:
-        GROUPS[g]()
+    for ref in argv:
+        module, _, name = ref.partition(":")
+        getattr(importlib.import_module(module), name)()
     return 0
 
 

@@ -28,7 +28,7 @@ training flight's rests. ``--train-start-socs LO HI`` (also off by default) inst
 training flights from initial SoCs spread evenly over [LO, HI], so their starting rests cover that
 range evenly. docs/fitting.md ("Independent data") has what it showed.
 
-Output: ``<set>/<flight>.parquet`` (columns of gcs_pdm.fitting.tables: time_s, current_a, voltage_v,
+Output: ``<set>/<flight>.parquet`` (columns of gcs_pdm.logs.tables: time_s, current_a, voltage_v,
 temperature_c, ambient_c at 1 Hz) and ``manifest.json`` (per flight: set, split, ambient, C-rate,
 initial SoC, whether it reached the cut-off; per set: cells in parallel, capacity).
 """

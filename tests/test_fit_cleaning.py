@@ -4,7 +4,7 @@ import pytest
 
 from gcs_pdm.fitting.cleaning import CleaningSettings, clean_flight
 from gcs_pdm.fitting.logs import read_flights, read_table, write_table
-from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError, flight_from_columns
+from gcs_pdm.logs.tables import BATTERY, MOTOR, Flight, FlightDataError, flight_from_columns
 
 
 def _flight(n=600, seed=0, **over):

@@ -1,11 +1,11 @@
-"""The operating envelope a battery fit reports (gcs_pdm.fitting.envelope): which validation and test
+"""The operating envelope a battery fit reports (gcs_pdm.models.training_envelope): which validation and test
 flights leave the training flights' temperatures and currents, where the learned circuit extrapolates."""
 import json
 
 import numpy as np
 import pytest
 
-from gcs_pdm.fitting.envelope import (CURRENT_MARGIN_REL, SUSTAINED_S, TEMPERATURE_MARGIN_K, FlightConditions,
+from gcs_pdm.models.training_envelope import (CURRENT_MARGIN_REL, SUSTAINED_S, TEMPERATURE_MARGIN_K, FlightConditions,
                                       envelope_report, sustained_current)
 
 

@@ -10,11 +10,11 @@ from gcs_pdm.cli import main
 from gcs_pdm.fitting import problem as pb
 from gcs_pdm.fitting.procedure import FitSettings, evaluate_battery
 from gcs_pdm.fitting.search import SearchSettings
-from gcs_pdm.fitting.tables import BATTERY, flight_from_columns
+from gcs_pdm.logs.tables import BATTERY, flight_from_columns
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import ParameterError, ParameterSet
 from gcs_pdm.vehicle.description import from_dict, load
-from gcs_pdm.vehicle.fit import base_set, fit_packs
+from gcs_pdm.fitting.vehicle import base_set, fit_packs
 from gcs_pdm.vehicle.model_inputs import model_inputs
 from gcs_pdm.vehicle.presets import PRESETS
 
@@ -162,7 +162,7 @@ def test_fit_motor_vehicle_says_why_sitl_motors_cannot_be_fitted(tmp_path, capsy
 
 
 def test_a_motor_set_is_pointed_at_by_every_motor(tmp_path):
-    from gcs_pdm.vehicle.fit import write_fitted
+    from gcs_pdm.fitting.vehicle import write_fitted
 
     desc = PRESETS["quad-4s"]
     start = base_set(desc, "paper")
@@ -176,7 +176,7 @@ def test_a_motor_set_is_pointed_at_by_every_motor(tmp_path):
 def test_a_start_outside_the_charge_range_is_warned_about():
     from types import SimpleNamespace
 
-    from gcs_pdm.vehicle.fit import start_soc_warnings
+    from gcs_pdm.fitting.vehicle import start_soc_warnings
 
     spec = PRESETS["plane-3s"].packs[0]
     res = SimpleNamespace(predictions=[SimpleNamespace(name="a", initial_soc=-0.27, split="test"),

@@ -14,12 +14,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from gcs_pdm.mavlink.mapping import FrameMapper
 from gcs_pdm.mavlink.replay import replay_tlog
-from gcs_pdm.service.flight_phase import FLYING_AIRSPEED_MPS, flight_phase
+from gcs_pdm.estimation.flight_phase import FLYING_AIRSPEED_MPS, flight_phase
 from gcs_pdm.sim.core import VehicleCore
 from gcs_pdm.sim.model import MODE_MANUAL, MODE_RTL, vehicle_config
 from gcs_pdm.sim.routes import mission_from_enu
 from gcs_pdm.vehicle.presets import PRESETS
-from gcs_pdm.vehicle.telemetry import frame_mapping
+from gcs_pdm.mavlink.vehicle_mapping import frame_mapping
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_service_vehicle import _loop  # noqa: E402

@@ -92,7 +92,7 @@ def test_real_and_fixture_logs(path, columnar_calls):
 def test_the_description_mapping_and_envelope(columnar_calls):
     """As ``gcs-pdm replay`` maps a log: the vehicle description's mapping and per-pack envelope."""
     from gcs_pdm.vehicle.presets import PRESETS
-    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+    from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
     for name, desc in PRESETS.items():
         for path in FIXTURE_LOGS[:3]:

@@ -1,9 +1,12 @@
 """No import cycles in gcs_pdm: the module graph, built from every ``import`` in the source (module
-level and function-local alike: a local import only hides a cycle), is acyclic."""
+level and function-local alike: a local import only hides a cycle), is acyclic; and the packages
+(``gcs_pdm.<name>``) import one way, down the layers of ``LAYERS`` (docs/architecture.md)."""
 from __future__ import annotations
 
 import ast
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "gcs_pdm"
 
@@ -76,7 +79,94 @@ def test_the_finder_sees_function_local_cycles(tmp_path):
     assert find_cycle(import_graph(pkg)) is None
 
 
-def test_gcs_pdm_has_no_import_cycle():
-    graph = import_graph()
+@pytest.fixture(scope="module")
+def gcs_graph() -> dict[str, set[str]]:
+    """gcs_pdm's module graph, parsed once for the tests below (a few seconds)."""
+    return import_graph()
+
+
+def test_gcs_pdm_has_no_import_cycle(gcs_graph):
+    graph = gcs_graph
     assert len(graph) > 50 and graph["gcs_pdm.service.live"]
     assert find_cycle(graph) is None, " -> ".join(find_cycle(graph))
+
+
+# --- packages ---------------------------------------------------------------------------------------
+
+#: The intended layers, lowest first: a package (``gcs_pdm.<name>``, or a top-level module) imports only
+#: from layers below its own, never from its own layer's other members nor from above. Within a layer
+#: the members are independent of one another.
+LAYERS: list[tuple[str, ...]] = [
+    # process-wide utilities: import nothing of gcs_pdm (compiled runs the warm-up groups it is given)
+    ("gcs_pdm", "command_errors", "process_gc", "process_threads", "compiled"),
+    ("models", "geo", "missions"),           # data and physics: parameter sets, kernels, geodesy, missions
+    ("frames",),                             # the telemetry frames (their values' units come from models)
+    ("vehicle",),                            # the vehicle description (data) and what a model needs of it
+    ("mavlink",),                            # MAVLink I/O: the link, tlogs, frame mapping
+    ("logs",),                               # autopilot logs (.bin, .ulg), read into flight tables and frames
+    ("estimation",),                         # state estimation and prediction
+    ("diagnosis",),                          # faults and prognosis from the estimator
+    ("sim",),                                # the simulated vehicle (its truth is what planning and fits test on)
+    ("fitting", "planning"),                 # parameter fits; the planner
+    ("replay",),                             # recorded flights through the core, the replay command
+    ("packs",),                              # pack records across flights
+    ("service",),                            # the live service: wires frames to the core
+    ("cli", "vehicle_cli", "packs_cli"),     # entry points
+]
+
+
+def package_of(module: str) -> str:
+    """``gcs_pdm.a.b`` -> ``a``; a top-level module is its own package; the root is ``gcs_pdm``."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else parts[0]
+
+
+def package_graph(graph: dict[str, set[str]]) -> dict[str, dict[str, set[str]]]:
+    """package -> imported package -> the module edges behind it (``a.x -> b.y``)."""
+    out: dict[str, dict[str, set[str]]] = {}
+    for mod, targets in graph.items():
+        src = package_of(mod)
+        out.setdefault(src, {})
+        for t in targets:
+            if (dst := package_of(t)) != src:
+                out[src].setdefault(dst, set()).add(f"{mod} -> {t}")
+    return out
+
+
+def layer_violations(graph: dict[str, set[str]], layers: list[tuple[str, ...]]) -> list[str]:
+    """Each package edge that does not run to a lower layer, with the module imports behind it."""
+    rank = {p: i for i, layer in enumerate(layers) for p in layer}
+    out = []
+    for src, targets in sorted(package_graph(graph).items()):
+        for dst, edges in sorted(targets.items()):
+            if rank[dst] >= rank[src]:
+                out.append(f"{src} (layer {rank[src]}) imports {dst} (layer {rank[dst]}): {'; '.join(sorted(edges))}")
+    return out
+
+
+def test_every_package_has_a_layer(gcs_graph):
+    placed = [p for layer in LAYERS for p in layer]
+    assert len(placed) == len(set(placed))
+    assert set(package_graph(gcs_graph)) == set(placed), "place a new package in LAYERS"
+
+
+def test_packages_import_only_from_lower_layers(gcs_graph):
+    graph = gcs_graph
+    packages = {src: set(dst) for src, dst in package_graph(graph).items()}
+    assert find_cycle(packages) is None, " -> ".join(find_cycle(packages))
+    assert layer_violations(graph, LAYERS) == []
+
+
+def test_the_layer_check_sees_an_upward_function_local_import(tmp_path):
+    pkg = tmp_path / "gcs_pdm"
+    for sub in ("low", "high"):
+        (pkg / sub).mkdir(parents=True)
+        (pkg / sub / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "high" / "h.py").write_text("from gcs_pdm.low import l\n")
+    (pkg / "low" / "l.py").write_text("def f():\n    from gcs_pdm.high.h import x\n")
+    layers = [("gcs_pdm",), ("low",), ("high",)]
+    assert layer_violations(import_graph(pkg), layers) == [
+        "low (layer 1) imports high (layer 2): gcs_pdm.low.l -> gcs_pdm.high.h"]
+    (pkg / "low" / "l.py").write_text("def f():\n    pass\n")
+    assert layer_violations(import_graph(pkg), layers) == []

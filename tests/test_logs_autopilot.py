@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gcs_pdm.fitting.logs import read_flights
-from gcs_pdm.fitting.tables import FlightDataError
+from gcs_pdm.logs.tables import FlightDataError
 from gcs_pdm.frames import MotorFrame, PackFrame, StatusTextFrame
 from gcs_pdm.logs.dataflash import DataFlashError, read_dataflash
 from gcs_pdm.logs.reader import read_log

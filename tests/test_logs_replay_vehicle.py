@@ -1,5 +1,5 @@
 """An autopilot's own log (.bin, .ulg) takes the tlog's path through ``gcs-pdm replay``: without
---vehicle the vehicle is derived from the log (the one derivation, gcs_pdm.vehicle.from_log), the
+--vehicle the vehicle is derived from the log (the one derivation, gcs_pdm.logs.provisional_vehicle), the
 log's battery and ESC instances are the description's packs and motors by instance, the estimate is
 traced, and the exit status is docs/mavlink.md's (2 unreadable, 1 nothing diagnosable, 0 success)."""
 from __future__ import annotations

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs_pdm.mavlink.replay import replay_tlog
-from gcs_pdm.vehicle.replay import TracedPipeline
+from gcs_pdm.replay.vehicle import TracedPipeline
 
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from mavlink_builders import PacketFactory, tlog_record  # noqa: E402

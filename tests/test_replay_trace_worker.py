@@ -18,8 +18,8 @@ from gcs_pdm.mavlink.mapping import FrameMapper
 from gcs_pdm.mavlink.replay import replay_tlog
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import PACK_NAMES, default_set, extended_default
-from gcs_pdm.vehicle.replay import TracedPipeline, replay_vehicle
-from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+from gcs_pdm.replay.vehicle import TracedPipeline, replay_vehicle
+from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
 REPO = Path(__file__).resolve().parents[1]
 FLIGHT = REPO / "fixtures" / "flights" / "fault_01.tlog"

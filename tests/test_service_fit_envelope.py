@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from gcs_pdm.fitting.envelope import CURRENT_MARGIN_REL, TEMPERATURE_MARGIN_K, outside_training, training_envelopes
+from gcs_pdm.models.training_envelope import CURRENT_MARGIN_REL, TEMPERATURE_MARGIN_K, outside_training, training_envelopes
 from gcs_pdm.service.fit_envelope import FitEnvelopeWatch, fit_envelope_warnings
 
 TRAINING = {"pack_temperature_c": [5.0, 40.0], "ambient_c": [0.0, 30.0], "sustained_current_a": 20.0}

@@ -20,7 +20,7 @@ from gcs_pdm.service.storage import Conflict  # noqa: E402
 from gcs_pdm.service.vehicle_discovery import AwaitingVehicle  # noqa: E402
 from gcs_pdm.vehicle.presets import PRESETS  # noqa: E402
 from gcs_pdm.vehicle.provisional import ProvisionalObserver  # noqa: E402
-from gcs_pdm.vehicle.telemetry import envelope, frame_mapping, waiting_mapping  # noqa: E402
+from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping, waiting_mapping  # noqa: E402
 
 
 class Subscription:

@@ -18,8 +18,8 @@ from gcs_pdm.sim.model import VehicleModel, vehicle_config
 from gcs_pdm.sim.record import fly
 from gcs_pdm.sim.routes import mission_from_enu
 from gcs_pdm.vehicle.presets import PRESETS
-from gcs_pdm.vehicle.from_log import observe_file
-from gcs_pdm.vehicle.telemetry import frame_mapping
+from gcs_pdm.logs.provisional_vehicle import observe_file
+from gcs_pdm.mavlink.vehicle_mapping import frame_mapping
 
 
 def test_quad_flies_its_mission_and_a_faulted_motor_shows_in_its_esc_telemetry(tmp_path):

@@ -24,8 +24,8 @@ from gcs_pdm.frames import (AirdataFrame, AmbientFrame, MissionProgressFrame, Mo
 from gcs_pdm.mavlink.mapping import FrameMapper  # noqa: E402
 from gcs_pdm.mavlink.replay import replay_tlog  # noqa: E402
 from gcs_pdm.vehicle.presets import PRESETS  # noqa: E402
-from gcs_pdm.vehicle.replay import TracedPipeline, pipeline_for, replay_vehicle  # noqa: E402
-from gcs_pdm.vehicle.telemetry import envelope, frame_mapping  # noqa: E402
+from gcs_pdm.replay.vehicle import TracedPipeline, pipeline_for, replay_vehicle  # noqa: E402
+from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO / ".." / "shared"
@@ -100,6 +100,13 @@ def test_the_declared_types_are_the_handled_ones():
         assert pipeline.frames == 6
 
 
+#: real logs whose 0.7 s samples never fall on a passed-over frame: the traced pipeline takes the
+#: flight conditions' frames (status, position, air data: estimation.flight_conditions) as well, and
+#: in these logs the frames it passes over (wind, mission progress, status text) never come first at
+#: a sample's instant (test_randomly_damaged_logs keeps the path covered: > 100 due frames handed)
+NO_DUE_PASSED_OVER = {"ahmadkhanfar_TLOG_test.tlog", "arduplane_sitl_stock.tlog"}
+
+
 def _traced(desc, about, period_s=30.0):
     return lambda: TracedPipeline(desc, about, period_s=period_s, background=False)
 
@@ -123,7 +130,7 @@ def test_fixture_and_real_logs_as_the_replay_command_runs_them(path, handed_due)
         assert skipped == whole
     finally:
         logging.disable(logging.NOTSET)
-    assert handed_due or path in FIXTURE_LOGS or not trace
+    assert handed_due or path in FIXTURE_LOGS or not trace or Path(path).name in NO_DUE_PASSED_OVER
 
 
 def test_randomly_damaged_logs(tmp_path, handed_due):

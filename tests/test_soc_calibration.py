@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
-from gcs_pdm.estimation.calibration_eval import real_log_soc, simulated_pack_soc
+from gcs_pdm.replay.calibration_eval import real_log_soc, simulated_pack_soc
 from gcs_pdm.models.chemistry import CHEMISTRIES, chemistry_of_rest_voltage
 
 SHARED = Path(os.environ.get("GCS_PDM_SHARED", Path(__file__).parents[1] / ".." / "shared"))
@@ -233,7 +233,7 @@ def test_pybamm_truth_is_a_fraction_of_the_cells_true_capacity():
 
     import pyarrow.parquet as pq
 
-    from gcs_pdm.estimation.calibration_eval import pybamm_truth_soc
+    from gcs_pdm.replay.calibration_eval import pybamm_truth_soc
 
     root = Path(__file__).parents[1] / "fixtures" / "pybamm"
     manifest = json.loads((root / "manifest.json").read_text())

@@ -15,7 +15,8 @@ from gcs_pdm.vehicle.description import VehicleError, dumps, from_dict, load, pa
 from gcs_pdm.vehicle.presets import resolve
 from gcs_pdm.vehicle.model_inputs import model_inputs
 from gcs_pdm.vehicle.presets import PRESETS
-from gcs_pdm.vehicle.provisional import CapacityUnknown, derive_provisional, observe_tlog
+from gcs_pdm.mavlink.provisional_vehicle import observe_tlog
+from gcs_pdm.vehicle.provisional import CapacityUnknown, derive_provisional
 
 STOCK_TLOG = Path(__file__).parents[1] / ".." / "shared" / "logs" / "arduplane_sitl_stock.tlog"
 needs_stock_tlog = pytest.mark.skipif(not STOCK_TLOG.exists(), reason=f"{STOCK_TLOG} not found")

@@ -17,8 +17,8 @@ from gcs_pdm.mavlink.mapping import FrameMapper
 from gcs_pdm.mavlink.replay import replay_tlog
 from gcs_pdm.vehicle.model_inputs import model_inputs
 from gcs_pdm.vehicle.presets import PRESETS
-from gcs_pdm.vehicle.provisional import observe_tlog
-from gcs_pdm.vehicle.telemetry import frame_mapping
+from gcs_pdm.mavlink.provisional_vehicle import observe_tlog
+from gcs_pdm.mavlink.vehicle_mapping import frame_mapping
 
 STOCK_TLOG = Path(__file__).parents[1] / ".." / "shared" / "logs" / "arduplane_sitl_stock.tlog"
 needs_stock_tlog = pytest.mark.skipif(not STOCK_TLOG.exists(), reason=f"{STOCK_TLOG} not found")

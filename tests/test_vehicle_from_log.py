@@ -11,8 +11,9 @@ import pytest
 from gcs_pdm.cli import main
 from gcs_pdm.logs.reader import read_log
 from gcs_pdm.vehicle.description import VehicleError, load
-from gcs_pdm.vehicle.from_log import airframe_of_log, log_observations, observe_file, observe_log
-from gcs_pdm.vehicle.provisional import derive_provisional, observe_tlog
+from gcs_pdm.logs.provisional_vehicle import airframe_of_log, log_observations, observe_file, observe_log
+from gcs_pdm.mavlink.provisional_vehicle import observe_tlog
+from gcs_pdm.vehicle.provisional import derive_provisional
 
 LOGS = Path(__file__).parents[1] / ".." / "shared" / "logs"
 STOCK_BIN = LOGS / "arduplane_sitl_stock.bin"

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import BATTERY, Flight
+from gcs_pdm.logs.tables import BATTERY, Flight
 
 log = logging.getLogger(__name__)
 

@@ -170,12 +170,12 @@ def _print_warnings(res, label: str | None) -> None:
 
 def run_vehicle(args: argparse.Namespace, settings, desc=None) -> int:
     """``fit battery --vehicle X``: each of the description's packs (or ``--pack``), a parameter set of
-    its packs and the description pointing at it (gcs_pdm/vehicle/fit.py). ``desc``: a description
+    its packs and the description pointing at it (gcs_pdm/fitting/vehicle.py). ``desc``: a description
     already at hand (derived from an autopilot log) instead of ``--vehicle``."""
     from gcs_pdm.fitting.logs import read_flights, write_outputs
-    from gcs_pdm.fitting.tables import BATTERY, MOTOR, FlightDataError
+    from gcs_pdm.logs.tables import BATTERY, MOTOR, FlightDataError
     from gcs_pdm.vehicle.description import VehicleError
-    from gcs_pdm.vehicle.fit import fit_motors, fit_packs, start_soc_warnings, write_fitted
+    from gcs_pdm.fitting.vehicle import fit_motors, fit_packs, start_soc_warnings, write_fitted
     from gcs_pdm.vehicle.presets import resolve
 
     try:
@@ -224,7 +224,7 @@ def run_vehicle(args: argparse.Namespace, settings, desc=None) -> int:
 def run(args: argparse.Namespace) -> int:
     from gcs_pdm.fitting.logs import AUTOPILOT_LOG_SUFFIXES, read_flights, write_outputs
     from gcs_pdm.fitting.procedure import fit_battery, fit_motor, merge_results
-    from gcs_pdm.fitting.tables import FlightDataError
+    from gcs_pdm.logs.tables import FlightDataError
     from gcs_pdm.models.params import builtin
 
     kind = args.fit_what
@@ -240,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
         # an autopilot's own log names its vehicle: derived as replay and `vehicle init` derive it
         # (one derivation for tlog, .bin and .ulg), its packs by battery instance
         from gcs_pdm.vehicle.description import VehicleError
-        from gcs_pdm.vehicle.from_log import observe_file
+        from gcs_pdm.logs.provisional_vehicle import observe_file
 
         try:
             desc, notes = observe_file(args.train[0])
@@ -333,7 +333,7 @@ def run_learn_synthetic(args: argparse.Namespace) -> int:
 def run_set(args: argparse.Namespace) -> int:
     from gcs_pdm.fitting.learn_set import learn_from_tlogs
     from gcs_pdm.fitting.logs import write_outputs
-    from gcs_pdm.fitting.tables import FlightDataError
+    from gcs_pdm.logs.tables import FlightDataError
 
     try:
         settings = _settings(args)

@@ -1,7 +1,7 @@
-"""Reading flight logs (CSV, Parquet, MAVLink tlog, autopilot .bin/.ulg via gcs_pdm.logs) into :class:`~gcs_pdm.fitting.tables.Flight` s,
+"""Reading flight logs (CSV, Parquet, MAVLink tlog, autopilot .bin/.ulg via gcs_pdm.logs) into :class:`~gcs_pdm.logs.tables.Flight` s,
 and writing a fit's outputs (``result.json``, ``predictions/<flight>.csv``, plots). Shell module: files.
 
-Tables: one flight per file with the columns of :mod:`gcs_pdm.fitting.tables` (extra columns are
+Tables: one flight per file with the columns of :mod:`gcs_pdm.logs.tables` (extra columns are
 ignored). Tlogs go through the MAVLink engineer's scanner and frame mapping (``gcs_pdm.mavlink``),
 stamped with the tlog record time (see ``_collect_tlog``): every pack's ``PackFrame`` becomes a battery flight (ambient from
 ``AmbientFrame``, interpolated to the pack's times), and the two ``MotorFrame`` streams become one
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import BATTERY, KINDS, MOTOR, Flight, FlightDataError, flight_from_columns
+from gcs_pdm.logs.tables import BATTERY, KINDS, MOTOR, Flight, FlightDataError, flight_from_columns
 from gcs_pdm.models.params import PACK_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -86,7 +86,7 @@ def _interp(t: np.ndarray, ts: np.ndarray, xs: np.ndarray) -> np.ndarray:
     return np.interp(t, ts[ok][order], xs[ok][order])
 
 
-def _collect_tlog(path: Path, col: "_FrameCollector", mapping: dict | None = None) -> None:
+def _collect_tlog(path: Path, col: "_FrameCollector", mapping: dict) -> None:
     """Feed every packet of a tlog to the MAVLink engineer's frame mapping; stamp each frame with
     its tlog record time.
 
@@ -103,7 +103,7 @@ def _collect_tlog(path: Path, col: "_FrameCollector", mapping: dict | None = Non
 
     battery_status = MESSAGE_IDS_BY_NAME["BATTERY_STATUS"]
 
-    mapper = FrameMapper(mapping) if mapping is not None else FrameMapper()
+    mapper = FrameMapper(mapping)
     stats = ScanStats()
     recv = 0.0
     first_us = None
@@ -129,19 +129,18 @@ def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES,
               vehicle: "VehicleDescription | None" = None) -> list[Flight]:
     """Battery flights (one per pack in ``packs``) or the motor flight of one tlog. With a
     ``vehicle`` description its packs (by BATTERY_STATUS id) and motors (by ESC index) are read,
-    named as it names them; else the paper's four packs at ids 0-3."""
+    named as it names them; none given is the paper's aircraft, the ``edge540`` preset (its four
+    packs at ids 0-3)."""
+    from gcs_pdm.mavlink.vehicle_mapping import frame_mapping
+    from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
+
     path = Path(path)
     if not path.is_file():
         raise FlightDataError(f"{path}: no such file")
-    ids = {p: i for i, p in enumerate(PACK_NAMES)}
-    mapping = None
-    if vehicle is not None:
-        from gcs_pdm.vehicle.telemetry import frame_mapping
-
-        ids = {p.name: p.mavlink_battery_id for p in vehicle.packs}
-        mapping = frame_mapping(vehicle)
+    desc = vehicle if vehicle is not None else PRESETS[DEFAULT_PRESET]
+    ids = {p.name: p.mavlink_battery_id for p in desc.packs}
     col = _FrameCollector(tuple(ids))
-    _collect_tlog(path, col, mapping)
+    _collect_tlog(path, col, frame_mapping(desc))
     if not col.ambient:
         raise FlightDataError(f"{path}: no ambient temperature frames in the tlog")
     amb = np.array(col.ambient, dtype=np.float64)

@@ -31,7 +31,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight
+from gcs_pdm.logs.tables import BATTERY, MOTOR, Flight
 from gcs_pdm.models import kernel
 from gcs_pdm.models.pack_scaling import value_scale
 from gcs_pdm.models.params import CELLS_PER_PACK, PACK_CAPACITY_C

@@ -32,11 +32,11 @@ from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
 from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenberg_marquardt,
                                    levenberg_marquardt_subset)
 from gcs_pdm.fitting.agreement import AGREEMENT_FACTOR, AGREEMENT_TOLERANCE, agreement_report, near_best
-from gcs_pdm.fitting.envelope import FlightConditions, envelope_report
+from gcs_pdm.models.training_envelope import FlightConditions, envelope_report
 from gcs_pdm.fitting.misfit import (MISFIT_PER_CELL_V, left_out_warning, misfit_warnings,
                                    training_segments_to_leave_out)
 from gcs_pdm.fitting.support import SOC_SUPPORT_SPAN, StartReading, support_report
-from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError
+from gcs_pdm.logs.tables import BATTERY, MOTOR, Flight, FlightDataError
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import (PACK_NAMES, MotorParams, PackParams, ParameterSet, builtin, extended_default,
                                    motor_from_vector, pack_from_vector, pack_vector)
@@ -214,7 +214,7 @@ class FitResult:
     #: SoC (gcs_pdm.fitting.support); None for the motor
     initial_soc_support: dict[str, Any] | None = None
     #: battery: whether each validation/test flight stays inside the training flights' temperatures and
-    #: currents (gcs_pdm.fitting.envelope); None for the motor
+    #: currents (gcs_pdm.models.training_envelope); None for the motor
     operating_envelope: dict[str, Any] | None = None
     #: battery: whether the near-best electrical candidates agree on each validation/test flight
     #: (gcs_pdm.fitting.agreement); None for the motor

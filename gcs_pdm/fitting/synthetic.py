@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight
+from gcs_pdm.logs.tables import BATTERY, MOTOR, Flight
 from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import PACK_NAMES, ParameterSet, builtin, motor_from_vector, perturbed
 from gcs_pdm.models.powertrain import Limits, air_density, ambient_temperature, shaft_power

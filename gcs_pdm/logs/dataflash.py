@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import FlightDataError
+from gcs_pdm.logs.tables import FlightDataError
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gcs_pdm.fitting.tables import FlightDataError
+from gcs_pdm.logs.tables import FlightDataError
 from gcs_pdm.logs.dataflash import series_from_dataflash
 from gcs_pdm.logs.series import LogSeries
 from gcs_pdm.logs.ulog import series_from_ulog

@@ -5,18 +5,16 @@ a tlog replay feeds (the estimator/diagnoser pipeline, with the estimate traced)
 vehicle description the replay diagnoses: battery instance → its pack, ESC instance → its motor
 (:func:`gcs_pdm.logs.series.described_names`). The summary says what the log lacked, what it had
 that the description does not name, and what could not be diagnosed; the exit status is a tlog
-replay's (docs/mavlink.md, "Replay").
+replay's (docs/mavlink.md, "Replay"). The command that prints it is ``gcs_pdm.replay.cli``.
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
 from collections import Counter
 from pathlib import Path
 
-from gcs_pdm.fitting.tables import FlightDataError
 from gcs_pdm.frames import FRAME_KIND_OF
 
 log = logging.getLogger(__name__)
@@ -98,34 +96,3 @@ def exit_status(summary: dict) -> int:
     """0: diagnosed; 1: read, but neither packs nor motors could be diagnosed (docs/mavlink.md)."""
     kinds = summary["frames_by_kind"]
     return 0 if kinds.get("pack") or kinds.get("motor") else 1
-
-
-def print_replay(path: Path, frame_consumer=None, as_json: bool = False, vehicle=None) -> int:
-    """Replay and print; returns the exit status: 2 unreadable, 1 nothing diagnosable, 0 success."""
-    import sys
-
-    from gcs_pdm.vehicle.replay import print_estimate
-
-    try:
-        summary = replay_log(path, frame_consumer, vehicle)
-    except FlightDataError as exc:
-        print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
-        return 2
-    status = exit_status(summary)
-    if as_json:
-        print(json.dumps(summary, default=str))
-        return status
-    print(f"{summary['path']}: {summary['autopilot']} log, {summary['frames']} frames in {summary['elapsed_s']:.3f} s; "
-          f"frame time span {summary['frame_time_span_s']}")
-    print("  frames by kind: " + ", ".join(f"{k}={v}" for k, v in summary["frames_by_kind"].items()))
-    print(f"  packs: {summary['packs']}; motors by ESC instance: {summary['motors']}")
-    for what, why in summary["left_out"].items():
-        print(f"  left out: {what}: {why}")
-    for what, why in summary["missing"].items():
-        print(f"  missing: {what}: {why}")
-    print_estimate(summary["consumer"])
-    for reason in summary["not_diagnosed"]:
-        print(f"  not diagnosed: {reason}")
-    print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}"
-          + ("" if status == 0 else " (nothing could be diagnosed: see above)"))
-    return status

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import BATTERY, MOTOR, Flight, FlightDataError, flight_from_columns
+from gcs_pdm.logs.tables import BATTERY, MOTOR, Flight, FlightDataError, flight_from_columns
 from gcs_pdm.models.params import PACK_NAMES
 
 

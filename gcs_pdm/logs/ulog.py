@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import FlightDataError
+from gcs_pdm.logs.tables import FlightDataError
 
 TOPICS = ["battery_status", "esc_status", "vehicle_air_data", "vehicle_gps_position", "airspeed",
           "wind", "wind_estimate"]  # the wind topic was wind_estimate before PX4 1.13

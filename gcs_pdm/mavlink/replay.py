@@ -20,7 +20,7 @@ A consumer that ignores most frames says so, and the column mapping then does no
 the frame classes it must see every frame of, and ``passed_over(count)``, told how many other
 frames it was not handed (a pipeline counts them). Optionally ``next_due_s``: a frame of any type
 whose ``time_s`` reaches it is handed over all the same, at its place in the log (the trace's
-samples: ``gcs_pdm.vehicle.replay.TracedPipeline``); it is read again after every frame handed.
+samples: ``gcs_pdm.replay.vehicle.TracedPipeline``); it is read again after every frame handed.
 Without ``consumed_frame_types`` (and in paced, UDP, streamed and not-yet-settled stretches) every
 frame is handed over, as the live link does. The summary is the same either way: the counts and
 the frame time span come from the columns (``tests/test_skip_frames.py``).

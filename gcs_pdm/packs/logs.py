@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.fitting.tables import FlightDataError
+from gcs_pdm.logs.tables import FlightDataError
 from gcs_pdm.packs.identity import serial_text
 
 LOG_KINDS = {".tlog": "tlog", ".bin": "dataflash", ".ulg": "ulog"}

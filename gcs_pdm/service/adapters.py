@@ -126,7 +126,7 @@ def make_diagnoser(params: ParameterSet, limits=None, vehicle=None):
     """The diagnosis pipeline: ``.consume(frame)``, ``active_faults()``, ``readiness()``; of
     ``vehicle`` or (None, ``edge540``) the paper's aircraft on ``params``."""
     from gcs_pdm.vehicle.presets import is_paper_aircraft
-    from gcs_pdm.vehicle.replay import pipeline_for
+    from gcs_pdm.replay.vehicle import pipeline_for
 
     # the scenario's limits are the paper aircraft's; a described vehicle carries its own
     paper = vehicle is None or is_paper_aircraft(vehicle)

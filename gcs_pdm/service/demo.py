@@ -448,7 +448,8 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     from gcs_pdm.service.server import start_mavlink, stop_mavlink
 
     if prepare:
-        from gcs_pdm.compiled import DEMO_GROUPS, prepare as prepare_compiled
+        from gcs_pdm.compiled import prepare as prepare_compiled
+        from gcs_pdm.service.warm_up import DEMO_GROUPS
 
         prepare_compiled(DEMO_GROUPS, out)
     wall0 = time.monotonic()

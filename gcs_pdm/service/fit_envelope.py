@@ -22,7 +22,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from gcs_pdm.fitting.envelope import SUSTAINED_S, outside_training, training_envelopes
+from gcs_pdm.models.training_envelope import SUSTAINED_S, outside_training, training_envelopes
 
 #: a window this much shorter than SUSTAINED_S is accepted (status ticks are not exactly 1 s apart)
 WINDOW_ACCEPT = 0.95

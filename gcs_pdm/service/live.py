@@ -104,7 +104,7 @@ class LiveLoop:
     def adopt_vehicle(self, desc, notes: list[str]) -> None:
         """A description derived from the first telemetry: the link maps its packs and motors from
         now on, and the estimator and diagnoser are built from it (on the telemetry thread)."""
-        from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+        from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
         self.link.mapper.remap(frame_mapping(desc), envelope(desc))
         self.diagnoser = adapters.make_diagnoser(self.service.params, vehicle=desc)

@@ -87,7 +87,7 @@ def start_mavlink(service: Service):
     # Frames are mapped by the vehicle description's pack ids and ESC indices, and gated against what
     # its packs (the paper's aircraft: the active parameter set's) can physically report. Without a
     # description no pack or motor is mapped until one is derived (service/vehicle_discovery.py).
-    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping, waiting_mapping
+    from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping, waiting_mapping
 
     desc = service.vehicle
     if desc is None:

@@ -24,13 +24,15 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
-from gcs_pdm.frames import AirdataFrame, MissionProgressFrame, PackFrame, PositionFrame, StatusFrame, StatusTextFrame
-from gcs_pdm.models.powertrain import MotorFault, air_density, shaft_power
+from gcs_pdm.estimation.flight_conditions import FlightConditions, PredictionInputs
+from gcs_pdm.estimation.flight_phase import FlightPhase
+from gcs_pdm.frames import MissionProgressFrame, PackFrame, PositionFrame, StatusFrame, StatusTextFrame
+from gcs_pdm.models.powertrain import MotorFault
 from gcs_pdm.service import adapters
-from gcs_pdm.service.flight_phase import FlightPhase, flight_phase
 from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
 from gcs_pdm.service.fit_envelope import FitEnvelopeWatch, estimator_readings, flown_envelopes
 from gcs_pdm.service.status_report import model_mismatch_summary
+from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 log = logging.getLogger(__name__)
 
@@ -40,8 +42,6 @@ MISSION_WATCH_TYPES = frozenset({"HEARTBEAT", "HOME_POSITION", "MISSION_CURRENT"
                                  "MISSION_COUNT"})
 #: the autopilot's own landed/in-air verdict (ArduCopter, PX4), read for the flight phase
 LANDED_STATE_TYPE = "EXTENDED_SYS_STATE"
-#: message seconds after which a landed state no longer counts (the vehicle stopped sending it)
-LANDED_STATE_MAX_AGE_S = 10.0
 #: wall seconds between two checks of the vehicle's silence
 LINK_CHECK_PERIOD_S = 0.2
 PREDICT_PERIOD_S = 10.0
@@ -70,10 +70,8 @@ class TelemetryIntake:
         #: latest message time seen (None before the first frame)
         self.time_s: float | None = None
         self.position = (math.nan, math.nan, math.nan)  # lat, lon, altitude above home
-        self.ground_alt_amsl: float | None = None
-        self._airdata: tuple[float, float] | None = None  # airspeed, climb rate
-        self._armed: bool | None = None  # HEARTBEAT's armed flag (None: not heard)
-        self._landed_state: tuple[int, float] | None = None  # EXTENDED_SYS_STATE landed_state, message time
+        #: what a prediction needs from the flight (phase, air density, load): the core's, as a replay's
+        self.conditions = FlightConditions()
         #: the vehicle has been silent too long (see check_link); why, for the refusals and /health
         self.link_lost = False
         self.link_lost_reason: str | None = None
@@ -165,16 +163,11 @@ class TelemetryIntake:
         st = self.service.state
         st.apply_frame(frame)
         t = frame.time_s
-        self.on_clock(t, bool(frame.armed) if isinstance(frame, StatusFrame) else self._armed)
+        self.on_clock(t, bool(frame.armed) if isinstance(frame, StatusFrame) else self.conditions.armed)
         self.time_s = t if self.time_s is None else max(self.time_s, t)
+        self.conditions.consume(frame)
         if isinstance(frame, PositionFrame) and frame.lat_deg is not None:
             self.position = (frame.lat_deg, frame.lon_deg, frame.relative_alt_m or 0.0)
-            if self.ground_alt_amsl is None and frame.alt_m is not None and frame.relative_alt_m is not None:
-                self.ground_alt_amsl = frame.alt_m - frame.relative_alt_m
-        elif isinstance(frame, AirdataFrame) and frame.airspeed is not None:
-            self._airdata = (frame.airspeed, frame.climb_rate or 0.0)
-        elif isinstance(frame, StatusFrame):
-            self._armed = bool(frame.armed)
         elif isinstance(frame, PackFrame):
             self.on_pack(frame)
         elif isinstance(frame, MissionProgressFrame) and frame.reached_seq is not None:
@@ -248,8 +241,11 @@ class TelemetryIntake:
 
     def on_landed_state(self, landed_state: int, time_s: float | None) -> None:
         """EXTENDED_SYS_STATE's MAV_LANDED_STATE (0 = undefined: not evidence) at message time."""
-        state = int(landed_state)
-        self._landed_state = (state, time_s if time_s is not None else 0.0) if state else None
+        self.conditions.on_landed_state(landed_state, time_s)
+
+    @property
+    def ground_alt_amsl(self) -> float | None:
+        return self.conditions.ground_alt_amsl
 
     # --- the link's state ------------------------------------------------------------------------
 
@@ -305,8 +301,7 @@ class TelemetryIntake:
         """The vehicle rebooted (its message time went back): count from its new clock."""
         self.time_s = None
         self._last_status_s = self._last_predict_s = -math.inf
-        self._armed = None
-        self._landed_state = None
+        self.conditions.restart_clock()
 
     def _check_recording(self) -> None:
         """One ``recording`` event when the live tlog stops (a full or failing disk) and one when it
@@ -324,31 +319,15 @@ class TelemetryIntake:
 
     def flight_phase(self, t: float) -> FlightPhase:
         """Flying or not, and why, from the latest telemetry and the vehicle's airframe."""
-        vehicle = self.service.vehicle
-        multirotor = vehicle is not None and vehicle.airframe.type == "multirotor"
-        airspeed, climb = self._airdata if self._airdata is not None else (None, None)
-        landed = self._landed_state
-        if landed is not None and t - landed[1] > LANDED_STATE_MAX_AGE_S:
-            landed = None
-        power = hover = None
-        if multirotor:
-            hover = float(self._described_power(vehicle, 0.0))
-            if self.estimator.ready():
-                v = self.estimator.estimate().pack_voltage_v
-                watts = [x for x in (v * self.estimator.pack_current) if math.isfinite(x)]
-                power = float(sum(watts)) if watts else None
-        return flight_phase(multirotor=multirotor, armed=self._armed, landed_state=landed[0] if landed else None,
-                            airspeed_mps=airspeed, climb_mps=climb, electrical_power_w=power, hover_power_w=hover)
+        return self.conditions.phase(t, self._vehicle(), self.estimator)
 
-    def _density(self) -> float:
-        alt = (self.ground_alt_amsl or 0.0) + (self.position[2] if math.isfinite(self.position[2]) else 0.0)
-        return float(air_density(alt))
+    def _vehicle(self):
+        """The vehicle flown: its description; none given is the paper's aircraft, the edge540 preset."""
+        return self.service.vehicle or PRESETS[DEFAULT_PRESET]
 
-    def _described_power(self, vehicle, airspeed: float) -> float:
-        """Level-flight shaft power of a description's airframe at ``airspeed`` (0: hover)."""
-        from gcs_pdm.vehicle.model_inputs import shaft_power_model
-
-        return float(shaft_power_model(vehicle)(airspeed, 0.0, self._density()))
+    def prediction_inputs(self, t: float) -> PredictionInputs:
+        """What a prediction at ``t`` starts from: the core's (``FlightConditions.inputs``), as a replay's."""
+        return self.conditions.inputs(t, self._vehicle(), self.estimator)
 
     def _not_flying(self, t: float, phase: FlightPhase) -> None:
         """No flight load on the ground: no count-down, and the reason in its place."""
@@ -361,32 +340,24 @@ class TelemetryIntake:
                               "time_s": t})
 
     def _predict(self, t: float) -> None:
-        """Time to each pack's cut-off at the present load (Monte Carlo), off the telemetry thread.
-
-        The load: the paper's aircraft at its shaft power from airspeed, climb and density; a
-        described multirotor at its airframe model's level-flight power at the present airspeed
-        (hover at zero; a climb lasts seconds, not the prediction's hour), its faults on its motors;
-        another described vehicle with each pack at its present draw."""
+        """Time to each pack's cut-off at the present load (Monte Carlo), off the telemetry thread;
+        the load is the core's (``FlightConditions.inputs``: the airframe's shaft power, or each
+        pack's present draw), the faults the vehicle's motors'."""
         if self._predicting or not self.estimator.ready():
             return
-        phase = self.flight_phase(t)
+        vehicle = self._vehicle()
+        inputs = self.prediction_inputs(t)
+        phase = inputs.phase
         if not phase.flying:
             self._not_flying(t, phase)
             return
-        airspeed, climb = self._airdata if self._airdata is not None else (0.0, 0.0)
-        amb = self.service.state.get("ambient_c")
-        amb = float(amb) if amb is not None else 20.0
-        limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
-        vehicle = self.service.vehicle
-        if adapters.follows_description(vehicle) and vehicle.airframe.type == "multirotor":
-            power = self._described_power(vehicle, airspeed)
-            job = adapters.prediction_job(self.estimator, power, amb, self.motor_faults(), seed=int(t))
-        elif adapters.follows_description(vehicle):
-            # a described fixed wing: each pack at its present draw (no four-pack shaft-power model)
-            job, power = adapters.cutoff_at_present_draw_job(self.estimator, vehicle, seed=int(t)), None
-        else:
-            power = float(shaft_power(airspeed, climb, self._density()))
-            job = adapters.prediction_job(self.estimator, power, amb, self.motor_faults(), limits, seed=int(t))
+        power = inputs.shaft_power_w
+        if power is None:
+            job = adapters.cutoff_at_present_draw_job(self.estimator, vehicle, seed=int(t))
+        else:  # the limits are the paper aircraft's; a described vehicle's estimator flies its own
+            limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
+            job = adapters.prediction_job(self.estimator, power, inputs.ambient_c, self.motor_faults(), limits,
+                                          seed=int(t))
         self._predicting = True
 
         def run() -> None:

@@ -323,7 +323,7 @@ def check_size(received: ReceivedFile, kind: str, limits: UploadLimits) -> None:
 def check_table(received: ReceivedFile, filename: str, kind: str) -> None:
     """The table must be readable by gcs_pdm.fitting.logs with at least a motor flight's columns."""
     from gcs_pdm.fitting.logs import read_table
-    from gcs_pdm.fitting.tables import MOTOR, FlightDataError
+    from gcs_pdm.logs.tables import MOTOR, FlightDataError
 
     # read_table picks the reader by suffix: give it a name with the kind's suffix beside the upload
     named = received.path.with_suffix(".csv" if kind == "csv" else ".parquet")

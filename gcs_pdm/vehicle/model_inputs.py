@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.fitting.envelope import training_envelopes
+from gcs_pdm.models.training_envelope import training_envelopes
 from gcs_pdm.models.pack_scaling import scale_pack_vector
 from gcs_pdm.models.params import (BUILTIN_SETS, CELLS_PER_PACK, PACK_CAPACITY_C, ParameterError, ParameterSet,
                                    motor_vector, pack_vector)

@@ -25,14 +25,14 @@ name and a field dict, as ``msg.to_dict()`` gives them, or as the link layer dec
 
 A VTOL (MAV_TYPE 19-24) is described as its fixed-wing cruise, said in the notes.
 
-``observe_tlog`` is the I/O shell over a tlog file; ``gcs_pdm.vehicle.from_log`` turns an
-autopilot's own log (DataFlash, ULog) into the same messages.
+The I/O shells feed it: ``gcs_pdm.mavlink.provisional_vehicle.observe_tlog`` a tlog file,
+``gcs_pdm.logs.provisional_vehicle`` an autopilot's own log (DataFlash, ULog) turned into the same
+messages, the service the live link.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 from gcs_pdm.models.chemistry import CHEMISTRIES, chemistry_of_rest_voltage
@@ -412,33 +412,5 @@ def derive_provisional(messages: Iterable[tuple[str, Mapping[str, Any]]], name: 
     return obs.derive(name, capacities)
 
 
-_WANTED = ["HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", *_ESC_MESSAGES]
-
-
-def tlog_messages(path: str | Path, *, system: int | None = None) -> Iterable[tuple[str, dict]]:
-    """The messages ``ProvisionalObserver`` uses from a tlog (I/O shell): the project's own tlog
-    scanner decodes only these, with the fields pymavlink's ``to_dict()`` gives (a few µs a message
-    where pymavlink's parser took ≈ 70 µs). The scan is kept for the replay that follows
-    (``gcs_pdm.mavlink.tlog.scanned_tlog``): a replay scans its log once."""
-    from gcs_pdm.mavlink.tlog import tlog_message_dicts
-
-    path = Path(path)
-    if not path.exists():
-        raise VehicleError(f"{path}: no such file")
-    return tlog_message_dicts(path, _WANTED, system=system)
-
-
-def observe_tlog(path: str | Path, name: str | None = None,
-                 capacities: Mapping[int, float] | None = None) -> tuple[VehicleDescription, list[str]]:
-    """The provisional description of a tlog: its BATTERY_STATUS messages (most of what it reads)
-    folded as columns at once, the rest message by message."""
-    from gcs_pdm.mavlink.tlog import tlog_message_columns, tlog_message_dicts
-
-    path = Path(path)
-    if not path.exists():
-        raise VehicleError(f"{path}: no such file")
-    obs = ProvisionalObserver()
-    for msg_name, fields in tlog_message_dicts(path, [n for n in _WANTED if n != "BATTERY_STATUS"]):
-        obs.observe(msg_name, fields)
-    obs.observe_batteries(tlog_message_columns(path, "BATTERY_STATUS"))
-    return obs.derive(name or f"provisional-{path.stem}", capacities)
+#: the messages ``ProvisionalObserver.observe`` folds: what a reader of a recorded flight decodes for it
+OBSERVED_MESSAGES = ("HEARTBEAT", "BATTERY_STATUS", "PARAM_VALUE", *_ESC_MESSAGES)

@@ -54,8 +54,8 @@ def real_log_soc(path: str | Path) -> tuple[dict, list[PackTrack]]:
     A log from which no description is derived gives no tracks (``about["why"]`` says why)."""
     from gcs_pdm.mavlink.mapping import FrameMapper
     from gcs_pdm.mavlink.replay import replay_tlog
-    from gcs_pdm.vehicle.replay import pipeline_for, replay_vehicle
-    from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+    from gcs_pdm.replay.vehicle import pipeline_for, replay_vehicle
+    from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
     path = Path(path)
     if path.suffix.lower() in (".bin", ".ulg"):
@@ -98,8 +98,8 @@ def _autopilot_log_soc(path: Path) -> tuple[dict, list[PackTrack]]:
     the autopilot's count as 1 − consumed / the capacity parameter (the log carries no remaining %)."""
     from gcs_pdm.logs.reader import read_log
     from gcs_pdm.vehicle.description import VehicleError
-    from gcs_pdm.vehicle.from_log import observe_log
-    from gcs_pdm.vehicle.replay import pipeline_for
+    from gcs_pdm.logs.provisional_vehicle import observe_log
+    from gcs_pdm.replay.vehicle import pipeline_for
 
     try:
         desc, notes = observe_log(path)

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     consumer = desc = None
     if not args.no_diagnose or args.vehicle:  # a given vehicle names the packs even undiagnosed
         from gcs_pdm.vehicle.description import VehicleError
-        from gcs_pdm.vehicle.replay import TracedPipeline, replay_vehicle
+        from gcs_pdm.replay.vehicle import TracedPipeline, replay_vehicle
 
         try:
             desc, about = replay_vehicle(args.file, args.vehicle)
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         mapping = json.loads(args.mapping.read_text()) if args.mapping else None
         if mapping is None and desc is not None:
-            from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
+            from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
             mapper = FrameMapper(frame_mapping(desc), target_system=args.system, target_component=args.component,
                                  envelope=envelope(desc))
@@ -71,21 +71,21 @@ def run(args: argparse.Namespace) -> int:
         print(f"gcs-pdm replay: error: bad mapping: {exc}", file=sys.stderr)
         return 2
     if consumer is not None:  # the estimator's compiled paths, in parallel on a cold cache, said when long
-        from gcs_pdm.compiled import REPLAY_GROUPS, prepare
+        from gcs_pdm.compiled import prepare
+        from gcs_pdm.replay.warm_up import REPLAY_GROUPS
 
         prepare(REPLAY_GROUPS, lambda line: print(f"gcs-pdm replay: {line}", file=sys.stderr, flush=True),
                 in_process=False)
     start_up_over()
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
-            from gcs_pdm.logs.replay import print_replay
-            return print_replay(args.file, consumer, as_json=args.json, vehicle=desc)
+            return _print_log_replay(args.file, consumer, as_json=args.json, vehicle=desc)
         summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
                               frame_consumer=consumer).to_dict()
     finally:  # the trace's worker thread ends with the replay, however it ends
         if consumer is not None:
             consumer.close()
-    from gcs_pdm.vehicle.replay import print_estimate
+    from gcs_pdm.replay.vehicle import print_estimate
 
     # 2: nothing could be read; 1: read, but neither packs nor motors could be diagnosed.
     diagnosable = summary["frames_by_kind"].get("pack") or summary["frames_by_kind"].get("motor")
@@ -115,4 +115,35 @@ def run(args: argparse.Namespace) -> int:
         print(f"  not diagnosed: {reason}")
     print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}"
           + ("" if diagnosable else " (nothing could be diagnosed: see above)"))
+    return status
+
+
+def _print_log_replay(path: Path, frame_consumer=None, as_json: bool = False, vehicle=None) -> int:
+    """Replay and print; returns the exit status: 2 unreadable, 1 nothing diagnosable, 0 success."""
+    from gcs_pdm.logs.replay import exit_status, replay_log
+    from gcs_pdm.logs.tables import FlightDataError
+    from gcs_pdm.replay.vehicle import print_estimate
+
+    try:
+        summary = replay_log(path, frame_consumer, vehicle)
+    except FlightDataError as exc:
+        print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
+        return 2
+    status = exit_status(summary)
+    if as_json:
+        print(json.dumps(summary, default=str))
+        return status
+    print(f"{summary['path']}: {summary['autopilot']} log, {summary['frames']} frames in {summary['elapsed_s']:.3f} s; "
+          f"frame time span {summary['frame_time_span_s']}")
+    print("  frames by kind: " + ", ".join(f"{k}={v}" for k, v in summary["frames_by_kind"].items()))
+    print(f"  packs: {summary['packs']}; motors by ESC instance: {summary['motors']}")
+    for what, why in summary["left_out"].items():
+        print(f"  left out: {what}: {why}")
+    for what, why in summary["missing"].items():
+        print(f"  missing: {what}: {why}")
+    print_estimate(summary["consumer"])
+    for reason in summary["not_diagnosed"]:
+        print(f"  not diagnosed: {reason}")
+    print(f"  faults raised: {summary['faults'] if summary['consumer'] is not None else 'n/a (no estimator attached)'}"
+          + ("" if status == 0 else " (nothing could be diagnosed: see above)"))
     return status

@@ -5,8 +5,9 @@ derived from the whole log, a tlog or an autopilot's ``.bin``/``.ulg`` alike (wh
 ``gcs-pdm vehicle init --from LOG`` would write). ``TracedPipeline``
 is the replay's frame consumer: the diagnosis pipeline on that description plus, every
 ``period_s`` of message time, each pack's SoC, temperature, current and Monte Carlo time to
-cut-off at the present draw, and each motor's current and rpm, so a replay's summary shows the
-flight, not only its last second.
+cut-off at the present draw, each motor's current and rpm, and what a prediction needs from the
+flight (``estimation.flight_conditions``: phase, air density, load; the live service's own), so a
+replay's summary shows the flight, not only its last second.
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs_pdm.vehicle.description import VehicleDescription, VehicleError
-from gcs_pdm.vehicle.presets import PRESETS, is_paper_aircraft, resolve
+from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS, is_paper_aircraft, resolve
 
 #: a pack is "drawing" (its time to cut-off is worth predicting) from this current, A
 DRAWING_CURRENT_A = 1.0
@@ -30,7 +31,7 @@ def replay_vehicle(log: Path, spec: str | None) -> tuple[VehicleDescription | No
     if spec:
         desc = resolve(spec)
         return desc, {"name": desc.name, "source": "given", "provisional": desc.provisional, "notes": []}
-    from gcs_pdm.vehicle.from_log import observe_file  # one derivation: tlog, DataFlash .bin, ULog .ulg
+    from gcs_pdm.logs.provisional_vehicle import observe_file  # one derivation: tlog, DataFlash .bin, ULog .ulg
 
     try:
         desc, notes = observe_file(log)
@@ -62,12 +63,18 @@ class TracedPipeline:
 
     def __init__(self, desc: VehicleDescription | None, about: dict, *, period_s: float = 30.0, seed: int = 0,
                  background: bool = True):
+        from gcs_pdm.estimation.flight_conditions import FlightConditions
         from gcs_pdm.vehicle.model_inputs import model_inputs
 
         self.pipeline = pipeline_for(desc)
         self.about = about
         self.period_s = period_s
-        self.cutoff_v = model_inputs(desc if desc is not None else PRESETS["edge540"]).pack_cutoff_v
+        #: the vehicle flown: none derived is the paper's aircraft, the edge540 preset (as the service)
+        self.vehicle = desc if desc is not None else PRESETS[DEFAULT_PRESET]
+        self.cutoff_v = model_inputs(self.vehicle).pack_cutoff_v
+        #: the prediction's inputs from the flight, worked out as the live service does
+        self.conditions = FlightConditions()
+        self._pipeline_types = self.pipeline.consumed_frame_types
         #: the samples; a drawing pack's ``time_to_cutoff_s`` is filled in by ``report()``
         self.trace: list[dict] = []
         #: message time of the next sample: taken after the first frame, of any type, reaching it
@@ -81,8 +88,13 @@ class TracedPipeline:
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-trace") if background else None
 
     def __call__(self, frame) -> None:
-        self.pipeline.consume(frame)
-        if frame.time_s >= self.next_due_s:
+        self.conditions.consume(frame)
+        due = frame.time_s >= self.next_due_s
+        if due or type(frame) in self._pipeline_types:
+            self.pipeline.consume(frame)
+        else:  # handed over for the flight conditions only: the pipeline counts it as passed over
+            self.pipeline.passed_over(1)
+        if due:
             self.next_due_s = frame.time_s + self.period_s
             self._sample(frame.time_s)
 
@@ -90,9 +102,10 @@ class TracedPipeline:
 
     @property
     def consumed_frame_types(self) -> frozenset:
-        """The pipeline's: a frame of another type changes nothing a sample reads (the state after
-        it is the state after the last consumed frame), so only due ones need handing over."""
-        return self.pipeline.consumed_frame_types
+        """The pipeline's and the flight conditions': a frame of another type changes nothing a
+        sample reads (the state after it is the state after the last consumed frame), so only due
+        ones need handing over."""
+        return self._pipeline_types | self.conditions.FRAME_TYPES
 
     def passed_over(self, count: int) -> None:
         self.pipeline.passed_over(count)
@@ -115,6 +128,7 @@ class TracedPipeline:
                       for i, n in enumerate(est.pack_names)},
             "motors": {n: {"current_a": _num(est.motor_current[i]), "rpm": _num(est.motor_rpm[i])}
                        for i, n in enumerate(est.motor_names)},
+            "flight": flight_entry(self.prediction_inputs(t)),
         }
         self.trace.append(entry)
         drawing = current >= DRAWING_CURRENT_A
@@ -124,6 +138,10 @@ class TracedPipeline:
             flown = samples.fly() if self._worker is None else self._worker.submit(samples.fly)
             self._pending.append((entry, drawing, samples, flown))
         return True
+
+    def prediction_inputs(self, t: float):
+        """What a prediction at ``t`` starts from (``FlightConditions.inputs``), as live."""
+        return self.conditions.inputs(t, self.vehicle, self.pipeline.estimator)
 
     def _fill_trace(self) -> None:
         """Each predicting sample's time to cut-off into its entry, in order: waits for the
@@ -176,6 +194,11 @@ def print_estimate(consumer_report: dict | None) -> None:
                           + (f", cut-off in {_f(p['time_to_cutoff_s'][1])} s" if p["time_to_cutoff_s"] else "")
                           for n, p in sample["packs"].items())
         print(f"  t={sample['time_s']:.0f} s: {packs}")
+
+
+def flight_entry(inputs) -> dict:
+    """A trace's ``flight``: the prediction's inputs, numbers as every trace value (``_num``)."""
+    return {k: _num(v) if isinstance(v, float) else v for k, v in inputs.to_dict().items()}
 
 
 def _f(x) -> str:

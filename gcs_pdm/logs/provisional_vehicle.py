@@ -107,7 +107,7 @@ def observe_log(path: str | Path, name: str | None = None, capacities: Mapping[i
                 ) -> tuple[VehicleDescription, list[str]]:
     """The provisional description of the vehicle that wrote ``path`` (``.bin`` or ``.ulg``);
     ``capacities`` (mAh by battery id) for packs whose capacity the log does not give."""
-    from gcs_pdm.fitting.tables import FlightDataError
+    from gcs_pdm.logs.tables import FlightDataError
     from gcs_pdm.logs.reader import read_log
 
     try:
@@ -125,7 +125,7 @@ def observe_file(path: str | Path, name: str | None = None, capacities: Mapping[
                  ) -> tuple[VehicleDescription, list[str]]:
     """A tlog, DataFlash or ULog file, by its extension."""
     from gcs_pdm.logs.reader import LOG_SUFFIXES
-    from gcs_pdm.vehicle.provisional import observe_tlog
+    from gcs_pdm.mavlink.provisional_vehicle import observe_tlog
 
     if Path(path).suffix.lower() in LOG_SUFFIXES:
         return observe_log(path, name, capacities)

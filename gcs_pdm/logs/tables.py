@@ -1,11 +1,11 @@
-"""Flight-log tables: what the fitter reads, as plain arrays with their units.
+"""Flight-log tables: what a log is read into and the fitter reads, as plain arrays with their units.
 
 A battery flight has ``time_s, current_a, voltage_v, temperature_c, ambient_c`` (pack current,
 discharge positive; pack terminal voltage; pack temperature; ambient air temperature). A motor
 flight has ``time_s, current_a`` (mean of the two motors), ``temperature_c`` (the bracket sensor)
 and ``ambient_c``. Extra columns are ignored; a missing required column is a :class:`FlightDataError`
-naming it. Reading files (CSV, Parquet, tlog) lives in :mod:`gcs_pdm.fitting.logs`; this module is
-pure.
+naming it. Reading files lives in :mod:`gcs_pdm.logs` (autopilot logs) and :mod:`gcs_pdm.fitting.logs`
+(CSV, Parquet, tlog); this module is pure, below both.
 """
 from __future__ import annotations
 

@@ -83,7 +83,7 @@ def _init(args) -> int:
     try:
         if args.log:
             from gcs_pdm.logs.kind import NotALog, log_kind
-            from gcs_pdm.vehicle.from_log import observe_file
+            from gcs_pdm.logs.provisional_vehicle import observe_file
 
             try:
                 log_kind(args.log)

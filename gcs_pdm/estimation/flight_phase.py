@@ -1,6 +1,6 @@
 """Is the vehicle flying? The answer decides whether a time to cut-off can be predicted at all:
 on the ground there is no flight load to extrapolate, and the status page must say so, not show a
-number. Pure: the telemetry intake passes what it last heard.
+number. Pure: ``flight_conditions.FlightConditions`` passes what it last heard.
 
 The evidence follows the airframe:
 
