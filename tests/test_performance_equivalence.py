@@ -16,6 +16,14 @@ Re-recorded (every file but the pack-health fits, kept as first recorded) after 
 temperature noise became the sensor's (issue 31: 0.4 °C per sample, 0.012 °C/√s; was 0.5 and 0.02):
 only pack temperatures, their σ, the temperature evidence of model-mismatch advisories, two pack
 voltages (< 1 mV) and one final SoC moved; every fault, time and count is as before.
+
+Re-recorded again (tests/reference/replay_cli only, pack-health fits kept) after the self-calibrating
+estimator learned R1 with its time constant, a slow pair and the temperature factor (issue 29), and
+the replay's trace gained each sample's ``flight`` conditions (issue 32): these logs are replayed
+without ``--vehicle``, so their packs are self-calibrated. Every fault other than the
+``model_mismatch`` advisory is as before (type, component, raise and clear times); the advisories'
+count moved on fault_03 (4 -> 0), learn_05 (4 -> 2), learn_07 (3 -> 4), learn_11 (4 -> 3), and the
+self-calibrated packs' SoC, σ and evidence moved.
 """
 from __future__ import annotations
 
