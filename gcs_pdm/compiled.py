@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import atexit
 import logging
+import math
 import os
 import subprocess
 import sys
@@ -42,27 +43,59 @@ PROGRESS_EVERY_S = 30.0
 
 # --- the groups: small real workloads --------------------------------------------------------------
 
+#: the ``filters`` group's pipelines fit no pack-health record: those fits are the ``pack_health``
+#: group's, compiled at the same time in another child (a check is due once, with too short a record)
+_NO_PACK_FITS = {"check_every_s": math.inf}
+
+
 def _filters() -> None:
-    """The diagnosis pipeline (state estimator, motor and pack-health diagnosers) over a recorded
-    flight, as the live loop builds it (``adapters.make_diagnoser``) and a replay runs it."""
+    """The diagnosis pipeline (state estimator, motor diagnosers, prognosis) over a recorded flight,
+    as the live loop builds it (``adapters.make_diagnoser``: ``pipeline_for`` the paper's aircraft)
+    and a replay runs it; its pack-health fits are the ``pack_health`` group's."""
+    from gcs_pdm.diagnosis.pack_health import PackHealthConfig
     from gcs_pdm.mavlink.mapping import FrameMapper
     from gcs_pdm.mavlink.replay import replay_tlog
     from gcs_pdm.models.params import builtin
-    from gcs_pdm.service import adapters
     from gcs_pdm.vehicle.presets import resolve
-
-    if not WARM_UP_TLOG.is_file():
-        return
-    diagnoser = adapters.make_diagnoser(builtin("paper_si"), vehicle=resolve("edge540"))
-    replay_tlog(WARM_UP_TLOG, mapper=FrameMapper(), frame_consumer=diagnoser.consume)
-    # a replay without --vehicle: the description derived from the log (its own motor layout)
     from gcs_pdm.vehicle.replay import pipeline_for, replay_vehicle
     from gcs_pdm.vehicle.telemetry import envelope, frame_mapping
 
+    if not WARM_UP_TLOG.is_file():
+        return
+    no_fits = PackHealthConfig(**_NO_PACK_FITS)
+    diagnoser = pipeline_for(resolve("edge540"), builtin("paper_si"), pack_config=no_fits)
+    replay_tlog(WARM_UP_TLOG, mapper=FrameMapper(), frame_consumer=diagnoser.consume)
+    # a replay without --vehicle: the description derived from the log (its own motor layout)
     desc, _ = replay_vehicle(WARM_UP_TLOG, None)
     if desc is not None:
         replay_tlog(WARM_UP_TLOG, mapper=FrameMapper(frame_mapping(desc), envelope=envelope(desc)),
-                    frame_consumer=pipeline_for(desc).consume)
+                    frame_consumer=pipeline_for(desc, pack_config=no_fits).consume)
+
+
+def _pack_health() -> None:
+    """The pack-health monitor's fits (its cold Gauss-Newton search and a warm check's extension)
+    on the recorded flight's pack frames, as the pipeline feeds them (``PackHealthMonitor.add``,
+    ``check``), without the filters: the two groups compile in parallel."""
+    from gcs_pdm.diagnosis.pack_health import PackHealthMonitor
+    from gcs_pdm.frames import PackFrame
+    from gcs_pdm.mavlink.mapping import FrameMapper
+    from gcs_pdm.mavlink.replay import replay_tlog
+    from gcs_pdm.models.params import PACK_NAMES, builtin
+    from gcs_pdm.service import adapters
+
+    if not WARM_UP_TLOG.is_file():
+        return
+    monitor = PackHealthMonitor(adapters.make_estimator(builtin("paper_si")).packs.params.copy())
+
+    def consume(frame) -> None:
+        if (isinstance(frame, PackFrame) and frame.pack in PACK_NAMES and frame.voltage_v is not None
+                and frame.current_a is not None):
+            t = float(frame.time_s)
+            monitor.add(PACK_NAMES.index(frame.pack), t, float(frame.current_a), float(frame.voltage_v), 20.0)
+            if monitor.due(t):
+                monitor.check(t)
+
+    replay_tlog(WARM_UP_TLOG, mapper=FrameMapper(), frame_consumer=consume)
 
 
 def _held_current() -> None:
@@ -109,15 +142,16 @@ def _predictions() -> None:
 
 
 #: group name -> workload; a child process runs ``python -m gcs_pdm.compiled GROUP``
-GROUPS: dict[str, Callable[[], None]] = {"filters": _filters, "held_current": _held_current,
-                                         "predictions": _predictions}
+GROUPS: dict[str, Callable[[], None]] = {"filters": _filters, "pack_health": _pack_health,
+                                         "held_current": _held_current, "predictions": _predictions}
 #: a compiled function of each group whose cache says whether the group is compiled already
 _PROBES = {"filters": ("gcs_pdm.estimation.ukf", "pack_step_one"),
+           "pack_health": ("gcs_pdm.diagnosis.pack_health", "_run_and_linearise"),
            "held_current": ("gcs_pdm.estimation.prediction", "_held_current_to_cutoff_compiled"),
            "predictions": ("gcs_pdm.models.topology", "_simulate")}
-#: what each command runs
-DEMO_GROUPS = ("filters", "held_current", "predictions")
-REPLAY_GROUPS = ("filters", "held_current")
+#: what each command runs, the longest to compile first (children start in this order)
+DEMO_GROUPS = ("filters", "pack_health", "held_current", "predictions")
+REPLAY_GROUPS = ("filters", "pack_health", "held_current")
 
 
 def cached(group: str) -> bool:
