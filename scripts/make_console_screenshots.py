@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
                 shots.append(str(path.relative_to(REPO) if path.is_relative_to(REPO) else path))
 
             page.goto(service.url + "/")
-            expect(page.locator("#map path.proposed-route")).to_have_count(1, timeout=120_000)
+            expect(page.locator("#map path.proposed-route")).to_have_count(1, timeout=300_000)  # a busy machine
             page.wait_for_timeout(2500)  # let the track and the plots gather a few more points
             shot("1_fault_and_proposal.png")
             approve_until_uploaded(page, service.token)
