@@ -17,7 +17,7 @@ from gcs_pdm.mavlink.connection import Link, LinkConfig
 from gcs_pdm.mavlink.dialect import mavlink2
 from gcs_pdm.service.demo import demo_telemetry
 from gcs_pdm.service.status_report import trust_warnings
-from gcs_pdm.sim.model import SimConfig, VehicleModel
+from gcs_pdm.sim.model import Event, SimConfig, VehicleModel
 from gcs_pdm.sim.telemetry import Telemetry
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -86,3 +86,22 @@ def test_a_second_sender_beside_the_fast_demo_vehicle_is_still_noticed(fake_time
     watch = link.trust_report()["heartbeats"]
     assert watch["anomalies"]["duplicate"] >= 3 and watch["suspected"]
     assert "heartbeat_spoofing" in link_trust_banners(link)
+
+
+def test_the_demo_vehicle_sends_no_heartbeat_beside_an_events_heartbeat():
+    """The demo vehicle's tick sends its events' messages, then its periodic ones: a mode change's
+    heartbeat and the periodic heartbeat were sent back to back, identical, with no timed sample
+    between (at arming and at landing: two of the demo's "duplicates", 0.2 ms apart). The event's
+    heartbeat now restarts the period; the recorded fixtures' telemetry keeps both."""
+    state = VehicleModel(SimConfig()).state()
+
+    def heartbeats_in_a_tick(config) -> int:
+        telemetry = Telemetry(config, seed=0)
+        telemetry.periodic(replace(state, time_s=0.0))
+        msgs = telemetry.events([Event(1.0, "mode")], replace(state, time_s=1.0)) + telemetry.periodic(
+            replace(state, time_s=1.0))
+        return sum(m.get_type() == "HEARTBEAT" for m in msgs)
+
+    demo = demo_telemetry()
+    assert heartbeats_in_a_tick(demo) == 1
+    assert heartbeats_in_a_tick(replace(demo, event_heartbeat_restarts_period=False)) == 2

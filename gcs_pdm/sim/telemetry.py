@@ -87,6 +87,10 @@ class TelemetryConfig:
     outages: tuple[tuple[float, float], ...] = ()  # (start s, duration s) of total telemetry silence
     #: Unix time of boot (µs) for SYSTEM_TIME; fixed so the same seed gives the same bytes
     boot_unix_us: int = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z
+    #: an event's heartbeat (a mode or arming change, a landing) restarts the periodic heartbeat's
+    #: period, so the two are not sent back to back with nothing between (identical: a duplicate to
+    #: the link's heartbeat watch). Off by default: the recorded fixtures keep their bytes.
+    event_heartbeat_restarts_period: bool = False
 
     def __post_init__(self) -> None:
         for name, hz in self.rates_hz.items():
@@ -164,6 +168,9 @@ class Telemetry:
                 out.append(self.mav.statustext_encode(ev.severity, ev.text.encode("utf-8")[:50]))
             elif ev.kind in ("mode", "armed", "disarmed", "landed"):
                 out.extend(self.heartbeat(s))
+                hz = self.rates.get("HEARTBEAT", 0.0)
+                if self.config.event_heartbeat_restarts_period and hz > 0.0:
+                    self._next["HEARTBEAT"] = s.time_s + 1.0 / hz
         return out
 
     def build(self, name: str, s: TruthState) -> list:
