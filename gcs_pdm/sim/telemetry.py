@@ -87,9 +87,10 @@ class TelemetryConfig:
     outages: tuple[tuple[float, float], ...] = ()  # (start s, duration s) of total telemetry silence
     #: Unix time of boot (µs) for SYSTEM_TIME; fixed so the same seed gives the same bytes
     boot_unix_us: int = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z
-    #: an event's heartbeat (a mode or arming change, a landing) restarts the periodic heartbeat's
-    #: period, so the two are not sent back to back with nothing between (identical: a duplicate to
-    #: the link's heartbeat watch). Off by default: the recorded fixtures keep their bytes.
+    #: one heartbeat announces the events of one moment (arming and the mode change, landing and
+    #: disarming: one each before), and it restarts the periodic heartbeat's period, so no two are
+    #: sent back to back with nothing between (identical: a duplicate to the link's heartbeat
+    #: watch). Off by default: the recorded fixtures keep their bytes.
     event_heartbeat_restarts_period: bool = False
 
     def __post_init__(self) -> None:
@@ -158,6 +159,7 @@ class Telemetry:
     def events(self, events: list[Event], s: TruthState) -> list:
         """Messages that report events (never dropped)."""
         out = []
+        announced = False
         for ev in events:
             if ev.kind == "reached":
                 out.append(self.mav.mission_item_reached_encode(ev.seq))
@@ -167,10 +169,14 @@ class Telemetry:
             elif ev.kind == "statustext":
                 out.append(self.mav.statustext_encode(ev.severity, ev.text.encode("utf-8")[:50]))
             elif ev.kind in ("mode", "armed", "disarmed", "landed"):
+                if self.config.event_heartbeat_restarts_period:
+                    if announced:
+                        continue  # one heartbeat announces the state, however many events changed it
+                    announced = True
+                    hz = self.rates.get("HEARTBEAT", 0.0)
+                    if hz > 0.0:
+                        self._next["HEARTBEAT"] = s.time_s + 1.0 / hz
                 out.extend(self.heartbeat(s))
-                hz = self.rates.get("HEARTBEAT", 0.0)
-                if self.config.event_heartbeat_restarts_period and hz > 0.0:
-                    self._next["HEARTBEAT"] = s.time_s + 1.0 / hz
         return out
 
     def build(self, name: str, s: TruthState) -> list:
