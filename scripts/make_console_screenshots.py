@@ -64,7 +64,10 @@ def main(argv: list[str] | None = None) -> int:
 
     shots: list[str] = []
     with tempfile.TemporaryDirectory(prefix="gcs-pdm-shots-") as tmp, sync_playwright() as p:
-        service = Service(Path(tmp) / "svc").start()
+        # a proposal is stale (Approve re-plans) after reevaluate_every_s of the vehicle's time: 30 s
+        # of wall time at the vehicle's speed-up, as at real time, leaves the operator time to click
+        service = Service(Path(tmp) / "svc",
+                          extra_env={"GCS_PDM_REEVALUATE_EVERY_S": f"{30.0 * args.speedup:g}"}).start()
         sim = Sim(service, speedup=args.speedup).start()
         browser = launch(p)
         try:
