@@ -51,7 +51,7 @@ def demo_vehicle_stream(seconds: float):
 
 
 def feed(link: Link, fake_time: FakeTime, speedup: float, copycat_every_s: float | None = None) -> None:
-    """The demo's vehicle at ``speedup``; with ``copycat_every_s``, a second sender of its
+    """The demo's vehicle at ``speedup``; with ``copycat_every_s``, a second sender repeating its
     heartbeat 2 ms of wall time (0.12 s of the vehicle's) after one of its heartbeats that often."""
     copycat = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
     copycat.seq = 200
@@ -62,7 +62,8 @@ def feed(link: Link, fake_time: FakeTime, speedup: float, copycat_every_s: float
         if copycat_every_s is not None and packet[7] == 0 and t >= next_copy:  # msgid 0: HEARTBEAT
             next_copy = t + copycat_every_s
             fake_time.now += 0.002
-            inject(link, copycat.heartbeat_encode(1, 3, 0, 0, 4).pack(copycat), fake_time)
+            heard = mavlink2.MAVLink(None).decode(bytearray(packet))  # the vehicle's own, its own counter
+            inject(link, heard.pack(copycat), fake_time)
             copycat.seq += 1
 
 
@@ -107,3 +108,25 @@ def test_the_demo_vehicle_sends_no_heartbeat_beside_an_events_heartbeat():
     demo = demo_telemetry()
     assert heartbeats_in_a_tick(demo) == 1
     assert heartbeats_in_a_tick(replace(demo, event_heartbeat_restarts_period=False)) == 3
+
+
+def test_heartbeats_of_two_quick_mode_changes_are_no_duplicate_the_same_one_twice_is(fake_time):
+    """Two commands in quick succession are each acknowledged by a heartbeat of the new state (a
+    change announced, not a second sender); the very same heartbeat twice is still a duplicate."""
+    link = Link(LinkConfig(url="udpin:127.0.0.1:1", heartbeat_hz=0))
+    state = VehicleModel(SimConfig()).state()
+    telemetry = Telemetry(demo_telemetry(), seed=0)
+    mav = telemetry.mav
+
+    def send(msgs) -> None:
+        for msg in msgs:
+            inject(link, msg.pack(mav), fake_time)
+            mav.seq = (mav.seq + 1) % 256
+
+    for k in range(20):  # the vehicle's timed stream and heartbeats, at real time
+        send(telemetry.periodic(replace(state, time_s=float(k))))
+        fake_time.sleep(1.0)
+    send(telemetry.heartbeat(replace(state, mode="RTL")) + telemetry.heartbeat(replace(state, mode="AUTO")))
+    assert link.trust_report()["heartbeats"]["anomalies"]["duplicate"] == 0
+    send(telemetry.heartbeat(replace(state, mode="AUTO")))
+    assert link.trust_report()["heartbeats"]["anomalies"]["duplicate"] == 1

@@ -13,7 +13,10 @@ pattern:
   60 times faster than real time sends its 1 Hz heartbeats 17 ms of wall time apart, and a timed
   sample it dropped (its seeded drop-outs) must not make two of them "duplicate" (the demo's false
   banner, issue 33). A sender can only raise the pace by moving the vehicle's message time, which
-  the clock's rules and its ``RateWatch`` are there for;
+  the clock's rules and its ``RateWatch`` are there for. Only a heartbeat announcing the same state
+  (custom mode, base mode, system status) as the one before counts: two commands in quick
+  succession (a mode change, the mission's restart after an upload) are each acknowledged by a
+  heartbeat of the new state;
 * ``identity``: a field a vehicle never changes (MAV_TYPE, MAV_AUTOPILOT, mavlink_version) differs
   from the first heartbeat's;
 * ``out_of_sequence``: its sequence number does not continue the id's previous packet (one sender
@@ -40,12 +43,18 @@ SUSPECT_COUNT = 3
 WINDOW_S = 60.0
 KINDS = ("duplicate", "identity", "out_of_sequence", "uncorroborated")
 #: HEARTBEAT's payload: custom_mode u32, then type, autopilot, base_mode, system_status, mavlink_version
-_TYPE_AT, _AUTOPILOT_AT, _VERSION_AT = 4, 5, 8
+_TYPE_AT, _AUTOPILOT_AT, _BASE_MODE_AT, _VERSION_AT = 4, 5, 6, 8
 
 
 def _identity(payload: bytes) -> tuple[int, int, int]:
     p = bytes(payload).ljust(9, b"\0")  # MAVLink 2 drops trailing zero bytes
     return p[_TYPE_AT], p[_AUTOPILOT_AT], p[_VERSION_AT]
+
+
+def _state(payload: bytes) -> bytes:
+    """What a heartbeat announces: custom_mode, base_mode, system_status."""
+    p = bytes(payload).ljust(9, b"\0")
+    return p[0:_TYPE_AT] + p[_BASE_MODE_AT:_VERSION_AT]
 
 
 class HeartbeatWatch:
@@ -55,6 +64,7 @@ class HeartbeatWatch:
         self._identity: tuple[int, int, int] | None = None
         self._last_at: float | None = None
         self._last_timed_count: int | None = None
+        self._last_state: bytes | None = None
         self._recent: deque[tuple[float, str]] = deque()
         self._warned = False
         #: (wall s, message s) of the vehicle's latest timed samples (``note_timed``)
@@ -89,8 +99,9 @@ class HeartbeatWatch:
             self._identity = ident
         elif ident != self._identity:
             found.append("identity")
+        state = _state(payload)
         if (self._last_at is not None and (at_s - self._last_at) * self.pace() < MIN_INTERVAL_S
-                and timed_count is not None
+                and state == self._last_state and timed_count is not None
                 and timed_count == self._last_timed_count):
             found.append("duplicate")
         if previous_seq is not None and not 1 <= (seq - previous_seq) % 256 <= 128:
@@ -98,6 +109,7 @@ class HeartbeatWatch:
         if timed_silent_s is not None and timed_silent_s > UNCORROBORATED_AFTER_S:
             found.append("uncorroborated")
         self._last_at = at_s
+        self._last_state = state
         self._last_timed_count = timed_count
         for kind in found:
             self.counts[kind] += 1
