@@ -23,6 +23,36 @@ sys.path.insert(0, str(REPO))
 from console_harness import RequestLog, Service, Sim, battery_fit_request, launch, motor_fit_request  # noqa: E402
 
 
+def approve_until_uploaded(page, token: str, timeout_s: float = 180.0) -> None:
+    """Approve as an operator does until an upload is confirmed: a proposal older than the service's
+    re-evaluation period (or made under other faults) is re-planned when approved, and the new
+    proposal shows instead of an upload; so each proposal the page shows is approved in turn, the
+    token given when the page asks for it."""
+    import time
+
+    from playwright.sync_api import Error as PlaywrightError
+
+    clicked: set[str] = set()
+    deadline = time.monotonic() + timeout_s
+    confirmed = page.locator('.outcome[data-upload-status="confirmed"]')
+    while confirmed.count() == 0:
+        if time.monotonic() > deadline:
+            raise SystemExit(f"no confirmed upload within {timeout_s:.0f} s (approved plans {sorted(clicked)})")
+        if page.locator("#token-dialog").is_visible():
+            page.locator("#token-input").fill(token)
+            page.locator("#token-save").click()
+        for button in page.locator(".plan button.approve:enabled").all():
+            plan_id = button.get_attribute("data-id")
+            if plan_id not in clicked:
+                try:
+                    button.click(timeout=5_000)
+                except PlaywrightError:  # the page re-rendered the plan away meanwhile: look again
+                    break
+                clicked.add(plan_id)
+                break
+        page.wait_for_timeout(250)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(REPO / "docs" / "console"))
@@ -34,7 +64,10 @@ def main(argv: list[str] | None = None) -> int:
 
     shots: list[str] = []
     with tempfile.TemporaryDirectory(prefix="gcs-pdm-shots-") as tmp, sync_playwright() as p:
-        service = Service(Path(tmp) / "svc").start()
+        # a proposal is stale (Approve re-plans) after reevaluate_every_s of the vehicle's time: 30 s
+        # of wall time at the vehicle's speed-up, as at real time, leaves the operator time to click
+        service = Service(Path(tmp) / "svc",
+                          extra_env={"GCS_PDM_REEVALUATE_EVERY_S": f"{30.0 * args.speedup:g}"}).start()
         sim = Sim(service, speedup=args.speedup).start()
         browser = launch(p)
         try:
@@ -47,14 +80,10 @@ def main(argv: list[str] | None = None) -> int:
                 shots.append(str(path.relative_to(REPO) if path.is_relative_to(REPO) else path))
 
             page.goto(service.url + "/")
-            expect(page.locator("#map path.proposed-route")).to_have_count(1, timeout=120_000)
+            expect(page.locator("#map path.proposed-route")).to_have_count(1, timeout=300_000)  # a busy machine
             page.wait_for_timeout(2500)  # let the track and the plots gather a few more points
             shot("1_fault_and_proposal.png")
-            plan = service.get("/missions/proposed")[0]
-            page.locator(f"#approve-{plan['id']}").click()
-            page.locator("#token-input").fill(service.token)
-            page.locator("#token-save").click()
-            expect(page.locator('.outcome[data-upload-status="confirmed"]')).to_have_count(1, timeout=60_000)
+            approve_until_uploaded(page, service.token)
             page.wait_for_timeout(4000)
             shot("2_upload_confirmed.png")
             sim.stop()

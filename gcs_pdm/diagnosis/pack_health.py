@@ -21,8 +21,9 @@ kernel run (base and perturbed rows) is carried on over the samples that arrived
 that left the record are dropped, and one Gauss–Newton step is taken from that run's theta with its
 own Jacobian (``_fit_extended``); the step is kept when no unknown moves beyond its finite-difference
 perturbation and the residual did not grow, else the record is fitted afresh as above. A search's
-iterations (``_iterate``) and an extension (``_extend``) are each one compiled call that releases
-the GIL; the fits afresh of a check's packs run on threads.
+iterations (``_iterate``: one compiled call per iteration) and an extension (``_extend``) run compiled
+code that releases the GIL (the least-squares step between is LAPACK's, called from Python); the fits
+afresh of a check's packs run on threads.
 
 Thresholds sit above what an uncalibrated parameter set alone produces (≈15 % per parameter for
 the simulated vehicle); after the fitter has learned the real pack they can be tightened.
@@ -272,29 +273,39 @@ _EPS = np.array([0.02, 0.005, 0.005])
 _CONVERGED = 1e-4
 
 
-@njit(inline="always")
-def _py_max(a, b):
-    """Python's ``max(a, b)``: ``a`` unless ``b`` is greater (a NaN ``a`` stays)."""
-    return b if b > a else a
+def _lstsq(a: np.ndarray, b: np.ndarray, rcond: float) -> np.ndarray:
+    """``np.linalg.lstsq(a, b, rcond)[0]`` as numba's compiled ``lstsq`` computes it: LAPACK's
+    ``dgelsd`` from SciPy's LAPACK (the one numba links to), its workspace from the same query,
+    ``b`` copied into a (max(m, n), 1) column, so the same numbers. Called from Python: compiling
+    numba's ``lstsq`` cost ≈ 8 s of CPU on a fresh install's first replay (issue 33), a call here
+    a few microseconds."""
+    from scipy.linalg import lapack
+
+    if not (np.isfinite(a).all() and np.isfinite(b).all()):
+        raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")  # numba's check and words
+    m, n = a.shape
+    rhs = np.zeros((max(m, n), 1), order="F")
+    rhs[:m, 0] = b
+    work, iwork, info = lapack.dgelsd_lwork(m, n, 1, rcond)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"dgelsd workspace query failed (info {info})")
+    x, _, _, info = lapack.dgelsd(np.asfortranarray(a), rhs, int(work), iwork, rcond)
+    if info > 0:
+        raise np.linalg.LinAlgError("SVD did not converge in Linear Least Squares")
+    return x[:n, 0].copy()
 
 
-@njit(inline="always")
-def _py_min(a, b):
-    """Python's ``min(a, b)``: ``a`` unless ``b`` is smaller."""
-    return b if b < a else a
+def _rcond(a_used: np.ndarray) -> float:
+    """``np.linalg.lstsq``'s default ``rcond``: machine precision times the larger dimension."""
+    return float(np.finfo(np.float64).eps * max(a_used.shape[0], a_used.shape[1]))
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, perturbed, eps, max_step):
-    """A Gauss–Newton search's iterations in one compiled call (the Python loop spent as much on
-    array set-up, the kernel's wrapper and ``lstsq``'s as the kernel on the record): per iteration
-    the base and perturbed parameter rows (``_scaled``), their initial states
-    (``kernel.initial_pack_state``), one kernel run, ``_linearise``, the least-squares step (LAPACK's
-    ``gelsd`` as ``np.linalg.lstsq`` calls it, with its default ``rcond``), the trust region and the
-    bounds; the same operations in the same order as the numpy formulation, so the same numbers.
-    ``dt``, ``current``, ``ambient`` are (1, n) rows. Returns (ok, theta, step, r, jac, use, and the last
-    run: the theta it ran at, its parameter rows, voltages, SoCs and final states); ok is False when
-    fewer than 20 samples were usable."""
+def _run_and_linearise(params, dt, current, ambient, voltage, min_soc, theta, perturbed, eps, keep):
+    """One Gauss–Newton iteration's compiled part (``_iterate``): the base and perturbed parameter
+    rows at ``theta`` (``_scaled``), their initial states (``kernel.initial_pack_state``), one
+    kernel run over the record and ``_linearise``. ``dt``, ``current``, ``ambient`` are (1, n) rows.
+    Returns (parameter rows, voltages, SoCs, final states, then ``_linearise``'s seven results)."""
     n = current.shape[1]
     n_vec = 1 + perturbed.shape[0]
     p = np.empty((n_vec, params.shape[0]))
@@ -304,65 +315,70 @@ def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, 
     run_soc = np.empty((n_vec, n))
     states = np.empty((1, 1, kernel.N_PACK_STATE))
     final = np.empty((n_vec, kernel.N_PACK_STATE))
-    keep = np.ones(n, dtype=np.bool_)
+    for v in range(n_vec):
+        th = theta.copy()
+        if v > 0:
+            th[perturbed[v - 1]] += eps[perturbed[v - 1]]
+        for i in range(params.shape[0]):
+            p[v, i] = params[i]
+        p[v, kernel.I_RS] *= th[0]
+        p[v, kernel.I_RCP0] *= th[0]
+        p[v, kernel.I_CB] *= th[1]
+        p[v, kernel.I_QMAX] *= th[1]
+        p[v, kernel.I_CMAX] *= th[1]
+        soc = th[2]
+        r_cp = p[v, kernel.I_RCP0] + p[v, kernel.I_RCP1] * np.exp(p[v, kernel.I_RCP2] * (1.0 - soc))
+        x0[v, kernel.S_QB] = p[v, kernel.I_QMAX] - (1.0 - soc) * p[v, kernel.I_CMAX]
+        x0[v, kernel.S_QCP] = current[0, 0] * r_cp * p[v, kernel.I_CCP]
+        x0[v, kernel.S_QS] = current[0, 0] * p[v, kernel.I_RS] * p[v, kernel.I_CS]
+        x0[v, kernel.S_T] = ambient[0, 0]
+    kernel._simulate_packs(p, x0, dt, current, ambient, kernel.DEFAULT_MAX_DT, run_voltage, run_temperature,
+                           run_soc, states, False, final)
+    r, jac, use, keep, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage, keep, perturbed, eps,
+                                                          min_soc)
+    return p, run_voltage, run_soc, final, r, jac, use, keep, n_use, a_used, r_used
+
+
+def _iterate(params, dt, current, ambient, voltage, min_soc, iterations, theta, perturbed, eps, max_step):
+    """A Gauss–Newton search's iterations: per iteration one compiled call (``_run_and_linearise``:
+    the rows, their kernel run, the linearisation), the least-squares step (``_lstsq``, as
+    ``np.linalg.lstsq`` with its default ``rcond``), the trust region and the bounds; the same
+    operations in the same order as the numpy formulation, so the same numbers. Returns (ok, theta,
+    step, r, jac, use, and the last run: the theta it ran at, its parameter rows, voltages, SoCs and
+    final states); ok is False when fewer than 20 samples were usable."""
+    if iterations < 1:
+        raise ValueError(f"iterations: at least 1, got {iterations}")
+    keep = np.ones(current.shape[1], dtype=np.bool_)
     theta = theta.copy()
     step = np.zeros(3)
-    rcond_eps = np.finfo(np.float64).eps
-    r = np.empty(0)
-    jac = np.empty((0, 3))
-    use = np.empty(0, dtype=np.bool_)
-    theta_run = theta.copy()
     for _ in range(iterations):
         theta_run = theta.copy()
-        for v in range(n_vec):
-            th = theta.copy()
-            if v > 0:
-                th[perturbed[v - 1]] += eps[perturbed[v - 1]]
-            for i in range(params.shape[0]):
-                p[v, i] = params[i]
-            p[v, kernel.I_RS] *= th[0]
-            p[v, kernel.I_RCP0] *= th[0]
-            p[v, kernel.I_CB] *= th[1]
-            p[v, kernel.I_QMAX] *= th[1]
-            p[v, kernel.I_CMAX] *= th[1]
-            soc = th[2]
-            r_cp = p[v, kernel.I_RCP0] + p[v, kernel.I_RCP1] * np.exp(p[v, kernel.I_RCP2] * (1.0 - soc))
-            x0[v, kernel.S_QB] = p[v, kernel.I_QMAX] - (1.0 - soc) * p[v, kernel.I_CMAX]
-            x0[v, kernel.S_QCP] = current[0, 0] * r_cp * p[v, kernel.I_CCP]
-            x0[v, kernel.S_QS] = current[0, 0] * p[v, kernel.I_RS] * p[v, kernel.I_CS]
-            x0[v, kernel.S_T] = ambient[0, 0]
-        kernel._simulate_packs(p, x0, dt, current, ambient, kernel.DEFAULT_MAX_DT, run_voltage, run_temperature,
-                               run_soc, states, False, final)
-        r, jac, use, keep, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage, keep, perturbed, eps,
-                                                              min_soc)
+        p, run_voltage, run_soc, final, r, jac, use, keep, n_use, a_used, r_used = _run_and_linearise(
+            params, dt, current, ambient, voltage, min_soc, theta, perturbed, eps, keep)
         if n_use < 20:
             return False, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final
-        rcond = rcond_eps * max(a_used.shape[0], a_used.shape[1])
-        solution = np.linalg.lstsq(a_used, r_used, rcond=rcond)[0]
+        solution = _lstsq(a_used, r_used, _rcond(a_used))
         step = np.zeros(3)
-        for k in range(perturbed.shape[0]):
-            step[perturbed[k]] = solution[k]
+        step[perturbed] = solution
         # a trust region: the knee makes the first linearisation poor far from the answer
         shrink = np.min(max_step / (np.abs(step) + 1e-12))
-        step = step * _py_min(1.0, shrink)
+        step = step * min(1.0, shrink)
         theta = theta + step
-        theta[0] = _py_max(theta[0], 0.05)
-        theta[1] = _py_min(_py_max(theta[1], 0.05), 2.0)
-        theta[2] = _py_min(_py_max(theta[2], 0.0), 1.1)  # above 1 only to stay unbiased near full
+        theta[0] = max(theta[0], 0.05)
+        theta[1] = min(max(theta[1], 0.05), 2.0)
+        theta[2] = min(max(theta[2], 0.0), 1.1)  # above 1 only to stay unbiased near full
         if np.all(np.abs(step) < _CONVERGED):
             break
     return True, theta, step, r, jac, use, theta_run, p, run_voltage, run_soc, final
 
 
 @njit(cache=True, nogil=True, fastmath=False, error_model="numpy")
-def _extend(params, final, prev_voltage, prev_soc, offset, dt, current, ambient, voltage, min_soc, perturbed, eps):
-    """``_fit_extended``'s work in one compiled call: the previous run's rows (``params``, states
-    ``final`` after its last sample) carried on over the new samples (``dt``, ``current``,
-    ``ambient``: (1, m) rows) and joined to its voltages and SoCs from sample ``offset`` on, the
-    linearisation, the least-squares step (as ``np.linalg.lstsq``), and the SoC along the record at
-    the stepped theta to first order. Returns (ok, step, r, jac, use, voltages, SoCs, final states,
-    SoC); ok is False when fewer than 20 samples were usable or the step leaves the Jacobian's range
-    (an unknown moving more than its perturbation)."""
+def _carry_on_and_linearise(params, final, prev_voltage, prev_soc, offset, dt, current, ambient, voltage, min_soc,
+                            perturbed, eps):
+    """``_extend``'s compiled part: the previous run's rows (``params``, states ``final`` after its
+    last sample) carried on over the new samples (``dt``, ``current``, ``ambient``: (1, m) rows) and
+    joined to its voltages and SoCs from sample ``offset`` on, and the linearisation. Returns
+    (voltages, SoCs, final states, then ``_linearise``'s seven results)."""
     n_vec = params.shape[0]
     m = current.shape[1]
     old = prev_voltage.shape[1] - offset
@@ -386,24 +402,30 @@ def _extend(params, final, prev_voltage, prev_soc, offset, dt, current, ambient,
             for k in range(m):
                 run_voltage[v, old + k] = more_voltage[v, k]
                 run_soc[v, old + k] = more_soc[v, k]
-    r, jac, use, _, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage,
-                                                       np.ones(voltage.shape[0], dtype=np.bool_), perturbed, eps,
-                                                       min_soc)
+    r, jac, use, keep, n_use, a_used, r_used = _linearise(run_voltage, run_soc[0], voltage,
+                                                          np.ones(voltage.shape[0], dtype=np.bool_), perturbed, eps,
+                                                          min_soc)
+    return run_voltage, run_soc, final, r, jac, use, keep, n_use, a_used, r_used
+
+
+def _extend(params, final, prev_voltage, prev_soc, offset, dt, current, ambient, voltage, min_soc, perturbed, eps):
+    """``_fit_extended``'s work: the previous run carried on over the new samples and linearised
+    (``_carry_on_and_linearise``, one compiled call), the least-squares step (``_lstsq``, as
+    ``np.linalg.lstsq``), and the SoC along the record at the stepped theta to first order. Returns
+    (ok, step, r, jac, use, voltages, SoCs, final states, SoC); ok is False when fewer than 20
+    samples were usable or the step leaves the Jacobian's range (an unknown moving more than its
+    perturbation)."""
+    run_voltage, run_soc, final, r, jac, use, _, n_use, a_used, r_used = _carry_on_and_linearise(
+        params, final, prev_voltage, prev_soc, offset, dt, current, ambient, voltage, min_soc, perturbed, eps)
     step = np.zeros(3)
     soc = run_soc[0].copy()
     if n_use < 20:
         return False, step, r, jac, use, run_voltage, run_soc, final, soc
-    rcond = np.finfo(np.float64).eps * max(a_used.shape[0], a_used.shape[1])
-    solution = np.linalg.lstsq(a_used, r_used, rcond=rcond)[0]
-    for k in range(perturbed.shape[0]):
-        step[perturbed[k]] = solution[k]
-    for j in range(3):
-        if not abs(step[j]) <= eps[j]:  # also a NaN step
-            return False, step, r, jac, use, run_voltage, run_soc, final, soc
-    for k in range(perturbed.shape[0]):
-        j = perturbed[k]
-        for i in range(soc.shape[0]):
-            soc[i] += step[j] * ((run_soc[1 + k, i] - run_soc[0, i]) / eps[j])
+    step[perturbed] = _lstsq(a_used, r_used, _rcond(a_used))
+    if not np.all(np.abs(step) <= eps):  # also a NaN step
+        return False, step, r, jac, use, run_voltage, run_soc, final, soc
+    for k, j in enumerate(perturbed.tolist()):
+        soc += step[j] * ((run_soc[1 + k] - run_soc[0]) / eps[j])
     return True, step, r, jac, use, run_voltage, run_soc, final, soc
 
 

@@ -485,6 +485,7 @@ class Link:
                 now = time.monotonic()
                 if self.mapper.clock is clock and clock.accepted > accepted:
                     self._vehicle_timed_at = now
+                    self.heartbeats.note_timed(now, clock.now)
                 if packet.msgid == HEARTBEAT_ID:
                     self.heartbeats.note(now, packet.payload, packet.seq, previous_seq, self._timed_silent_s(now),
                                          self.mapper.clock.accepted if self.mapper.clock.synced else None)

@@ -86,7 +86,8 @@ def demo_telemetry():
     from gcs_pdm.sim.telemetry import RECORDING_RATES, TelemetryConfig
 
     rates = dict(RECORDING_RATES, GLOBAL_POSITION_INT=1.0, VFR_HUD=1.0, MISSION_CURRENT=1.0, HEARTBEAT=1.0)
-    return TelemetryConfig(rates_hz=rates)
+    # an event's heartbeat is the period's: sent beside the periodic one, the pair was a "duplicate"
+    return TelemetryConfig(rates_hz=rates, event_heartbeat_restarts_period=True)
 
 
 def flown_waypoints(items, scenario, tolerance_m: float = 5.0) -> tuple[list[int], float]:

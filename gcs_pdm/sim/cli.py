@@ -141,7 +141,7 @@ def build_config(args: argparse.Namespace):
                                 autostart=not args.no_autostart, start_delay_s=args.start_delay)
         if args.airspeed is not None:
             config = replace(config, cruise_airspeed_mps=args.airspeed)
-        return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate)
+        return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate, event_heartbeat_restarts_period=True)
     config = SimConfig(
         seed=args.seed, truth_seed=args.truth_seed if args.truth_seed is not None else DEFAULT_TRUTH_SEED,
         params=params, home_lat_deg=lat, home_lon_deg=lon, home_alt_m=alt, ground_temp_c=args.ground_temp,
@@ -149,7 +149,7 @@ def build_config(args: argparse.Namespace):
         wind_gust_mps=gust,
         cruise_airspeed_mps=args.airspeed if args.airspeed is not None else 25.0, mission=mission, autostart=not args.no_autostart,
         start_delay_s=args.start_delay)
-    return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate)
+    return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate, event_heartbeat_restarts_period=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -87,6 +87,12 @@ class TelemetryConfig:
     outages: tuple[tuple[float, float], ...] = ()  # (start s, duration s) of total telemetry silence
     #: Unix time of boot (µs) for SYSTEM_TIME; fixed so the same seed gives the same bytes
     boot_unix_us: int = 1_767_225_600_000_000  # 2026-01-01T00:00:00Z
+    #: an event's heartbeat (arming, a mode change, landing) only when the state it announces is not
+    #: the latest heartbeat's already (arming and the mode change, landing and disarming come as two
+    #: events, from one tick or two commands), and it restarts the periodic heartbeat's period: no
+    #: two identical heartbeats back to back with nothing between (a duplicate to the link's
+    #: heartbeat watch). Off by default: the recorded fixtures keep their bytes; on for a live vehicle.
+    event_heartbeat_restarts_period: bool = False
 
     def __post_init__(self) -> None:
         for name, hz in self.rates_hz.items():
@@ -102,6 +108,11 @@ def _clip_int(x: float, lo: int, hi: int) -> int:
     if not math.isfinite(x):
         return lo
     return int(min(hi, max(lo, round(x))))
+
+
+def _announces(beat) -> tuple:
+    """What a heartbeat announces: the vehicle's mode, arming and status."""
+    return beat.custom_mode, beat.base_mode, beat.system_status
 
 
 def pressure_hpa(alt_amsl_m: float) -> float:
@@ -120,6 +131,8 @@ class Telemetry:
         # stagger the streams over the first period so they do not all fall on one tick
         self._next: dict[str, float] = {name: 0.0 for name in self.rates}
         self.sent: dict[str, int] = {}
+        #: the state the latest heartbeat built announced (``event_heartbeat_restarts_period``)
+        self._announced: tuple | None = None
         self.dropped = 0
 
     def set_rate(self, name: str, hz: float) -> None:
@@ -163,7 +176,14 @@ class Telemetry:
             elif ev.kind == "statustext":
                 out.append(self.mav.statustext_encode(ev.severity, ev.text.encode("utf-8")[:50]))
             elif ev.kind in ("mode", "armed", "disarmed", "landed"):
-                out.extend(self.heartbeat(s))
+                beat = self.heartbeat(s)
+                if self.config.event_heartbeat_restarts_period:
+                    if _announces(beat[0]) == self._announced:
+                        continue  # this state is announced already (one heartbeat for the events of a moment)
+                    hz = self.rates.get("HEARTBEAT", 0.0)
+                    if hz > 0.0:
+                        self._next["HEARTBEAT"] = s.time_s + 1.0 / hz
+                out.extend(beat)
         return out
 
     def build(self, name: str, s: TruthState) -> list:
@@ -193,8 +213,10 @@ class Telemetry:
         else:
             status = mavlink2.MAV_STATE_STANDBY
         modes = COPTER_MODES if s.multirotor else PLANE_MODES
-        return [self.mav.heartbeat_encode(s.mav_type, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
-                                          modes.get(s.mode, 0), status, 3)]
+        beat = self.mav.heartbeat_encode(s.mav_type, mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
+                                         modes.get(s.mode, 0), status, 3)
+        self._announced = _announces(beat)
+        return [beat]
 
     def sys_status(self, s: TruthState) -> list:
         sensors = (mavlink2.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink2.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
