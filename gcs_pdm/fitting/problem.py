@@ -31,7 +31,6 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from gcs_pdm.fitting import portable_math
 from gcs_pdm.logs.tables import BATTERY, MOTOR, Flight
 from gcs_pdm.models import kernel
 from gcs_pdm.models.pack_scaling import value_scale
@@ -173,9 +172,8 @@ class ParameterSpace:
         lo = np.array([b.lo for b in self.bounds], dtype=np.float64)
         hi = np.array([b.hi for b in self.bounds], dtype=np.float64)
         self.linear = lo <= 0.0
-        # portable_math, not np.log/np.exp: the same bits on every machine (the fit amplifies last bits)
-        self.log_lo = np.where(self.linear, lo, portable_math.log(np.where(self.linear, 1.0, lo)))
-        self.log_hi = np.where(self.linear, hi, portable_math.log(np.where(self.linear, 1.0, hi)))
+        self.log_lo = np.where(self.linear, lo, np.log(np.where(self.linear, 1.0, lo)))
+        self.log_hi = np.where(self.linear, hi, np.log(np.where(self.linear, 1.0, hi)))
 
     @property
     def dim(self) -> int:
@@ -183,12 +181,11 @@ class ParameterSpace:
 
     def to_values(self, U: np.ndarray) -> np.ndarray:
         x = self.log_lo + np.asarray(U) * (self.log_hi - self.log_lo)
-        return np.where(self.linear, x, portable_math.exp(x)) if self.linear.any() else portable_math.exp(x)
+        return np.where(self.linear, x, np.exp(x)) if self.linear.any() else np.exp(x)
 
     def to_unit(self, values: np.ndarray) -> np.ndarray:
         v = np.asarray(values, dtype=np.float64)
-        x = (np.where(self.linear, v, portable_math.log(np.where(self.linear, 1.0, v))) if self.linear.any()
-             else portable_math.log(v))
+        x = np.where(self.linear, v, np.log(np.where(self.linear, 1.0, v))) if self.linear.any() else np.log(v)
         return (x - self.log_lo) / (self.log_hi - self.log_lo)
 
 

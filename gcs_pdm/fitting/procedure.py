@@ -29,7 +29,7 @@ import numpy as np
 from gcs_pdm.fitting import problem as pb
 from gcs_pdm.fitting.cleaning import CleaningReport, CleaningSettings, RejectedFlight, clean_flights
 from gcs_pdm.fitting.errors import error_stats, pooled, with_fahrenheit
-from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenberg_marquardt, snap,
+from gcs_pdm.fitting.search import (FitCancelled, SearchSettings, anneal, levenberg_marquardt,
                                    levenberg_marquardt_subset)
 from gcs_pdm.fitting.agreement import AGREEMENT_FACTOR, AGREEMENT_TOLERANCE, agreement_report, near_best
 from gcs_pdm.models.training_envelope import FlightConditions, envelope_report
@@ -438,16 +438,10 @@ def _run_stage(name: str, make: Callable[[Sequence[Flight], int], pb._Problem], 
     return U[chosen], stage, prob
 
 
-#: significant bits of the validation errors the choice compares (2^-20: ~1e-6 relative)
-CHOICE_BITS = 20
-
-
 def _choose(train_mse: np.ndarray, val_mse: np.ndarray, train_tolerance: float) -> int:
     """Index of the candidate with the lowest validation MSE, among those whose training RMSE is within
     ``train_tolerance`` times the best (all of them if ``train_tolerance`` is 0)."""
-    # validation errors equal to ~1e-6 tie (the lowest start wins): starts that LM took to the same point
-    # differ in their last bits, and which of them is "lowest" would otherwise be each machine's own
-    val = snap(np.asarray(val_mse, dtype=np.float64), CHOICE_BITS)
+    val = np.asarray(val_mse, dtype=np.float64)
     if train_tolerance > 0:
         fits = np.asarray(train_mse) <= train_tolerance ** 2 * np.min(train_mse)
         val = np.where(fits, val, np.inf)

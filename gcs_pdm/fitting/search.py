@@ -10,21 +10,10 @@ and the temperature falls geometrically from ``t_start`` to ``t_end``. We chose 
 is ~20× faster per vector at a population of 40 than at 1 (call overhead and Python per step), so
 the same evaluation budget takes a fraction of the wall time (docs/fitting.md has the figures).
 
-**The same answer on every machine.** The annealing's decisions (which proposal, accept or not,
-new best or not) are comparisons of costs, and a comparison is a discrete amplifier: a cost that
-differs in its last bit (another CPU's ``exp``/``log`` in libm or numpy's SIMD paths, another BLAS
-kernel) can flip one decision, and from there every later generation walks elsewhere and LM starts
-from another point (docs/notes/2026-11-27-fit-determinism.md has the measurement). So the annealing
-compares costs snapped to a binary grid far coarser than such noise and far finer than anything the
-search cares about (:data:`LOG_COST_GRID`; its temperatures and steps likewise, :func:`snap`): a
-last-bit difference then changes a decision only if it straddles a grid line, about once in 10^9
-evaluations instead of routinely. Nothing here depends on thread counts or the wall clock.
-
 **Levenberg–Marquardt** (:func:`levenberg_marquardt`): ``scipy.optimize.least_squares(method="lm")``
-on the residual vector, in ``z`` with u = (1 + z / sqrt(1 + z^2)) / 2 (a bounded transform, so the
-unconstrained LM stays inside the expected ranges; algebraic, not MINUIT's (1 + sin z) / 2, because
-sqrt is correctly rounded everywhere and sin is each machine's own), with a batched forward-difference
-Jacobian: the d shifted vectors are one kernel call per flight.
+on the residual vector, in ``z`` with u = (1 + sin z) / 2 (MINUIT's bounded transform, so the
+unconstrained LM stays inside the expected ranges), with a batched forward-difference Jacobian: the
+d shifted vectors are one kernel call per flight.
 """
 from __future__ import annotations
 
@@ -67,25 +56,6 @@ class AnnealResult:
     evaluations: int
 
 
-#: grid of the annealing's log-costs: 2^-20 (~1e-6, i.e. costs equal to a millionth compare equal), ~10^9
-#: times an ulp of a log-cost and ~10^3 times finer than the coldest temperature (1e-3) the search resolves
-LOG_COST_GRID = 2.0 ** -20
-#: significant bits kept by :func:`snap` (the schedule's temperatures and steps, validation errors)
-SNAP_BITS = 32
-
-
-def snap(x: np.ndarray | float, bits: int = SNAP_BITS) -> np.ndarray:
-    """``x`` rounded to ``bits`` significant bits, exactly (frexp/ldexp): values that differ only in their
-    last bits (another machine's libm) come out equal unless they straddle a rounding boundary."""
-    m, e = np.frexp(np.asarray(x, dtype=np.float64))
-    return np.ldexp(np.round(m * 2.0 ** bits) / 2.0 ** bits, e)
-
-
-def snapped_log_cost(mse: np.ndarray) -> np.ndarray:
-    """log of the mean squared error on the :data:`LOG_COST_GRID` (what the annealing compares)."""
-    return np.round(np.log(np.maximum(mse, 1e-300)) / LOG_COST_GRID) * LOG_COST_GRID
-
-
 def _reflect(u: np.ndarray) -> np.ndarray:
     u = np.abs(u)
     u = np.where(u > 1.0, 2.0 - u, u)
@@ -100,18 +70,17 @@ def anneal(cost: Callable[[np.ndarray], np.ndarray], dim: int, settings: SearchS
     S, K, G = s.starts, s.sa_proposals, s.sa_generations
     start = rng.random((S, dim))
     cur = start.copy()
-    e_cur = snapped_log_cost(cost(cur))
+    e_cur = np.log(np.maximum(cost(cur), 1e-300))
     best, e_best = cur.copy(), e_cur.copy()
     evaluations = S
     for g in range(G):
         if should_stop is not None and should_stop():
             raise FitCancelled("stopped during annealing")
         frac = g / max(G - 1, 1)
-        # snapped: pow is libm's too, and the step moves every proposal
-        temp = float(snap(s.sa_t_start * (s.sa_t_end / s.sa_t_start) ** frac))
-        step = float(snap(s.sa_step_start * (s.sa_step_end / s.sa_step_start) ** frac))
+        temp = s.sa_t_start * (s.sa_t_end / s.sa_t_start) ** frac
+        step = s.sa_step_start * (s.sa_step_end / s.sa_step_start) ** frac
         prop = _reflect(cur[:, None, :] + step * rng.standard_normal((S, K, dim)))
-        e = snapped_log_cost(cost(prop.reshape(S * K, dim))).reshape(S, K)
+        e = np.log(np.maximum(cost(prop.reshape(S * K, dim)), 1e-300)).reshape(S, K)
         evaluations += S * K
         k = np.argmin(e, axis=1)
         e_new = e[np.arange(S), k]
@@ -126,18 +95,12 @@ def anneal(cost: Callable[[np.ndarray], np.ndarray], dim: int, settings: SearchS
 
 
 def _u_of_z(z: np.ndarray) -> np.ndarray:
-    return 0.5 * (1.0 + z / np.sqrt(1.0 + z * z))
-
-
-def _du_dz(z: np.ndarray) -> np.ndarray:
-    q = 1.0 + z * z
-    return 0.5 / (q * np.sqrt(q))
+    return 0.5 * (1.0 + np.sin(z))
 
 
 def _z_of_u(u: np.ndarray) -> np.ndarray:
-    # keep off the exact bounds, which only z = ±inf reaches
-    w = np.clip(2.0 * np.asarray(u) - 1.0, -0.999, 0.999)
-    return w / np.sqrt(1.0 - w * w)
+    # keep off the exact bounds, where the transform's derivative vanishes
+    return np.arcsin(np.clip(2.0 * np.asarray(u) - 1.0, -0.999, 0.999))
 
 
 @dataclass
@@ -203,8 +166,8 @@ def levenberg_marquardt(residuals: Callable[[np.ndarray], np.ndarray], u0: np.nd
         J = np.zeros((r0.size, n))
         J[:, fd_cols] = ((R[:nd] - r0) / h).T
         if J_own is not None:
-            # chain rule through u(z)
-            J[:, own] = J_own * _du_dz(z[own])
+            # chain rule through u = (1 + sin z) / 2
+            J[:, own] = J_own * (0.5 * np.cos(z[own]))
         if extra:
             col = (R[nd] - r0) / h
             for i, rows in enumerate(blocks):
