@@ -41,6 +41,8 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     # the original mission does not keep the reserve over the draws even healthy (issue 31): the
     # landing-forecast alarm re-plans it at take-off, before the fault; the fault re-plans again
     assert r.predicted["keep"]["feasible_on_truth"] is False
+    # the summary scores the replan made once the fault was known, not the take-off alarm's
+    assert r.predicted["at_time_s"] >= r.fault_detected_s
     i_alarm, i_plan, i_up = (text.index(k) for k in ("REPLAN   alarm: landing forecast", "PLAN     approved",
                                                       "UPLOAD   plan 1: confirmed"))
     assert i_alarm < i_plan < i_up

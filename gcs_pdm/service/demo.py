@@ -5,7 +5,7 @@
 2. the service (policy ``auto``) diagnoses the fault from telemetry, replans over the waypoints not
    yet visited, uploads the new mission, confirms it by download and tells the operator (STATUSTEXT);
 3. the terminal shows it as it happens (and the HTTP status page at the printed address);
-4. the summary: reward of the original route on the degraded vehicle versus the replanned one, both
+4. the summary: reward of the current route at the fault's replan on the degraded vehicle versus the replanned one, both
    scored by the vehicle simulator on the true parameters, and what the vehicle actually flew —
    beside the same vehicle flying the original mission without the service.
 """
@@ -273,7 +273,10 @@ class Operator(_Background):
 
 
 def summarise_predictions(service: Service) -> dict:
-    """The first replan's current-mission and replanned routes, re-scored on the TRUE parameters."""
+    """The first replan after the fault was diagnosed (else the first replan): its current-mission and
+    replanned routes, re-scored on the TRUE parameters and the TRUE fault. A plan made before the
+    fault (the landing-forecast alarm re-plans at take-off) did not know of it, so scoring it with the
+    fault would say gcs-pdm's route fails where the flown one did not."""
     from gcs_pdm.planning.plan import make_plan
     from gcs_pdm.planning.scenario import Scenario
     from gcs_pdm.planning.simulator import VehicleSimulator
@@ -282,7 +285,9 @@ def summarise_predictions(service: Service) -> dict:
     plans = [p for p in reversed(service.store.plans()) if p["status"] in ("uploaded", "kept", "proposed")]
     if not plans:
         return {}
-    plan = plans[0]
+    diagnosed = min((f["time_s"] for f in service.store.faults() if f["kind"] == "motor_power_loss"), default=None)
+    after_fault = [p for p in plans if diagnosed is not None and p["time_s"] >= diagnosed]
+    plan = (after_fault or plans)[0]
     import dataclasses
 
     import numpy as np
@@ -529,9 +534,9 @@ def print_summary(r: DemoResult, out=print) -> None:
     p = r.predicted
     if p:
         k, n = p.get("keep", {}), p.get("planner", {})
-        out(f"at t={p['at_time_s']:.1f} s, scored by the vehicle simulator on the TRUE parameters "
+        out(f"the replan at t={p['at_time_s']:.1f} s, scored by the vehicle simulator on the TRUE parameters and fault "
             f"(reward {p['collected_before']:g} already collected):")
-        out(f"  original route {k.get('route')}: reward {k.get('reward_on_truth', 0):g}"
+        out(f"  current route  {k.get('route')}: reward {k.get('reward_on_truth', 0):g}"
             f" ({'gets home' if k.get('feasible_on_truth') else 'fails: ' + str(k.get('failure_on_truth'))})")
         out(f"  replanned      {n.get('route')}: reward {n.get('reward_on_truth', 0):g}"
             f" ({'gets home' if n.get('feasible_on_truth') else 'fails: ' + str(n.get('failure_on_truth'))})")
