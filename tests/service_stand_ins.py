@@ -16,6 +16,9 @@ class FakeLink:
     def add_frame_listener(self, cb):
         pass
 
+    def wait_for_vehicle(self, timeout=10.0):
+        return 1, 1
+
     def send(self, msg):
         self.sent.append(msg)
 

@@ -30,23 +30,7 @@ from gcs_pdm.service.live import LiveLoop
 from gcs_pdm.service.runtime import Service
 from gcs_pdm.service.storage import Conflict
 from gcs_pdm.sim.truth import true_parameters
-
-
-class FakeLink:
-    def __init__(self):
-        self.mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=195)
-        self.sent = []
-        self.received = 0
-        self.target_system, self.target_component = 1, 1
-
-    def add_frame_listener(self, cb):
-        pass
-
-    def wait_for_vehicle(self, timeout=10.0):
-        return 1, 1
-
-    def send(self, msg):
-        self.sent.append(msg)
+from service_stand_ins import FakeLink  # tests/service_stand_ins.py
 
 
 class FakeVehicleMissions:
