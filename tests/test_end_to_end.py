@@ -11,7 +11,7 @@ from gcs_pdm.service.demo import http_json, run_demo, uploaded_promise
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(540)
 def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
     lines: list[str] = []
     in_flight: list[dict] = []  # /status read at the demo's progress lines while the vehicle flies AUTO
@@ -25,7 +25,7 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
         elif url and re.search(r"\] vehicle +AUTO", line):
             in_flight.append(http_json(url[0], "/status")[1])
 
-    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=180.0, out=out,
+    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=0, timeout_s=480.0, out=out,
                  hold_while_deciding=True)
     text = "\n".join(lines)
     # without the service the vehicle fails
@@ -76,10 +76,10 @@ def test_fault_replan_upload_and_safe_landing_over_udp(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(540)
 def test_advise_policy_operator_approves_over_http(tmp_path):
     lines: list[str] = []
-    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=1, timeout_s=180.0, out=lines.append,
+    r = run_demo(speedup=60.0, http_port=0, data_dir=str(tmp_path), seed=1, timeout_s=480.0, out=lines.append,
                  compare=False, policy="advise", hold_while_deciding=True)
     text = "\n".join(lines)
     assert "PLAN     proposed" in text and "OPERATOR approves plan" in text, text
