@@ -49,3 +49,29 @@ def test_twenty_demo_shutdowns_exit_cleanly():
            if out.returncode != 0 or "shut down True" not in out.stdout
            or any(fatal in out.stderr for fatal in ("Fatal Python error", "Assertion", "Segmentation fault"))]
     assert not bad, bad
+
+
+def test_an_unanswered_proposal_holds_the_demo_clock_only_for_a_while(monkeypatch):
+    """The tests' demo holds the vehicle's clock while a proposal waits for the operator; its
+    operator approves only feasible proposals, so an infeasible one would hold the clock for ever
+    (CI: the advise demo 'still flying' at its timeout). The hold lets go after OPERATOR_WAIT_S."""
+    import time
+    from types import SimpleNamespace
+
+    from gcs_pdm.service.demo import DecisionHold
+
+    proposed = [{"id": 3}]
+    service = SimpleNamespace(
+        loop=SimpleNamespace(telemetry=SimpleNamespace(time_s=100.0), executor=SimpleNamespace(working=False)),
+        store=SimpleNamespace(plans=lambda status=None, limit=100: list(proposed) if status == "proposed" else []))
+    monkeypatch.setattr(DecisionHold, "OPERATOR_WAIT_S", 0.3)
+    monkeypatch.setattr(DecisionHold, "PROPOSALS_EVERY_S", 0.0)
+    hold = DecisionHold(service)
+    hold.vehicle = SimpleNamespace(core=SimpleNamespace(time_s=101.0))
+    assert hold() is True                 # a fresh proposal waits for the operator
+    time.sleep(0.4)
+    assert hold() is False                # nobody answered: the aircraft flies on
+    proposed[:] = [{"id": 4}]
+    assert hold() is True                 # a new proposal holds again
+    proposed.clear()
+    assert hold() is False

@@ -227,6 +227,17 @@ def test_choose_never_prefers_a_predicted_failure():
     assert best.name == "planner" and "operator" in why
 
 
+def test_an_infeasible_home_that_flies_the_current_route_is_no_proposal():
+    # every waypoint visited: "home" and the mission on the vehicle fly the same route, so the best
+    # of the infeasible is the mission kept (the operator is alerted), not a proposal that changes nothing
+    home_now = Candidate("home", (), False, 0.0, 0.0, 0.0)
+    best, why = choose([Candidate("keep", (), False, 0.0, 0.0, 0.0), home_now])
+    assert best.name == "keep" and "operator" in why
+    # a home route that skips what the mission still flies is a change worth proposing
+    best, _ = choose([Candidate("keep", (4, 5), False, 0.0, 0.0, 0.0), home_now])
+    assert best.name == "home"
+
+
 @pytest.mark.slow
 def test_soc_deviation_from_the_plan_triggers_a_replan(tmp_path, frames):
     mission = original_mission()

@@ -107,6 +107,11 @@ def choose(candidates: Sequence[Candidate]) -> tuple[Candidate, str]:
             return keep, "the current mission is predicted to succeed and nothing scores better"
         return best, f"{best.name} is feasible with the best objective {best.objective:.3f}"
     best = max(candidates, key=lambda c: (c.reward_reached, c.name == "home"))
+    keep = next((c for c in candidates if c.name == "keep"), None)
+    if keep is not None and tuple(keep.route) == tuple(best.route) and keep.reward_reached >= best.reward_reached:
+        # the best of the infeasible flies the current mission's own route (typically "home" once
+        # every waypoint is visited): there is nothing to upload, only an operator to alert
+        best = keep
     return best, "no candidate is predicted to get home inside the limits; operator decision needed"
 
 

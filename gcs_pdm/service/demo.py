@@ -393,11 +393,15 @@ class DecisionHold:
 
     LAG_S = 3.0
     PROPOSALS_EVERY_S = 0.05  # wall seconds between two looks at the store
+    #: wall seconds a proposal may hold the clock: the demo's operator answers within a tenth of a
+    #: second or never (it approves only feasible proposals), and an aircraft does not wait forever
+    OPERATOR_WAIT_S = 15.0
 
     def __init__(self, service: Service):
         self.service = service
         self.vehicle = None  # set once started
         self._proposals = (0.0, False)
+        self._seen: dict[int, float] = {}  # proposal id -> when the hold first saw it (monotonic)
 
     def __call__(self) -> bool:
         loop, vehicle = self.service.loop, self.vehicle
@@ -410,10 +414,15 @@ class DecisionHold:
 
     def _proposal_waiting(self) -> bool:
         at, waiting = self._proposals
-        if time.monotonic() - at > self.PROPOSALS_EVERY_S:
-            waiting = bool(self.service.store.plans(status="proposed", limit=1))
-            self._proposals = (time.monotonic(), waiting)
+        now = time.monotonic()
+        if now - at > self.PROPOSALS_EVERY_S:
+            proposed = self.service.store.plans(status="proposed", limit=1)
+            waiting = bool(proposed) and now - self._first_seen(proposed[0]["id"], now) < self.OPERATOR_WAIT_S
+            self._proposals = (now, waiting)
         return waiting
+
+    def _first_seen(self, plan_id: int, now: float) -> float:
+        return self._seen.setdefault(plan_id, now)
 
 
 def demo_config(data_dir: str | None, *, policy: str, http_port: int, hold_while_deciding: bool, **settings):
