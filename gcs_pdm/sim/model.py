@@ -31,7 +31,7 @@ from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, Limits, air_density, ambient_temperature, shaft_power,
                                        shaft_rpm)
-from gcs_pdm.models.topology import simulate_vehicle
+from gcs_pdm.models.topology import simulate_vehicle, simulate_vehicle_extended
 from gcs_pdm.sim import flight
 from gcs_pdm.sim.faults import Degradation, FaultSpec, apply_degradation
 from gcs_pdm.sim.flight import FlightLimits, Kinematics
@@ -91,6 +91,9 @@ class SimConfig:
     #: a ``VehicleDescription`` to fly instead of the paper's aircraft (build with ``vehicle_config``):
     #: its packs and motors are the truth (``params``, ``truth_seed`` and ``degradations`` unused)
     vehicle: object | None = None
+    #: a described vehicle's packs rest on their chemistry's curve (``sim.pack_curves``), not on
+    #: their parameter set's linear one: a LiPo at 70 % shows what a LiPo at 70 % shows
+    chemistry_curves: bool = False
 
     def truth(self) -> ParameterSet:
         if self.vehicle is not None:
@@ -236,7 +239,18 @@ class VehicleModel:
         if np.any((soc <= 0) | (soc > 1)):
             raise ValueError(f"initial_soc: must be within (0, 1], got {config.initial_soc!r}")
         self.initial_soc = soc
-        self.pack_state = kernel.initial_pack_state(self._pack_matrix, soc, config.ground_temp_c)
+        self._ext_matrix = None
+        if config.chemistry_curves:
+            if config.vehicle is None:
+                raise ValueError("chemistry_curves: only a described vehicle's packs (vehicle_config) name a chemistry")
+            from gcs_pdm.sim.pack_curves import chemistry_curve_pack, rest_voltage
+
+            self._ext_matrix = np.stack([chemistry_curve_pack(row, spec.chemistry, spec.cells_series)
+                                         for row, spec in zip(self._pack_matrix, config.vehicle.packs)])
+            self.pack_state = kernel.initial_extended_state(self._ext_matrix, soc, config.ground_temp_c)
+            self._pack_voltage = rest_voltage(self._ext_matrix, self.pack_state, config.ground_temp_c)
+        else:
+            self.pack_state = kernel.initial_pack_state(self._pack_matrix, soc, config.ground_temp_c)
         self.motor_temp = np.full(n_motors, float(config.ground_temp_c))
         self.pack_current = np.zeros(n_packs)
         self.motor_current = np.zeros(n_motors)
@@ -671,8 +685,14 @@ class VehicleModel:
             # resting: no current through packs or motors
             n_packs, n_motors = len(self.pack_names), len(self.motor_names)
             zero = np.zeros((n_packs, 1))
-            run = kernel.simulate_packs(self._pack_matrix, self.pack_state, np.full((n_packs, 1), dt), zero, amb)
+            if self._ext_matrix is None:
+                run = kernel.simulate_packs(self._pack_matrix, self.pack_state, np.full((n_packs, 1), dt), zero, amb)
+            else:
+                run = kernel.simulate_packs(self._ext_matrix, self.pack_state, np.full((n_packs, 1), dt), zero, amb,
+                                            variant="extended")
             self.pack_state = run.final_state
+            if self._ext_matrix is not None:  # its voltage depends on the current: kept from the run
+                self._pack_voltage = run.voltage[:, -1].copy()
             # one parameter row per motor: the kernel sizes its loop by the parameter rows
             self.motor_temp = kernel.simulate_motor_thermal(self._motor_rows, self.motor_temp,
                                                             np.full((n_motors, 1), dt), np.zeros((n_motors, 1)),
@@ -685,10 +705,15 @@ class VehicleModel:
                 self._pack_matrix[None], self._motor_vector[None], self.pack_state[None], self.motor_temp[None],
                 np.array([dt]), np.array([power]), amb, self.fault[None], limits=c.limits.as_tuple(),
                 fault_drag=c.fault_drag, record=True, stop_on_failure=False)
-        else:
+        elif self._ext_matrix is None:
             run = simulate_vehicle(self._topology, self._pack_matrix[None], self._motor_rows[None],
                                    self.pack_state[None], self.motor_temp[None], np.array([dt]), np.array([power]),
                                    amb, self.fault[None], fault_drag=c.fault_drag, record=True, stop_on_failure=False)
+        else:
+            run = simulate_vehicle_extended(
+                self._topology, self._pack_matrix[None], self._ext_matrix[None], np.ones(len(self.pack_names), bool),
+                self._motor_rows[None], self.pack_state[None], self.motor_temp[None], np.array([dt]),
+                np.array([power]), amb, self.fault[None], fault_drag=c.fault_drag, record=True, stop_on_failure=False)
         self.pack_state = run.final_pack_state[0]
         self.motor_temp = run.final_motor_temp[0]
         self.pack_current = run.pack_current[0, -1].copy()
@@ -696,6 +721,8 @@ class VehicleModel:
         self.motor_charge += self.motor_current * dt
         self.pack_charge += run.charge_c[0]
         v = run.pack_voltage[0, -1]
+        if self._ext_matrix is not None:
+            self._pack_voltage = v.copy()
         self.pack_energy += v * self.pack_current * dt
         self.energy_j += float(run.energy_j[0])
         if run.failed[0] and not self.failed:
@@ -719,8 +746,7 @@ class VehicleModel:
     def _failure_detail(self, cause: int) -> str:
         lim = self.config.limits
         if cause in (kernel.FAIL_UNDERVOLTAGE, kernel.FAIL_DEPLETED):
-            v = kernel.terminal_voltage(self._pack_matrix, self.pack_state)
-            return f" ({self.pack_names[int(np.argmin(v))]})"
+            return f" ({self.pack_names[int(np.argmin(self._terminal_voltage()))]})"
         if cause == kernel.FAIL_PACK_OVERTEMP:
             t = self.pack_state[:, kernel.S_T]
             return f" ({self.pack_names[int(np.argmax(t))]} {t.max():.0f}C>{lim.pack_max_temp_c:g})"
@@ -749,7 +775,7 @@ class VehicleModel:
         k, c = self.kin, self.config
         lat, lon = geodetic_from_enu(k.east_m, k.north_m, c.home_lat_deg, c.home_lon_deg)
         rho = float(air_density(c.home_alt_m + k.alt_m, c.ground_temp_c))
-        v = kernel.terminal_voltage(self._pack_matrix, self.pack_state)
+        v = self._terminal_voltage()
         layout = {} if self._inputs is None else self._layout(v, rho)
         motor_v = layout.pop("motor_voltage_v") if layout else np.array([v[0] + v[2], v[1] + v[3]])
         rpm = float(shaft_rpm(self.shaft_power_w, rho, c.airframe)) if self.shaft_power_w > 0 else 0.0
@@ -766,11 +792,21 @@ class VehicleModel:
             rpm=rpm,
             ambient_c=self.ambient_c, air_density=rho, pack_voltage_v=v.copy(),
             pack_current_a=self.pack_current.copy(), pack_temp_c=self.pack_state[:, kernel.S_T].copy(),
-            pack_soc=kernel.state_of_charge(self._pack_matrix, self.pack_state).copy(),
+            pack_soc=self._pack_soc(),
             pack_charge_c=self.pack_charge.copy(), pack_energy_j=self.pack_energy.copy(),
             motor_current_a=self.motor_current.copy(), motor_temp_c=self.motor_temp.copy(),
             motor_voltage_v=motor_v, fault=self.fault.copy(), energy_j=self.energy_j, distance_m=self.distance_m,
             wind_east_mps=self.wind_en[0], wind_north_mps=self.wind_en[1], **layout)
+
+    def _terminal_voltage(self) -> np.ndarray:
+        if self._ext_matrix is not None:
+            return self._pack_voltage
+        return kernel.terminal_voltage(self._pack_matrix, self.pack_state)
+
+    def _pack_soc(self) -> np.ndarray:
+        if self._ext_matrix is not None:
+            return self.pack_state[:, kernel.X_SOC].copy()
+        return kernel.state_of_charge(self._pack_matrix, self.pack_state).copy()
 
     def battery_capacities_mah(self) -> dict[int, float]:
         """The capacity the autopilot is configured with, per BATTERY_STATUS id (its BATTn_CAPACITY):
