@@ -50,3 +50,14 @@ def test_a_lipo_quad_at_70_percent_rests_as_a_lipo_and_its_soc_is_its_charge():
 def test_the_paper_aircraft_names_no_chemistry_curve():
     with pytest.raises(ValueError, match="chemistry_curves"):
         VehicleModel(SimConfig(chemistry_curves=True))
+
+
+def test_sim_command_flies_chemistry_curves_on_a_described_vehicle_only():
+    from gcs_pdm.cli import build_parser
+    from gcs_pdm.sim.cli import build_config
+
+    args = build_parser("sim").parse_args(["sim", "--vehicle", "quad-4s", "--chemistry-curves", "--soc", "0.7"])
+    config, _ = build_config(args)
+    assert config.chemistry_curves and config.vehicle.name == "quad-4s"
+    with pytest.raises(SystemExit, match="needs --vehicle"):
+        build_config(build_parser("sim").parse_args(["sim", "--chemistry-curves"]))

@@ -29,6 +29,9 @@ def register(subparsers) -> None:
     p.add_argument("--vehicle", default=None, metavar="FILE|PRESET",
                    help="fly a vehicle description (docs/vehicles.md) instead of the paper's aircraft: its packs, "
                         "motors, airframe and telemetry layout (--params, --truth-seed and --degrade do not apply)")
+    p.add_argument("--chemistry-curves", action="store_true",
+                   help="with --vehicle: each pack rests on its chemistry's curve (docs/estimation.md), not on its "
+                        "parameter set's linear one")
     p.add_argument("--seed", type=int, default=0, help="sensor noise and drop-out seed")
     p.add_argument("--truth-seed", type=int, default=None, help="seed of the hidden true parameters")
     p.add_argument("--params", help="true parameter set as JSON (instead of the hidden seeded truth)")
@@ -111,6 +114,8 @@ def build_config(args: argparse.Namespace):
             raise SystemExit(f"sim: {exc}") from None
         if args.params or args.degrade or args.truth_seed is not None:
             raise SystemExit("sim: --params, --truth-seed and --degrade do not apply to --vehicle")
+    elif getattr(args, "chemistry_curves", False):
+        raise SystemExit("sim: --chemistry-curves needs --vehicle (the paper's aircraft flies its fitted set as it is)")
     try:
         motors = desc.motor_names if desc is not None else None
         faults = tuple(parse_fault(f, motors) if motors else parse_fault(f) for f in args.fault)
@@ -138,7 +143,8 @@ def build_config(args: argparse.Namespace):
         config = vehicle_config(desc, seed=args.seed, home_lat_deg=lat, home_lon_deg=lon, home_alt_m=alt,
                                 ground_temp_c=args.ground_temp, initial_soc=args.soc, faults=faults,
                                 wind_en_mps=wind_en, wind_gust_mps=gust, mission=mission,
-                                autostart=not args.no_autostart, start_delay_s=args.start_delay)
+                                autostart=not args.no_autostart, start_delay_s=args.start_delay,
+                                chemistry_curves=getattr(args, "chemistry_curves", False))
         if args.airspeed is not None:
             config = replace(config, cruise_airspeed_mps=args.airspeed)
         return config, TelemetryConfig(rates_hz=rates, drop_rate=args.drop_rate, event_heartbeat_restarts_period=True)
