@@ -136,6 +136,21 @@ def test_a_voltage_that_does_not_fall_leaves_the_soc_to_the_charge_count():
     assert cal.soc_sd >= 0.1 * 0.5 * 0.9
 
 
+def test_the_charge_count_check_counts_the_starts_uncertainty_once():
+    # the count starts where the filter's SoC stands, with its error: a start known to ±0.02 or to
+    # ±0.20 leaves the same room between the two after the same draw (no voltage: nothing corrected
+    # either); that room is the capacity's uncertainty over the charge drawn, for both of them
+    sds = []
+    for start_sd in (0.02, 0.20):
+        cal = PackCalibrator(PackPrior("lipo", 4, 5000 * 3.6, soc=0.8, soc_sd=start_sd))
+        cal.initialise(0.0, math.nan, 20.0, 25.0)
+        _fly(cal, [math.nan] * 90, [20.0] * 90)  # 0.5 Ah: 10 % of the capacity
+        sds.append(cal.count_difference_sd())
+    assert sds[0] == pytest.approx(sds[1], rel=1e-3)
+    # the filter's capacity σ and the count's (25 % of 10 % drawn each), not the start's 0.20
+    assert sds[1] == pytest.approx(math.sqrt(2) * 0.25 * 0.1, rel=0.05)
+
+
 PRESET_NAMES = ["plane-3s", "quad-4s", "quad-6s", "hex-6s", "edge540"]
 
 

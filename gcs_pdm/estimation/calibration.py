@@ -60,10 +60,13 @@ from numba import njit
 
 from gcs_pdm.models.chemistry import Chemistry, chemistry
 
-# state indices
-I_SOC, I_V1, I_R0, I_DV, I_K, I_G, I_R1, I_V2, I_R2, I_E = range(10)
-N_STATE = 10
-STATE_NAMES = ("soc", "v1", "r0", "ocv_offset", "ocv_scale", "inv_capacity_scale", "r1", "v2", "r2", "activation_k")
+# state indices. The last, the charge count's start, is never updated (its gain is zero): it is in
+# the state so that the filter's covariance carries how the filter's SoC and the count's start err
+# together, which the consistency check (``_referee``) needs
+I_SOC, I_V1, I_R0, I_DV, I_K, I_G, I_R1, I_V2, I_R2, I_E, I_COUNT0 = range(11)
+N_STATE = 11
+STATE_NAMES = ("soc", "v1", "r0", "ocv_offset", "ocv_scale", "inv_capacity_scale", "r1", "v2", "r2", "activation_k",
+               "count_start")
 #: the resistance's Arrhenius factor E starts at the chemistry's with this relative σ; it is learned
 #: where the pack's temperature moves (a PyBaMM LG M50 heating 32 -> 68 °C keeps more of its
 #: resistance than E = 3000 K says: fixed, the lost sag read as charge, SoC 0.27 low)
@@ -231,8 +234,8 @@ class PackCalibrator:
         self.rest_current_a = max(0.3, 0.05 * self.q0 / 3600.0)
         # bounds: what the chemistry allows
         top = self.chem.ocv(1.0)
-        self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6, 0.2 * self.r1p, -5.0, 0.0, 0.0])
-        self.hi = np.array([1.0, 5.0, 5.0 * self.r0p, self.chem.max_rest_cell_v - top, 0.25, 1.0 / 0.5, 5.0 * self.r1p, 5.0, 5.0 * self.r1p, 3.0 * self.chem.r_activation_k])
+        self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6, 0.2 * self.r1p, -5.0, 0.0, 0.0, -math.inf])
+        self.hi = np.array([1.0, 5.0, 5.0 * self.r0p, self.chem.max_rest_cell_v - top, 0.25, 1.0 / 0.5, 5.0 * self.r1p, 5.0, 5.0 * self.r1p, 3.0 * self.chem.r_activation_k, math.inf])
         self.x = np.zeros(N_STATE)
         self.P = np.zeros((N_STATE, N_STATE))
         self.initialised = False
@@ -297,9 +300,14 @@ class PackCalibrator:
             self._update(voltage, i, self.last_u, t)
 
     def _anchor(self) -> None:
-        """The charge count starts again from the filter's SoC (at rest, or a start)."""
+        """The charge count starts again from the filter's SoC (at rest, or a start): the count's
+        start is the filter's SoC, with the same error."""
         self.count_start = float(self.x[I_SOC])
         self.count_start_var = float(self.P[I_SOC, I_SOC])
+        self.x[I_COUNT0] = self.x[I_SOC]
+        self.P[I_COUNT0, :] = self.P[I_SOC, :]
+        self.P[:, I_COUNT0] = self.P[:, I_SOC]
+        self.P[I_COUNT0, I_COUNT0] = self.P[I_SOC, I_SOC]
         self.drawn_c = 0.0
         self.drain = _Drain()
         self.left_rest_s = math.nan
@@ -385,10 +393,11 @@ class PackCalibrator:
     def _to_prior(self, soc: float, soc_var: float, v1: float, v1_var: float) -> None:
         """State and covariance at ``soc`` and fast-pair voltage ``v1``, every parameter at its prior."""
         p, ea = self.prior, self.chem.r_activation_k
-        self.x = np.array([soc, v1, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0, self.r1p, 0.0, self.r2p, ea])
+        self.x = np.array([soc, v1, self.r0p, p.ocv_offset_v, p.ocv_scale, 1.0, self.r1p, 0.0, self.r2p, ea, soc])
         self.P = np.diag([soc_var, v1_var, (p.r0_rel_sd * self.r0p) ** 2, p.ocv_offset_sd ** 2, p.ocv_scale_sd ** 2,
                           p.capacity_rel_sd ** 2, (p.r0_rel_sd * self.r1p) ** 2, 0.01 ** 2, (R2_SD * self.r1p) ** 2,
-                          (ACTIVATION_REL_SD * ea) ** 2])
+                          (ACTIVATION_REL_SD * ea) ** 2, soc_var])
+        self.P[I_SOC, I_COUNT0] = self.P[I_COUNT0, I_SOC] = soc_var
 
     def _clip(self) -> None:
         np.clip(self.x, self.lo, self.hi, out=self.x)
@@ -399,9 +408,19 @@ class PackCalibrator:
         return (self.count_start - frac,
                 self.count_start_var + (frac * self.prior.capacity_rel_sd) ** 2)
 
+    def count_difference_sd(self) -> float:
+        """σ of (filter SoC − the charge count from the last anchor). The start's error is common to
+        both and cancels, as far as the voltage has not corrected it (P[SoC, count start] says how
+        far); the count's own error is its capacity's. Adding the two variances counted the start
+        twice: a bound of 0.25-0.55 SoC that almost never tripped."""
+        frac = self.drawn_c / self.q0
+        var = (self.P[I_SOC, I_SOC] + self.P[I_COUNT0, I_COUNT0] - 2.0 * self.P[I_SOC, I_COUNT0]
+               + (frac * self.prior.capacity_rel_sd) ** 2)
+        return math.sqrt(max(var, 0.0))
+
     def _referee(self) -> None:
-        soc, var = self._count()
-        sd = math.sqrt(var + self.P[I_SOC, I_SOC])
+        soc, _ = self._count()
+        sd = self.count_difference_sd()
         if abs(self.x[I_SOC] - soc) > REFEREE_SIGMAS * sd + 0.03:
             self._suspend(f"the voltage contradicts the charge count beyond the capacity's uncertainty "
                           f"(voltage {self.x[I_SOC]:.2f}, count {soc:.2f} ± {sd:.2f})")
@@ -436,6 +455,9 @@ class PackCalibrator:
         # the SoC's dependence on the capacity since the anchor: SoC = start − g·frac
         self.P[I_SOC, I_G] = self.P[I_G, I_SOC] = -frac * p.capacity_rel_sd ** 2
         self.P[I_SOC, I_SOC] = var
+        # the SoC is now the count: it errs with the count's start
+        self.x[I_COUNT0] = self.count_start
+        self.P[I_COUNT0, I_COUNT0] = self.P[I_SOC, I_COUNT0] = self.P[I_COUNT0, I_SOC] = self.count_start_var
         self._clip()
 
     def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0) -> float:
@@ -572,6 +594,7 @@ def _measurement(x, table, cells, mid, i, u, h):
     h[7] = -1.0
     h[8] = 0.0
     h[9] = -x[2] * ft * i * u
+    h[10] = 0.0
     return cells * (ocv + x[3] + x[4] * (ocv - mid)) - x[1] - x[2] * ft * i - x[7]
 
 
@@ -600,6 +623,7 @@ def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold):
     for r in range(n):
         s += h[r] * ph[r]
     k = ph / s
+    k[10] = 0.0  # the count's start: never updated, only its covariance with the rest is carried
     if hold:
         k[5] = 0.0
         k[4] = 0.0
