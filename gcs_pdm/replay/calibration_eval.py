@@ -195,10 +195,32 @@ def pybamm_truth_soc(t: np.ndarray, current: np.ndarray, flight: dict, pack_set:
     return flight["initial_soc"] - drawn / true_capacity_c
 
 
+def pybamm_cell_curve(root: str | Path, set_name: str, base: str) -> "Chemistry":
+    """The chemistry ``base`` with a PyBaMM set's own rested curve (``fixtures/pybamm/curves.json``:
+    positive − negative electrode potential over the set's stoichiometry window) on its SoC grid:
+    what the estimator would know if it had the cell's true curve (to measure what the curve's shape
+    costs, ``benchmarks/bench_pybamm_error_sources.py``)."""
+    import json
+    from dataclasses import replace
+
+    from gcs_pdm.models.chemistry import SOC_GRID, chemistry as chemistry_named
+
+    curves = json.loads((Path(root) / "curves.json").read_text())
+    grid, c = np.asarray(curves["stoichiometry"]), curves["sets"][set_name]
+    soc = np.asarray(SOC_GRID)
+    ocv = (np.interp(c["y_0"] + soc * (c["y_100"] - c["y_0"]), grid, c["positive_v"])
+           - np.interp(c["x_0"] + soc * (c["x_100"] - c["x_0"]), grid, c["negative_v"]))
+    chem = chemistry_named(base)
+    return replace(chem, name=f"{base} ({set_name}'s own curve)", ocv_cell_v=tuple(float(v) for v in ocv),
+                   full_cell_v=float(ocv[-1]), max_rest_cell_v=max(chem.max_rest_cell_v, float(ocv[-1]) + 0.05),
+                   source=f"PyBaMM {set_name} electrode curves")
+
+
 def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: str | None = None,
-                      cells: int = 5) -> tuple[PackTrack, dict]:
+                      cells: int = 5, prior=None) -> tuple[PackTrack, dict]:
     """A PyBaMM flight (``fixtures/pybamm``) through a ``PackCalibrator`` started from a chemistry
-    prior only: the chemistry's table, the pack's nominal capacity, nothing fitted. Truth SoC:
+    prior only: the chemistry's table, the pack's nominal capacity, nothing fitted (``prior``, a
+    ``PackPrior``, replaces it: to measure what each part of the prior costs). Truth SoC:
     ``pybamm_truth_soc``. Also the time to cut-off predicted from half-way at the mean current of
     the last 60 s against the flight's own (flights that reach cut-off)."""
     import pyarrow.parquet as pq
@@ -214,7 +236,7 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     # the prior: the nominal capacity, what a user reads on the pack (the truth's is not it)
     capacity_c = s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0
     chem = chemistry or PYBAMM_CHEMISTRY[flight["set"]]
-    cal = PackCalibrator(PackPrior(chem, cells, capacity_c))
+    cal = PackCalibrator(prior if prior is not None else PackPrior(chem, cells, capacity_c))
     dt = np.diff(t, prepend=t[0])
     truth = pybamm_truth_soc(t, i, flight, s)
     out = []

@@ -1,0 +1,69 @@
+"""Which part of the chemistry prior costs the PyBaMM flights their SoC (issue 29, item 2).
+
+Each PyBaMM flight (``fixtures/pybamm``) goes through the self-calibrating filter four times, from
+priors that differ in one part at a time:
+
+- ``chemistry``: what the product starts from (the chemistry's table, the nominal capacity, σ 25 %);
+- ``own_curve``: the cell's own rested curve (``calibration_eval.pybamm_cell_curve``) in place of
+  the chemistry's table, the rest as ``chemistry``;
+- ``true_capacity``: the cell's true window capacity with σ 2 %, the chemistry's table;
+- ``both``: the own curve and the true capacity.
+
+What is left with ``both`` is the circuit's (resistance, polarisation, temperature). Per set and
+prior: flights within 0.05 after 5 min, the median of the largest error after 5 min, and flights
+whose time to cut-off from half-way is within 10 %.
+
+Run: ``PYTHONPATH=$PWD python benchmarks/bench_pybamm_error_sources.py`` (≈ 1 min). Prints one line
+per set and prior, then ONE JSON object.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+PRIORS = ("chemistry", "own_curve", "true_capacity", "both")
+
+
+def main() -> None:
+    from gcs_pdm.estimation.calibration import PackPrior
+    from gcs_pdm.replay.calibration_eval import PYBAMM_CHEMISTRY, pybamm_cell_curve, pybamm_flight_soc
+
+    logging.disable(logging.WARNING)  # each suspended voltage model warns once; the figures say it
+    root = ROOT / "fixtures" / "pybamm"
+    manifest = json.loads((root / "manifest.json").read_text())
+    cells = 5
+    result: dict = {}
+    for set_name, s in manifest["sets"].items():
+        chem = PYBAMM_CHEMISTRY[set_name]
+        nominal_c = s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0
+        true_c = s["cell_window_capacity_ah"] * s["cells_parallel"] * 3600.0
+        base = PackPrior(chem, cells, nominal_c)
+        own = pybamm_cell_curve(root, set_name, chem)
+        priors = {"chemistry": base, "own_curve": replace(base, curve=own),
+                  "true_capacity": replace(base, capacity_c=true_c, capacity_rel_sd=0.02),
+                  "both": replace(base, curve=own, capacity_c=true_c, capacity_rel_sd=0.02)}
+        flights = [f for f in manifest["flights"] if f["set"] == set_name]
+        for name in PRIORS:
+            errors, ttc_errors = [], []
+            for flight in flights:
+                track, ttc = pybamm_flight_soc(root, flight, manifest["sets"], prior=priors[name], cells=cells)
+                errors.append(track.summary(300.0)["max_abs_error"])
+                if ttc and ttc["true_s"] > 0 and np.isfinite(ttc["predicted_s"]):
+                    ttc_errors.append(abs(ttc["predicted_s"] / ttc["true_s"] - 1.0))
+            row = {"within_0.05_after_5min": f"{sum(e <= 0.05 for e in errors)}/{len(errors)}",
+                   "median_max_abs_error": round(float(np.median(errors)), 3),
+                   "max_abs_errors": [round(e, 3) for e in errors],
+                   "time_to_cutoff_within_10pct": f"{sum(e <= 0.10 for e in ttc_errors)}/{len(ttc_errors)}"}
+            result.setdefault(set_name, {})[name] = row
+            print(f"{set_name} {name}: within 0.05 {row['within_0.05_after_5min']}, median largest error "
+                  f"{row['median_max_abs_error']}, time to cut-off within 10 % {row['time_to_cutoff_within_10pct']}")
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
