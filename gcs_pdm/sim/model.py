@@ -191,6 +191,8 @@ class VehicleModel:
     def __init__(self, config: SimConfig):
         self.config = config
         if config.vehicle is None:
+            if config.chemistry_curves:
+                raise ValueError("chemistry_curves: only a described vehicle's packs (vehicle_config) name a chemistry")
             self.params = config.truth()
             self._pack_matrix = self.params.pack_matrix()
             self._motor_vector = self.params.motor_vector()
@@ -241,8 +243,6 @@ class VehicleModel:
         self.initial_soc = soc
         self._ext_matrix = None
         if config.chemistry_curves:
-            if config.vehicle is None:
-                raise ValueError("chemistry_curves: only a described vehicle's packs (vehicle_config) name a chemistry")
             from gcs_pdm.sim.pack_curves import chemistry_curve_pack, rest_voltage
 
             self._ext_matrix = np.stack([chemistry_curve_pack(row, spec.chemistry, spec.cells_series)
