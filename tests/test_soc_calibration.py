@@ -195,6 +195,17 @@ def test_simulated_pack_with_three_times_its_resistance(preset):
     assert_follows_after_120_s_of_flight(track, max_error=0.05)
 
 
+@pytest.mark.parametrize("capacity_scale, start_soc, seed", [(1.2, 0.6, 11), (0.8, 0.85, 12)])
+def test_an_unknown_lipo_off_its_prior_read_through_the_chemistry_table(capacity_scale, start_soc, seed):
+    # the live case offline: a LiPo quad's pack on a LiPo's rested curve (sim.pack_curves), its
+    # capacity off the label, plugged in partly charged, read as a vehicle the service was never
+    # told about (the derived description's prior: the chemistry table, the label's capacity)
+    track = simulated_pack_soc("quad-4s", capacity_scale=capacity_scale, resistance_scale=1.0, start_soc=start_soc,
+                               seed=seed, duration_s=600.0, chemistry_curve=True)
+    assert_follows_after_120_s_of_flight(track, max_error=0.05)
+    assert abs(track.soc[29] - start_soc) <= 0.03  # on the ground: the rested voltage through the table
+
+
 def _heating_flight(activation_k: float, seconds: int = 1200, amps: float = 12.0, cells: int = 4, q_ah: float = 5.0):
     """A LiPo pack on the calibrator's own circuit whose resistance follows ``activation_k`` while it
     heats 25 -> 60 °C: (t, I, V, °C, true SoC) rows."""

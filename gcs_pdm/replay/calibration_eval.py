@@ -134,12 +134,16 @@ def _opt(v) -> float | None:
 
 def simulated_pack_soc(preset: str, *, capacity_scale: float, resistance_scale: float, start_soc: float,
                        seed: int, duration_s: float = 900.0, rest_s: float = 30.0, dt: float = 1.0,
-                       c_rate: tuple[float, float] = (0.5, 2.5)) -> PackTrack:
+                       c_rate: tuple[float, float] = (0.5, 2.5), chemistry_curve: bool = False) -> PackTrack:
     """A preset's first pack, its truth off the description by ``capacity_scale`` and
     ``resistance_scale``, resting ``rest_s`` at ``start_soc`` then flying legs of 20-120 s at
     ``c_rate`` (of the description's capacity) until ``duration_s`` or cut-off; voltage noise 10 mV +
     2 mV per cell, current noise 1 %; through ``StateEstimator`` on the preset. SoC against the
-    truth's (the fraction of the true capacity left)."""
+    truth's (the fraction of the true capacity left).
+
+    ``chemistry_curve``: the truth rests on its chemistry's curve (``sim.pack_curves``) and the
+    estimator is told only what a derived description says (the preset marked provisional: the
+    chemistry table's prior, as for a vehicle the service was never told about)."""
     from gcs_pdm.estimation.estimator import StateEstimator
     from gcs_pdm.models import kernel
     from gcs_pdm.models.pack_scaling import scale_pack_vector
@@ -162,8 +166,17 @@ def simulated_pack_soc(preset: str, *, capacity_scale: float, resistance_scale: 
         current += [rng.uniform(*c_rate) * amps] * int(rng.uniform(20, 120) / dt)
     current = np.array(current[: int(duration_s / dt)])
     n = current.size
-    x0 = kernel.initial_pack_state(truth[None], start_soc, 25.0, 0.0)
-    sim = kernel.simulate_packs(truth[None], x0, np.full(n, dt), current[None], np.full(n, 25.0))
+    if chemistry_curve:
+        from gcs_pdm.sim.pack_curves import chemistry_curve_pack
+
+        truth = chemistry_curve_pack(truth, spec.chemistry, spec.cells_series)
+        x0 = kernel.initial_extended_state(truth[None], start_soc, 25.0)
+        sim = kernel.simulate_packs(truth[None], x0, np.full(n, dt), current[None], np.full(n, 25.0),
+                                    variant="extended")
+        desc = desc.model_copy(update={"provisional": True})
+    else:
+        x0 = kernel.initial_pack_state(truth[None], start_soc, 25.0, 0.0)
+        sim = kernel.simulate_packs(truth[None], x0, np.full(n, dt), current[None], np.full(n, 25.0))
     v_true, soc_true = sim.voltage[0], sim.soc[0]
     alive = np.flatnonzero(v_true < spec.cutoff_voltage)
     end = int(alive[0]) if alive.size else n
