@@ -151,6 +151,25 @@ def test_the_charge_count_check_counts_the_starts_uncertainty_once():
     assert sds[1] == pytest.approx(math.sqrt(2) * 0.25 * 0.1, rel=0.05)
 
 
+def test_a_pack_that_has_just_landed_is_not_read_as_rested():
+    # after a load the voltage relaxes for minutes (diffusion); read at once as a rested voltage, the
+    # relaxation is charge that was not drawn. The count carries the SoC until the load has decayed
+    lipo = CHEMISTRIES["lipo"]
+    cal = PackCalibrator(PackPrior("lipo", 4, 5000 * 3.6))
+    cal.initialise(0.0, 4 * lipo.ocv(0.9), 0.0, 25.0)
+    t = _fly(cal, [4 * lipo.ocv(0.9)] * 30, [0.0] * 30)
+    t = _fly(cal, [math.nan] * 450, [20.0] * 450, t)  # 2.5 Ah: half the pack, counted
+    counted = cal.soc
+    assert counted == pytest.approx(0.4, abs=0.03)
+    # landed: the voltage 0.2 V under the curve at the counted charge, relaxing back
+    t = _fly(cal, [4 * lipo.ocv(counted) - 0.2] * 60, [0.0] * 60, t)
+    assert cal.soc == pytest.approx(counted, abs=0.005)
+    assert cal.counters["voltage_relaxing"] == 60 and "voltage_model" not in cal.evidence()
+    # long after, the rested voltage speaks again
+    _fly(cal, [4 * lipo.ocv(0.3)] * 1500, [0.0] * 1500, t)
+    assert cal.soc == pytest.approx(0.3, abs=0.03) and "voltage_model" in cal.evidence()
+
+
 PRESET_NAMES = ["plane-3s", "quad-4s", "quad-6s", "hex-6s", "edge540"]
 
 

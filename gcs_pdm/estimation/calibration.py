@@ -253,9 +253,13 @@ class PackCalibrator:
         self.voltage_trusted = True
         self.why_not_voltage: str | None = None
         self.drain_failed = False
-        self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0}
+        self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0,
+                         "voltage_relaxing": 0}
         self.last_voltage_update_s = -math.inf
         self.last_u = 0.0
+        #: the recent load, A: the present current, or an earlier larger one decaying with the slow
+        #: pair's time constant (the polarisation it left is still relaxing)
+        self.load_memory_a = 0.0
 
     # ---- model ---------------------------------------------------------------------------------
     def _ocv(self, soc: float) -> tuple[float, float]:
@@ -317,6 +321,7 @@ class PackCalibrator:
         i = current if math.isfinite(current) else 0.0
         u = self._temp_u(temperature_c)
         if dt > 0:
+            self.load_memory_a = max(abs(i), self.load_memory_a * math.exp(-dt / (TAU2_FACTOR * self.chem.tau1_s)))
             self._predict(dt, i, u)
             self.drawn_c += i * dt
             self.total_drawn_c += i * dt
@@ -333,7 +338,12 @@ class PackCalibrator:
             elif not math.isfinite(self.left_rest_s):  # a log that starts under load
                 self.left_rest_s = t
             self.rest_since = math.nan
-        settled = at_rest and t - self.rest_since >= REST_SETTLE_S
+        # a pack that has just stopped is not rested: the polarisation its load left relaxes for
+        # minutes (diffusion), and read as a rested voltage it is charge that was not drawn (a PyBaMM
+        # LG M50 after landing: SoC 0.05-0.08 low within a minute). Until the recent load has decayed
+        # (the slow pair's time constant) the count carries the SoC
+        relaxing = at_rest and self.load_memory_a > self.rest_current_a
+        settled = at_rest and not relaxing and t - self.rest_since >= REST_SETTLE_S
         if settled:
             # on the ground: the rested voltage speaks; the count starts from here
             if not self.voltage_trusted:
@@ -347,7 +357,10 @@ class PackCalibrator:
                 # (quad-4s, C x1.2 from half: 0.27 where the curve falls 1.23, judged not falling)
                 self.drain.add(i, self.drawn_c / self.q0, voltage + float(self.x[I_V1] + self.x[I_V2]))
                 self._check_drain()
-            self._update(voltage, i, u, t)
+            if relaxing:
+                self.counters["voltage_relaxing"] += 1
+            else:
+                self._update(voltage, i, u, t)
         if settled:
             self._anchor()
             self.start_kind = "rest_voltage"
