@@ -24,6 +24,14 @@ without ``--vehicle``, so their packs are self-calibrated. Every fault other tha
 ``model_mismatch`` advisory is as before (type, component, raise and clear times); the advisories'
 count moved on fault_03 (4 -> 0), learn_05 (4 -> 2), learn_07 (3 -> 4), learn_11 (4 -> 3), and the
 self-calibrated packs' SoC, σ and evidence moved.
+
+Re-recorded again (replay_cli only, pack-health fits kept; issue 29, branch ocv) after the
+self-calibrating filter stopped reading a pack that has just landed as rested (the polarisation of
+its load is still relaxing: the count carries the SoC until the load has decayed) and gained the
+``voltage_relaxing`` counter. Every fault is as before (type, component, raise and clear times).
+Final SoCs moved on learn_05 (battery0/1 0.863/0.870 -> 0.788/0.796; the autopilot's count 0.67),
+learn_06 (0.66-0.75 -> 0.26-0.27; the count 0.26: the old value was the landed voltage read as
+rested), fault_03 (battery0/2 0.700 -> 0.678), and by at most 0.002 elsewhere.
 """
 from __future__ import annotations
 
