@@ -227,9 +227,6 @@ class VehicleSimulator:
                                  pack_max_temp_c=topo.pack_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0),
                                  motor_max_temp_c=topo.motor_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0))
         self._reserve = self._base_reserve + (VERDICT_MARGIN_SOC if coarse else 0.0)
-        # one limit per pack and motor as a triple, for the paper layout's kernel call (planning/risk.py)
-        self._limits = (float(self._topology.pack_cutoff_v[0]), float(self._topology.pack_max_temp_c[0]),
-                        float(self._topology.motor_max_temp_c[0]))
 
     # ---- legs -----------------------------------------------------------------------------------
     def _places(self) -> np.ndarray:
