@@ -167,6 +167,7 @@ class RiskSimulator:
         self.eps = float(max_failure_probability)
         self.reserve_quantile = float(reserve_quantile)
         self.scenario, self.vehicle, self.params = base.scenario, base.vehicle, base.params
+        self.pack_names, self.motor_names = base.pack_names, base.motor_names
         self.n, self.start_node, self.landing_node = base.n, base.start_node, base.landing_node
         self.rewards, self.dt_s = base.rewards, base.dt_s
         self.legs = base.legs  # nominal: the airspeeds flown (the mission's), distances

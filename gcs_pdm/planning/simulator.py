@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from gcs_pdm.models import kernel, topology
-from gcs_pdm.models.params import ParameterSet
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
                                        fault_vector, shaft_power)
 from gcs_pdm.models.topology import simulate_vehicle
@@ -150,7 +150,9 @@ class VehicleSimulator:
                  optimise_airspeed: bool = False, airspeed_candidates: Sequence[float] | None = None,
                  airframe: Airframe = EDGE_540, state: PowertrainState | None = None, vehicle=None,
                  motor_faults: dict[str, float] | None = None) -> None:
-        """``vehicle``: a ``VehicleDescription`` to fly instead of the paper's aircraft: its packs,
+        """``pack_names``/``motor_names``: what the rows of its states are, in order.
+
+        ``vehicle``: a ``VehicleDescription`` to fly instead of the paper's aircraft: its packs,
         motors and topology (``models.topology``), its airframe's power model, its limits and
         landing reserve; ``motor_faults`` then names its motors ({"m2": 0.3}); ``state`` defaults
         to full packs at the ground temperature. The scenario's waypoints and airspeeds are used
@@ -179,6 +181,7 @@ class VehicleSimulator:
             self._limit_topology = topology.PAPER_TOPOLOGY.with_limits(*scenario.limits.kernel_limits().as_tuple())
             self._base_reserve = scenario.limits.landing_reserve_soc
             self._vehicle_power = partial(shaft_power, airframe=self.airframe)
+            self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
         else:
             self._init_vehicle(vehicle, motor_faults or {}, state)
         self._set_verdict_limits()
@@ -204,6 +207,7 @@ class VehicleSimulator:
         self.initial = state
         self.airframe = powertrain_airframe(vehicle)
         self._vehicle_power = shaft_power_model(vehicle)
+        self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
 
     def _shaft_power(self, airspeed: float, climb: float, rho: float) -> float:
         """The airframe's power model: the drag polar, or momentum theory for a multirotor."""
