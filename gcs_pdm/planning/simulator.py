@@ -182,6 +182,7 @@ class VehicleSimulator:
             self._base_reserve = scenario.limits.landing_reserve_soc
             self._vehicle_power = partial(shaft_power, airframe=self.airframe)
             self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
+            self._multirotor = False
         else:
             self._init_vehicle(vehicle, motor_faults or {}, state)
         self._set_verdict_limits()
@@ -208,6 +209,15 @@ class VehicleSimulator:
         self.airframe = powertrain_airframe(vehicle)
         self._vehicle_power = shaft_power_model(vehicle)
         self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
+        self._multirotor = vehicle.airframe.type == "multirotor"
+
+    def _default_airspeeds(self) -> np.ndarray:
+        """The airspeeds the optimisation tries by default: a multirotor's from 2 m/s to its maximum;
+        a fixed wing's from well above the stall (at least 16 m/s) to its maximum (at most 32 m/s)."""
+        af = self.airframe
+        if self._multirotor:
+            return np.arange(2.0, af.max_airspeed + 1e-9, 2.0)
+        return np.arange(max(af.stall_airspeed + 4.0, 16.0), min(af.max_airspeed, 32.0) + 1e-9, 2.0)
 
     def _shaft_power(self, airspeed: float, climb: float, rho: float) -> float:
         """The airframe's power model: the drag polar, or momentum theory for a multirotor."""
@@ -266,11 +276,8 @@ class VehicleSimulator:
         places = self._places()
         m = len(places)
         sc = self.scenario
-        af = self.airframe
-        if candidates is None and self.vehicle is not None and self.vehicle.airframe.type == "multirotor":
-            candidates = np.arange(2.0, self.vehicle.airframe.max_airspeed + 1e-9, 2.0)
-        elif candidates is None:
-            candidates = np.arange(max(af.stall_airspeed + 4.0, 16.0), min(af.max_airspeed, 32.0) + 1e-9, 2.0)
+        if candidates is None:
+            candidates = self._default_airspeeds()
         info = np.zeros((m, m, 5))
         for i in range(m):
             for j in range(m):
