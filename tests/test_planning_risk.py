@@ -1,5 +1,5 @@
-"""Risk-bounded planning (issue 31, part 2): routes × draws through the kernel, the risk verdict,
-Algorithm 1 and the exact search on the risk-aware objective."""
+"""Risk-bounded planning (issue 31, part 2; any vehicle, issue 32): routes × draws through the kernel,
+the risk verdict, Algorithm 1 and the exact search on the risk-aware objective."""
 from __future__ import annotations
 
 import dataclasses

@@ -176,7 +176,6 @@ class RiskSimulator:
         #: every distinct route closed by the landing so far: route -> (feasible, expected reward, objective)
         self.seen: dict[tuple, tuple[bool, float, float]] = {}
         self._reserve = base._reserve
-        self._t_ground = base._t_ground
         # the vehicle's topology with the verdict's limits (margins of a coarse step included)
         self._topology = base._topology
         self._sample_legs()
