@@ -4,10 +4,10 @@ a numeric probability of failure and the landing SoC's p05/p50/p95 (the risk-bou
 its draws, and the Monte Carlo route risk's); the current mission's outlook has them too. A
 multirotor hovering (held in MANUAL) gets a time to cut-off.
 
-Kept short and load-proof: the test ends at the plan, at a high speed-up; the vehicle's clock waits while the
-service decides (``demo.DecisionHold``), so when the plan is made does not depend on the machine.
-A fault the telemetry cannot show (the plane's single motor) is declared by the operator, as in
-tests/test_end_to_end_vehicles.py.
+Kept short and load-proof: the test ends at the plan, at a high speed-up; the vehicle's clock
+waits while the service decides (``demo.DecisionHold``), so when the plan is made does not depend
+on the machine. A fault the telemetry cannot show (the plane's single motor) is declared by the
+operator, as in tests/test_end_to_end_vehicles.py.
 """
 from __future__ import annotations
 
