@@ -151,8 +151,10 @@ def _fly(tmp_path, *, vehicle, mission, fault, speedup, soc, declare=None, takeo
 def test_quad_4s_fault_diagnosed_replanned_uploaded(tmp_path):
     square = [(250, 0, 40), (250, 250, 40), (0, 250, 40), (-250, 250, 40), (-250, 0, 40), (-250, -250, 40),
               (0, -250, 40)]
+    # 44 %: the risk-bounded verdict (landing SoC p05 >= the 25 % reserve over the draws) finds no route
+    # from 41 % and keeps the whole mission from 46 % (docs/notes/2026-11-27-risk-presets.md)
     lb, faults, uploads, plans = _fly(tmp_path, vehicle="quad-4s", mission=square, fault="motor:m2:0.6@leg:2-3",
-                                      speedup=8.0, soc=0.32)
+                                      speedup=8.0, soc=0.44)
     try:
         assert faults[0]["source"] == "diagnoser" and faults[0]["target"] == "m2"
         assert abs(faults[0]["magnitude"] - 0.6) < 0.15
@@ -167,8 +169,9 @@ def test_single_battery_plane_operator_declared_fault_replanned_uploaded(tmp_pat
     # the operator declares it over HTTP once the vehicle is on its way
     legs = [(800, 0, 60), (800, 800, 60), (0, 800, 60), (-800, 800, 60), (-800, 0, 60), (-800, -800, 60),
             (0, -800, 60)]
+    # 50 %: from 40 % no route keeps the 20 % reserve at the landing SoC's p05 (risk-bounded verdict)
     lb, faults, uploads, plans = _fly(tmp_path, vehicle="plane-3s", mission=legs, fault="motor:motor:0.5@leg:2-3",
-                                      speedup=8.0, soc=0.4, declare=("motor", 3), takeoff_alt_m=60.0)
+                                      speedup=8.0, soc=0.5, declare=("motor", 3), takeoff_alt_m=60.0)
     try:
         assert faults[0]["source"] == "operator" and faults[0]["target"] == "motor"
         assert plans and uploads[0]["status"] == "confirmed"

@@ -43,9 +43,7 @@ ALLOWED = {
     "logs/provisional_vehicle.py": 2,  # a log's VER/MSG vehicle *type*, not a description (name clash)
     "mavlink/mission_watch.py": 2,  # the MAVLink source address named ``vehicle``, not a description
     # this session's modules (issue 32's battery/planning part): not yet removed
-    "planning/simulator.py": 3,
-    "planning/plan.py": 1,
-    "planning/risk.py": 1,         # risk-bounded draws refuse a described vehicle (issue 31's risk engineer)
+    "planning/simulator.py": 2,
     "sim/model.py": 7,
     "diagnosis/pipeline.py": 4,
     "estimation/prediction.py": 4,

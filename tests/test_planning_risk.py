@@ -1,8 +1,11 @@
-"""Risk-bounded planning (issue 31, part 2): routes × draws through the kernel, the risk verdict,
-Algorithm 1 and the exact search on the risk-aware objective."""
+"""Risk-bounded planning (issue 31, part 2; any vehicle, issue 32): routes × draws through the kernel,
+the risk verdict, Algorithm 1 and the exact search on the risk-aware objective."""
 from __future__ import annotations
 
+import dataclasses
 import itertools
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +18,8 @@ from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw
 from gcs_pdm.planning.simulator import VehicleSimulator
 from gcs_pdm.planning.table3_scenario import table3_scenario
 from gcs_pdm.sim.truth import true_parameters
+
+sys.path.insert(0, str(Path(__file__).parent))
 
 NO_SPREAD = Uncertainty(soc_sd=0.0, temp_sd_c=0.0, param_rel_sigma=0.0, fault_sd=0.0, wind_sd_mps=0.0)
 
@@ -122,3 +127,48 @@ def test_a_failed_draw_is_not_flown_on(table3_10):
     nxt = risk._fly(st, np.array([3]))
     assert np.array_equal(nxt.x[0, [2, 5]], st.x[0, [2, 5]]) and np.all(nxt.time_s[0, [2, 5]] == 0.0)
     assert np.all(nxt.time_s[0, [0, 1, 3, 4, 6, 7]] > 0.0) and nxt.failed[0, [2, 5]].all()
+
+
+# --- any vehicle (issue 32): the description's packs, motors, topology and limits ------------------
+
+@pytest.fixture(scope="module")
+def faulted_presets():
+    from test_planning_vehicle import _scenario  # five goals around the start, any vehicle
+    from gcs_pdm.vehicle.presets import PRESETS
+
+    out = {}
+    for name, scale, airspeed in (("quad-4s", 1000.0, 8.0), ("hex-6s", 1000.0, 10.0), ("plane-3s", 3000.0, 20.0)):
+        desc = PRESETS[name]
+        out[name] = (VehicleSimulator(_scenario(scale, airspeed), vehicle=desc),
+                     VehicleSimulator(_scenario(scale, airspeed), vehicle=desc,
+                                      motor_faults={desc.motor_names[-1]: 0.6}))
+    return out
+
+
+@pytest.mark.parametrize("preset", ["quad-4s", "hex-6s", "plane-3s"])
+def test_a_described_vehicle_is_drawn_and_flown_on_its_own_packs_and_motors(faulted_presets, preset):
+    healthy, faulted = faulted_presets[preset]
+    n_packs, n_motors = healthy._pp.shape[1], healthy._motor_rows.shape[1]
+    routes = _some_routes(healthy.n, 12, seed=3)
+    # without spread every draw is the deterministic vehicle (its topology, limits, reserve)
+    flat = RiskSimulator(faulted, draw(faulted, 3, uncertainty=NO_SPREAD, seed=0))
+    det, rsk = faulted.evaluate(routes), flat.evaluate(routes)
+    assert np.array_equal(det.feasible, rsk.feasible)
+    np.testing.assert_allclose(rsk.final_soc, det.final_soc, atol=1e-9)
+    assert rsk.final_soc.shape == (len(routes), n_packs) and rsk.final_motor_temp.shape == (len(routes), n_motors)
+    # with spread: the draws are the description's shapes; its motors (one type) share one draw
+    dr = draw(faulted, 64, seed=1)
+    assert dr.x0.shape == (64, n_packs, 4) and dr.motor_params.shape == (64, n_motors, 5)
+    assert dr.fault.shape == (64, n_motors) and np.all(dr.fault[:, :-1] == 0) and dr.fault[:, -1].std() > 0
+    assert np.all(dr.motor_params == dr.motor_params[:, :1]) and dr.motor_params[:, 0, 0].std() > 0
+    # the same draws with and without the fault: the fault can only cost charge
+    whole = [tuple(range(healthy.n))]
+    calm = RiskSimulator(healthy, dataclasses.replace(dr, fault=np.zeros_like(dr.fault))).evaluate(whole)
+    hurt = RiskSimulator(faulted, dr).evaluate(whole)
+    assert hurt.final_soc[0].min() < calm.final_soc[0].min()
+    plan = run_risk_bounded("pf", RiskSimulator(faulted, draw(faulted, 40, seed=2)), particles=10, seed=0)
+    risk = plan.stats["risk"]
+    assert 0.0 <= risk["p_failure"] <= 1.0 and risk["samples"] == 40
+    q = risk["landing_soc_quantiles"]["soc"]
+    assert 0.0 <= q[0] <= q[1] <= q[2] <= 1.0
+    assert list(plan.to_dict()["final_soc"]) == list(healthy.vehicle.pack_names)

@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from gcs_pdm.models.params import PACK_NAMES
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES
 from gcs_pdm.planning.simulator import DEFAULT_THETA, FAILURE_NAMES, VehicleSimulator
 
 
@@ -32,9 +32,9 @@ class Plan:
     final_motor_temp_c: tuple[float, ...]
     leg_airspeed_mps: tuple[float, ...] = ()
     stats: dict[str, Any] = field(default_factory=dict)
-    #: what the rows of final_soc/final_*_temp_c are (a vehicle description's, or the paper's)
+    #: what the rows of final_soc/final_*_temp_c are (the simulator's packs and motors)
     pack_names: tuple[str, ...] = PACK_NAMES
-    motor_names: tuple[str, ...] = ("fwd", "aft")
+    motor_names: tuple[str, ...] = MOTOR_NAMES
 
     def to_dict(self) -> dict[str, Any]:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -63,8 +63,8 @@ def make_plan(sim: VehicleSimulator, route: Sequence[int], planner: str, theta: 
         final_soc=tuple(float(v) for v in ev.final_soc[0]),
         final_pack_temp_c=tuple(float(v) for v in ev.final_pack_temp[0]),
         final_motor_temp_c=tuple(float(v) for v in ev.final_motor_temp[0]),
-        leg_airspeed_mps=speeds, stats=dict(stats),
-        **({} if sim.vehicle is None else {"pack_names": sim.vehicle.pack_names, "motor_names": sim.vehicle.motor_names}))
+        leg_airspeed_mps=speeds, stats=dict(stats), pack_names=tuple(sim.pack_names),
+        motor_names=tuple(sim.motor_names))
 
 
 def better(reward_a: float, obj_a: float, reward_b: float, obj_b: float, tol: float = 1e-9) -> bool:

@@ -19,6 +19,11 @@ unchanged and get the risk-aware objective. The exact search's pruning stays val
 flying further never leaves the vehicle better off, so P(failure) and the landing-SoC quantile only
 get worse along a route, and the nominal reward plus the reachable rewards bounds the expected reward.
 
+Any vehicle: the simulator's own packs, motors and topology (a vehicle description's, or the
+paper's aircraft as ``VehicleSimulator`` flies it), its limits and landing reserve. Motors of one
+type (the same parameter vector) share one draw of it, as the paper's two motors do: the spread is
+the model's uncertainty about that motor type, not a difference between two of its motors.
+
 Approximation, named: a sampled wind changes each leg's duration (the wind triangle at the leg's
 nominal airspeed) but the leg keeps its nominal shaft power (the climb rate of a leg with a height
 change is the nominal one; level legs are exact).
@@ -63,11 +68,11 @@ class Uncertainty:
 class Draws:
     """S draws of everything uncertain; row s of each array is one possible vehicle."""
 
-    x0: np.ndarray            # (S, 4, 4) pack states (under the draw's own parameters)
-    motor_temp: np.ndarray    # (S, 2)
-    pack_params: np.ndarray   # (S, 4, 12)
-    motor_params: np.ndarray  # (S, 5)
-    fault: np.ndarray         # (S, 2)
+    x0: np.ndarray            # (S, P, 4) pack states (under the draw's own parameters)
+    motor_temp: np.ndarray    # (S, M)
+    pack_params: np.ndarray   # (S, P, 12)
+    motor_params: np.ndarray  # (S, M, 5)
+    fault: np.ndarray         # (S, M) power-loss magnitudes, the simulator's motor order
     wind_en: np.ndarray       # (S, 2) the air's velocity east, north
 
     def __len__(self) -> int:
@@ -77,15 +82,18 @@ class Draws:
 def draw(sim: VehicleSimulator, n: int = DEFAULT_SAMPLES, *, uncertainty: Uncertainty = Uncertainty(),
          seed: int | np.random.Generator = 0, pack_mean: np.ndarray | None = None,
          pack_cov: np.ndarray | None = None, motor_sd: np.ndarray | None = None) -> Draws:
-    """``n`` draws about ``sim``'s start (its scenario's state, parameters, faults and wind).
+    """``n`` draws about ``sim``'s start (its state, pack and motor parameters, motor faults and
+    its scenario's wind), for any vehicle the simulator flies (P packs, M motors).
 
-    ``pack_mean``/``pack_cov`` (4, 4) / (4, 4, 4): an estimator's pack state and covariance to draw
-    the start from instead of the scenario's state with ``uncertainty.soc_sd``/``temp_sd_c``."""
-    if sim.vehicle is not None:
-        raise ValueError("risk-bounded planning: the paper's aircraft only (a described vehicle plans deterministically)")
+    ``pack_mean``/``pack_cov`` (P, 4) / (P, 4, 4): an estimator's pack state and covariance to draw
+    the start from instead of the simulator's state with ``uncertainty.soc_sd``/``temp_sd_c``;
+    ``motor_sd`` (M,): its motor temperatures' spread."""
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    pp0, mp0 = sim._pp[0], sim._mp[0]
-    pp, mp = sample_parameters((pp0, mp0), n, rng, uncertainty.param_rel_sigma)
+    pp0 = sim._pp[0]
+    # one draw per motor type (for the paper's aircraft: one vector for both motors, as drawn so far)
+    motor_types, type_of_motor = np.unique(sim._motor_rows[0], axis=0, return_inverse=True)
+    pp, mp = sample_parameters((pp0, motor_types), n, rng, uncertainty.param_rel_sigma)
+    mp = mp[:, np.asarray(type_of_motor).reshape(-1)]
     if pack_mean is not None:
         cov = np.asarray(pack_cov, dtype=np.float64)
         chol = np.linalg.cholesky(cov + 1e-9 * np.eye(cov.shape[-1]))
@@ -111,8 +119,8 @@ def draw(sim: VehicleSimulator, n: int = DEFAULT_SAMPLES, *, uncertainty: Uncert
 class RiskState:
     """B routes part-way, each on all S draws (the carried prefix state of the risk simulator)."""
 
-    x: np.ndarray            # (B, S, 4, 4)
-    motor_temp: np.ndarray   # (B, S, 2)
+    x: np.ndarray            # (B, S, P, 4)
+    motor_temp: np.ndarray   # (B, S, M)
     node: np.ndarray         # (B,)
     reward: np.ndarray       # (B,) nominal reward of the waypoints visited so far
     energy_j: np.ndarray     # (B, S)
@@ -159,6 +167,7 @@ class RiskSimulator:
         self.eps = float(max_failure_probability)
         self.reserve_quantile = float(reserve_quantile)
         self.scenario, self.vehicle, self.params = base.scenario, base.vehicle, base.params
+        self.pack_names, self.motor_names = base.pack_names, base.motor_names
         self.n, self.start_node, self.landing_node = base.n, base.start_node, base.landing_node
         self.rewards, self.dt_s = base.rewards, base.dt_s
         self.legs = base.legs  # nominal: the airspeeds flown (the mission's), distances
@@ -167,12 +176,8 @@ class RiskSimulator:
         #: every distinct route closed by the landing so far: route -> (feasible, expected reward, objective)
         self.seen: dict[tuple, tuple[bool, float, float]] = {}
         self._reserve = base._reserve
-        self._limits = base._limits
-        self._t_ground = base._t_ground
-        # the paper's aircraft with the verdict's limits, and each draw's motor parameters on both
-        # motors: ``topology.simulate_powertrain``'s arguments, made once instead of per call
-        self._topology = topology.PAPER_TOPOLOGY.with_limits(*self._limits)
-        self._motor_params = np.repeat(draws.motor_params[:, None, :], kernel.N_MOTORS, axis=1)
+        # the vehicle's topology with the verdict's limits (margins of a coarse step included)
+        self._topology = base._topology
         self._sample_legs()
 
     # ---- per-draw legs: the wind triangle at each leg's airspeed ---------------------------------
@@ -240,7 +245,7 @@ class RiskSimulator:
             b, s = group // S, group % S
             leg = (s, frm[b], to[b])
             on = np.arange(used)[None, :] < n_steps[group][:, None]          # the padding flies no time
-            return topology.simulate_vehicle(self._topology, dr.pack_params[s], self._motor_params[s], x[group],
+            return topology.simulate_vehicle(self._topology, dr.pack_params[s], dr.motor_params[s], x[group],
                                              tm[group], np.where(on, self._step_s[leg][:, None], 0.0),
                                              np.where(on, self._power[leg][:, None], 0.0),
                                              np.where(on, self._ambient[leg[1:]][:, None], 0.0), dr.fault[s],
@@ -298,13 +303,10 @@ class RiskSimulator:
         return out
 
     def _stress(self, state: RiskState) -> np.ndarray:
-        lim = self.scenario.limits
-        t0 = self._t_ground
-        return np.maximum(np.maximum((state.peak_pack_c - t0) / max(lim.pack_max_temp_c - t0, 1e-6),
-                                     (state.peak_motor_c - t0) / max(lim.motor_max_temp_c - t0, 1e-6)), 0.0)
+        return self.base._stress(state)  # the vehicle's limits, per draw
 
     def _soc(self, x: np.ndarray) -> np.ndarray:
-        """(B, S, 4) SoC of each draw under its own parameters."""
+        """(B, S, P) SoC of each draw under its own parameters."""
         return kernel.state_of_charge(self.draws.pack_params[None], x)
 
     def cost_lower_bound(self, state: RiskState) -> tuple[np.ndarray, np.ndarray]:
@@ -313,7 +315,8 @@ class RiskSimulator:
 
     def _outcome(self, final: RiskState) -> RiskOutcome:
         B = len(final)
-        soc = self._soc(final.x) if B else np.zeros((0, self.S, 4))
+        P, M = self.draws.pack_params.shape[1], self.draws.motor_params.shape[1]
+        soc = self._soc(final.x) if B else np.zeros((0, self.S, P))
         low = np.where(final.failed, 0.0, soc.min(axis=2)) if B else np.zeros((0, self.S))
         p_fail = final.failed.mean(axis=1) if B else np.zeros(0)
         success = ~final.failed & (low >= self._reserve)
@@ -326,14 +329,14 @@ class RiskSimulator:
             cause[b] = int(np.bincount(fc).argmax()) if p_fail[b] > self.eps and fc.size else FAIL_RESERVE
         expected = final.reward * p_success
         health = (self._stress(final) + 1.0 - low).mean(axis=1) if B else np.zeros(0)
-        # the medians over the draws, in one pass: SoC (4), pack temperatures (4), motor temperatures (2), time
+        # the medians over the draws, in one pass: SoC (P), pack temperatures (P), motor temperatures (M), time
         per_draw = np.concatenate([soc, final.x[..., kernel.S_T], final.motor_temp, final.time_s[..., None]], axis=2)
         med = np.median(per_draw, axis=1) if B else per_draw[:, 0]
         return RiskOutcome(feasible=feasible, cause=cause, reward=np.where(feasible, expected, 0.0),
                            reward_reached=expected, health_cost=health,
                            power_cost=final.energy_j.mean(axis=1) / 1e6 if B else np.zeros(0),
-                           final_soc=med[:, :4], final_pack_temp=med[:, 4:8],
-                           final_motor_temp=med[:, 8:10], flight_time_s=med[:, 10],
+                           final_soc=med[:, :P], final_pack_temp=med[:, P:2 * P],
+                           final_motor_temp=med[:, 2 * P:2 * P + M], flight_time_s=med[:, 2 * P + M],
                            p_failure=p_fail, p_success=p_success, landing_soc_q=q, nominal_reward=final.reward)
 
     # ---- whole routes ----------------------------------------------------------------------------

@@ -32,7 +32,7 @@ from typing import Sequence
 import numpy as np
 
 from gcs_pdm.models import kernel, topology
-from gcs_pdm.models.params import ParameterSet
+from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
                                        fault_vector, shaft_power)
 from gcs_pdm.models.topology import simulate_vehicle
@@ -150,7 +150,9 @@ class VehicleSimulator:
                  optimise_airspeed: bool = False, airspeed_candidates: Sequence[float] | None = None,
                  airframe: Airframe = EDGE_540, state: PowertrainState | None = None, vehicle=None,
                  motor_faults: dict[str, float] | None = None) -> None:
-        """``vehicle``: a ``VehicleDescription`` to fly instead of the paper's aircraft: its packs,
+        """``pack_names``/``motor_names``: what the rows of its states are, in order.
+
+        ``vehicle``: a ``VehicleDescription`` to fly instead of the paper's aircraft: its packs,
         motors and topology (``models.topology``), its airframe's power model, its limits and
         landing reserve; ``motor_faults`` then names its motors ({"m2": 0.3}); ``state`` defaults
         to full packs at the ground temperature. The scenario's waypoints and airspeeds are used
@@ -179,6 +181,8 @@ class VehicleSimulator:
             self._limit_topology = topology.PAPER_TOPOLOGY.with_limits(*scenario.limits.kernel_limits().as_tuple())
             self._base_reserve = scenario.limits.landing_reserve_soc
             self._vehicle_power = partial(shaft_power, airframe=self.airframe)
+            self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
+            self._multirotor = False
         else:
             self._init_vehicle(vehicle, motor_faults or {}, state)
         self._set_verdict_limits()
@@ -204,6 +208,16 @@ class VehicleSimulator:
         self.initial = state
         self.airframe = powertrain_airframe(vehicle)
         self._vehicle_power = shaft_power_model(vehicle)
+        self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
+        self._multirotor = vehicle.airframe.type == "multirotor"
+
+    def _default_airspeeds(self) -> np.ndarray:
+        """The airspeeds the optimisation tries by default: a multirotor's from 2 m/s to its maximum;
+        a fixed wing's from well above the stall (at least 16 m/s) to its maximum (at most 32 m/s)."""
+        af = self.airframe
+        if self._multirotor:
+            return np.arange(2.0, af.max_airspeed + 1e-9, 2.0)
+        return np.arange(max(af.stall_airspeed + 4.0, 16.0), min(af.max_airspeed, 32.0) + 1e-9, 2.0)
 
     def _shaft_power(self, airspeed: float, climb: float, rho: float) -> float:
         """The airframe's power model: the drag polar, or momentum theory for a multirotor."""
@@ -227,9 +241,6 @@ class VehicleSimulator:
                                  pack_max_temp_c=topo.pack_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0),
                                  motor_max_temp_c=topo.motor_max_temp_c - (VERDICT_MARGIN_C if coarse else 0.0))
         self._reserve = self._base_reserve + (VERDICT_MARGIN_SOC if coarse else 0.0)
-        # one limit per pack and motor as a triple, for the paper layout's kernel call (planning/risk.py)
-        self._limits = (float(self._topology.pack_cutoff_v[0]), float(self._topology.pack_max_temp_c[0]),
-                        float(self._topology.motor_max_temp_c[0]))
 
     # ---- legs -----------------------------------------------------------------------------------
     def _places(self) -> np.ndarray:
@@ -265,11 +276,8 @@ class VehicleSimulator:
         places = self._places()
         m = len(places)
         sc = self.scenario
-        af = self.airframe
-        if candidates is None and self.vehicle is not None and self.vehicle.airframe.type == "multirotor":
-            candidates = np.arange(2.0, self.vehicle.airframe.max_airspeed + 1e-9, 2.0)
-        elif candidates is None:
-            candidates = np.arange(max(af.stall_airspeed + 4.0, 16.0), min(af.max_airspeed, 32.0) + 1e-9, 2.0)
+        if candidates is None:
+            candidates = self._default_airspeeds()
         info = np.zeros((m, m, 5))
         for i in range(m):
             for j in range(m):

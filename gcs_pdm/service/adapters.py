@@ -174,10 +174,10 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
     (the scenario keeps the position and waypoints; its four-pack start is a placeholder the
     simulator does not read, and ``info["vehicle"]`` records the state planned from). ``wind_en``:
     the wind (east, north m/s) every leg is flown in; None (unknown) plans in calm air and says so
-    in ``info["wind_unknown"]``. ``max_failure_probability`` (the paper's aircraft): plan
-    risk-bounded over ``risk_samples`` draws (the start from ``estimator``'s covariance when given)
-    and judge every candidate on the same draws; each candidate's ``extra["risk"]`` holds its
-    P(failure) and landing-SoC quantiles."""
+    in ``info["wind_unknown"]``. ``max_failure_probability`` (any vehicle): plan risk-bounded over
+    ``risk_samples`` draws of the simulator's packs and motors (the start from ``estimator``'s
+    covariance when given) and judge every candidate on the same draws; each candidate's
+    ``extra["risk"]`` holds its P(failure) and landing-SoC quantiles."""
     from gcs_pdm.vehicle.presets import is_paper_aircraft
     from gcs_pdm.missions import item_to_json
     from gcs_pdm.planning.mission import plan_to_mission
@@ -210,7 +210,7 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
     index_of = {w.number: i for i, w in enumerate(scenario.waypoints)}
     t0 = time.perf_counter()
     judge = sim
-    if max_failure_probability is not None and paper:
+    if max_failure_probability is not None:
         from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw
 
         unc = Uncertainty(wind_sd_mps=1.5 if wind_en is not None else 3.0)
@@ -258,8 +258,9 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
 
 def _estimated_start(estimator, sim) -> dict:
     """The risk draws' start: the planned state with the estimator's pack covariance (plus the
-    capacity mismatch it adds to its SoC spread, as the prediction does); {} without an estimator."""
-    if estimator is None or getattr(estimator, "inputs", None) is not None:
+    capacity mismatch it adds to its SoC spread, as the prediction does); {} without an estimator.
+    Any vehicle: the estimator tracks the packs and motors the simulator flies, in its order."""
+    if estimator is None:
         return {}
     from gcs_pdm.models import kernel
 

@@ -18,8 +18,11 @@ from gcs_pdm.service.runtime import Service
 
 #: the survey about home (east m, north m, altitude m), scaled to the vehicle's cruise speed
 SURVEY = ((1, 0), (1, 1), (0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1))
-#: charge at take-off: enough for the survey healthy, not with the fault (the story needs a choice)
-INITIAL_SOC = 0.32
+#: charge at take-off: enough for the survey healthy, not with the fault (the story needs a choice).
+#: The risk-bounded verdict (the landing SoC's p05 over the draws keeps the reserve) asks more than
+#: the nominal one did: on quad-4s, from 42 % no route keeps it, from 50 % the survey still does
+#: (docs/notes/2026-11-27-risk-presets.md)
+INITIAL_SOC = 0.46
 FAULT_MAGNITUDE = 0.6
 
 

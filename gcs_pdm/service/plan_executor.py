@@ -510,7 +510,7 @@ class PlanExecutor:
                 estimator=snap.estimator)
             risk = cands[0].extra.get("risk")
             if risk is None:
-                why = "the risk draws fly the paper's aircraft only"
+                why = "the planner gave the current mission no risk figures"
         if why is not None:
             svc.state.replace(outlook={"unknown": why, "time_s": snap.time_s, "line": outlook_line({"unknown": why})})
             return
