@@ -121,6 +121,21 @@ class ElectrodeCurves:
         w = (v[k - 1] - self.lower_cutoff_v) / (v[k - 1] - v[k])
         return float(q[k - 1] + w * (q[k] - q[k - 1]))
 
+    def full_state_for(self, capacity_ah: float, full_v: float) -> tuple[float, float]:
+        """(x0, y0) of a cell resting at ``full_v`` whose charge down to the cut-off is ``capacity_ah``:
+        the lithium inventory of a cell that has lost lithium (SEI, plating) and nothing else."""
+        def capacity_at(x0: float) -> float:
+            return self.capacity_from(x0, float(self.y_at(full_v + self.u_n(x0))))
+
+        lo, hi = 0.05, 0.999
+        if not capacity_at(lo) <= capacity_ah <= capacity_at(hi):
+            raise ValueError(f"no lithium inventory of {self.name} gives {capacity_ah:.4g} Ah from {full_v:g} V")
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if capacity_at(mid) < capacity_ah else (lo, mid)
+        x0 = 0.5 * (lo + hi)
+        return x0, float(self.y_at(full_v + self.u_n(x0)))
+
     def capacity(self, v0: float, v1: float, drawn_ah: float, tolerance_v: float, polarization_v: float = 0.0,
                  flight: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None):
         """(capacity, σ, how) over the states consistent with both rests; None: none is.
