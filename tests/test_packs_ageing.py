@@ -35,17 +35,34 @@ def test_the_fixtures_are_two_degradation_models_past_80_percent():
         assert "solvent-diffusion limited" in entry["options"]["SEI"]
 
 
+def test_the_truth_is_measured_at_the_cells_own_wear_rate():
+    """Chen2020 ages with its SEI growth compressed x8000: a 20-h C/20 discharge at that rate loses
+    lithium to the SEI during the measurement (6 % of the fresh cell), so its truth is measured with
+    the rate undone; O'Kane2022's factor slows plating and its truth is at the flights' rates."""
+    man = json.loads((FIXTURES / "manifest.json").read_text())
+    assert man["sets"]["Chen2020"]["truth_at_native_rates"] == ["SEI solvent diffusivity [m2.s-1]"]
+    assert man["sets"]["OKane2022"]["truth_at_native_rates"] == []
+    for f in man["flights"]:
+        compressed = f["c20_capacity_at_compressed_rates_ah"]
+        if f["set"] == "Chen2020":
+            assert f["true_capacity_ah"] > compressed * 1.005, f["flight"]
+        else:
+            assert f["true_capacity_ah"] == compressed, f["flight"]
+
+
 def test_each_flights_capacity_is_near_the_truth(results):
     for name, r in results.items():
         errors = r["capacity_errors"]
         assert all(e == e for e in errors), f"{name}: a flight's capacity unknown"
-        # measured (docs/notes/2026-11-27-pack-capacity.md): O'Kane 44/44 within 3 %, worst 2.9 %;
-        # Chen 60/64, worst 4.1 %, mean 1.7 % (a bias of +1-2 %: the C/20 truth ends before the
-        # equilibrium's cut-off). With the best-fitting state instead of the likelihood-weighted
-        # mean: 41/44 and 57/64
-        assert r["capacity_within_3pct"] >= 0.93 * r["flights"], (name, errors)
-        assert r["capacity_abs_error_max"] < 0.045, (name, errors)
-        assert r["capacity_abs_error_mean"] < 0.02, (name, errors)
+        # measured (docs/notes/2026-11-27-pack-capacity.md), on the liion chemistry's electrodes
+        # (what the live service and packs ingest read on): O'Kane 44/44 within 3 %, worst 2.9 %,
+        # mean |error| 1.2 %; Chen 63/64, worst 3.5 % (its first flight: 1 % of its lithium lost to
+        # the compressed SEI between the rests), mean 0.9 %. Before the truth was measured at the
+        # cell's own SEI rate, Chen's leaned +1.7 % (60/64)
+        assert r["capacity_within_3pct"] >= r["flights"] - 1, (name, errors)
+        assert r["capacity_abs_error_max"] < 0.036, (name, errors)
+        assert r["capacity_abs_error_mean"] < 0.013, (name, errors)
+        assert abs(sum(errors) / len(errors)) < 0.01, (name, errors)  # no lean: measured -0.3 % / +0.9 %
         # the σ is a claim: 2σ covers the truth (measured 44/44 and 64/64)
         assert r["capacity_truth_within_2sd"] >= 0.97 * r["flights"], name
     assert results["OKane2022"]["capacity_abs_error_max"] <= 0.03
