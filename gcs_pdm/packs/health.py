@@ -229,7 +229,7 @@ class HealthSettings:
     #: the rate a capacity is stated at (C/20: the usual measurement, and PyBaMM's)
     measure_c_rate: float = 0.05
     #: the electrode method's own error (1σ, fraction): its equilibrium cell against a C/20
-    #: measurement, measured on the PyBaMM ageing fixtures (mean |error| 1.2-1.7 %, docs/packs.md)
+    #: measurement, measured on the PyBaMM ageing fixtures (mean |error| 0.9-1.2 %, docs/packs.md)
     electrode_model_sd: float = 0.015
 
 
