@@ -156,7 +156,7 @@ class ElectrodeCurves:
         if xs.size == 0:
             return None
         xs = xs[:: max(1, xs.size // 120)]
-        ys = np.array([float(self.y_at(v0 + self.u_n(x))) for x in xs])
+        ys = self.y_at(v0 + self.u_n(xs))
         caps = np.array([self.capacity_from(float(x), float(y), polarization_v) for x, y in zip(xs, ys)])
         if flight is None or xs.size == 1:
             lo, mid, hi = np.percentile(caps, [16, 50, 84])
@@ -164,13 +164,12 @@ class ElectrodeCurves:
         t, i, v, q = flight
         lags = [_lowpass(t, i, tau) for tau in (30.0, 300.0)]
         design = np.column_stack([i, *lags])
-        rms = np.empty(xs.size)
-        residuals = []
-        for k, (x, y) in enumerate(zip(xs, ys)):
-            drop = self.u_p(y + q / self.positive_ah) - self.u_n(x - q / self.negative_ah) - v
-            coef, *_ = np.linalg.lstsq(design, drop, rcond=None)
-            residuals.append(drop - design @ coef)
-            rms[k] = math.sqrt(float(np.mean(residuals[-1] ** 2)))
+        # every state's drop along the flight (a row each), all fitted by one least-squares solve
+        drops = (self.u_p(ys[:, None] + q[None, :] / self.positive_ah)
+                 - self.u_n(xs[:, None] - q[None, :] / self.negative_ah) - v[None, :])
+        coef, *_ = np.linalg.lstsq(design, drops.T, rcond=None)
+        residuals = drops - (design @ coef).T
+        rms = np.sqrt(np.mean(residuals ** 2, axis=1))
         best = int(np.argmin(rms))
         n_eff = effective_samples(residuals[best])
         log_w = -0.5 * n_eff * (rms ** 2 / max(rms[best] ** 2, 1e-18) - 1.0)
