@@ -35,19 +35,16 @@ def test_the_fixtures_are_two_degradation_models_past_80_percent():
         assert "solvent-diffusion limited" in entry["options"]["SEI"]
 
 
-def test_the_truth_is_measured_at_the_cells_own_wear_rate():
-    """Chen2020 ages with its SEI growth compressed x8000: a 20-h C/20 discharge at that rate loses
-    lithium to the SEI during the measurement (6 % of the fresh cell), so its truth is measured with
-    the rate undone; O'Kane2022's factor slows plating and its truth is at the flights' rates."""
+def test_the_truth_is_measured_with_the_wear_held_still():
+    """The cells wear in tens of cycles: a 20-h C/20 discharge at those rates loses lithium during the
+    measurement (the fresh Chen2020 cell 6 % to its x8000 SEI, O'Kane2022's 1.4 % to plating), so the
+    truth is measured with the wear reactions' rates x1e-6; the capacity with them running is kept."""
     man = json.loads((FIXTURES / "manifest.json").read_text())
-    assert man["sets"]["Chen2020"]["truth_at_native_rates"] == ["SEI solvent diffusivity [m2.s-1]"]
-    assert man["sets"]["OKane2022"]["truth_at_native_rates"] == []
+    assert set(man["sets"]["Chen2020"]["truth_with_wear_frozen"]) == {"SEI solvent diffusivity [m2.s-1]"}
+    assert set(man["sets"]["OKane2022"]["truth_with_wear_frozen"]) == {
+        "SEI solvent diffusivity [m2.s-1]", "Lithium plating kinetic rate constant [m.s-1]"}
     for f in man["flights"]:
-        compressed = f["c20_capacity_at_compressed_rates_ah"]
-        if f["set"] == "Chen2020":
-            assert f["true_capacity_ah"] > compressed * 1.005, f["flight"]
-        else:
-            assert f["true_capacity_ah"] == compressed, f["flight"]
+        assert f["true_capacity_ah"] > f["c20_capacity_wear_running_ah"] * 1.005, f["flight"]
 
 
 def test_each_flights_capacity_is_near_the_truth(results):
@@ -55,17 +52,15 @@ def test_each_flights_capacity_is_near_the_truth(results):
         errors = r["capacity_errors"]
         assert all(e == e for e in errors), f"{name}: a flight's capacity unknown"
         # measured (docs/notes/2026-11-27-pack-capacity.md), on the liion chemistry's electrodes
-        # (what the live service and packs ingest read on): O'Kane 44/44 within 3 %, worst 2.9 %,
-        # mean |error| 1.2 %; Chen 63/64, worst 3.5 % (its first flight: 1 % of its lithium lost to
-        # the compressed SEI between the rests), mean 0.9 %. Before the truth was measured at the
-        # cell's own SEI rate, Chen's leaned +1.7 % (60/64)
+        # (what the live service and packs ingest read on): Chen 63/64 within 3 %, worst 3.2 % (its
+        # first flight), mean |error| 0.44 %, mean -0.02 %; O'Kane 43/44, worst 3.0 %, mean 0.97 %,
+        # mean +0.33 %. With the wear running during the truth's discharge Chen leaned +1.7 % (60/64)
         assert r["capacity_within_3pct"] >= r["flights"] - 1, (name, errors)
-        assert r["capacity_abs_error_max"] < 0.036, (name, errors)
-        assert r["capacity_abs_error_mean"] < 0.013, (name, errors)
-        assert abs(sum(errors) / len(errors)) < 0.01, (name, errors)  # no lean: measured -0.3 % / +0.9 %
-        # the σ is a claim: 2σ covers the truth (measured 44/44 and 64/64)
+        assert r["capacity_abs_error_max"] < 0.033, (name, errors)
+        assert r["capacity_abs_error_mean"] < 0.011, (name, errors)
+        assert abs(sum(errors) / len(errors)) < 0.005, (name, errors)  # no lean
+        # the σ is a claim: 2σ covers the truth (measured 64/64 and 44/44)
         assert r["capacity_truth_within_2sd"] >= 0.97 * r["flights"], name
-    assert results["OKane2022"]["capacity_abs_error_max"] <= 0.03
 
 
 def test_the_resistance_trend_follows_the_truth(results):
