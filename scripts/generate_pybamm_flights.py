@@ -390,8 +390,8 @@ def ageing_main(args) -> int:
     flight, a rest. Each flight's log (the last 2 min of the rest before it, the flight, the rest after:
     1 Hz for a minute, then every 30 s) is ``<set>/<set>_NNN.parquet`` (cell current, voltage,
     temperature, ambient); the manifest has, per flight, the cell's true capacity (a C/20 discharge
-    from the charged, rested state, on a copy of the cell: the cell itself never sees it) and its true
-    pulse resistance (the noiseless voltage step over the take-off current step), and per set the
+    from the charged, rested state, on a copy of the cell with its wear held still, WEAR_RATES: the
+    cell itself never sees it) and its true pulse resistance (the noiseless voltage step over the take-off current step), and per set the
     fresh cell's open-circuit voltage curve along that C/20 discharge."""
     import pandas as pd
     import pybamm
