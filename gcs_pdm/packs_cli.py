@@ -19,6 +19,9 @@ def register(subparsers) -> None:
     ing.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on this Dask cluster instead")
     ing.add_argument("--capacity-ah", type=float, default=None,
                      help="rated capacity of packs whose logs do not say it (else they are skipped, counted)")
+    ing.add_argument("--chemistry", default="lipo",
+                     help="the packs' chemistry, what their capacity is read on (default lipo, as a vehicle "
+                          "description's; liion reads it on the electrodes' curves, docs/packs.md)")
     ing.add_argument("--assign", action="append", default=[], metavar="SLOT=PACK",
                      help="the pack that flew in a slot in these logs (when the log has no serial)")
     ing.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -133,10 +136,17 @@ def _ingest(args, records) -> int:
         if not sep or not slot or not pack:
             return error("packs ingest", f"--assign {a!r}: expected SLOT=PACK")
         assignments.append((slot, pack))
+    from gcs_pdm.packs.cell_curves import capacity_reading
+
+    try:
+        capacity_reading(args.chemistry, 1.0)
+    except ValueError as exc:
+        return error("packs ingest", f"--chemistry: {exc}")
     paths = find_logs(args.logs)
     if not paths:
         return error("packs ingest", "no logs found (tlog, .bin, .ulg)")
-    settings = IngestSettings(default_capacity_ah=args.capacity_ah, assignments=tuple(assignments))
+    settings = IngestSettings(default_capacity_ah=args.capacity_ah, assignments=tuple(assignments),
+                              chemistry=args.chemistry)
     bad = []
 
     def store(result):

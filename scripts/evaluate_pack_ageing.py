@@ -6,8 +6,11 @@ Per parameter set: each flight's capacity estimate against the cell's true C/20 
 (error, and whether the truth lies within 2σ), the resistance estimates against the true 1-s pulse
 resistance (rank correlation and growth end/start of each), and the retirement forecast (80 % of the
 first capacity) made from the flights of the first half of life against the equivalent cycles at
-which the truth crossed 80 %. Electrodes as the fixture gives them (the fresh cell's, what a
-chemistry model gives); nothing about the ageing. Last line: one JSON object.
+which the truth crossed 80 %. Each flight's point is made as the live service and ``packs ingest``
+make a ``liion`` pack's (``packs.cell_curves.pack_health_point``: the LG M50 electrodes of
+Chen2020, fresh, scaled to the rated capacity); nothing about the ageing. ``--own-electrodes``:
+each set's own fresh electrodes from the manifest instead (O'Kane2022's graphite curve is not
+Chen2020's). Last line: one JSON object.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from gcs_pdm.packs.cell_curves import pack_health_point  # noqa: E402
 from gcs_pdm.packs.health import ElectrodeCurves, health_point  # noqa: E402
 from gcs_pdm.packs.trend import cumulative_cycles, pack_trend  # noqa: E402
 
@@ -36,7 +40,7 @@ def spearman(a, b) -> float:
     return float(np.corrcoef(ra, rb)[0, 1])
 
 
-def evaluate(fixtures: Path, sets=None) -> dict:
+def evaluate(fixtures: Path, sets=None, own_electrodes: bool = False) -> dict:
     import pandas as pd
 
     man = json.loads((fixtures / "manifest.json").read_text())
@@ -49,9 +53,10 @@ def evaluate(fixtures: Path, sets=None) -> dict:
         points = []
         for f in flights:
             df = pd.read_parquet(fixtures / f["file"])
-            points.append(health_point(set_name, df.time_s.to_numpy(), df.current_a.to_numpy(), df.voltage_v.to_numpy(),
-                                       df.temperature_c.to_numpy(), nominal_capacity_ah=entry["nominal_cell_capacity_ah"],
-                                       electrodes=el))
+            series = (df.time_s.to_numpy(), df.current_a.to_numpy(), df.voltage_v.to_numpy(), df.temperature_c.to_numpy())
+            nominal = entry["nominal_cell_capacity_ah"]
+            points.append(health_point(set_name, *series, nominal_capacity_ah=nominal, electrodes=el) if own_electrodes
+                          else pack_health_point(set_name, *series, chemistry="liion", nominal_capacity_ah=nominal))
         true_c = np.array([f["true_capacity_ah"] for f in flights])
         est_c = np.array([np.nan if p.capacity_ah is None else p.capacity_ah for p in points])
         sd_c = np.array([np.nan if p.capacity_sd_ah is None else p.capacity_sd_ah for p in points])
@@ -98,8 +103,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--fixtures", default=str(REPO / "fixtures" / "pybamm_ageing"))
     ap.add_argument("--sets", nargs="*", default=None, help="only these parameter sets")
+    ap.add_argument("--own-electrodes", action="store_true",
+                    help="each set's own fresh electrodes (the manifest's), not the liion chemistry's")
     args = ap.parse_args(argv)
-    res = evaluate(Path(args.fixtures), args.sets)
+    res = evaluate(Path(args.fixtures), args.sets, args.own_electrodes)
     for name, r in res.items():
         print(f"{name}: capacity error max {r['capacity_abs_error_max']:.2%} mean {r['capacity_abs_error_mean']:.2%}, "
               f"{r['capacity_within_3pct']}/{r['flights']} within 3 %, truth within 2σ in "

@@ -28,20 +28,23 @@ class NoMissions:
         return []
 
 
-def fly_rested_pack(loop, slot: str, cells: int, capacity_ah: float, resistance_ohm: float, until_s: float) -> None:
+def fly_rested_pack(loop, slot: str, cells: int, capacity_ah: float, resistance_ohm: float, until_s: float,
+                    chemistry: str = "lipo", rated_ah: float | None = None) -> None:
     """One flight of one pack, a frame a second: rested 120 s, armed, a climb (25 A) and a cruise
-    (12 A), disarmed at 1000 s, rested until ``until_s``; the voltage is the generic Li-ion curve's
-    at the charge drawn less the resistance's drop."""
+    (12 A), disarmed at 1000 s, rested until ``until_s``; the voltage is the rested voltage of the
+    chemistry's curve (the one the service reads capacity on) at the charge drawn, less the
+    resistance's drop."""
     import numpy as np
 
     from gcs_pdm.frames import PackFrame, StatusFrame
-    from gcs_pdm.packs.health import GENERIC_OCV
+    from gcs_pdm.packs.cell_curves import capacity_reading, rested_cell_voltage
 
+    reading = capacity_reading(chemistry, rated_ah or capacity_ah)
     drawn = 0.0
     for t in np.arange(0.0, until_s, 1.0):
         armed = 120 <= t < 1000
         i = 0.0 if not armed or t < 130 or t > 990 else (25.0 if t < 190 else 12.0)
         drawn += i / 3600.0
-        ocv = np.interp(1.0 - drawn / capacity_ah, GENERIC_OCV.soc, GENERIC_OCV.voltage_v) * cells
+        ocv = rested_cell_voltage(reading, capacity_ah, drawn) * cells
         loop.process(StatusFrame(float(t), armed, "AUTO", 4))
         loop.process(PackFrame(float(t), slot, float(ocv - i * resistance_ohm), i, 25.0))

@@ -35,20 +35,32 @@ def test_the_fixtures_are_two_degradation_models_past_80_percent():
         assert "solvent-diffusion limited" in entry["options"]["SEI"]
 
 
+def test_the_truth_is_measured_with_the_wear_held_still():
+    """The cells wear in tens of cycles: a 20-h C/20 discharge at those rates loses lithium during the
+    measurement (the fresh Chen2020 cell 6 % to its x8000 SEI, O'Kane2022's 1.4 % to plating), so the
+    truth is measured with the wear reactions' rates x1e-6; the capacity with them running is kept."""
+    man = json.loads((FIXTURES / "manifest.json").read_text())
+    assert set(man["sets"]["Chen2020"]["truth_with_wear_frozen"]) == {"SEI solvent diffusivity [m2.s-1]"}
+    assert set(man["sets"]["OKane2022"]["truth_with_wear_frozen"]) == {
+        "SEI solvent diffusivity [m2.s-1]", "Lithium plating kinetic rate constant [m.s-1]"}
+    for f in man["flights"]:
+        assert f["true_capacity_ah"] > f["c20_capacity_wear_running_ah"] * 1.005, f["flight"]
+
+
 def test_each_flights_capacity_is_near_the_truth(results):
     for name, r in results.items():
         errors = r["capacity_errors"]
         assert all(e == e for e in errors), f"{name}: a flight's capacity unknown"
-        # measured (docs/notes/2026-11-27-pack-capacity.md): O'Kane 44/44 within 3 %, worst 2.9 %;
-        # Chen 60/64, worst 4.1 %, mean 1.7 % (a bias of +1-2 %: the C/20 truth ends before the
-        # equilibrium's cut-off). With the best-fitting state instead of the likelihood-weighted
-        # mean: 41/44 and 57/64
-        assert r["capacity_within_3pct"] >= 0.93 * r["flights"], (name, errors)
-        assert r["capacity_abs_error_max"] < 0.045, (name, errors)
-        assert r["capacity_abs_error_mean"] < 0.02, (name, errors)
-        # the σ is a claim: 2σ covers the truth (measured 44/44 and 64/64)
+        # measured (docs/notes/2026-11-27-pack-capacity.md), on the liion chemistry's electrodes
+        # (what the live service and packs ingest read on): Chen 63/64 within 3 %, worst 3.2 % (its
+        # first flight), mean |error| 0.44 %, mean -0.02 %; O'Kane 43/44, worst 3.0 %, mean 0.97 %,
+        # mean +0.33 %. With the wear running during the truth's discharge Chen leaned +1.7 % (60/64)
+        assert r["capacity_within_3pct"] >= r["flights"] - 1, (name, errors)
+        assert r["capacity_abs_error_max"] < 0.033, (name, errors)
+        assert r["capacity_abs_error_mean"] < 0.011, (name, errors)
+        assert abs(sum(errors) / len(errors)) < 0.005, (name, errors)  # no lean
+        # the σ is a claim: 2σ covers the truth (measured 64/64 and 44/44)
         assert r["capacity_truth_within_2sd"] >= 0.97 * r["flights"], name
-    assert results["OKane2022"]["capacity_abs_error_max"] <= 0.03
 
 
 def test_the_resistance_trend_follows_the_truth(results):

@@ -18,7 +18,8 @@ from typing import Callable, Iterable
 import numpy as np
 
 from gcs_pdm.packs.flights import split_flights
-from gcs_pdm.packs.health import HealthSettings, health_point
+from gcs_pdm.packs.cell_curves import pack_health_point
+from gcs_pdm.packs.health import HealthSettings
 from gcs_pdm.packs.identity import identify
 from gcs_pdm.packs.logs import LOG_KINDS, PackLogError, read_pack_log
 
@@ -33,6 +34,9 @@ class IngestSettings:
     default_capacity_ah: float | None = None
     #: the operator's slot -> pack assignments
     assignments: tuple[tuple[str, str], ...] = ()
+    #: the packs' chemistry (a log does not say it): what their capacity is read on (packs/cell_curves.py);
+    #: the vehicle description's default
+    chemistry: str = "lipo"
     health: HealthSettings = field(default_factory=HealthSettings)
 
 
@@ -104,8 +108,9 @@ def records_from_log(path: str | Path, log_hash: str, settings: IngestSettings =
                 v = s.voltage_v[m]
                 vmax = float(np.nanmax(v)) if np.isfinite(v).any() else 0.0
                 cells = max(1, int(round(vmax / 4.1)))
-            hp = health_point(ident.pack_id, s.time_s[m], s.current_a[m], s.voltage_v[m], s.temperature_c[m],
-                              nominal_capacity_ah=nominal, cells_series=cells, settings=settings.health)
+            hp = pack_health_point(ident.pack_id, s.time_s[m], s.current_a[m], s.voltage_v[m], s.temperature_c[m],
+                                   chemistry=settings.chemistry, nominal_capacity_ah=nominal, cells_series=cells,
+                                   settings=settings.health)
             records.append({"log_hash": log_hash, "log_path": str(path), "flight_index": k, "slot": s.slot,
                             "pack_id": ident.pack_id, "identity": ident.source,
                             "order_s": (pack_log.epoch_s + start) if pack_log.epoch_s is not None else None,

@@ -1,8 +1,9 @@
 """Synthetic flight tlogs of one pack with a known capacity and resistance (tests and
 benchmarks/bench_ingest.py; shell: writes files).
 
-A pack of ``cells`` cells on the generic Li-ion OCV curve (:data:`gcs_pdm.packs.health.GENERIC_OCV`)
-with an ohmic resistance: rested and disarmed, armed, a climb and a cruise, disarmed, rested again.
+A pack of ``cells`` cells resting on its chemistry's curve, the one its capacity is read on
+(:func:`gcs_pdm.packs.cell_curves.rested_cell_voltage`; a ``liion`` pack has lost lithium), with an
+ohmic resistance: rested and disarmed, armed, a climb and a cruise, disarmed, rested again.
 The vehicle's HEARTBEAT at 1 Hz, BATTERY_STATUS at 2 Hz, SMART_BATTERY_INFO (serial, rated
 capacity, cells) at 0.1 Hz, and ATTITUDE at 10 Hz and GLOBAL_POSITION_INT at 4 Hz as the bulk a
 real tlog carries; the ground station's own heartbeat too (system 255, to be ignored).
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gcs_pdm.packs.health import GENERIC_OCV
+from gcs_pdm.packs.cell_curves import capacity_reading, rested_cell_voltage
 
 _STAMP = struct.Struct(">Q")
 
@@ -27,6 +28,7 @@ class SyntheticPack:
     capacity_ah: float = 5.0          # the truth: what is left of it
     resistance_ohm: float = 0.020     # the pack's (series string's) ohmic resistance
     cells: int = 4
+    chemistry: str = "lipo"
 
 
 def pack_profile(minutes: float = 20.0, rest_before_s: float = 120.0, rest_after_s: float = 600.0,
@@ -55,7 +57,8 @@ def write_pack_tlog(path: str | Path, pack: SyntheticPack = SyntheticPack(), *, 
     t, i, armed = pack_profile(minutes, seed=seed)
     drawn = np.concatenate([[0.0], np.cumsum(0.5 * (i[1:] + i[:-1]) * np.diff(t))]) / 3600.0
     soc = start_soc - drawn / pack.capacity_ah
-    ocv = np.interp(soc, GENERIC_OCV.soc, GENERIC_OCV.voltage_v) * pack.cells
+    reading = capacity_reading(pack.chemistry, pack.rated_capacity_ah)
+    ocv = rested_cell_voltage(reading, pack.capacity_ah, drawn + (1.0 - start_soc) * pack.capacity_ah) * pack.cells
     volts = ocv - i * pack.resistance_ohm + rng.normal(0.0, 0.005, t.size)
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
     gcs = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)

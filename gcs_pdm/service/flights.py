@@ -22,7 +22,8 @@ import numpy as np
 
 from gcs_pdm.frames import PackFrame
 from gcs_pdm.packs.flights import Boundary, FlightBoundaries
-from gcs_pdm.packs.health import HealthSettings, health_point
+from gcs_pdm.packs.cell_curves import pack_health_point
+from gcs_pdm.packs.health import HealthSettings
 from gcs_pdm.packs.identity import SERIAL_MESSAGES, identify, serial_text
 
 log = logging.getLogger(__name__)
@@ -204,8 +205,9 @@ class FlightRecorder:
                 if ident.warning:
                     log.warning("flight %d: %s", fid, ident.warning)
                 try:
-                    hp = health_point(ident.pack_id, a[:, 0], a[:, 1], a[:, 2], a[:, 3],
-                                      nominal_capacity_ah=spec.capacity_mah / 1000.0, cells_series=spec.cells_series)
+                    hp = pack_health_point(ident.pack_id, a[:, 0], a[:, 1], a[:, 2], a[:, 3], chemistry=spec.chemistry,
+                                           nominal_capacity_ah=spec.capacity_mah / 1000.0,
+                                           cells_series=spec.cells_series)
                 except ValueError as exc:
                     log.warning("flight %d: pack %s: no health point: %s", fid, pack, exc)
                     continue
