@@ -40,15 +40,13 @@ ALLOWED = {
     "service/flights.py": 1,
     "logs/replay.py": 2,
     "fitting/logs.py": 4,
-    "logs/provisional_vehicle.py": 2,  # a log's VER/MSG vehicle *type*, not a description (name clash)
-    "mavlink/mission_watch.py": 2,  # the MAVLink source address named ``vehicle``, not a description
     # this session's modules (issue 32's battery/planning part): not yet removed
     "planning/simulator.py": 3,
     "planning/plan.py": 1,
     "planning/risk.py": 1,         # risk-bounded draws refuse a described vehicle (issue 31's risk engineer)
     "diagnosis/pipeline.py": 4,
     "estimation/prediction.py": 4,
-    "estimation/estimator.py": 5,
+    "estimation/estimator.py": 1,
     "estimation/flight_conditions.py": 1,  # a described fixed wing holds its present draw: no shaft-power model of its packs yet
 }
 

@@ -78,6 +78,9 @@ class PackSpec(_Strict):
     parameters: ParameterRef = ParameterRef()
     #: whether the pack reports its temperature (False: estimated from the thermal model)
     reports_temperature: bool = True
+    #: whether the estimator learns the pack's open-circuit curve and resistance in flight from its
+    #: prior (False: its ``parameters`` are flown as they are, e.g. the paper's fitted packs)
+    self_calibrate: bool = True
 
     @property
     def full_voltage(self) -> float:
