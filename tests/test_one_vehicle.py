@@ -46,7 +46,6 @@ ALLOWED = {
     "diagnosis/pipeline.py": 4,
     "estimation/prediction.py": 4,
     "estimation/estimator.py": 1,  # a parameter set or a description (docs/notes/2026-11-27-one-vehicle.md)
-    "estimation/flight_conditions.py": 1,  # a described fixed wing holds its present draw: no shaft-power model of its packs yet
 }
 
 
