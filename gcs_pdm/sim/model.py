@@ -233,6 +233,14 @@ class VehicleModel:
         self._motor_rows = self._inputs.motor_matrix
         self._topology = self._inputs.topology
         self._multirotor = config.vehicle.airframe.type == "multirotor"
+        self._telemetry_layout = _telemetry_layout(config.vehicle)
+        # per bus its packs (in order) and whether they are in parallel, per motor its bus: each
+        # snapshot's bus voltages in plain Python (a state() per telemetry message)
+        inputs = self._inputs
+        self._bus_packs = [[int(b) for b in np.flatnonzero(inputs.bus_of_pack == k)]
+                           for k in range(len(inputs.bus_parallel))]
+        self._bus_parallel = [bool(x) for x in inputs.bus_parallel]
+        self._bus_of_motor = [int(k) for k in inputs.bus_of_motor]
         # a fixed wing's power from the configured drag polar (vehicle_config sets the description's)
         self._vehicle_power = (shaft_power_model(config.vehicle) if self._multirotor
                                else lambda v, climb, rho: shaft_power(v, climb, rho, config.airframe))
@@ -775,8 +783,7 @@ class VehicleModel:
         lat, lon = geodetic_from_enu(k.east_m, k.north_m, c.home_lat_deg, c.home_lon_deg)
         rho = float(air_density(c.home_alt_m + k.alt_m, c.ground_temp_c))
         v = kernel.terminal_voltage(self._pack_matrix, self.pack_state)
-        layout = self._layout(v)
-        motor_v = layout.pop("motor_voltage_v")
+        motor_v = self._motor_voltages(v)
         rpm = float(shaft_rpm(self.shaft_power_w, rho, c.airframe)) if self.shaft_power_w > 0 else 0.0
         if self._multirotor:
             # each rotor turns its own share of the power
@@ -795,26 +802,31 @@ class VehicleModel:
             pack_charge_c=self.pack_charge.copy(), pack_energy_j=self.pack_energy.copy(),
             motor_current_a=self.motor_current.copy(), motor_temp_c=self.motor_temp.copy(),
             motor_voltage_v=motor_v, fault=self.fault.copy(), energy_j=self.energy_j, distance_m=self.distance_m,
-            wind_east_mps=self.wind_en[0], wind_north_mps=self.wind_en[1], **layout)
+            wind_east_mps=self.wind_en[0], wind_north_mps=self.wind_en[1], motor_charge_c=self.motor_charge.copy(),
+            **self._telemetry_layout)
 
     def battery_capacities_mah(self) -> dict[int, float]:
         """The capacity the autopilot is configured with, per BATTERY_STATUS id (its BATTn_CAPACITY):
         the description's rated capacity (an autopilot is not told a hidden truth's)."""
         return {p.mavlink_battery_id: float(p.capacity_mah) for p in self.config.vehicle.packs}
 
-    def _layout(self, v: np.ndarray) -> dict:
-        """The description's telemetry layout and per-motor bus voltage for ``TruthState``."""
-        from gcs_pdm.vehicle.model_inputs import mav_type
+    def _motor_voltages(self, v: np.ndarray) -> np.ndarray:
+        """Each motor's bus voltage: its packs' sum in series, their mean in parallel."""
+        pack_v = v.tolist()
+        bus = []
+        for packs, parallel in zip(self._bus_packs, self._bus_parallel):
+            total = sum(pack_v[b] for b in packs)
+            bus.append(total / len(packs) if parallel else total)
+        return np.array([bus[k] for k in self._bus_of_motor])
 
-        desc, inputs = self.config.vehicle, self._inputs
-        bus_v = np.zeros(len(inputs.bus_parallel))
-        np.add.at(bus_v, inputs.bus_of_pack, v)
-        bus_v = np.where(inputs.bus_parallel, bus_v / np.bincount(inputs.bus_of_pack, minlength=len(bus_v)), bus_v)
-        return dict(motor_voltage_v=bus_v[inputs.bus_of_motor],
-                    pack_ids=tuple(p.mavlink_battery_id for p in desc.packs),
-                    pack_reports_temperature=tuple(p.reports_temperature for p in desc.packs),
-                    esc_index=tuple(m.esc_index for m in desc.motors),
-                    motor_readings=tuple((m.readings.current, m.readings.rpm, m.readings.temperature)
-                                         for m in desc.motors),
-                    motor_charge_c=self.motor_charge.copy(), mav_type=mav_type(desc),
-                    multirotor=self._multirotor)
+
+def _telemetry_layout(desc) -> dict:
+    """The description's telemetry layout, as ``TruthState`` carries it (fixed for a flight)."""
+    from gcs_pdm.vehicle.model_inputs import mav_type
+
+    return dict(pack_ids=tuple(p.mavlink_battery_id for p in desc.packs),
+                pack_reports_temperature=tuple(p.reports_temperature for p in desc.packs),
+                esc_index=tuple(m.esc_index for m in desc.motors),
+                motor_readings=tuple((m.readings.current, m.readings.rpm, m.readings.temperature)
+                                     for m in desc.motors),
+                mav_type=mav_type(desc), multirotor=desc.airframe.type == "multirotor")
