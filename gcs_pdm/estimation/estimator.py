@@ -27,6 +27,7 @@ from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import PowertrainState
+from gcs_pdm.models.topology import PAPER_TOPOLOGY
 
 log = logging.getLogger(__name__)
 
@@ -177,6 +178,8 @@ class StateEstimator:
 
             inputs = model_inputs(vehicle)
             self.inputs = inputs
+            #: which bus each pack and motor is on, and how each bus joins its packs
+            self.topology = inputs.topology
             self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
             pack_matrix, motor_matrix = inputs.pack_matrix, inputs.motor_matrix
             self._mates = {b: inputs.series_mates(b) for b in range(inputs.n_packs)}
@@ -197,6 +200,7 @@ class StateEstimator:
             ext_rows = {b: n for b, n in enumerate(PACK_NAMES) if params.packs[n].model == "extended"}
             #: the description's model inputs (None: the paper's aircraft)
             self.inputs = None
+            self.topology = PAPER_TOPOLOGY  # edge540's buses: two series strings, one motor each
             self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
             pack_matrix, motor_matrix = params.pack_matrix(), params.motor_vector()
             self._mates = {b: (m,) for b, m in STRING_MATE.items()}
