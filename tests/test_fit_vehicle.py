@@ -14,7 +14,7 @@ from gcs_pdm.logs.tables import BATTERY, flight_from_columns
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import ParameterError, ParameterSet
 from gcs_pdm.vehicle.description import from_dict, load
-from gcs_pdm.fitting.vehicle import base_set, fit_packs
+from gcs_pdm.fitting.vehicle import base_set, fit_packs, pack_format
 from gcs_pdm.vehicle.model_inputs import model_inputs
 from gcs_pdm.vehicle.presets import PRESETS
 
@@ -40,6 +40,32 @@ def test_bounds_follow_the_pack():
     assert eby["ocv_0"].lo == pytest.approx(eref["ocv_0"].lo * 3 / 5)      # voltages with the cells
     assert eby["C_max"].hi == pytest.approx(eref["C_max"].hi * 2200 / 7800)  # charge with the capacity
     assert eby["tau_2"] == eref["tau_2"]
+
+
+def test_bounds_are_the_cells_times_the_chemistrys_per_cell_ranges():
+    """fit --vehicle's ranges: a LiPo pack's are the 5S ones carried by cells and capacity alone; a
+    Li-ion or LiFePO4 pack's empty-pack OCV sits at its cells' empty voltage and its OCV span (full -
+    empty) sets how far a charge moves the OCV (C_b inversely, the knots' rises)."""
+    def bounds(chemistry: str, model: str) -> dict:
+        data = _vehicle(3, 3000.0)
+        data["packs"][0]["chemistry"] = chemistry
+        fmt = pack_format(from_dict(data).packs[0])
+        return {b.name: b for b in pb.battery_bounds(model, fmt).electrical}
+
+    lipo_fmt = pb.PackFormat(cells=3, capacity_c=3000 * 3.6)
+    for model in ("paper", "extended"):
+        assert bounds("lipo", model) == {b.name: b for b in pb.battery_bounds(model, lipo_fmt).electrical}
+    lipo = bounds("lipo", "extended")
+    for chemistry, (empty, full) in (("liion", (3.0, 4.18)), ("lifepo4", (2.5, 3.45))):
+        ext, paper = bounds(chemistry, "extended"), bounds(chemistry, "paper")
+        span = (full - empty) / (4.2 - 3.27)
+        # the empty pack's OCV range moved by 3 cells x (empty - a LiPo's 3.27 V) and holds 3 x empty
+        assert ext["ocv_0"].lo == pytest.approx(lipo["ocv_0"].lo + 3 * (empty - 3.27))
+        assert ext["ocv_0"].lo < 3 * empty < ext["ocv_0"].hi
+        assert ext["docv_5"].hi == pytest.approx(lipo["docv_5"].hi * span)
+        assert paper["C_b"].lo == pytest.approx(bounds("lipo", "paper")["C_b"].lo / span)
+        assert paper["R_s"] == bounds("lipo", "paper")["R_s"]  # resistances: cells and capacity only
+        assert "not a LiPo's" in paper["C_b"].why
 
 
 def _vehicle(cells: int, capacity_mah: float) -> dict:

@@ -44,7 +44,7 @@ def test_first_heartbeat_makes_a_read_due_and_a_gcs_heartbeat_does_not():
     w.on_message(msg("HEARTBEAT", src=(255, 0), autopilot=8, type=6), 0.0)  # a GCS: MAV_AUTOPILOT_INVALID
     assert w.due(0.0) is None
     w.on_message(heartbeat(), 0.5)
-    assert w.due(0.5).reason == "vehicle first heard" and w.autopilot == 3 and w.vehicle == VEHICLE
+    assert w.due(0.5).reason == "vehicle first heard" and w.autopilot == 3 and w.vehicle_address == VEHICLE
 
 
 def test_an_empty_read_before_home_is_retried_and_home_makes_a_read_due():

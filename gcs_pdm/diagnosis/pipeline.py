@@ -17,7 +17,7 @@ from gcs_pdm.diagnosis.motor_power import MotorPowerConfig, MotorPowerLossDetect
 from gcs_pdm.diagnosis.model_fidelity import ModelMismatchMonitor
 from gcs_pdm.diagnosis.pack_health import PackHealthConfig, PackHealthMonitor
 from gcs_pdm.diagnosis.prognosis import PrognosisConfig, PrognosisMonitor
-from gcs_pdm.estimation.estimator import MOTOR_OF_PACK, EstimatorConfig, StateEstimator
+from gcs_pdm.estimation.estimator import EstimatorConfig, StateEstimator
 from gcs_pdm.estimation.prediction import FutureLoad
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models.params import ParameterSet, default_set
@@ -69,20 +69,15 @@ class DiagnosisPipeline:
         self._motor_set_of = set(est.motor_names)
         # the motor detector runs at a set of ESC readings (a description's motors only where their
         # telemetry can show a power loss)
-        self._motor_diagnosed = vehicle is None or isinstance(self.motor_power, EscImbalanceDetector)
+        self._motor_diagnosed = not isinstance(self.motor_power, NoMotorDiagnosis)
         self._handlers: dict[type, object] = {}
         self._health_add = self.pack_health.add
         self._fidelity_idle = self.model_fidelity.idle
-        if vehicle is None:
-            self._packs_of_bus = [[b for b in range(4) if MOTOR_OF_PACK[b] == q] for q in range(2)]
-            self._bus_parallel = [False, False]
-            self._bus_of_motor = [0, 1]
-        else:
-            inputs = est.inputs
-            self._packs_of_bus = [[int(b) for b in np.flatnonzero(inputs.bus_of_pack == k)]
-                                  for k in range(len(inputs.bus_parallel))]
-            self._bus_parallel = [bool(x) for x in inputs.bus_parallel]
-            self._bus_of_motor = [int(k) for k in inputs.bus_of_motor]
+        topo = est.topology
+        self._packs_of_bus = [[int(b) for b in np.flatnonzero(topo.bus_of_pack == k)]
+                              for k in range(len(topo.bus_parallel))]
+        self._bus_parallel = [bool(x) for x in topo.bus_parallel]
+        self._bus_of_motor = [int(k) for k in topo.bus_of_motor]
         self._buses = list(zip(self._packs_of_bus, self._bus_parallel))
         self._faults: list[Fault] = []
         self._index: dict[tuple[str, str], int] = {}
@@ -193,7 +188,7 @@ class DiagnosisPipeline:
         isfinite = math.isfinite
         if not all(map(isfinite, bus_of_motor)):
             return
-        if self.vehicle is None:
+        if isinstance(self.motor_power, MotorPowerLossDetector):  # motors on one shaft: their shares
             heard = [r for r in rpms if isfinite(r)]  # np.nanmean, without its warnings
             rpm = sum(heard) / len(heard) if heard else math.nan
             self._record(self.motor_power.update(t, currents[0], currents[1], bus_of_motor[0], bus_of_motor[1], rpm))

@@ -27,6 +27,7 @@ from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import PowertrainState
+from gcs_pdm.models.topology import PAPER_TOPOLOGY
 
 log = logging.getLogger(__name__)
 
@@ -177,6 +178,8 @@ class StateEstimator:
 
             inputs = model_inputs(vehicle)
             self.inputs = inputs
+            #: which bus each pack and motor is on, and how each bus joins its packs
+            self.topology = inputs.topology
             self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
             pack_matrix, motor_matrix = inputs.pack_matrix, inputs.motor_matrix
             self._mates = {b: inputs.series_mates(b) for b in range(inputs.n_packs)}
@@ -187,12 +190,17 @@ class StateEstimator:
             # one other sensor against the pack's own reading cannot say which is wrong (stock
             # ArduPilot SITL's ESC current is a tenth of its battery current): need two
             self._min_references = 2
+            # a derived (provisional) description's packs start from the chemistry table's curve; a
+            # described pack from its own model's; a pack described as fitted (edge540's) keeps it
+            calib = [PackCalibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
+                     if config.self_calibrate and p.self_calibrate else None for b, p in enumerate(vehicle.packs)]
         else:
             if params is None:
                 raise ValueError("StateEstimator: give a parameter set or a vehicle description")
             ext_rows = {b: n for b, n in enumerate(PACK_NAMES) if params.packs[n].model == "extended"}
             #: the description's model inputs (None: the paper's aircraft)
             self.inputs = None
+            self.topology = PAPER_TOPOLOGY  # edge540's buses: two series strings, one motor each
             self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
             pack_matrix, motor_matrix = params.pack_matrix(), params.motor_vector()
             self._mates = {b: (m,) for b, m in STRING_MATE.items()}
@@ -201,16 +209,13 @@ class StateEstimator:
             self._pack_reports_temp = np.ones(4, dtype=bool)
             self._motor_reports = {}
             self._min_references = 1
+            calib = [None] * len(PACK_NAMES)  # a parameter set's packs are flown as they are
         self._base_pack_matrix = np.array(pack_matrix, copy=True)
-        #: per pack: its self-calibrating filter (None: the paper filter's SoC: the paper aircraft,
-        #: edge540, with or without its description, keeps its fitted set's path). A derived (provisional) description's packs start from the chemistry table's
-        #: curve; a described pack from its own model's. The paper filter then carries the pack's temperature and, for the users of
-        #: its layout (predictions, the planner), the calibrated SoC (``_sync_paper``)
-        self.calib: list[PackCalibrator | None] = (
-            [PackCalibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
-             for b, p in enumerate(vehicle.packs)]
-            if vehicle is not None and config.self_calibrate and not _is_paper_aircraft(vehicle)
-            else [None] * len(self.pack_names))
+        #: per pack: its self-calibrating filter (None: the paper filter's SoC: a pack described
+        #: with ``self_calibrate`` off, as edge540's, or a parameter set's). The paper filter then
+        #: carries the pack's temperature and, for the users of its layout (predictions, the
+        #: planner), the calibrated SoC (``_sync_paper``)
+        self.calib: list[PackCalibrator | None] = calib
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
         # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper
@@ -912,13 +917,6 @@ class StateEstimator:
         tm = self.motors.mean[:, 0]
         return PowertrainState(pack_state=self.packs.mean.copy(),
                                motor_temp_c=np.where(np.isfinite(tm), tm, self.ambient_c))
-
-
-def _is_paper_aircraft(vehicle) -> bool:
-    """The ``edge540`` description: the paper's aircraft keeps its fitted parameter set's filter."""
-    from gcs_pdm.vehicle.presets import is_paper_aircraft
-
-    return is_paper_aircraft(vehicle)
 
 
 def refit_suggestion(pack: str) -> str:

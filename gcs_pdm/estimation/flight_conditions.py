@@ -22,7 +22,6 @@ from gcs_pdm.frames import AirdataFrame, AmbientFrame, PositionFrame, StatusFram
 from gcs_pdm.models.powertrain import air_density
 from gcs_pdm.vehicle.description import VehicleDescription
 from gcs_pdm.vehicle.model_inputs import shaft_power_model
-from gcs_pdm.vehicle.presets import is_paper_aircraft
 
 #: message seconds after which a landed state no longer counts (the vehicle stopped sending it)
 LANDED_STATE_MAX_AGE_S = 10.0
@@ -113,8 +112,8 @@ class FlightConditions:
         rho = self.air_density()
         airspeed, climb = self.airdata if self.airdata is not None else (0.0, 0.0)
         fixed_wing = vehicle.airframe.type == "fixed_wing"
-        if fixed_wing and not is_paper_aircraft(vehicle):
-            power = None
+        if fixed_wing and not vehicle.airframe.predict_with_drag_polar:
+            power = None  # each pack holds its present draw
         else:
             power = float(shaft_power_model(vehicle)(airspeed, climb if fixed_wing else 0.0, rho))
         return PredictionInputs(time_s=t, phase=self.phase(t, vehicle, estimator), air_density_kg_m3=rho,

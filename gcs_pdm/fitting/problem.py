@@ -113,35 +113,64 @@ MOTOR_THERMAL_BOUNDS: tuple[Bound, ...] = (
 )
 
 
+#: the rested empty and full cell of the pack the bounds are written for (a LiPo, models.params.OCV_PER_CELL)
+REFERENCE_EMPTY_CELL_V = 3.27
+REFERENCE_FULL_CELL_V = 4.2
+
+
 @dataclass(frozen=True)
 class PackFormat:
-    """The pack a fit is for: cells in series and rated capacity. The bounds above are written for
-    the paper's 5S 7.8 Ah pack (``PAPER_PACK``); ``battery_bounds`` carries them to any pack with the
-    scaling of ``models.pack_scaling`` (resistances × S/Q, capacitances × Q/S, voltages × S, …)."""
+    """The pack a fit is for: cells in series, rated capacity and its cells' chemistry. The bounds
+    above are written for the paper's 5S 7.8 Ah LiPo pack (``PAPER_PACK``); ``battery_bounds`` carries
+    them to any pack with the scaling of ``models.pack_scaling`` (resistances × S/Q, capacitances ×
+    Q/S, voltages × S, …), then to its chemistry's cells (``chemistry_scale``)."""
 
     cells: int = CELLS_PER_PACK
     capacity_c: float = PACK_CAPACITY_C
     #: resting voltage of a full cell, V (the reference pack is carried to it)
-    full_cell_voltage: float = 4.2
+    full_cell_voltage: float = REFERENCE_FULL_CELL_V
+    #: the chemistry's rested empty and full cell, V (its open-circuit curve's ends): where the
+    #: voltage ranges of a LiPo sit for other cells (fitting.vehicle.pack_format reads them)
+    empty_ocv_cell_v: float = REFERENCE_EMPTY_CELL_V
+    full_ocv_cell_v: float = REFERENCE_FULL_CELL_V
 
     def scale(self, name: str) -> float:
         return value_scale(name, CELLS_PER_PACK, PACK_CAPACITY_C, self.cells, self.capacity_c)
+
+    def chemistry_scale(self, name: str) -> float:
+        """Factor on a value's range for this chemistry's cells: the open-circuit span full - empty
+        sets how many volts a charge moves the OCV (C_b inversely, the knots' rises docv_k)."""
+        span = (self.full_ocv_cell_v - self.empty_ocv_cell_v) / (REFERENCE_FULL_CELL_V - REFERENCE_EMPTY_CELL_V)
+        if name == "C_b":
+            return 1.0 / span
+        return span if name.startswith("docv_") else 1.0
+
+    def chemistry_shift_v(self, name: str) -> float:
+        """Volts added to a value's range for this chemistry: the empty pack's OCV (ocv_0) sits at
+        its cells' empty voltage, not a LiPo's."""
+        return self.cells * (self.empty_ocv_cell_v - REFERENCE_EMPTY_CELL_V) if name == "ocv_0" else 0.0
 
 
 PAPER_PACK = PackFormat()
 
 
 def scaled_bounds(bounds: Sequence[Bound], fmt: PackFormat = PAPER_PACK) -> tuple[Bound, ...]:
-    """``bounds`` (written for the 5S 7.8 Ah pack) carried to the pack ``fmt``; a value that does
-    not scale with the pack (time constants, exponents) keeps its range."""
+    """``bounds`` (written for the 5S 7.8 Ah LiPo pack) carried to the pack ``fmt``: its cells and
+    capacity, then its chemistry's cell voltages; a value that does not scale with the pack (time
+    constants, exponents) keeps its range."""
     if fmt == PAPER_PACK:
         return tuple(bounds)
     out = []
     for b in bounds:
-        k = fmt.scale(b.name)
-        out.append(b if k == 1.0 else Bound(b.name, b.lo * k, b.hi * k, b.unit,
-                                             f"{b.why} (5S 7.8 Ah range x {k:.3g} for {fmt.cells}S "
-                                             f"{fmt.capacity_c / 3.6:.0f} mAh)"))
+        k, c, shift = fmt.scale(b.name), fmt.chemistry_scale(b.name), fmt.chemistry_shift_v(b.name)
+        if k == 1.0 and c == 1.0 and shift == 0.0:
+            out.append(b)
+            continue
+        why = f"{b.why} (5S 7.8 Ah range x {k:.3g} for {fmt.cells}S {fmt.capacity_c / 3.6:.0f} mAh"
+        if c != 1.0 or shift != 0.0:
+            why += (f"; cells resting {fmt.empty_ocv_cell_v:.2f}-{fmt.full_ocv_cell_v:.2f} V, not a LiPo's "
+                    f"{REFERENCE_EMPTY_CELL_V:.2f}-{REFERENCE_FULL_CELL_V:.2f} V")
+        out.append(Bound(b.name, b.lo * k * c + shift, b.hi * k * c + shift, b.unit, why + ")"))
     return tuple(out)
 
 

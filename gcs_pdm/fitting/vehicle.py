@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
 from gcs_pdm.fitting import problem as pb
+from gcs_pdm.models.chemistry import chemistry as chemistry_table
 from gcs_pdm.models.pack_scaling import scale_values
 from gcs_pdm.models.params import (CELLS_PER_PACK, OCV_PER_CELL, PACK_CAPACITY_C, ParameterSet, builtin,
                                    extended_default, motor_from_vector, pack_from_vector)
@@ -28,7 +29,21 @@ OCV_CURVE_OF_CHEMISTRY = {"lipo": "lipo", "lihv": "lipo", "liion": "li-ion"}
 
 
 def pack_format(spec: PackSpec) -> pb.PackFormat:
-    return pb.PackFormat(cells=spec.cells_series, capacity_c=spec.capacity_c, full_cell_voltage=spec.full_cell_v)
+    """The pack's cells, capacity and its chemistry's rested empty and full cell: the fit's ranges
+    are the cells times the chemistry's per-cell ones (``problem.scaled_bounds``)."""
+    empty, full = chemistry_ocv_ends(spec.chemistry)
+    return pb.PackFormat(cells=spec.cells_series, capacity_c=spec.capacity_c, full_cell_voltage=spec.full_cell_v,
+                         empty_ocv_cell_v=empty, full_ocv_cell_v=full)
+
+
+def chemistry_ocv_ends(chemistry: str) -> tuple[float, float]:
+    """(empty, full) rested cell voltage of the open-circuit curve a fit of this chemistry starts
+    from (``extended_start``'s), else the chemistry table's (models.chemistry)."""
+    curve = OCV_CURVE_OF_CHEMISTRY.get(chemistry)
+    if curve is not None:
+        return OCV_PER_CELL[curve][0], OCV_PER_CELL[curve][-1]
+    table = chemistry_table(chemistry)
+    return table.ocv_cell_v[0], table.full_cell_v
 
 
 def format_record(spec: PackSpec) -> dict:

@@ -45,22 +45,24 @@ def airframe_of_log(series) -> tuple[int, str]:
             return int(t), f"the log's MAV_TYPE parameter ({int(t)})"
     else:
         build = series.firmware or ""
-        vehicle, mav_type = next(((v, m) for b, (v, m) in _AP_BUILDS.items() if series.build == b), (None, None))
-        if vehicle is None:  # no VER: the firmware banner (MSG) names the vehicle
-            vehicle, mav_type = next(((v, m) for v, m in _AP_BUILDS.values() if v in build), (None, None))
-        if vehicle == "ArduPlane":
+        # the firmware (ArduPlane, ArduCopter, ...): a vehicle *type*, not a description
+        firmware_kind, mav_type = next(((v, m) for b, (v, m) in _AP_BUILDS.items() if series.build == b),
+                                       (None, None))
+        if firmware_kind is None:  # no VER: the firmware banner (MSG) names the vehicle
+            firmware_kind, mav_type = next(((v, m) for v, m in _AP_BUILDS.values() if v in build), (None, None))
+        if firmware_kind == "ArduPlane":
             if params.get("Q_ENABLE", 0) > 0:
-                return _QUADPLANE, f"the log's firmware ({build or vehicle}) with Q_ENABLE = 1 (a quadplane)"
-            return MAV_TYPE_FIXED_WING, f"the log's firmware ({build or vehicle}; Q_ENABLE off)"
-        if vehicle == "ArduCopter":
+                return _QUADPLANE, f"the log's firmware ({build or firmware_kind}) with Q_ENABLE = 1 (a quadplane)"
+            return MAV_TYPE_FIXED_WING, f"the log's firmware ({build or firmware_kind}; Q_ENABLE off)"
+        if firmware_kind == "ArduCopter":
             fc = params.get("FRAME_CLASS")
             if fc is not None and int(fc) in _AP_FRAME_CLASS:
-                return _AP_FRAME_CLASS[int(fc)], f"the log's firmware ({build or vehicle}) and FRAME_CLASS {int(fc)}"
+                return _AP_FRAME_CLASS[int(fc)], f"the log's firmware ({build or firmware_kind}) and FRAME_CLASS {int(fc)}"
             raise VehicleError(f"{series.path}: an ArduCopter log whose FRAME_CLASS "
                                f"({'absent' if fc is None else int(fc)}) does not say the rotor count: "
                                f"write the description by hand (docs/vehicles.md)")
-        if vehicle is not None:
-            return mav_type, f"the log's firmware ({build or vehicle})"
+        if firmware_kind is not None:
+            return mav_type, f"the log's firmware ({build or firmware_kind})"
     return MAV_TYPE_FIXED_WING, "nothing in the log (no VER, firmware banner or MAV_TYPE): a fixed wing is ASSUMED"
 
 

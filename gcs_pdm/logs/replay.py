@@ -20,23 +20,18 @@ from gcs_pdm.frames import FRAME_KIND_OF
 log = logging.getLogger(__name__)
 
 
-def replay_log(path: str | Path, frame_consumer=None, vehicle=None) -> dict:
-    """Replay ``path`` into ``frame_consumer``; ``vehicle`` (a description) names the packs and
-    motors by instance, None keeps the paper aircraft's names (battery instance i = pack i).
+def replay_log(path: str | Path, vehicle, frame_consumer=None) -> dict:
+    """Replay ``path`` into ``frame_consumer``; ``vehicle`` (a description: the command resolves
+    none to the paper's aircraft, edge540) names the packs and motors by instance.
     Raises FlightDataError when the file cannot be read."""
     from gcs_pdm.logs.reader import read_log
     from gcs_pdm.logs.series import described_names, frames
 
     started = time.perf_counter()
     series = read_log(path)
-    if vehicle is not None:
-        pack_names, motor_names, unnamed = described_names(series, vehicle)
-        for what, why in unnamed.items():
-            log.warning("replay: %s: %s left out: %s", Path(path).name, what, why)
-    else:
-        pack_names = {i: series.pack_name(i) for i in series.batteries}
-        motor_names = {i: f"esc{i}" for i in series.escs}
-        unnamed = {}
+    pack_names, motor_names, unnamed = described_names(series, vehicle)
+    for what, why in unnamed.items():
+        log.warning("replay: %s: %s left out: %s", Path(path).name, what, why)
     out = frames(series, pack_names, motor_names)
     if frame_consumer is not None:
         _hand_over(out, frame_consumer)
@@ -80,7 +75,7 @@ def _hand_over(frames: list, consume) -> None:
 def _not_diagnosed(series, kinds: Counter, vehicle) -> list[str]:
     """What could not be diagnosed and why, one sentence each (as a tlog replay's summary says it)."""
     out = []
-    named = f"the description {vehicle.name}'s" if vehicle is not None else "the"
+    named = f"the description {vehicle.name}'s"
     if not kinds.get("pack"):
         out.append("packs: no battery messages in the log" if not series.batteries else
                    f"packs: none of the log's battery instances ({sorted(series.batteries)}) is one of {named} packs")

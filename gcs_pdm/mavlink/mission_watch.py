@@ -44,7 +44,7 @@ class MissionWatcher:
         self.failed_retry_s = failed_retry_s
         self.max_retry_s = max_retry_s
         self.home_moved_e7 = home_moved_m / 0.0111  # 1e-7 deg of latitude is ~1.11 cm
-        self.vehicle: tuple[int, int] | None = None
+        self.vehicle_address: tuple[int, int] | None = None
         self.autopilot: int | None = None
         self.vehicle_type: int | None = None
         self.home: tuple[int, int] | None = None
@@ -66,11 +66,11 @@ class MissionWatcher:
             handler(self, msg, time_s)
 
     def _from_vehicle(self, msg) -> bool:
-        return self.vehicle is not None and (msg.get_srcSystem(), msg.get_srcComponent()) == self.vehicle
+        return self.vehicle_address is not None and (msg.get_srcSystem(), msg.get_srcComponent()) == self.vehicle_address
 
     def _on_heartbeat(self, msg, time_s) -> None:
-        if self.vehicle is None and msg.autopilot != MAV_AUTOPILOT_INVALID:
-            self.vehicle = (msg.get_srcSystem(), msg.get_srcComponent())
+        if self.vehicle_address is None and msg.autopilot != MAV_AUTOPILOT_INVALID:
+            self.vehicle_address = (msg.get_srcSystem(), msg.get_srcComponent())
             self.autopilot, self.vehicle_type = msg.autopilot, msg.type
             self._want("vehicle first heard", time_s)
 

@@ -52,15 +52,19 @@ def run(args: argparse.Namespace) -> int:
         except VehicleError as exc:
             print(f"gcs-pdm replay: error: --vehicle: {exc}", file=sys.stderr)
             return 2
-    if not args.no_diagnose:
-        if desc is None:
+    if desc is None:  # none given, none derived (or not asked for): the paper's aircraft
+        from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
+
+        if not args.no_diagnose:
             logging.getLogger(__name__).warning("replay: %s; diagnosing as the paper's aircraft (edge540): "
                                                 "give --vehicle", about["why"])
+        desc = PRESETS[DEFAULT_PRESET]
+    if not args.no_diagnose:
         # The estimator/diagnoser consume the frames; faults and the sampled estimate land in the summary.
         consumer = TracedPipeline(desc, about)
     try:
         mapping = json.loads(args.mapping.read_text()) if args.mapping else None
-        if mapping is None and desc is not None:
+        if mapping is None:
             from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
             mapper = FrameMapper(frame_mapping(desc), target_system=args.system, target_component=args.component,
@@ -79,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     start_up_over()
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
-            return _print_log_replay(args.file, consumer, as_json=args.json, vehicle=desc)
+            return _print_log_replay(args.file, desc, consumer, as_json=args.json)
         summary = replay_tlog(args.file, mapper=mapper, speed=args.speed, udp_target=args.udp,
                               frame_consumer=consumer).to_dict()
     finally:  # the trace's worker thread ends with the replay, however it ends
@@ -118,14 +122,14 @@ def run(args: argparse.Namespace) -> int:
     return status
 
 
-def _print_log_replay(path: Path, frame_consumer=None, as_json: bool = False, vehicle=None) -> int:
+def _print_log_replay(path: Path, vehicle, frame_consumer=None, as_json: bool = False) -> int:
     """Replay and print; returns the exit status: 2 unreadable, 1 nothing diagnosable, 0 success."""
     from gcs_pdm.logs.replay import exit_status, replay_log
     from gcs_pdm.logs.tables import FlightDataError
     from gcs_pdm.replay.vehicle import print_estimate
 
     try:
-        summary = replay_log(path, frame_consumer, vehicle)
+        summary = replay_log(path, vehicle, frame_consumer)
     except FlightDataError as exc:
         print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
         return 2

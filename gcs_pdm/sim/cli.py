@@ -166,8 +166,9 @@ def run(args: argparse.Namespace) -> int:
             print("gcs-pdm sim: error: --record needs --mission", file=sys.stderr)
             return 2
         rec = fly(config, telemetry, args.record)
-        n_packs = 4 if config.vehicle is None else len(config.vehicle.packs)
-        truth = {"parameters": config.truth().to_dict() if config.vehicle is None else config.vehicle.to_dict(),
+        n_packs = len(config.vehicle.packs)
+        true_set = config.truth()  # None: the description's own values are the truth
+        truth = {"parameters": config.vehicle.to_dict() if true_set is None else true_set.to_dict(),
                  "faults": rec.fault_log, "reached": rec.reached,
                  "initial_soc": [float(x) for x in np.broadcast_to(config.initial_soc, (n_packs,))],
                  "failed": rec.final.failed, "failure": rec.final.failure, "duration_s": rec.final.time_s,

@@ -5,10 +5,12 @@
 clocks: the MAVLink shell (``gcs_pdm.sim.vehicle``) and the offline recorder (``gcs_pdm.sim.record``)
 drive it, and tests fly whole missions with it directly.
 
-Truth: the four packs and two motors run through ``topology.simulate_powertrain`` one tick at a time,
-carrying ``final_pack_state``/``final_motor_temp`` forward, with the hidden parameter set of
-``gcs_pdm.sim.truth`` (optionally degraded) and the motor faults that have triggered so far. The
-kernel's limits decide a failure; the aircraft then loses its propulsion and glides to the ground.
+Truth: the vehicle description's packs and motors (the paper's aircraft is the ``edge540`` preset,
+the default) run through ``topology.simulate_vehicle`` one tick at a time, carrying
+``final_pack_state``/``final_motor_temp`` forward, with the motor faults that have triggered so far.
+Their values are a hidden truth parameter set (``gcs_pdm.sim.truth``, optionally degraded) matched to
+the packs by name, or the description's own values (``vehicle_config``). The limits decide a failure;
+the aircraft then loses its propulsion and glides to the ground.
 While disarmed the packs and motors only rest (``simulate_packs``/``simulate_motor_thermal`` at
 zero current).
 
@@ -20,15 +22,15 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from gcs_pdm.geo import enu_from_geodetic, geodetic_from_enu
 from gcs_pdm.missions import (MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF,
                               MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT, MissionItem)
-from gcs_pdm.models import kernel, topology
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import ParameterSet, pack_vector
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, Limits, air_density, ambient_temperature, shaft_power,
                                        shaft_rpm)
 from gcs_pdm.models.topology import simulate_vehicle, simulate_vehicle_extended
@@ -59,22 +61,31 @@ SEVERITY_WARNING = 4
 SEVERITY_INFO = 6
 
 
+def _paper_aircraft():
+    from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
+
+    return PRESETS[DEFAULT_PRESET]
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """Everything that makes one simulated flight; the same config (and seed) flies the same flight."""
 
     seed: int = 0  # sensor noise and drop-outs
-    truth_seed: int = DEFAULT_TRUTH_SEED
-    params: ParameterSet | None = None  # the true parameter set; None: true_parameters(truth_seed)
+    #: the hidden truth: ``params`` if given, else ``true_parameters(truth_seed)``, else (both None,
+    #: as ``vehicle_config`` sets them) the description's own values; matched to its packs by name
+    truth_seed: int | None = DEFAULT_TRUTH_SEED
+    params: ParameterSet | None = None
     home_lat_deg: float = 37.0870
     home_lon_deg: float = -76.3800
     home_alt_m: float = 0.0  # above sea level
     ground_temp_c: float = 20.0
     initial_soc: float | tuple[float, float, float, float] = 1.0
     faults: tuple[FaultSpec, ...] = ()
-    degradations: tuple[Degradation, ...] = ()
-    limits: Limits = Limits()
-    airframe: Airframe = EDGE_540
+    degradations: tuple[Degradation, ...] = ()  # of the hidden truth's packs
+    #: one limit for every pack and motor (a scenario's); None: the description's, per pack and motor
+    limits: Limits | None = None
+    airframe: Airframe = EDGE_540  # a fixed wing's drag polar (vehicle_config: the description's)
     flight_limits: FlightLimits = FlightLimits()
     wind_en_mps: tuple[float, float] = (0.0, 0.0)  # mean wind, the air's velocity east, north
     #: gusts: a first-order Gauss-Markov process on each wind component, 1-sigma m/s and time
@@ -88,18 +99,43 @@ class SimConfig:
     autostart: bool = True
     start_delay_s: float = 5.0
     fault_drag: float = 0.1  # kernel: drag of a faulted rotor that still spins
-    #: a ``VehicleDescription`` to fly instead of the paper's aircraft (build with ``vehicle_config``):
-    #: its packs and motors are the truth (``params``, ``truth_seed`` and ``degradations`` unused)
-    vehicle: object | None = None
+    #: the ``VehicleDescription`` flown: its packs, motors, buses and telemetry layout (default: the
+    #: paper's aircraft, ``edge540``; ``vehicle_config`` builds a config for any other)
+    vehicle: object = field(default_factory=_paper_aircraft)
     #: a described vehicle's packs rest on their chemistry's curve (``sim.pack_curves``), not on
     #: their parameter set's linear one: a LiPo at 70 % shows what a LiPo at 70 % shows
     chemistry_curves: bool = False
 
-    def truth(self) -> ParameterSet:
-        if self.vehicle is not None:
-            raise ValueError("truth: a described vehicle's truth is its description's model inputs")
+    def truth(self) -> ParameterSet | None:
+        """The hidden truth parameter set, degraded; None: the description's own values are the truth."""
+        if self.params is None and self.truth_seed is None:
+            if self.degradations:
+                raise ValueError("degradations: they degrade a truth parameter set's packs; this config flies "
+                                 "its description's own values (give params or truth_seed)")
+            return None
         base = self.params if self.params is not None else true_parameters(self.truth_seed)
         return apply_degradation(base, self.degradations)
+
+    def true_inputs(self):
+        """The description's model inputs with the truth's values: each pack's by its name, every
+        motor the set's one motor type; the limits ``limits`` if given."""
+        from gcs_pdm.vehicle.model_inputs import model_inputs
+
+        inputs = model_inputs(self.vehicle)
+        truth = self.truth()
+        if truth is not None:
+            missing = [n for n in inputs.pack_names if n not in truth.packs]
+            if missing:
+                raise ValueError(f"truth: set {truth.name!r} has no pack {', '.join(missing)} of vehicle "
+                                 f"{self.vehicle.name!r} (its packs: {', '.join(truth.packs)})")
+            inputs = replace(inputs, pack_matrix=np.stack([pack_vector(truth.packs[n]) for n in inputs.pack_names]),
+                             motor_matrix=np.tile(truth.motor_vector(), (inputs.n_motors, 1)))
+        if self.limits is not None:
+            lim = self.limits
+            inputs = replace(inputs, pack_cutoff_v=np.full(inputs.n_packs, float(lim.pack_cutoff_v)),
+                             pack_max_temp_c=np.full(inputs.n_packs, float(lim.pack_max_temp_c)),
+                             motor_max_temp_c=np.full(inputs.n_motors, float(lim.motor_max_temp_c)))
+        return inputs
 
 
 def vehicle_config(desc, **kw) -> SimConfig:
@@ -115,6 +151,7 @@ def vehicle_config(desc, **kw) -> SimConfig:
     else:
         limits = FlightLimits(max_climb_mps=desc.climb_rate_mps,
                               rotate_airspeed_mps=desc.airframe.stall_airspeed + 2.0)
+    kw.setdefault("truth_seed", None)  # the description's own values are the truth
     return SimConfig(vehicle=desc, airframe=airframe, flight_limits=limits,
                      cruise_airspeed_mps=desc.cruise_speed_mps, **kw)
 
@@ -190,25 +227,29 @@ class VehicleModel:
 
     def __init__(self, config: SimConfig):
         self.config = config
-        if config.vehicle is None:
-            if config.chemistry_curves:
-                raise ValueError("chemistry_curves: only a described vehicle's packs (vehicle_config) name a chemistry")
-            self.params = config.truth()
-            self._pack_matrix = self.params.pack_matrix()
-            self._motor_vector = self.params.motor_vector()
-            self._motor_rows = np.tile(self._motor_vector, (2, 1))
-            self._inputs = None
-            self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
-        else:
-            from gcs_pdm.vehicle.model_inputs import model_inputs, shaft_power_model
+        from gcs_pdm.vehicle.model_inputs import shaft_power_model
 
-            self.params = None
-            self._inputs = model_inputs(config.vehicle)
-            self._pack_matrix = self._inputs.pack_matrix
-            self._motor_rows = self._inputs.motor_matrix
-            self._topology = self._inputs.topology
-            self._vehicle_power = shaft_power_model(config.vehicle)
-            self.pack_names, self.motor_names = self._inputs.pack_names, self._inputs.motor_names
+        #: the truth parameter set (None: the description's own values)
+        self.params = config.truth()
+        if config.chemistry_curves and self.params is not None:
+            raise ValueError("chemistry_curves: only a described vehicle's own packs (vehicle_config) name a chemistry")
+        self._inputs = config.true_inputs()
+        self._pack_matrix = self._inputs.pack_matrix
+        self._motor_rows = self._inputs.motor_matrix
+        self._topology = self._inputs.topology
+        self._multirotor = config.vehicle.airframe.type == "multirotor"
+        self._telemetry_layout = _telemetry_layout(config.vehicle)
+        # per bus its packs (in order) and whether they are in parallel, per motor its bus: each
+        # snapshot's bus voltages in plain Python (a state() per telemetry message)
+        inputs = self._inputs
+        self._bus_packs = [[int(b) for b in np.flatnonzero(inputs.bus_of_pack == k)]
+                           for k in range(len(inputs.bus_parallel))]
+        self._bus_parallel = [bool(x) for x in inputs.bus_parallel]
+        self._bus_of_motor = [int(k) for k in inputs.bus_of_motor]
+        # a fixed wing's power from the configured drag polar (vehicle_config sets the description's)
+        self._vehicle_power = (shaft_power_model(config.vehicle) if self._multirotor
+                               else lambda v, climb, rho: shaft_power(v, climb, rho, config.airframe))
+        self.pack_names, self.motor_names = self._inputs.pack_names, self._inputs.motor_names
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.time_s = 0.0
         self.kin = Kinematics()
@@ -452,7 +493,7 @@ class VehicleModel:
                 return 0.0, True
             # no pilot in this simulation: MANUAL in the air holds heading and altitude; a multirotor
             # (ArduCopter's STABILIZE number) holds its position: it hovers
-            hover = self._inputs is not None and c.vehicle.airframe.type == "multirotor"
+            hover = self._multirotor
             flight.advance(k, dt, heading_cmd=None, airspeed_cmd=0.0 if hover else self.target_airspeed, climb_cmd=0.0,
                            limits=lim, wind_en=self.wind_en)
             return self._flight_power(), True
@@ -501,9 +542,7 @@ class VehicleModel:
     def _flight_power(self) -> float:
         k, c = self.kin, self.config
         rho = float(air_density(c.home_alt_m + k.alt_m, c.ground_temp_c))
-        if self._inputs is not None:
-            return float(self._vehicle_power(k.airspeed_mps, k.climb_mps, rho))
-        return float(shaft_power(k.airspeed_mps, k.climb_mps, rho, c.airframe))
+        return float(self._vehicle_power(k.airspeed_mps, k.climb_mps, rho))
 
     def _fly_takeoff(self, dt: float, item: MissionItem) -> tuple[float, bool]:
         k, lim = self.kin, self.config.flight_limits
@@ -700,12 +739,7 @@ class VehicleModel:
             self.pack_current = np.zeros(n_packs)
             self.motor_current = np.zeros(n_motors)
             return
-        if self._inputs is None:
-            run = topology.simulate_powertrain(
-                self._pack_matrix[None], self._motor_vector[None], self.pack_state[None], self.motor_temp[None],
-                np.array([dt]), np.array([power]), amb, self.fault[None], limits=c.limits.as_tuple(),
-                fault_drag=c.fault_drag, record=True, stop_on_failure=False)
-        elif self._ext_matrix is None:
+        if self._ext_matrix is None:
             run = simulate_vehicle(self._topology, self._pack_matrix[None], self._motor_rows[None],
                                    self.pack_state[None], self.motor_temp[None], np.array([dt]), np.array([power]),
                                    amb, self.fault[None], fault_drag=c.fault_drag, record=True, stop_on_failure=False)
@@ -744,12 +778,12 @@ class VehicleModel:
             self._emit("statustext", text="Propulsion lost, gliding down", severity=SEVERITY_EMERGENCY)
 
     def _failure_detail(self, cause: int) -> str:
-        lim = self.config.limits
         if cause in (kernel.FAIL_UNDERVOLTAGE, kernel.FAIL_DEPLETED):
             return f" ({self.pack_names[int(np.argmin(self._terminal_voltage()))]})"
         if cause == kernel.FAIL_PACK_OVERTEMP:
             t = self.pack_state[:, kernel.S_T]
-            return f" ({self.pack_names[int(np.argmax(t))]} {t.max():.0f}C>{lim.pack_max_temp_c:g})"
+            b = int(np.argmax(t))
+            return f" ({self.pack_names[b]} {t.max():.0f}C>{self._topology.pack_max_temp_c[b]:g})"
         if cause == kernel.FAIL_MOTOR_OVERTEMP:
             return f" ({self.motor_names[int(np.argmax(self.motor_temp))]} {self.motor_temp.max():.0f}C)"
         return ""
@@ -776,10 +810,9 @@ class VehicleModel:
         lat, lon = geodetic_from_enu(k.east_m, k.north_m, c.home_lat_deg, c.home_lon_deg)
         rho = float(air_density(c.home_alt_m + k.alt_m, c.ground_temp_c))
         v = self._terminal_voltage()
-        layout = {} if self._inputs is None else self._layout(v, rho)
-        motor_v = layout.pop("motor_voltage_v") if layout else np.array([v[0] + v[2], v[1] + v[3]])
+        motor_v = self._motor_voltages(v)
         rpm = float(shaft_rpm(self.shaft_power_w, rho, c.airframe)) if self.shaft_power_w > 0 else 0.0
-        if layout.get("multirotor"):
+        if self._multirotor:
             # each rotor turns its own share of the power
             rpm = float(shaft_rpm(self.shaft_power_w / len(self.motor_names), rho, c.airframe)) if rpm else 0.0
         return TruthState(
@@ -796,7 +829,8 @@ class VehicleModel:
             pack_charge_c=self.pack_charge.copy(), pack_energy_j=self.pack_energy.copy(),
             motor_current_a=self.motor_current.copy(), motor_temp_c=self.motor_temp.copy(),
             motor_voltage_v=motor_v, fault=self.fault.copy(), energy_j=self.energy_j, distance_m=self.distance_m,
-            wind_east_mps=self.wind_en[0], wind_north_mps=self.wind_en[1], **layout)
+            wind_east_mps=self.wind_en[0], wind_north_mps=self.wind_en[1], motor_charge_c=self.motor_charge.copy(),
+            **self._telemetry_layout)
 
     def _terminal_voltage(self) -> np.ndarray:
         if self._ext_matrix is not None:
@@ -810,24 +844,26 @@ class VehicleModel:
 
     def battery_capacities_mah(self) -> dict[int, float]:
         """The capacity the autopilot is configured with, per BATTERY_STATUS id (its BATTn_CAPACITY):
-        the description's rated capacity, else the pack's usable capacity."""
-        if self.config.vehicle is not None:
-            return {p.mavlink_battery_id: float(p.capacity_mah) for p in self.config.vehicle.packs}
-        return {i: float(self._pack_matrix[i, kernel.I_CMAX]) / 3.6 for i in range(len(self.pack_names))}
+        the description's rated capacity (an autopilot is not told a hidden truth's)."""
+        return {p.mavlink_battery_id: float(p.capacity_mah) for p in self.config.vehicle.packs}
 
-    def _layout(self, v: np.ndarray, rho: float) -> dict:
-        """A described vehicle's telemetry layout and per-motor bus voltage for ``TruthState``."""
-        from gcs_pdm.vehicle.model_inputs import mav_type
+    def _motor_voltages(self, v: np.ndarray) -> np.ndarray:
+        """Each motor's bus voltage: its packs' sum in series, their mean in parallel."""
+        pack_v = v.tolist()
+        bus = []
+        for packs, parallel in zip(self._bus_packs, self._bus_parallel):
+            total = sum(pack_v[b] for b in packs)
+            bus.append(total / len(packs) if parallel else total)
+        return np.array([bus[k] for k in self._bus_of_motor])
 
-        desc, inputs = self.config.vehicle, self._inputs
-        bus_v = np.zeros(len(inputs.bus_parallel))
-        np.add.at(bus_v, inputs.bus_of_pack, v)
-        bus_v = np.where(inputs.bus_parallel, bus_v / np.bincount(inputs.bus_of_pack, minlength=len(bus_v)), bus_v)
-        return dict(motor_voltage_v=bus_v[inputs.bus_of_motor],
-                    pack_ids=tuple(p.mavlink_battery_id for p in desc.packs),
-                    pack_reports_temperature=tuple(p.reports_temperature for p in desc.packs),
-                    esc_index=tuple(m.esc_index for m in desc.motors),
-                    motor_readings=tuple((m.readings.current, m.readings.rpm, m.readings.temperature)
-                                         for m in desc.motors),
-                    motor_charge_c=self.motor_charge.copy(), mav_type=mav_type(desc),
-                    multirotor=desc.airframe.type == "multirotor")
+
+def _telemetry_layout(desc) -> dict:
+    """The description's telemetry layout, as ``TruthState`` carries it (fixed for a flight)."""
+    from gcs_pdm.vehicle.model_inputs import mav_type
+
+    return dict(pack_ids=tuple(p.mavlink_battery_id for p in desc.packs),
+                pack_reports_temperature=tuple(p.reports_temperature for p in desc.packs),
+                esc_index=tuple(m.esc_index for m in desc.motors),
+                motor_readings=tuple((m.readings.current, m.readings.rpm, m.readings.temperature)
+                                     for m in desc.motors),
+                mav_type=mav_type(desc), multirotor=desc.airframe.type == "multirotor")

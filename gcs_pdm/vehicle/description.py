@@ -78,6 +78,9 @@ class PackSpec(_Strict):
     parameters: ParameterRef = ParameterRef()
     #: whether the pack reports its temperature (False: estimated from the thermal model)
     reports_temperature: bool = True
+    #: whether the estimator learns the pack's open-circuit curve and resistance in flight from its
+    #: prior (False: its ``parameters`` are flown as they are, e.g. the paper's fitted packs)
+    self_calibrate: bool = True
 
     @property
     def full_voltage(self) -> float:
@@ -158,6 +161,9 @@ class FixedWing(_Strict):
     max_airspeed: float = Field(gt=0)
     #: motors on one shaft (the paper's aircraft): a fault shows as one motor's share moving
     shared_shaft: bool = False
+    #: a flight's prediction flies this drag polar at the present airspeed and climb (a polar checked
+    #: against flights, as the paper's); false: each pack holds its present draw
+    predict_with_drag_polar: bool = False
 
 
 class Multirotor(_Strict):

@@ -23,7 +23,7 @@ def _edge540() -> dict:
                        "two motors on one shaft",
         "packs": [{"name": n, "mavlink_battery_id": i, "cells_series": 5, "capacity_mah": 7800.0,
                    "chemistry": "lipo", "cutoff_v_per_cell": limits.pack_cutoff_v / 5,
-                   "max_temp_c": limits.pack_max_temp_c,
+                   "max_temp_c": limits.pack_max_temp_c, "self_calibrate": False,  # the paper's fitted packs
                    "parameters": {"set": default_set().name, "pack": n}} for i, n in enumerate(PACK_NAMES)],
         "motors": [{"name": n, "esc_index": i, "max_temp_c": limits.motor_max_temp_c, "parameter_set": default_set().name}
                    for i, n in enumerate(("fwd", "aft"))],
@@ -33,7 +33,8 @@ def _edge540() -> dict:
                      "cd0": a.cd0, "oswald": a.oswald, "eta_prop": a.eta_prop,
                      "descent_recovery": a.descent_recovery, "min_shaft_power_w": a.min_shaft_power_w,
                      "prop_diameter_m": a.prop_diameter_m, "prop_power_coeff": a.prop_power_coeff,
-                     "stall_airspeed": a.stall_airspeed, "max_airspeed": a.max_airspeed, "shared_shaft": True},
+                     "stall_airspeed": a.stall_airspeed, "max_airspeed": a.max_airspeed, "shared_shaft": True,
+                     "predict_with_drag_polar": True},
         "mass_kg": a.mass_kg,
         "cruise_speed_mps": a.cruise_airspeed,
         "climb_rate_mps": a.max_climb_rate,
