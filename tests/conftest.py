@@ -68,7 +68,7 @@ def pytest_collection_modifyitems(config, items) -> None:
     docstring). Deterministic, so every worker collects the same order."""
     for item in items:
         if not item.get_closest_marker("xdist_group") and _uses_shared_fixture(item):
-            item.add_marker(pytest.mark.xdist_group(f"{item.path.relative_to(REPO)}:shared"))
+            item.add_marker(pytest.mark.xdist_group(item.path.stem))  # test file names are unique
     slow_groups = {_group(i) for i in items if i.get_closest_marker("slow")} - {None}
     items.sort(key=lambda i: not (i.get_closest_marker("slow") or _group(i) in slow_groups))
 
