@@ -11,11 +11,8 @@ predictions, the planner's and the simulated vehicle's kernel), one child proces
 cores: without it both xdist workers compiled the same functions at once in their first demo test.
 Under xdist it runs once, in the controller, before the workers start (they share the on-disk cache).
 
-The order of the run (``pytest -n N``; pyproject's ``--dist loadgroup``): the tests marked ``slow``
-first, so that none of them starts last and leaves the other worker idle, the rest in collection
-order. Each test is its own unit of work handed to whichever worker is free, except the tests of a
-module that share a module-scoped fixture (a fit, a simulated flight made once): they stay together,
-so the fixture is made once (docs/notes/2026-11-27-test-time.md).
+The order of the run under xdist: the tests marked ``slow`` first, each test to the next free
+worker, a module's tests sharing a module-scoped fixture together (``tests/run_order.py``).
 
 The tests that call the library in this process get the commands' one BLAS thread
 (``process_threads``): set here, before any test module imports numpy.
@@ -29,6 +26,9 @@ from pathlib import Path
 import pytest
 
 from gcs_pdm import process_threads
+
+sys.path.insert(0, str(Path(__file__).parent))  # tests/ is not a package
+from run_order import order_for_xdist  # noqa: E402
 
 process_threads.one_blas_thread()
 
@@ -58,28 +58,6 @@ def pytest_sessionstart(session) -> None:
                    stderr=subprocess.DEVNULL, timeout=900, check=False)
 
 
-#: module-scoped fixtures the xdist units keep together (others are per test or per worker)
-SHARED_SCOPES = ("module", "package")
-
-
 @pytest.hookimpl(tryfirst=True)  # before xdist reads the xdist_group marks (--dist loadgroup)
 def pytest_collection_modifyitems(config, items) -> None:
-    """Slow tests first; a module's tests that share a module-scoped fixture one xdist unit (module
-    docstring). Deterministic, so every worker collects the same order."""
-    for item in items:
-        if not item.get_closest_marker("xdist_group") and _uses_shared_fixture(item):
-            item.add_marker(pytest.mark.xdist_group(item.path.stem))  # test file names are unique
-    slow_groups = {_group(i) for i in items if i.get_closest_marker("slow")} - {None}
-    items.sort(key=lambda i: not (i.get_closest_marker("slow") or _group(i) in slow_groups))
-
-
-def _uses_shared_fixture(item) -> bool:
-    info = getattr(item, "_fixtureinfo", None)
-    if info is None:
-        return False
-    return any(d.scope in SHARED_SCOPES for defs in info.name2fixturedefs.values() for d in defs)
-
-
-def _group(item) -> str | None:
-    mark = item.get_closest_marker("xdist_group")
-    return None if mark is None else str(mark.args[0] if mark.args else mark.kwargs.get("name", "default"))
+    order_for_xdist(items)
