@@ -27,14 +27,24 @@ REPO = Path(__file__).resolve().parents[1]
 TIMELINE_ENV = "GCS_PDM_TEST_TIMELINE"
 
 
+_outcomes: dict[str, str] = {}
+
+
+def pytest_runtest_logreport(report):  # the plugin side (-p bench_test_suite): the worst phase's outcome
+    if report.failed:
+        _outcomes[report.nodeid] = "failed" if report.when == "call" else "error"
+    elif report.skipped or report.when == "call":
+        _outcomes.setdefault(report.nodeid, report.outcome)
+
+
 @pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_protocol(item, nextitem):  # the plugin side: loaded by -p bench_test_suite
+def pytest_runtest_protocol(item, nextitem):
     start = time.time()
     yield
     path = os.environ.get(TIMELINE_ENV)
     if path:
         row = {"worker": os.environ.get("PYTEST_XDIST_WORKER", "main"), "nodeid": item.nodeid,
-               "start": start, "end": time.time()}
+               "start": start, "end": time.time(), "outcome": _outcomes.pop(item.nodeid, "passed")}
         with open(path, "a") as f:  # one short line per write: the workers' lines do not interleave
             f.write(json.dumps(row) + "\n")
 
@@ -61,6 +71,7 @@ def summarise(rows: list[dict], started: float | None = None, ended: float | Non
         "sum_of_tests_s": round(sum(r["end"] - r["start"] for r in rows), 1),
         "workers": workers,
         "idle_tail_s": round(done[-1] - done[0], 1),
+        "not_passed": sorted(f"{r['nodeid']}: {r['outcome']}" for r in rows if r.get("outcome", "passed") != "passed"),
         "slowest": [{"s": round(r["end"] - r["start"], 1), "worker": r["worker"],
                      "started_at_s": round(r["start"] - t0, 1), "test": r["nodeid"]} for r in by_time],
     }
