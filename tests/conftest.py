@@ -19,6 +19,8 @@ The tests that call the library in this process get the commands' one BLAS threa
 """
 from __future__ import annotations
 
+import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -56,6 +58,32 @@ def pytest_sessionstart(session) -> None:
     # and a failure here is left to the tests that exercise the replay to report
     subprocess.run([sys.executable, "-c", WARM_UP], cwd=REPO, stdout=subprocess.DEVNULL,
                    stderr=subprocess.DEVNULL, timeout=900, check=False)
+
+
+def pytest_configure(config) -> None:
+    """``-n N`` without a ``--dist`` of the caller's: ``--dist loadgroup --no-loadscope-reorder``
+    (``tests/run_order.py``). Set here, not in pyproject's addopts, so that a run without xdist
+    (``-p no:xdist``) still parses its options; the workers get the controller's options."""
+    config.addinivalue_line("markers", "xdist_group(name): tests/run_order.py's units of work (pytest-xdist)")
+    if getattr(config.option, "dist", "no") == "load" and not _dist_given(config):
+        config.option.dist = "loadgroup"
+        config.option.loadscopereorder = False
+    if getattr(config, "workerinput", {}).get(LOADGROUP):
+        config.option.loadgroup = True  # a worker parses the command line, not the controller's choice
+
+
+#: the workerinput key that tells a worker the controller chose ``--dist loadgroup``
+LOADGROUP = "gcs_pdm_loadgroup"
+
+
+@pytest.hookimpl(optionalhook=True)  # an xdist hook: absent without xdist
+def pytest_configure_node(node) -> None:
+    node.workerinput[LOADGROUP] = node.config.option.dist == "loadgroup"
+
+
+def _dist_given(config) -> bool:
+    args = [*config.invocation_params.args, *shlex.split(os.environ.get("PYTEST_ADDOPTS", ""))]
+    return any(a in ("-d", "--distload", "--dist") or a.startswith("--dist=") for a in map(str, args))
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist reads the xdist_group marks (--dist loadgroup)

@@ -1,5 +1,5 @@
-"""The order and the units of work of a run under xdist (``--dist loadgroup``, pyproject's
-addopts), applied by ``tests/conftest.py`` (docs/notes/2026-11-27-test-time.md).
+"""The order and the units of work of a run under xdist (``--dist loadgroup``, which
+``tests/conftest.py`` sets under ``-n``), applied by ``tests/conftest.py`` (docs/notes/2026-11-27-test-time.md).
 
 xdist's default hands each worker a block of consecutive tests and never moves a test once
 given, so a long test late in the collection ends the run with one worker idle. Here the tests
