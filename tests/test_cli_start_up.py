@@ -30,6 +30,7 @@ def test_top_level_help_imports_no_command_module():
     assert not {module for module, _ in cli.COMMANDS.values()} & loaded
 
 
+@pytest.mark.slow
 def test_a_commands_parser_imports_only_its_module():
     loaded = _modules_after("from gcs_pdm import cli\ncli.build_parser('vehicle')")
     assert "gcs_pdm.vehicle_cli" in loaded

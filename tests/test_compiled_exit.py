@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 
 SCRIPT = """
@@ -37,6 +39,7 @@ def _run(mode: str, marker: Path) -> tuple[subprocess.CompletedProcess, float]:
     return out, time.monotonic() - t0
 
 
+@pytest.mark.slow
 def test_the_exit_waits_for_a_compilation_in_progress(tmp_path):
     held, _ = _run("hold", tmp_path / "held")
     assert held.returncode == 0, held.stderr

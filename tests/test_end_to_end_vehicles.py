@@ -147,6 +147,7 @@ def _fly(tmp_path, *, vehicle, mission, fault, speedup, soc, declare=None, takeo
         raise
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_quad_4s_fault_diagnosed_replanned_uploaded(tmp_path):
     square = [(250, 0, 40), (250, 250, 40), (0, 250, 40), (-250, 250, 40), (-250, 0, 40), (-250, -250, 40),
@@ -163,6 +164,7 @@ def test_quad_4s_fault_diagnosed_replanned_uploaded(tmp_path):
         lb.close()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_single_battery_plane_operator_declared_fault_replanned_uploaded(tmp_path):
     # one motor: its power loss cannot be told from its own ESC telemetry (said in readiness), so
@@ -179,6 +181,7 @@ def test_single_battery_plane_operator_declared_fault_replanned_uploaded(tmp_pat
         lb.close()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_paper_aircraft_preset_fault_diagnosed_replanned_uploaded(tmp_path):
     legs = [(1500, 0, 100), (1500, 1500, 100), (0, 1500, 100), (-1500, 1500, 100), (-1500, 0, 100),
@@ -192,6 +195,7 @@ def test_paper_aircraft_preset_fault_diagnosed_replanned_uploaded(tmp_path):
         lb.close()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_serve_without_a_vehicle_derives_a_provisional_one_and_says_so(tmp_path):
     lb = Loopback(tmp_path, None, "plane-3s", [(800, 0, 60), (800, 800, 60), (0, 800, 60)], "motor:motor:0.3@leg:2-3",
@@ -223,6 +227,7 @@ def test_serve_without_a_vehicle_derives_a_provisional_one_and_says_so(tmp_path)
         lb.close()
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_demo_tells_a_multirotor_story(tmp_path):
     from gcs_pdm.service.demo_vehicle import print_vehicle_summary, run_vehicle_demo

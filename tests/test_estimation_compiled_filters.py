@@ -5,6 +5,7 @@ Tolerance: 1e-9 relative — the two differ only in summation order."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from gcs_pdm.estimation import ukf
 from gcs_pdm.estimation.motor_filter import MotorThermalFilter
@@ -60,6 +61,7 @@ def _banks():
     return a, b
 
 
+@pytest.mark.slow
 def test_compiled_pack_step_matches_the_numpy_step_over_a_flight_with_spikes_and_relocks():
     compiled, reference = _banks()
     rng = np.random.default_rng(3)

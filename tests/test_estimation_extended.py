@@ -58,6 +58,7 @@ def flown():
     return ps, frames, run, est
 
 
+@pytest.mark.slow
 def test_extended_packs_are_tracked_by_their_own_filter(flown):
     ps, frames, run, est = flown
     e = est.estimate()

@@ -76,6 +76,7 @@ def _cutoff_flights() -> set[str]:
 CUTOFF_GUARD_V = 0.075
 
 
+@pytest.mark.slow
 def test_extended_variant_meets_the_issue_bounds_on_the_test_flights(fitted):
     set_name, result, baseline, test = fitted
     assert result.model == "extended" and result.thermal["fitted"]

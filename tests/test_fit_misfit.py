@@ -85,6 +85,7 @@ def _mixed_pack_fit(**changes):
     return result, seen
 
 
+@pytest.mark.slow
 def test_a_fit_is_repeated_without_the_training_flight_it_cannot_draw():
     result, progress = _mixed_pack_fit()
     assert [x["flight"] for x in result.left_out] == ["marquis2019_03"]

@@ -35,6 +35,7 @@ def okane():
     return splits, fit_battery(splits["train"], splits["validation"], splits["test"], FitSettings())
 
 
+@pytest.mark.slow
 def test_okane2022_leaves_out_the_climb_it_cannot_draw_and_says_so(okane):
     splits, result = okane
     assert [x["flight"] for x in result.left_out] == ["okane2022_06"]
@@ -63,6 +64,7 @@ def test_okane2022_test_flight_meets_the_issue_bounds(okane):
         assert learned[f.name]["temperature"]["rmse"] <= 0.8
 
 
+@pytest.mark.slow
 def test_oregan2022_says_the_circuit_does_not_draw_its_flights():
     splits = load("ORegan2022")
     result = fit_battery(splits["train"], splits["validation"], splits["test"], FitSettings())

@@ -34,6 +34,7 @@ def test_truth_differs_from_every_builtin_set(truth):
         assert not np.allclose(truth.pack_matrix(), s.pack_matrix(), rtol=0.01)
 
 
+@pytest.mark.slow
 def test_battery_recovers_identifiable_parameters(battery_fit, truth):
     true = dict(zip(kernel.PACK_PARAMS, truth.pack_matrix()[PACK_NAMES.index(PACK)]))
     ratio = {k: battery_fit.parameters[k] / true[k] for k in true}

@@ -32,6 +32,7 @@ def tlogs(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_tlog_gives_every_pack_and_the_motors(tlogs):
     path, rec = tlogs[0]
     packs = read_flights(path, "battery")

@@ -180,6 +180,7 @@ def test_fit_vehicle_names_an_unknown_pack(tmp_path, capsys):
     assert code == 2 and "vehicle plane-3s has packs battery" in capsys.readouterr().err
 
 
+@pytest.mark.skipif(not TLOG.is_file(), reason="needs ../shared/logs (the stock ArduPlane SITL session)")
 def test_fit_motor_vehicle_says_why_sitl_motors_cannot_be_fitted(tmp_path, capsys):
     """Stock SITL's ESC temperature never changes: cleaning rejects it, and the fit says so."""
     code = main(["fit", "motor", "--vehicle", "plane-3s", "--train", str(TLOG), "--val", str(TLOG), "--test",

@@ -258,6 +258,7 @@ MAPPERS = {
 }
 
 
+@pytest.mark.slow
 def test_randomly_damaged_logs(tmp_path, columnar_calls, monkeypatch):
     per_message_types = []
     real = frame_columns._message_by_message

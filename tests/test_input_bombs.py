@@ -160,6 +160,7 @@ def dictionary_text_parquet(rows: int = 200_000, value_bytes: int = 100_000) -> 
                                                         row_group_size=10_000, store_schema=False))
 
 
+@pytest.mark.slow
 def test_a_wide_parquet_file_is_refused_by_its_cells(server):
     payload = wide_constant_parquet()
     print(f"wide Parquet: {len(payload)} bytes")
@@ -222,6 +223,7 @@ def _raw_request(port: int, head: str, chunks, read_timeout: float = 60.0) -> tu
         s.close()
 
 
+@pytest.mark.slow
 def test_a_gigabyte_of_json_without_a_token_is_refused_by_its_declared_length(server):
     mb = b"[" + b"1," * (512 * 1024 - 1) + b"1]"
 
@@ -236,6 +238,7 @@ def test_a_gigabyte_of_json_without_a_token_is_refused_by_its_declared_length(se
     assert growth < GROWTH_LIMIT_MB, growth
 
 
+@pytest.mark.slow
 def test_a_streamed_json_body_without_a_length_is_cut_at_the_limit(server):
     def send(port):
         head = ("POST /faults HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"

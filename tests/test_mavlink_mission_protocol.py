@@ -70,6 +70,7 @@ def client(request, vehicle):
     relay.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [1, 20, 500])
 def test_upload_and_download(client, vehicle, n):
     mc, relay = client

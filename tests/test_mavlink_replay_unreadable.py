@@ -8,6 +8,8 @@ import sys
 import zlib
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from mavlink_builders import PacketFactory, tlog_record  # noqa: E402
 
@@ -27,6 +29,7 @@ def _replay(path: Path, *extra: str) -> subprocess.CompletedProcess:
                           capture_output=True, text=True, cwd=REPO, timeout=60)
 
 
+@pytest.mark.slow
 def test_png_and_empty_files_are_not_read_and_fail(tmp_path):
     png = tmp_path / "photo.tlog"
     png.write_bytes(_png())

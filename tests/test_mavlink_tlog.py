@@ -78,6 +78,7 @@ def test_replay_corpus_file_to_the_end(name):
             assert value is None or -100 < value < 400
 
 
+@pytest.mark.slow
 @needs_corpus
 def test_counts_match_pymavlink():
     for path in corpus_files():
@@ -106,8 +107,13 @@ def _pymavlink_dicts(path: Path, names: list[str]) -> list[tuple[str, dict]]:
     return out
 
 
+STOCK_TLOG = REPO.parent / "shared" / "logs" / "arduplane_sitl_stock.tlog"
+
+
 @pytest.mark.parametrize("path", [REPO / "fixtures" / "flights" / "fault_01.tlog",
-                                  REPO.parent / "shared" / "logs" / "arduplane_sitl_stock.tlog"],
+                                  pytest.param(STOCK_TLOG, marks=pytest.mark.skipif(
+                                      not STOCK_TLOG.is_file(),
+                                      reason="needs ../shared/logs (the stock ArduPlane SITL session)"))],
                          ids=lambda p: p.name)
 def test_message_dicts_are_pymavlinks(path):
     """The fast decoder of the messages the provisional description reads gives pymavlink's

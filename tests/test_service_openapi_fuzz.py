@@ -37,6 +37,7 @@ schema = schemathesis.pytest.from_fixture("api_schema")
 @schema.exclude(path="/events").parametrize()
 @settings(max_examples=12, deadline=None, derandomize=True, database=None,
           suppress_health_check=list(HealthCheck))
+@pytest.mark.slow
 def test_no_5xx_and_no_undocumented_status(case):
     for headers in ({"Authorization": f"Bearer {TOKEN}"}, {}):
         response = case.call(headers=headers)

@@ -46,6 +46,7 @@ def served(tmp_path):
     svc.close()
 
 
+@pytest.mark.slow
 def test_the_pack_page_plots_the_trend_and_assigns_a_slot(served):
     url, svc = served
     with sync_playwright() as p:
