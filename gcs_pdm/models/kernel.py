@@ -545,6 +545,12 @@ def pack_states_at_soc(params: np.ndarray, soc: np.ndarray) -> np.ndarray:
 EXT_OCV_SOC = np.round(np.concatenate([[0.0, 0.03, 0.07, 0.12], np.arange(0.2, 0.7 - 1e-9, 0.05),
                                        np.arange(0.7, 1.0 + 1e-9, 0.025)]), 3)
 N_OCV_KNOTS = len(EXT_OCV_SOC)
+#: every knot sits on a 0.005 grid of SoC, so a grid cell's index (one multiply) names the knot
+#: interval that holds it; ``_ocv_eval_at`` looks the interval up there instead of bisecting
+#: (a chain of five unpredictable branches per evaluation)
+_OCV_CELLS_PER_SOC = 200.0
+_OCV_INTERVAL_OF_CELL = np.clip(np.searchsorted(EXT_OCV_SOC, np.arange(int(_OCV_CELLS_PER_SOC)) / _OCV_CELLS_PER_SOC,
+                                                side="right") - 1, 0, N_OCV_KNOTS - 2).astype(np.int64)
 EXT_T_REF_K = 298.15
 EXT_PACK_PARAMS: tuple[str, ...] = (
     "R_0", "R_1", "tau_1", "R_2", "tau_2", "E_r", "E_ct", "k_soc", "soc_knee", "b_ct", "i_ct", "k_d", "tau_d", "C_max", "C_t", "h",
@@ -596,17 +602,17 @@ def _ocv_eval_at(y, d, i, soc):
     """``_ocv_eval`` of row ``i`` of knot tables ``y`` and ``d`` (indexed, not viewed: see ``_ext_substeps_at``)."""
     xs = EXT_OCV_SOC
     last = N_OCV_KNOTS - 1
-    if soc <= xs[0]:
+    if not soc > xs[0]:  # NaN too (NaN out), before the grid lookup below
         return y[i, 0] + (soc - xs[0]) * d[i, 0]
     if soc >= xs[last]:
         return y[i, last] + (soc - xs[last]) * d[i, last]
-    k, hi = 0, last
-    while hi - k > 1:  # bisection: the knot interval holding soc
-        mid = (k + hi) // 2
-        if soc > xs[mid]:
-            k = mid
-        else:
-            hi = mid
+    # the knot interval holding soc (xs[k] < soc <= xs[k + 1], as a bisection finds it): the grid
+    # cell's interval, moved by at most one knot where rounding puts soc across a knot
+    k = _OCV_INTERVAL_OF_CELL[min(int(soc * _OCV_CELLS_PER_SOC), _OCV_INTERVAL_OF_CELL.shape[0] - 1)]
+    while k > 0 and soc <= xs[k]:
+        k -= 1
+    while soc > xs[k + 1]:
+        k += 1
     hk = xs[k + 1] - xs[k]
     t = (soc - xs[k]) / hk
     t2 = t * t
