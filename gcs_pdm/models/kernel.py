@@ -739,9 +739,10 @@ def _ext_substeps_at(p, i, y, d, m, x, r, current, ambient, t_drive, n_sub, h, d
 @njit(inline="always", **_JIT)
 def _asinh_by_log(z):
     """asinh z = sign(z) log(|z| + sqrt(z² + 1)): libm's asinh (through log1p) costs three of the
-    extended step's exponentials. Its error is an absolute few 1e-16 (the log of a number >= 1 rounded
-    in its last bit), not relative: near z = 0 it is not asinh's correctly rounded value, but the
-    overpotential it feeds, b_ct (T/T_ref) asinh z, is then off by under 1e-16 V."""
+    extended step's exponentials. Its error is a few 1e-16 absolute plus the result's last bit (the log of
+    a number >= 1, rounded in its last bit; tests/test_models_extended_lookup.py): near z = 0 it is not
+    asinh's correctly rounded value, but the overpotential it feeds, b_ct (T/T_ref) asinh z, is then off
+    by under 1e-16 V."""
     return math.copysign(math.log(abs(z) + math.sqrt(z * z + 1.0)), z)
 
 
