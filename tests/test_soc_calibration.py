@@ -170,6 +170,26 @@ def test_a_pack_that_has_just_landed_is_not_read_as_rested():
     assert cal.soc == pytest.approx(0.3, abs=0.03) and "voltage_model" in cal.evidence()
 
 
+def test_time_to_cutoff_keeps_the_sag_the_model_does_not_explain():
+    # a pack whose voltage the filter stopped following keeps the prior's resistances; the sag it
+    # shows beyond them is still there at cut-off. Given the loaded voltage, the prediction puts the
+    # cut-off where the curve has fallen by the voltage's present margin over it, not the prior's
+    liion = CHEMISTRIES["liion"]
+    cal = PackCalibrator(PackPrior("liion", 5, 7800 * 3.6))
+    cal.initialise(0.0, 5 * liion.ocv(0.5), 0.0, 25.0)
+    current, cutoff = 15.0, 5 * 2.5
+    settled_sag = (cal.x[2] + cal.x[6] + cal.x[8]) * current  # the prior's resistances, at 25 °C
+    present_v = 5 * liion.ocv(cal.soc) - cal.x[2] * current  # the model's now: the pairs still empty
+    prior_only = cal.time_to_cutoff(current, cutoff, 25.0)
+    margin_v = 1.2  # the pack sags 1.2 V more than the prior resistances say
+    with_voltage = cal.time_to_cutoff(current, cutoff, 25.0, voltage=present_v - margin_v)
+    soc_cut = liion.soc_at((cutoff + settled_sag + margin_v) / 5)
+    assert with_voltage == pytest.approx((cal.soc - soc_cut) * 7800 * 3.6 / current, rel=1e-6)
+    assert with_voltage < prior_only - 30.0  # 37 s: near empty the curve falls steeply
+    # a voltage the model explains changes nothing
+    assert cal.time_to_cutoff(current, cutoff, 25.0, voltage=present_v) == pytest.approx(prior_only, rel=1e-9)
+
+
 PRESET_NAMES = ["plane-3s", "quad-4s", "quad-6s", "hex-6s", "edge540"]
 
 

@@ -473,22 +473,28 @@ class PackCalibrator:
         self.P[I_COUNT0, I_COUNT0] = self.P[I_SOC, I_COUNT0] = self.P[I_COUNT0, I_SOC] = self.count_start_var
         self._clip()
 
-    def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0) -> float:
+    def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0,
+                       voltage: float = math.nan) -> float:
         """Seconds until the terminal voltage at a held ``current`` reaches ``cutoff_v``, on this
         filter's own model (its curve, resistance and capacity; the polarisation settled), from
-        its mean state: the SoC at which S·OCV_cell − (R₀ + R₁ + R₂) f(T) I = cutoff, reached at the
-        charge count's rate. NaN at no current; 0 if already below."""
+        its mean state: the SoC at which S·OCV_cell − sag = cutoff, reached at the charge count's
+        rate, where sag = (R₀ + R₁ + R₂) f(T) I. With ``voltage`` (the pack's recent loaded voltage
+        at ``current``) the model's present miss is kept in the sag: what the model does not explain
+        now (a voltage it stopped following, whose resistances went back to the prior) still sags
+        the pack at cut-off. NaN at no current; 0 if already below."""
         if not self.initialised or not current > 0:
             return math.nan
         x = self.x
-        sag = (x[I_R0] + x[I_R1] + x[I_R2]) * self._temp_factor(temperature_c) * current
+        ft = self._temp_factor(temperature_c)
+        sag = (x[I_R0] + x[I_R1] + x[I_R2]) * ft * current
+        if math.isfinite(voltage):
+            ocv, _ = self._ocv(x[I_SOC])
+            modelled = (self.cells * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_V2]
+                        - x[I_R0] * ft * current)
+            sag = max(sag + modelled - voltage, 0.0)
         target = (cutoff_v + sag) / self.cells
-        grid = _GRID
         curve = self.table + x[I_DV] + x[I_K] * (self.table - self.mid)
-        if target <= curve[0]:
-            soc_cut = 0.0
-        else:
-            soc_cut = float(np.interp(target, curve, grid))
+        soc_cut = 0.0 if target <= curve[0] else float(np.interp(target, curve, _GRID))
         if soc_cut >= x[I_SOC]:
             return 0.0
         return (x[I_SOC] - soc_cut) * self.q0 / (x[I_G] * current)

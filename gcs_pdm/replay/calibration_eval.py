@@ -234,8 +234,8 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     """A PyBaMM flight (``fixtures/pybamm``) through a ``PackCalibrator`` started from a chemistry
     prior only: the chemistry's table, the pack's nominal capacity, nothing fitted (``prior``, a
     ``PackPrior``, replaces it: to measure what each part of the prior costs). Truth SoC:
-    ``pybamm_truth_soc``. Also the time to cut-off predicted from half-way at the mean current of
-    the last 60 s against the flight's own (flights that reach cut-off)."""
+    ``pybamm_truth_soc``. Also the time to cut-off predicted from half-way at the mean current and
+    voltage of the last 60 s against the flight's own (flights that reach cut-off)."""
     import pyarrow.parquet as pq
 
     from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
@@ -263,6 +263,7 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
         out.append((t[k], cal.soc, cal.soc_sd, truth[k]))
         if flight.get("reached_cutoff") and not ttc and t[k] >= half:
             recent = (t >= t[k] - 60.0) & (t <= t[k])
-            predicted = cal.time_to_cutoff(float(np.mean(i[recent])), cells * flight["cell_cutoff_v"], temp[k])
+            predicted = cal.time_to_cutoff(float(np.mean(i[recent])), cells * flight["cell_cutoff_v"], temp[k],
+                                           voltage=float(np.nanmean(v[recent])))
             ttc = {"predicted_s": predicted, "true_s": float(t[-1] - t[k])}
     return PackTrack(flight["flight"], *(np.array(c, dtype=float) for c in zip(*out))), ttc
