@@ -64,10 +64,13 @@ def main(argv: list[str] | None = None) -> int:
 
     shots: list[str] = []
     with tempfile.TemporaryDirectory(prefix="gcs-pdm-shots-") as tmp, sync_playwright() as p:
-        # a proposal is stale (Approve re-plans) after reevaluate_every_s of the vehicle's time: 30 s
-        # of wall time at the vehicle's speed-up, as at real time, leaves the operator time to click
+        # the demo's re-evaluation period at this speed-up: the outlook is evaluated while the
+        # vehicle flies (30 s x the speed-up left it "not evaluated yet" in every shot); a proposal
+        # gone stale meanwhile is re-planned when approved, which approve_until_uploaded follows
+        from gcs_pdm.service.demo import reevaluate_every_s
+
         service = Service(Path(tmp) / "svc",
-                          extra_env={"GCS_PDM_REEVALUATE_EVERY_S": f"{30.0 * args.speedup:g}"}).start()
+                          extra_env={"GCS_PDM_REEVALUATE_EVERY_S": f"{reevaluate_every_s(args.speedup):g}"}).start()
         sim = Sim(service, speedup=args.speedup).start()
         browser = launch(p)
         try:
