@@ -42,6 +42,12 @@ def run(args: argparse.Namespace) -> int:
         except (NotALog, OSError) as exc:
             print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
             return 2
+    if not args.no_diagnose:  # a cold cache: this run interpreted while the models compile for the next
+        from gcs_pdm.compiled import interpret_while_cold
+
+        interpret_while_cold("gcs_pdm.replay.warm_up:REPLAY_GROUPS",
+                             lambda line: print(f"gcs-pdm replay: {line}", file=sys.stderr, flush=True),
+                             getattr(args, "process_argv", None))
     consumer = desc = None
     if not args.no_diagnose or args.vehicle:  # a given vehicle names the packs even undiagnosed
         from gcs_pdm.vehicle.description import VehicleError
@@ -70,12 +76,6 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError, MappingError) as exc:
         print(f"gcs-pdm replay: error: bad mapping: {exc}", file=sys.stderr)
         return 2
-    if consumer is not None:  # the estimator's compiled paths, in parallel on a cold cache, said when long
-        from gcs_pdm.compiled import prepare
-        from gcs_pdm.replay.warm_up import REPLAY_GROUPS
-
-        prepare(REPLAY_GROUPS, lambda line: print(f"gcs-pdm replay: {line}", file=sys.stderr, flush=True),
-                in_process=False)
     start_up_over()
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs
