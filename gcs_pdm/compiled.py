@@ -103,12 +103,15 @@ def interpreted() -> bool:
     return bool(config.DISABLE_JIT)
 
 
-def interpret_while_cold(groups_ref: str, out: Callable[[str], None], argv: list[str] | None) -> None:
+def interpret_while_cold(groups_ref: str, out: Callable[[str], None], argv: list[str] | None,
+                         interpreting_pays: bool = True) -> None:
     """A command line's first run on a cold cache runs interpreted while the cache fills.
 
     ``groups_ref``: ``"module:NAME"`` of the command's tuple of groups; ``argv``: the process's
     ``gcs-pdm`` arguments, None when called in-process (a caller's interpreter cannot be replaced:
-    then the groups are compiled here, as :func:`prepare`). Cached: returns at once. Cold: starts
+    then the groups are compiled here, as :func:`prepare`, and so they are when the caller says
+    ``interpreting_pays`` is False: a run long enough to cost more interpreted than compiling).
+    Cached: returns at once. Cold: starts
     :func:`fill_cache_in_background` (unless one runs) and replaces this process by the same
     command with ``NUMBA_DISABLE_JIT=1`` (never returns). Interpreted already: returns."""
     import importlib
@@ -119,7 +122,7 @@ def interpret_while_cold(groups_ref: str, out: Callable[[str], None], argv: list
     groups = getattr(importlib.import_module(module), name)
     if all(cached(g) for g in groups):
         return
-    if argv is None or os.name != "posix":
+    if argv is None or os.name != "posix" or not interpreting_pays:
         prepare(groups, out, in_process=False)
         return
     started = fill_cache_in_background(groups_ref)
