@@ -111,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
             sim = Sim(service, speedup=args.speedup).start()
             page.goto(service.url + "/")
             expect(page.locator('[data-banner="status-outside_fit_envelope"]')).to_have_count(1, timeout=60_000)
+            # the restarted service's first re-evaluation (one period of the vehicle's time)
+            expect(page.locator("#outlook")).not_to_contain_text("not evaluated yet", timeout=120_000)
             page.wait_for_timeout(3000)
             shot("6_outside_fit_envelope.png", full_page=False)
             foreign = requests.foreign(service.host)
