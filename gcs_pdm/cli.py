@@ -60,10 +60,10 @@ def main(argv: list[str] | None = None) -> int:
     process_threads.one_blas_thread()  # before a command's module imports numpy
     compiled.hold_compiler_at_exit()  # no numba compilation while the interpreter exits (a crash)
     with process_gc.command():
-        return _main(list(sys.argv[1:] if argv is None else argv))
+        return _main(list(sys.argv[1:] if argv is None else argv), from_command_line=argv is None)
 
 
-def _main(argv: list[str]) -> int:
+def _main(argv: list[str], from_command_line: bool = False) -> int:
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = build_parser(command if command in COMMANDS else None)
     args, extras = parser.parse_known_args(argv)
@@ -74,6 +74,8 @@ def _main(argv: list[str]) -> int:
         level=logging.WARNING - 10 * min(args.verbose, 2) if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    #: the process's own arguments (a command may run itself again, ``compiled.interpret_while_cold``)
+    args.process_argv = argv if from_command_line else None
     if not getattr(args, "func", None):
         build_parser().print_help()
         return 2

@@ -14,6 +14,14 @@ replay that says nothing meanwhile. So a command that will need them calls :func
   each writing numba's cache; then every group runs here, loading what the children wrote;
 - a progress line on stderr when it takes long ("preparing compiled models… 12 s").
 
+A command that can run without the compiler at a cost it can bear (one replay: the interpreted
+pipeline takes 4 s of CPU where compiling it takes about 70 s) calls :func:`interpret_while_cold`
+instead: on a cold cache it starts the compilation in the background, niced and detached, for the
+next run, and runs itself again at once with ``NUMBA_DISABLE_JIT`` (the same numbers: numba's
+interpreted functions are the compiled ones' Python, and what would be too slow in Python has an
+array form, ``estimation.held_current_arrays``). One background compilation per cache at a time
+(a lock file): a second cold run meanwhile is interpreted again without starting another.
+
 :func:`hold_compiler_at_exit` (``gcs_pdm.cli`` installs it) makes the interpreter's exit wait for a
 compilation in progress on another thread and keeps any new one from starting: tearing LLVM and
 the interpreter down under a thread that is compiling is what crashed ``gcs-pdm demo`` at exit
@@ -22,8 +30,10 @@ the interpreter down under a thread that is compiling is what crashed ``gcs-pdm 
 from __future__ import annotations
 
 import atexit
+import hashlib
 import logging
 import os
+import tempfile
 import subprocess
 import sys
 import time
@@ -82,6 +92,104 @@ def prepare(groups: tuple[Group, ...], out: Callable[[str], None] | None = None,
     elapsed = time.monotonic() - started
     progress.done(elapsed)
     return elapsed
+
+
+def interpreted() -> bool:
+    """Whether this process runs numba's functions as Python (``NUMBA_DISABLE_JIT``)."""
+    if "numba" not in sys.modules and not os.environ.get("NUMBA_DISABLE_JIT"):
+        return False
+    from numba import config
+
+    return bool(config.DISABLE_JIT)
+
+
+def interpret_while_cold(groups_ref: str, out: Callable[[str], None], argv: list[str] | None,
+                         interpreting_pays: bool = True) -> None:
+    """A command line's first run on a cold cache runs interpreted while the cache fills.
+
+    ``groups_ref``: ``"module:NAME"`` of the command's tuple of groups; ``argv``: the process's
+    ``gcs-pdm`` arguments, None when called in-process (a caller's interpreter cannot be replaced:
+    then the groups are compiled here, as :func:`prepare`, and so they are when the caller says
+    ``interpreting_pays`` is False: a run long enough to cost more interpreted than compiling).
+    Cached: returns at once. Cold: starts
+    :func:`fill_cache_in_background` (unless one runs) and replaces this process by the same
+    command with ``NUMBA_DISABLE_JIT=1`` (never returns). Interpreted already: returns."""
+    import importlib
+
+    if interpreted():
+        return
+    module, _, name = groups_ref.partition(":")
+    groups = getattr(importlib.import_module(module), name)
+    if all(cached(g) for g in groups):
+        return
+    if argv is None or os.name != "posix" or not interpreting_pays:
+        prepare(groups, out, in_process=False)
+        return
+    started = fill_cache_in_background(groups_ref)
+    out("first run on this machine: the models run interpreted this time (the same numbers) while they "
+        + ("compile in the background for the next run (about a minute of CPU)" if started
+           else "finish compiling in the background (started by an earlier run)"))
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, "-m", "gcs_pdm.cli", *argv], {**os.environ, "NUMBA_DISABLE_JIT": "1"})
+
+
+def _lock_path(cache_dir: str | None = None) -> str:
+    """The background compilation's lock file, one per numba cache (``cache_dir``, by default
+    ``NUMBA_CACHE_DIR`` or the cache beside this package's sources)."""
+    where = cache_dir or os.environ.get("NUMBA_CACHE_DIR") or os.path.dirname(os.path.abspath(__file__))
+    key = hashlib.sha1(os.path.abspath(where).encode()).hexdigest()[:12]
+    return os.path.join(tempfile.gettempdir(), f"gcs-pdm-compiling-{key}.lock")
+
+
+def _try_lock(path: str):
+    """The lock file, open and locked (exclusive, without waiting), or None if another holds it."""
+    import fcntl
+
+    handle = open(path, "a")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        return None
+    return handle
+
+
+def compiling_in_background() -> bool:
+    """Whether a background compilation (:func:`fill_cache_in_background`) holds this cache's lock."""
+    handle = _try_lock(_lock_path())
+    if handle is None:
+        return True
+    handle.close()
+    return False
+
+
+def fill_cache_in_background(groups_ref: str) -> bool:
+    """Start ``python -m gcs_pdm.compiled --fill-cache groups_ref`` detached (its own session, no
+    terminal; it outlives this process), unless one holds the lock; False then."""
+    if compiling_in_background():
+        return False
+    subprocess.Popen([sys.executable, "-m", "gcs_pdm.compiled", "--fill-cache", groups_ref], stdin=subprocess.DEVNULL,
+                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                     env={k: v for k, v in os.environ.items() if k != "NUMBA_DISABLE_JIT"})
+    return True
+
+
+def _fill_cache(groups_ref: str) -> int:
+    """The background compilation: niced (the foreground run comes first), under the lock (a
+    second one started meanwhile ends at once), each cold group in its own child (:func:`prepare`)."""
+    import importlib
+
+    handle = _try_lock(_lock_path())
+    if handle is None:
+        return 0
+    try:
+        os.nice(10)
+        module, _, name = groups_ref.partition(":")
+        prepare(getattr(importlib.import_module(module), name), in_process=False)
+    finally:
+        handle.close()
+    return 0
 
 
 class _Progress:
@@ -157,10 +265,13 @@ def _hold_compiler() -> None:
 
 def main(argv: list[str]) -> int:
     """``python -m gcs_pdm.compiled MODULE:FUNCTION``: one group's workload in a child process (fills
-    the cache); the parent names it by ``Group.reference``."""
+    the cache); the parent names it by ``Group.reference``. ``--fill-cache MODULE:GROUPS``: the
+    background compilation of a tuple of groups (:func:`fill_cache_in_background`)."""
     import importlib
 
     logging.basicConfig(level=logging.WARNING)
+    if argv[:1] == ["--fill-cache"]:
+        return _fill_cache(argv[1])
     for ref in argv:
         module, _, name = ref.partition(":")
         getattr(importlib.import_module(module), name)()

@@ -64,10 +64,13 @@ def main(argv: list[str] | None = None) -> int:
 
     shots: list[str] = []
     with tempfile.TemporaryDirectory(prefix="gcs-pdm-shots-") as tmp, sync_playwright() as p:
-        # a proposal is stale (Approve re-plans) after reevaluate_every_s of the vehicle's time: 30 s
-        # of wall time at the vehicle's speed-up, as at real time, leaves the operator time to click
+        # the demo's re-evaluation period at this speed-up: the outlook is evaluated while the
+        # vehicle flies (30 s x the speed-up left it "not evaluated yet" in every shot); a proposal
+        # gone stale meanwhile is re-planned when approved, which approve_until_uploaded follows
+        from gcs_pdm.service.demo import reevaluate_every_s
+
         service = Service(Path(tmp) / "svc",
-                          extra_env={"GCS_PDM_REEVALUATE_EVERY_S": f"{30.0 * args.speedup:g}"}).start()
+                          extra_env={"GCS_PDM_REEVALUATE_EVERY_S": f"{reevaluate_every_s(args.speedup):g}"}).start()
         sim = Sim(service, speedup=args.speedup).start()
         browser = launch(p)
         try:
@@ -108,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
             sim = Sim(service, speedup=args.speedup).start()
             page.goto(service.url + "/")
             expect(page.locator('[data-banner="status-outside_fit_envelope"]')).to_have_count(1, timeout=60_000)
+            # the restarted service's first re-evaluation (one period of the vehicle's time)
+            expect(page.locator("#outlook")).not_to_contain_text("not evaluated yet", timeout=120_000)
             page.wait_for_timeout(3000)
             shot("6_outside_fit_envelope.png", full_page=False)
             foreign = requests.foreign(service.host)

@@ -38,12 +38,14 @@ REPO = Path(__file__).resolve().parents[1]
 WARM_UP_TLOG = REPO / "fixtures" / "flights" / "fault_01.tlog"
 
 
-#: the demo's groups compiled in parallel children, then one replay (module docstring)
+#: the demo's groups (the replay's among them) compiled in parallel children, then one replay (module docstring)
 WARM_UP = f"""
 import sys
 from gcs_pdm.cli import main
 from gcs_pdm.compiled import prepare
 from gcs_pdm.service.warm_up import DEMO_GROUPS
+# the demo's groups hold the replay's: on a cold cache a replay in a subprocess would run
+# interpreted and leave the compiling to a background process (compiled.interpret_while_cold)
 prepare(DEMO_GROUPS, in_process=False)
 sys.exit(main(["replay", {str(WARM_UP_TLOG)!r}, "--json"]))
 """

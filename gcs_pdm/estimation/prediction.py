@@ -16,8 +16,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import config as numba_config
 from numba import njit
 
+from gcs_pdm.estimation import held_current_arrays
 from gcs_pdm.estimation.extended_prediction import ExtendedPacks
 from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
@@ -500,6 +502,9 @@ def _held_current_to_cutoff(params: np.ndarray, state: np.ndarray, dt: np.ndarra
                          else (kernel.N_EXT_PARAMS, kernel.N_EXT_STATE))
     params = np.ascontiguousarray(params, dtype=np.float64).reshape(-1, n_params)
     state = np.array(state, dtype=np.float64).reshape(-1, n_state)
+    if numba_config.DISABLE_JIT and variant == "paper" and held_current_arrays.applies(dt, kernel.DEFAULT_MAX_DT):
+        # without the compiler (a first replay on a cold cache): every row at once, the same numbers
+        return held_current_arrays.fly(params, state, dt, current, cutoff_v, ambient_c)
     end_step = np.full(params.shape[0], -1)
     peak = np.full(params.shape[0], -np.inf)
     _held_current_to_cutoff_compiled(_VARIANT_CODE[variant], params, state, np.ascontiguousarray(dt, dtype=np.float64),

@@ -12,6 +12,12 @@ from gcs_pdm.mavlink.mapping import FrameMapper, MappingError
 from gcs_pdm.process_gc import start_up_over
 
 
+#: a log up to this size replays interpreted on a cold cache sooner than compiling takes (about 35 s
+#: of wall on 2 cores): interpreted costs ~2 ms of CPU more per second of a tlog (320 B/s), ~30 ms
+#: per second of a DataFlash log (10 kB/s): break-even near 6-12 MB (docs/notes/2026-11-27-cold-start.md)
+INTERPRET_UP_TO_BYTES = 8_000_000
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("replay")
     p.add_argument("file", type=Path, help="tlog file (8-byte big-endian µs timestamp + packet records)")
@@ -42,6 +48,13 @@ def run(args: argparse.Namespace) -> int:
         except (NotALog, OSError) as exc:
             print(f"gcs-pdm replay: error: {exc}", file=sys.stderr)
             return 2
+    if not args.no_diagnose:  # a cold cache: this run interpreted while the models compile for the next
+        from gcs_pdm.compiled import interpret_while_cold
+
+        interpret_while_cold("gcs_pdm.replay.warm_up:REPLAY_GROUPS",
+                             lambda line: print(f"gcs-pdm replay: {line}", file=sys.stderr, flush=True),
+                             getattr(args, "process_argv", None),
+                             interpreting_pays=args.file.stat().st_size <= INTERPRET_UP_TO_BYTES)
     consumer = desc = None
     if not args.no_diagnose or args.vehicle:  # a given vehicle names the packs even undiagnosed
         from gcs_pdm.vehicle.description import VehicleError
@@ -74,12 +87,6 @@ def run(args: argparse.Namespace) -> int:
     except (OSError, ValueError, MappingError) as exc:
         print(f"gcs-pdm replay: error: bad mapping: {exc}", file=sys.stderr)
         return 2
-    if consumer is not None:  # the estimator's compiled paths, in parallel on a cold cache, said when long
-        from gcs_pdm.compiled import prepare
-        from gcs_pdm.replay.warm_up import REPLAY_GROUPS
-
-        prepare(REPLAY_GROUPS, lambda line: print(f"gcs-pdm replay: {line}", file=sys.stderr, flush=True),
-                in_process=False)
     start_up_over()
     try:
         if args.file.suffix.lower() in (".bin", ".ulg"):  # an autopilot's own log: gcs_pdm.logs

@@ -425,6 +425,12 @@ class DecisionHold:
         return self._seen.setdefault(plan_id, now)
 
 
+def reevaluate_every_s(speedup: float) -> float:
+    """The re-evaluation period (s of the vehicle's time) at a speed-up: a plan takes seconds of wall
+    time, minutes of flight at x60, so above x10 the period grows with the speed-up."""
+    return 30.0 * max(1.0, speedup / 10.0)
+
+
 def demo_config(data_dir: str | None, *, policy: str, http_port: int, hold_while_deciding: bool, **settings):
     """A demo's service configuration: ``data_dir`` or a scratch directory (``tmp``, removed by
     :func:`close_demo`), a free loopback UDP port for the simulated vehicle and a fresh token.
@@ -473,8 +479,7 @@ def run_demo(speedup: float = 60.0, http_port: int = 8000, data_dir: str | None 
     config, tmp, port, token = demo_config(data_dir, policy=policy, http_port=http_port,
                                            hold_while_deciding=hold_while_deciding, replan_cooldown_s=120.0,
                                            vehicle="edge540",
-                                           # a plan takes seconds of wall time, minutes of flight at x60
-                                           reevaluate_every_s=30.0 * max(1.0, speedup / 10.0))
+                                           reevaluate_every_s=reevaluate_every_s(speedup))
     service = Service(config)
     if params == "learned" and not LEARNED_SET.exists():
         params = "paper_si"
