@@ -16,7 +16,10 @@ import dataclasses
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
+import numpy as np
+
 from gcs_pdm.fitting import problem as pb
+from gcs_pdm.models import kernel
 from gcs_pdm.models.chemistry import chemistry as chemistry_table
 from gcs_pdm.models.pack_scaling import scale_values
 from gcs_pdm.models.params import (CELLS_PER_PACK, OCV_PER_CELL, PACK_CAPACITY_C, ParameterSet, builtin,
@@ -24,7 +27,8 @@ from gcs_pdm.models.params import (CELLS_PER_PACK, OCV_PER_CELL, PACK_CAPACITY_C
 from gcs_pdm.vehicle.description import PackSpec, VehicleDescription, dumps, from_dict
 from gcs_pdm.vehicle.model_inputs import model_inputs, pack_parameters
 
-#: the open-circuit-voltage curve (models.params.OCV_PER_CELL) a description's chemistry starts from
+#: the hand-written knot curves (models.params.OCV_PER_CELL) the chemistries that have one start from;
+#: any other chemistry of models.chemistry starts from its own rested table (``ocv_knots_per_cell``)
 OCV_CURVE_OF_CHEMISTRY = {"lipo": "lipo", "lihv": "lipo", "liion": "li-ion"}
 
 
@@ -36,14 +40,26 @@ def pack_format(spec: PackSpec) -> pb.PackFormat:
                          empty_ocv_cell_v=empty, full_ocv_cell_v=full)
 
 
-def chemistry_ocv_ends(chemistry: str) -> tuple[float, float]:
-    """(empty, full) rested cell voltage of the open-circuit curve a fit of this chemistry starts
-    from (``extended_start``'s), else the chemistry table's (models.chemistry)."""
+def ocv_knots_per_cell(chemistry: str) -> np.ndarray:
+    """The rested cell voltage at the kernel's knots (``kernel.EXT_OCV_SOC``) an extended fit of this
+    chemistry starts from: its hand-written knot curve where it has one (LiHV: the LiPo's, stretched
+    to its full voltage by ``extended_start``), else its models.chemistry table sampled at the knots
+    (LiFePO4). An unknown chemistry: ValueError naming the known ones."""
+    table = chemistry_table(chemistry)
     curve = OCV_CURVE_OF_CHEMISTRY.get(chemistry)
     if curve is not None:
-        return OCV_PER_CELL[curve][0], OCV_PER_CELL[curve][-1]
-    table = chemistry_table(chemistry)
-    return table.ocv_cell_v[0], table.full_cell_v
+        return np.asarray(OCV_PER_CELL[curve], dtype=np.float64)
+    knots = np.array([table.ocv(float(s)) for s in kernel.EXT_OCV_SOC])
+    if np.any(np.diff(knots) <= 0.0):
+        # the extended curve is parametrised by positive increments (a monotone curve)
+        raise ValueError(f"chemistry {chemistry!r}: its rested curve is not increasing on the kernel's knots")
+    return knots
+
+
+def chemistry_ocv_ends(chemistry: str) -> tuple[float, float]:
+    """(empty, full) rested cell voltage of the open-circuit curve a fit of this chemistry starts from."""
+    knots = ocv_knots_per_cell(chemistry)
+    return float(knots[0]), float(knots[-1])
 
 
 def format_record(spec: PackSpec) -> dict:
@@ -56,13 +72,14 @@ def format_record(spec: PackSpec) -> dict:
 def extended_start(spec: PackSpec) -> dict[str, float]:
     """Extended-variant starting values for the pack: the chemistry's open-circuit-voltage curve
     stretched to its full-cell voltage, the rest (written for 5S 7.8 Ah) carried to its size."""
-    curve = OCV_CURVE_OF_CHEMISTRY[spec.chemistry]
-    values = extended_default(curve, spec.cells_series)
-    stretch = spec.full_cell_v / OCV_PER_CELL[curve][-1]
-    ocv = {k: v * stretch for k, v in values.items() if k == "ocv_0" or k.startswith("docv_")}
-    rest = {k: v for k, v in values.items() if k not in ocv}
-    # extended_default already gives the OCV for these cells; the rest is a 5S 7.8 Ah pack's
-    return {**scale_values(rest, CELLS_PER_PACK, PACK_CAPACITY_C, spec.cells_series, spec.capacity_c), **ocv}
+    knots = ocv_knots_per_cell(spec.chemistry)
+    ocv = knots * spec.cells_series
+    stretch = spec.full_cell_v / knots[-1]
+    rest = {k: v for k, v in extended_default("lipo").items() if k != "ocv_0" and not k.startswith("docv_")}
+    # the non-OCV defaults are a 5S 7.8 Ah pack's: carried to this pack's cells and capacity
+    return {**scale_values(rest, CELLS_PER_PACK, PACK_CAPACITY_C, spec.cells_series, spec.capacity_c),
+            "ocv_0": float(ocv[0]) * stretch,
+            **{f"docv_{k}": float(ocv[k] - ocv[k - 1]) * stretch for k in range(1, len(ocv))}}
 
 
 def base_set(desc: VehicleDescription, model: str, reference: str = "previous_si") -> ParameterSet:
