@@ -112,29 +112,26 @@ async function showPack(id) {
     `Retirement: ${forecastText(t.retirement)}.`;
 }
 
-async function loadAssignments() {
-  const a = await getJSON("/packs/assignments");
-  const ul = $("assignments");
+// one line per vehicle slot in the list ``id``: what ``line(slot, value)`` says of it
+function fillSlotList(id, bySlot, line) {
+  const ul = $(id);
   ul.textContent = "";
-  for (const [slot, row] of Object.entries(a)) {
+  for (const [slot, value] of Object.entries(bySlot)) {
     const li = document.createElement("li");
-    li.textContent = `${slot}: ${row.pack_id}`;
+    li.textContent = line(slot, value);
     ul.appendChild(li);
   }
 }
 
+async function loadAssignments() {
+  fillSlotList("assignments", await getJSON("/packs/assignments"), (slot, row) => `${slot}: ${row.pack_id}`);
+}
+
 async function loadPriors() {
-  const priors = await getJSON("/packs/priors");
-  const ul = $("slot-priors");
-  ul.textContent = "";
-  for (const [slot, p] of Object.entries(priors)) {
-    const li = document.createElement("li");
-    li.textContent = p === null
-      ? `${slot}: no flight of its pack has told its health: the vehicle description's values`
-      : `${slot}: pack ${p.pack_id}, capacity ${fmt(p.capacity_ah)} ± ${fmt(p.capacity_sd_ah, 2)} Ah, ` +
-        `resistance at 25 °C ${fmt(p.resistance_25c_ohm === null ? null : p.resistance_25c_ohm * 1e3)} mΩ`;
-    ul.appendChild(li);
-  }
+  fillSlotList("slot-priors", await getJSON("/packs/priors"), (slot, p) => p === null
+    ? `${slot}: no flight of its pack has told its health: the vehicle description's values`
+    : `${slot}: pack ${p.pack_id}, capacity ${fmt(p.capacity_ah)} ± ${fmt(p.capacity_sd_ah, 2)} Ah, ` +
+      `resistance at 25 °C ${fmt(p.resistance_25c_ohm === null ? null : p.resistance_25c_ohm * 1e3)} mΩ`);
 }
 
 $("assign-form").addEventListener("submit", async (ev) => {
