@@ -66,6 +66,16 @@ PAPER_TOPOLOGY = Topology(bus_of_pack=kernel.STRING_OF_PACK.copy(), bus_of_motor
 
 
 @njit(inline="always", **_JIT)
+def _queue_one_step(n, lane_p, lane_r, lane_i, lane_amb, p_row, r, current, amb):
+    """Queues pack row ``r`` (parameter row ``p_row``) for the lanes' one-step call; returns the new count."""
+    lane_p[n] = p_row
+    lane_r[n] = r
+    lane_i[n] = current
+    lane_amb[n] = amb
+    return n + 1
+
+
+@njit(inline="always", **_JIT)
 def _motor_currents(mp, q0, f, fr, vbus, bus_of_motor, p_dem, cap, cap_total, fault_sum, f_min, n_least, inv_m,
                     fault_drag, share, imot, ibus, lane, h, energy):
     """The motors' shares of the demanded power and their currents from the bus voltages (the rules
@@ -293,11 +303,8 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                         ext_decay[r, 3], ext_decay[r, 4] = dd, dtt
                         ext_dt[r] = h
                     if ext_n_sub[r] == 1:  # one step: with the other lanes below
-                        lane_p[n_together] = e_row[lane] + b
-                        lane_r[n_together] = r
-                        lane_i[n_together] = i_pack[r]
-                        lane_amb[n_together] = amb
-                        n_together += 1
+                        n_together = _queue_one_step(n_together, lane_p, lane_r, lane_i, lane_amb, e_row[lane] + b,
+                                                     r, i_pack[r], amb)
                     else:
                         v[r] = _ext_substeps_at(ep, e_row[lane] + b, ky, kd, r, x, r, i_pack[r], amb,
                                                 np.nan, ext_n_sub[r], ext_decay[r, 0], ext_decay[r, 1],
@@ -314,11 +321,8 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                             pp, i, h_sub, step_cache[r, kernel.C_TAU_S])
                         step_cache[r, kernel.C_DT] = h
                     if step_cache[r, kernel.C_NSUB] == 1:  # one step: with the other lanes below
-                        lane_p[n_together] = i
-                        lane_r[n_together] = r
-                        lane_i[n_together] = i_pack[r]
-                        lane_amb[n_together] = amb
-                        n_together += 1
+                        n_together = _queue_one_step(n_together, lane_p, lane_r, lane_i, lane_amb, i, r, i_pack[r],
+                                                     amb)
                     else:
                         v[r] = kernel._pack_advance_cached(pp, i, x, r, i_pack[r], amb, h, max_dt, v[r], step_cache)
             if n_together > 0 and is_ext[b]:
