@@ -538,7 +538,9 @@ function gateText(plan) {
   const g = plan.gate;
   if (!g) return "";
   const age = num(g.age_s) ? `${g.age_s.toFixed(0)} s old` : "age unknown";
-  return `<span class="gate${g.blocked ? " bad" : ""}" data-blocked="${g.blocked}" data-stale="${g.stale}">${esc(age)}${g.reason ? " — " + esc(g.reason) : ""}</span>`;
+  // a stale proposal's reason already starts with its age ("167 s old (re-evaluated every …")
+  const text = g.reason ? (g.reason.startsWith(age) ? g.reason : `${age} — ${g.reason}`) : age;
+  return `<span class="gate${g.blocked ? " bad" : ""}" data-blocked="${g.blocked}" data-stale="${g.stale}">${esc(text)}</span>`;
 }
 function renderDecision() {
   const host = $("decision-body");
