@@ -90,6 +90,13 @@ class Service:
             self.state.set_components([p.name for p in desc.packs] if desc is not None else [],
                                       [m.name for m in desc.motors] if desc is not None else [])
 
+    def described_packs(self) -> dict:
+        """The packs of the vehicle description the service follows, by slot name (``PackSpec``).
+        Empty while it follows none: the live loop is deriving one from the first telemetry
+        (service/vehicle_discovery.py), or, built without discovery, flies the paper's aircraft on
+        the active parameter set (``vehicle`` None here: the adapters' paper path)."""
+        return {p.name: p for p in self.vehicle.packs} if self.vehicle is not None else {}
+
     def adopt_vehicle(self, desc, source: str, notes: list[str]) -> None:
         """A description the service now follows (derived from telemetry): said in /status, the log
         and an event, with how to save and correct it."""
@@ -169,7 +176,7 @@ class Service:
         from gcs_pdm.packs.trend import estimator_priors
 
         assigned = {k: v["pack_id"] for k, v in self.packs.assignments().items()}
-        slots = [p.name for p in self.vehicle.packs] if self.vehicle is not None else sorted(assigned)
+        slots = list(self.described_packs()) or sorted(assigned)
         out = {}
         for slot in slots:
             pack_id = identify(slot, self.flights.serials.latest(slot), assigned).pack_id
