@@ -82,6 +82,17 @@ def test_cli_fit_set_learns_packs_and_motors(tlogs, tmp_path):
     assert ps.provenance["files"]["test"] == [str(c)]
 
 
+def test_a_set_is_learned_only_for_a_vehicle_whose_packs_the_base_set_has():
+    from gcs_pdm.fitting.learn_set import learn_from_tlogs
+    from gcs_pdm.fitting.procedure import FitSettings
+
+    quad = PRESETS["quad-4s"]
+    assert not set(quad.pack_names) & set(PACK_NAMES)
+    # said before any log is read (the logs named here do not exist)
+    with pytest.raises(ValueError, match=f"vehicle {quad.name}: pack.* not in the base set 'previous_si'"):
+        learn_from_tlogs(["nope.tlog"], ["nope.tlog"], ["nope.tlog"], FitSettings(base="previous_si"), quad)
+
+
 # Real logs of other people's autopilots (../shared/tlogs): none carries per-pack temperatures. A
 # pack without temperature still has its circuit learned (issue 15: the thermal part is reported as
 # not fitted), so those logs fail only for what really stops them; the others must say why.
