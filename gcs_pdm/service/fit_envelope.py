@@ -1,7 +1,7 @@
 """Is the vehicle inside the conditions its packs' models were fitted on? (docs/service.md, "Fit envelope")
 
 A learned circuit interpolates its training flights. A fit says which of its validation and test
-flights leave their pack and air temperatures or sustained current (``fitting.envelope``), and the
+flights leave their pack and air temperatures or sustained current (``models.training_envelope``), and the
 learned set carries that training envelope per pack (provenance ``packs.<name>.training_envelope``).
 This watch applies the same rule to the vehicle in flight, once a second of message time: a pack
 hotter or colder than any training flight, or drawing more current for a minute, is flown on an
@@ -35,7 +35,7 @@ MAX_GAP_S = 15.0
 #: 10 s); older, or never heard, it is not judged (the estimator's default is not a reading)
 AMBIENT_STALE_S = 30.0
 
-#: each criterion of fitting.envelope.CRITERIA and the reading it judges
+#: each criterion of models.training_envelope.CRITERIA and the reading it judges
 _READING = {"pack_temperature_high": "pack temperature", "pack_temperature_low": "pack temperature",
             "ambient_high": "air temperature", "ambient_low": "air temperature", "current": "current"}
 
