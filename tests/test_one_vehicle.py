@@ -7,7 +7,8 @@ the package's source (AST, no imports) and counts such branches per module:
 
 - a call to, or an import of, ``is_paper_aircraft`` (or a private wrapper of it);
 - ``X is None`` / ``X is not None`` where X names a vehicle: a name or attribute called
-  ``vehicle``, ``inputs`` or ``_inputs`` (the description's model inputs).
+  ``vehicle``, ``inputs`` or ``_inputs`` (the description's model inputs);
+- ``X or default`` with such an X (a missing vehicle resolved on the spot).
 
 ``ALLOWED`` lists the branches that are still there, per module, when this test was written
 (main af0a3a3 + branch battery): a shrinking allow-list. A module may have fewer (lower its entry,
@@ -60,6 +61,8 @@ def branches(source: str) -> list[int]:
             right = node.comparators[0]
             if isinstance(right, ast.Constant) and right.value is None and _is_vehicle_expr(node.left):
                 lines.append(node.lineno)
+        elif isinstance(node, ast.BoolOp) and isinstance(node.op, ast.Or) and _is_vehicle_expr(node.values[0]):
+            lines.append(node.lineno)
         elif isinstance(node, ast.Call):
             fn = node.func
             name = fn.id if isinstance(fn, ast.Name) else fn.attr if isinstance(fn, ast.Attribute) else None
@@ -90,8 +93,10 @@ def test_the_detector_sees_both_kinds_of_branch():
            "        pass\n"
            "    return is_paper_aircraft(vehicle)\n"
            "def g(x):\n"
-           "    return x is None or x.vehicle.name\n")
-    assert branches(src) == [2, 4, 6]
+           "    return x is None or x.vehicle.name\n"
+           "def h(service):\n"
+           "    return service.vehicle or PRESETS['edge540']\n")
+    assert branches(src) == [2, 4, 6, 10]
 
 
 @pytest.mark.parametrize("module", sorted(set(found()) | set(ALLOWED)))

@@ -97,6 +97,14 @@ class Service:
         the active parameter set (``vehicle`` None here: the adapters' paper path)."""
         return {p.name: p for p in self.vehicle.packs} if self.vehicle is not None else {}
 
+    def flown_vehicle(self):
+        """The description the vehicle is flown as: the one followed, else the paper's aircraft, the
+        ``edge540`` preset (a live loop built without discovery flies it on the active set; so does
+        the intake while discovery waits for the telemetry to derive one)."""
+        from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
+
+        return self.vehicle if self.vehicle is not None else PRESETS[DEFAULT_PRESET]
+
     def adopt_vehicle(self, desc, source: str, notes: list[str]) -> None:
         """A description the service now follows (derived from telemetry): said in /status, the log
         and an event, with how to save and correct it."""
