@@ -78,3 +78,52 @@ def test_the_link_check_finds_a_broken_link(tmp_path: Path):
     (tmp_path / "b.md").write_text("")
     assert relative_links(doc.read_text()) == ["b.md", "sub/c.md#part"]
     assert resolves(doc, "b.md") and not resolves(doc, "sub/c.md#part")
+
+
+# --- what the docs name exists (issue 32, "nothing in the user docs is false") --------------------
+
+#: a package's user doc and the package its module table lists (``| `x.py` | ...`` rows)
+MODULE_TABLES = {"fitting.md": "fitting", "service.md": "service", "planning.md": "planning",
+                 "mavlink.md": "mavlink", "sim.md": "sim", "packs.md": "packs", "model.md": "models",
+                 "vehicles.md": "vehicle", "estimation.md": "estimation"}
+MODULE_ROW = re.compile(r"^\| `([\w./]+\.py)` \|", re.M)
+
+
+def missing_modules(text: str, package: Path) -> list[str]:
+    """The ``x.py`` a module table names that neither ``package`` nor the repository holds."""
+    return [f for f in MODULE_ROW.findall(text)
+            if not (package / f).resolve().is_file() and not (package.parent / f).is_file() and not (ROOT / f).is_file()]
+
+
+@pytest.mark.parametrize("doc", sorted(MODULE_TABLES))
+def test_a_module_table_names_files_that_exist(doc: str):
+    package = ROOT / "gcs_pdm" / MODULE_TABLES[doc]
+    assert package.is_dir(), package
+    missing = missing_modules((DOCS / doc).read_text(encoding="utf-8"), package)
+    assert not missing, f"docs/{doc} lists modules gcs_pdm/{MODULE_TABLES[doc]} does not have: {missing}"
+
+
+def test_the_module_check_finds_a_moved_module():
+    text = "| `logs.py` | shell | ... |\n| `../logs/tables.py` | core | ... |\n| `tables.py` | core | ... |\n"
+    assert missing_modules(text, ROOT / "gcs_pdm" / "fitting") == ["tables.py"]
+
+
+def test_the_configuration_table_is_the_service_config():
+    """docs/configuration.md names every ServiceConfig key once, none that is not one, and each plain
+    default (a number, true/false, none) as the code has it."""
+    from gcs_pdm.service.config import ServiceConfig
+
+    rows = re.findall(r"^\| (`\w+`(?: / `\w+`)*) \| ([^|]+) \|", (DOCS / "configuration.md").read_text(encoding="utf-8"),
+                      re.M)
+    documented = {}
+    for keys, defaults in rows:
+        names, values = re.findall(r"`(\w+)`", keys), [d.strip() for d in defaults.split(" / ")]
+        documented.update({n: values[i] if len(values) == len(names) else None for i, n in enumerate(names)})
+    fields = ServiceConfig.model_fields
+    assert set(documented) == set(fields), (sorted(set(documented) - set(fields)), sorted(set(fields) - set(documented)))
+    plain = {"true": True, "false": False, "none": None}
+    for name, text in documented.items():
+        if text is None or not re.fullmatch(r"-?[\d.]+|true|false|none", text):
+            continue  # a default written in words ("generated, logged", "256 MiB") is read by a person
+        want = plain[text] if text in plain else float(text)
+        assert fields[name].default == want, f"configuration.md: {name} defaults to {text}, the code to {fields[name].default!r}"

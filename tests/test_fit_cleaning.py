@@ -5,6 +5,9 @@ import pytest
 from gcs_pdm.fitting.cleaning import CleaningSettings, clean_flight
 from gcs_pdm.fitting.logs import read_flights, read_table, write_table
 from gcs_pdm.logs.tables import BATTERY, MOTOR, Flight, FlightDataError, flight_from_columns
+from gcs_pdm.vehicle.presets import PRESETS
+
+EDGE540 = PRESETS["edge540"]  # a table holds one pack: the vehicle names no column
 
 
 def _flight(n=600, seed=0, **over):
@@ -149,28 +152,28 @@ def test_missing_column_is_a_clear_error(tmp_path):
 
 def test_bad_files_give_clear_errors(tmp_path):
     with pytest.raises(FlightDataError, match="no such file"):
-        read_flights(tmp_path / "nope.csv", BATTERY)
+        read_flights(tmp_path / "nope.csv", BATTERY, vehicle=EDGE540)
     p = tmp_path / "x.txt"
     p.write_text("hello")
     with pytest.raises(FlightDataError, match="unknown flight file type"):
-        read_flights(p, BATTERY)
+        read_flights(p, BATTERY, vehicle=EDGE540)
     p = tmp_path / "garbage.parquet"
     p.write_bytes(b"\x00\x01not parquet")
     with pytest.raises(FlightDataError, match="cannot read table"):
-        read_flights(p, BATTERY)
+        read_flights(p, BATTERY, vehicle=EDGE540)
     p = tmp_path / "text.csv"
     p.write_text("time_s,current_a,voltage_v,temperature_c,ambient_c\n0,a,b,c,d\n")
     with pytest.raises(FlightDataError, match="not numeric"):
-        read_flights(p, BATTERY)
+        read_flights(p, BATTERY, vehicle=EDGE540)
 
 
 def test_table_round_trip_extra_columns_ignored(tmp_path):
     f = _flight()
     for suffix in (".csv", ".parquet"):
         p = write_table(f, tmp_path / f"a{suffix}")
-        g = read_flights(p, BATTERY)[0]
+        g = read_flights(p, BATTERY, vehicle=EDGE540)[0]
         np.testing.assert_allclose(g.voltage_v, f.voltage_v)
     import pandas as pd
     df = pd.read_csv(tmp_path / "a.csv").assign(rpm=1.0)
     df.to_csv(tmp_path / "b.csv", index=False)
-    assert read_flights(tmp_path / "b.csv", BATTERY)[0].name == "b"
+    assert read_flights(tmp_path / "b.csv", BATTERY, vehicle=EDGE540)[0].name == "b"

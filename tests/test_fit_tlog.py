@@ -14,6 +14,7 @@ from gcs_pdm.models.params import PACK_NAMES, ParameterSet
 from gcs_pdm.sim.model import SimConfig
 from gcs_pdm.sim.record import fly
 from gcs_pdm.sim.routes import mission_from_enu
+from gcs_pdm.vehicle.presets import PRESETS
 
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from tlog_corpus import TLOG_DIR, needs_corpus  # noqa: E402
@@ -35,7 +36,7 @@ def tlogs(tmp_path_factory):
 @pytest.mark.slow
 def test_tlog_gives_every_pack_and_the_motors(tlogs):
     path, rec = tlogs[0]
-    packs = read_flights(path, "battery")
+    packs = read_flights(path, "battery", vehicle=PRESETS["edge540"])
     assert [f.source["pack"] for f in packs] == list(PACK_NAMES)
     for b, f in enumerate(packs):
         r = clean_flight(f)
@@ -44,9 +45,9 @@ def test_tlog_gives_every_pack_and_the_motors(tlogs):
         truth_v = np.interp(g.time_s, rec.time_s, rec.truth["pack_voltage_v"][:, b])
         # same time base as the vehicle: the logged voltage follows the truth to within sensor noise
         assert np.nanmedian(np.abs(g.voltage_v - truth_v)) < 0.04
-    one = read_flights(path, "battery", pack="URA40")
+    one = read_flights(path, "battery", pack="URA40", vehicle=PRESETS["edge540"])
     assert len(one) == 1 and one[0].name.endswith("URA40")
-    motor = read_flights(path, "motor")[0]
+    motor = read_flights(path, "motor", vehicle=PRESETS["edge540"])[0]
     r = clean_flight(motor)
     assert r.rejected is None  # whole-degree ESC temperatures are a coarse sensor, not a stuck one
     assert r.report.counts["coarse_sensor_temperature_c"] == 1
@@ -79,6 +80,17 @@ def test_cli_fit_set_learns_packs_and_motors(tlogs, tmp_path):
     m = json.loads((out / "motor" / "result.json").read_text())
     assert ps.motor.C_t == m["parameters"]["C_t"] and ps.motor.P_iron == m["parameters"]["P_iron"]
     assert ps.provenance["files"]["test"] == [str(c)]
+
+
+def test_a_set_is_learned_only_for_a_vehicle_whose_packs_the_base_set_has():
+    from gcs_pdm.fitting.learn_set import learn_from_tlogs
+    from gcs_pdm.fitting.procedure import FitSettings
+
+    quad = PRESETS["quad-4s"]
+    assert not set(quad.pack_names) & set(PACK_NAMES)
+    # said before any log is read (the logs named here do not exist)
+    with pytest.raises(ValueError, match=f"vehicle {quad.name}: pack.* not in the base set 'previous_si'"):
+        learn_from_tlogs(["nope.tlog"], ["nope.tlog"], ["nope.tlog"], FitSettings(base="previous_si"), quad)
 
 
 # Real logs of other people's autopilots (../shared/tlogs): none carries per-pack temperatures. A

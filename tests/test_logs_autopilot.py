@@ -17,6 +17,7 @@ from gcs_pdm.frames import MotorFrame, PackFrame, StatusTextFrame
 from gcs_pdm.logs.dataflash import DataFlashError, read_dataflash
 from gcs_pdm.logs.reader import read_log
 from gcs_pdm.logs.series import battery_flights, frames, motor_flight
+from gcs_pdm.vehicle.presets import PRESETS
 
 LOGS = Path(__file__).resolve().parent.parent / ".." / "shared" / "logs"
 BIN = LOGS / "arduplane_sitl_stock.bin"
@@ -69,7 +70,7 @@ def test_a_file_that_is_not_a_dataflash_log_says_so(tmp_path):
     with pytest.raises(DataFlashError, match="not an ArduPilot DataFlash log"):
         read_dataflash(bad)
     with pytest.raises(FlightDataError):
-        read_flights(bad, "battery")
+        read_flights(bad, "battery", vehicle=PRESETS["edge540"])
 
 
 def test_arduplane_battery_and_esc_series(dfreader_messages):
@@ -95,14 +96,25 @@ def test_arduplane_battery_and_esc_series(dfreader_messages):
 
 
 def test_arduplane_flight_tables_for_the_fitter():
-    (flight,) = read_flights(BIN, "battery")
+    # read as the paper's aircraft (edge540): its pack LLF20 is battery instance 0
+    edge540 = PRESETS["edge540"]
+    (flight,) = read_flights(BIN, "battery", pack="LLF20", vehicle=edge540)
     assert flight.name == "arduplane_sitl_stock_LLF20" and len(flight) == 5004
+    assert flight.source["pack"] == "LLF20" and flight.source["instance"] == 0
     assert np.isnan(flight.temperature_c).all()
     assert np.isfinite(flight.voltage_v).all() and np.isfinite(flight.ambient_c).all()
     assert flight.source["missing"]["battery0.temperature_c"].startswith("BAT.Temp is 0")
-    with pytest.raises(FlightDataError, match="no battery 'ULA20'"):
-        read_flights(BIN, "battery", pack="ULA20")
-    (motor,) = read_flights(BIN, "motor")
+    # the same flight as the log's own battery table, only named by the description
+    (table,) = battery_flights(read_log(BIN), "LLF20")
+    np.testing.assert_array_equal(flight.voltage_v, table.voltage_v)
+    np.testing.assert_array_equal(flight.current_a, table.current_a)
+    # every pack of the description must be in the log (a one-battery log is not the paper's aircraft)
+    for pack in ("all", "ULA20"):
+        with pytest.raises(FlightDataError, match="no battery instance 1 for pack ULA20.*it has instances 0"):
+            read_flights(BIN, "battery", pack=pack, vehicle=edge540)
+    with pytest.raises(FlightDataError, match="unknown pack 'main'"):
+        read_flights(BIN, "battery", pack="main", vehicle=edge540)
+    (motor,) = read_flights(BIN, "motor", vehicle=edge540)
     assert motor.source["escs"] == [2] and np.nanmax(motor.current_a) > 0 and np.nanmean(motor.temperature_c) > 0
 
 

@@ -151,13 +151,19 @@ def test_a_described_vehicle_judges_each_pack_on_the_fit_its_values_come_from(tm
     assert doubled["pack_temperature_c"] == TRAINING["pack_temperature_c"]
     assert pack_training_envelope(spec("LRF40", False)) is None          # not fitted
     assert pack_training_envelope(PackSpec(name="b", mavlink_battery_id=0, cells_series=4, capacity_mah=5000)) is None
-    # the estimator of a described vehicle: its packs by their own names
+    # the estimator of a described vehicle: its packs by their own names, each on its reference's fit
     from types import SimpleNamespace
 
+    from gcs_pdm.models.params import PACK_NAMES
     from gcs_pdm.service.fit_envelope import flown_envelopes
 
-    vehicle = SimpleNamespace(packs=[spec("LLF20", False), spec("LRF40", False).model_copy(update={"name": "other"})])
-    assert flown_envelopes(SimpleNamespace(vehicle=vehicle)) == {"battery": TRAINING}
+    packs = [spec("LLF20", False), spec("LRF40", False).model_copy(update={"name": "other"})]
+    described = SimpleNamespace(vehicle=SimpleNamespace(packs=packs), params=None, pack_names=("battery", "other"))
+    assert flown_envelopes(described) == {"battery": TRAINING}
+    # an estimator flying a parameter set (the paper's aircraft on the active set): its packs by name
+    on_set = SimpleNamespace(vehicle=None, params=fitted, pack_names=PACK_NAMES)
+    assert flown_envelopes(on_set) == {"LLF20": TRAINING, "ULA20": TRAINING}
+    assert flown_envelopes(SimpleNamespace(vehicle=None, params=base, pack_names=PACK_NAMES)) == {}
 
 
 # ---- end to end: a real fit's set, stored, activated, flown ----------------------------------------

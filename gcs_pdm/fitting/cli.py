@@ -21,7 +21,6 @@ import json
 import sys
 from pathlib import Path
 
-from gcs_pdm.models.params import PACK_NAMES
 
 #: `gcs-pdm fit battery|set` with no --model (kept equal to procedure.DEFAULT_MODEL by a test; a
 #: literal here so the CLI's --help does not import the fitting stack)
@@ -226,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
     from gcs_pdm.fitting.procedure import fit_battery, fit_motor, merge_results
     from gcs_pdm.logs.tables import FlightDataError
     from gcs_pdm.models.params import builtin
+    from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
     kind = args.fit_what
     try:
@@ -250,14 +250,17 @@ def run(args: argparse.Namespace) -> int:
         for note in notes:
             print(f"fit: vehicle (derived from {args.train[0].name}): {note}", file=sys.stderr)
         return run_vehicle(args, settings, desc)
+    # no --vehicle, and no autopilot log to derive one from: the paper's aircraft, the edge540 preset
+    # (its packs at BATTERY_STATUS ids 0-3 of a tlog), fitted into a set of the paper's layout
+    paper = PRESETS[DEFAULT_PRESET]
     pack_arg = getattr(args, "pack", None)
-    if pack_arg not in (None, "all") + PACK_NAMES:
-        print(f"gcs-pdm fit {args.fit_command}: error: --pack {pack_arg}: expected one of {', '.join(PACK_NAMES)} or all (another vehicle's packs: "
+    if pack_arg not in (None, "all") + paper.pack_names:
+        print(f"gcs-pdm fit {args.fit_command}: error: --pack {pack_arg}: expected one of {', '.join(paper.pack_names)} or all (another vehicle's packs: "
               "--vehicle FILE|PRESET)", file=sys.stderr)
         return 2
     any_tlog = any(p.suffix.lower() == ".tlog" for p in args.train + args.val + args.test)
     if kind == "battery":
-        packs = (PACK_NAMES if pack_arg in (None, "all") else (pack_arg,)) if any_tlog else (pack_arg or "LLF20",)
+        packs = (paper.pack_names if pack_arg in (None, "all") else (pack_arg,)) if any_tlog else (pack_arg or paper.pack_names[0],)
         if not any_tlog and "all" in packs:
             print(f"gcs-pdm fit {args.fit_command}: error: a table holds one pack; name it with --pack (or give tlogs for --pack all)", file=sys.stderr)
             return 2
@@ -269,7 +272,7 @@ def run(args: argparse.Namespace) -> int:
             def load(paths):
                 flights = []
                 for path in paths:
-                    fl = read_flights(path, kind, pack=pack or "all")
+                    fl = read_flights(path, kind, pack=pack or "all", vehicle=paper)
                     flights += fl
                 return flights
             train, val, test = load(args.train), load(args.val), load(args.test)
@@ -334,10 +337,13 @@ def run_set(args: argparse.Namespace) -> int:
     from gcs_pdm.fitting.learn_set import learn_from_tlogs
     from gcs_pdm.fitting.logs import write_outputs
     from gcs_pdm.logs.tables import FlightDataError
+    from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
     try:
         settings = _settings(args)
-        merged, results = learn_from_tlogs(args.train, args.val, args.test, settings, name=args.name,
+        # a whole set of the paper's layout: its tlogs are the paper's aircraft's, the edge540 preset
+        merged, results = learn_from_tlogs(args.train, args.val, args.test, settings, PRESETS[DEFAULT_PRESET],
+                                           name=args.name,
                                            provenance={"source": "gcs-pdm fit set", "note": args.note} if args.note
                                            else {"source": "gcs-pdm fit set"},
                                            progress=_ProgressLine("fit set: ", args.quiet))

@@ -4,8 +4,13 @@ and writing a fit's outputs (``result.json``, ``predictions/<flight>.csv``, plot
 Tables: one flight per file with the columns of :mod:`gcs_pdm.logs.tables` (extra columns are
 ignored). Tlogs go through the MAVLink engineer's scanner and frame mapping (``gcs_pdm.mavlink``),
 stamped with the tlog record time (see ``_collect_tlog``): every pack's ``PackFrame`` becomes a battery flight (ambient from
-``AmbientFrame``, interpolated to the pack's times), and the two ``MotorFrame`` streams become one
+``AmbientFrame``, interpolated to the pack's times), and the ``MotorFrame`` streams become one
 motor flight (mean current, mean of the reported temperatures: one bracket sensor).
+
+Logs are read for a vehicle description (the paper's aircraft is the ``edge540`` preset): it names
+the packs and says where each is in the log (BATTERY_STATUS id, DataFlash/battery instance). The
+command line resolves "no ``--vehicle``" to a description derived from an autopilot log, else to
+``edge540``; nothing here guesses one.
 """
 from __future__ import annotations
 
@@ -19,7 +24,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from gcs_pdm.logs.tables import BATTERY, KINDS, MOTOR, Flight, FlightDataError, flight_from_columns
-from gcs_pdm.models.params import PACK_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
     from gcs_pdm.fitting.procedure import FitResult
@@ -58,7 +62,7 @@ def read_table(path: str | Path, kind: str, name: str | None = None) -> Flight:
 class _FrameCollector:
     """Collects pack, motor and ambient frames from a tlog replay."""
 
-    def __init__(self, packs: tuple[str, ...] = PACK_NAMES) -> None:
+    def __init__(self, packs: tuple[str, ...]) -> None:
         self.packs: dict[str, list[tuple]] = {p: [] for p in packs}
         self.motors: dict[str, list[tuple]] = {}
         self.ambient: list[tuple] = []
@@ -125,22 +129,20 @@ def _collect_tlog(path: Path, col: "_FrameCollector", mapping: dict) -> None:
                     stats.bad_crc, stats.garbage_bytes, stats.truncated_tail_bytes)
 
 
-def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES,
-              vehicle: "VehicleDescription | None" = None) -> list[Flight]:
-    """Battery flights (one per pack in ``packs``) or the motor flight of one tlog. With a
-    ``vehicle`` description its packs (by BATTERY_STATUS id) and motors (by ESC index) are read,
-    named as it names them; none given is the paper's aircraft, the ``edge540`` preset (its four
-    packs at ids 0-3)."""
+def read_tlog(path: str | Path, kind: str, vehicle: "VehicleDescription",
+              packs: tuple[str, ...] | None = None) -> list[Flight]:
+    """Battery flights (one per pack in ``packs``, default all of the ``vehicle`` description's) or
+    the motor flight of one tlog. The description's packs (by BATTERY_STATUS id) and motors (by ESC
+    index) are read, named as it names them (``edge540``: the paper's four packs at ids 0-3)."""
     from gcs_pdm.mavlink.vehicle_mapping import frame_mapping
-    from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
     path = Path(path)
     if not path.is_file():
         raise FlightDataError(f"{path}: no such file")
-    desc = vehicle if vehicle is not None else PRESETS[DEFAULT_PRESET]
-    ids = {p.name: p.mavlink_battery_id for p in desc.packs}
+    packs = vehicle.pack_names if packs is None else packs
+    ids = {p.name: p.mavlink_battery_id for p in vehicle.packs}
     col = _FrameCollector(tuple(ids))
-    _collect_tlog(path, col, frame_mapping(desc))
+    _collect_tlog(path, col, frame_mapping(vehicle))
     if not col.ambient:
         raise FlightDataError(f"{path}: no ambient temperature frames in the tlog")
     amb = np.array(col.ambient, dtype=np.float64)
@@ -173,18 +175,19 @@ def read_tlog(path: str | Path, kind: str, packs: tuple[str, ...] = PACK_NAMES,
     return out
 
 
-def read_flights(path: str | Path, kind: str, pack: str = "all",
-                 vehicle: "VehicleDescription | None" = None) -> list[Flight]:
-    """Flights of one file: a table gives one; a tlog gives one per pack (``pack="all"``) or the
-    named pack, or the motor flight. With a ``vehicle`` description, packs are its packs: a tlog's
-    by BATTERY_STATUS id, an autopilot log's by DataFlash/battery instance."""
+def read_flights(path: str | Path, kind: str, pack: str = "all", *,
+                 vehicle: "VehicleDescription") -> list[Flight]:
+    """Flights of one file: a table gives one (its pack is the file's); a log gives one per pack of
+    the ``vehicle`` description (``pack="all"``) or the named pack, or the motor flight. The packs
+    are the description's: a tlog's by BATTERY_STATUS id, an autopilot log's by DataFlash/battery
+    instance."""
     if kind not in KINDS:
         raise FlightDataError(f"kind must be one of {KINDS}, got {kind!r}")
     path = Path(path)
     suffix = path.suffix.lower()
-    names = vehicle.pack_names if vehicle is not None else PACK_NAMES
+    names = vehicle.pack_names
     packs = names if pack == "all" else (pack,)
-    if suffix in TLOG_SUFFIXES or (vehicle is not None and suffix in AUTOPILOT_LOG_SUFFIXES):
+    if suffix in TLOG_SUFFIXES + AUTOPILOT_LOG_SUFFIXES:
         bad = [p for p in packs if p not in names]
         if bad:
             raise FlightDataError(f"unknown pack {bad[0]!r}; expected one of {', '.join(names)} or all")
@@ -196,18 +199,16 @@ def read_flights(path: str | Path, kind: str, pack: str = "all",
         except NotALog as exc:
             raise FlightDataError(str(exc)) from None
     if suffix in TLOG_SUFFIXES:
-        return read_tlog(path, kind, packs, vehicle)
+        return read_tlog(path, kind, vehicle, packs)
     if suffix in AUTOPILOT_LOG_SUFFIXES:
         from gcs_pdm.logs.reader import read_log
-        from gcs_pdm.logs.series import battery_flights, motor_flight
+        from gcs_pdm.logs.series import motor_flight
 
         if not path.is_file():
             raise FlightDataError(f"{path}: no such file")
         series = read_log(path)
         if kind != BATTERY:
             return [motor_flight(series)]
-        if vehicle is None:
-            return battery_flights(series, pack)
         return [_described_pack_flight(series, spec) for spec in vehicle.packs if spec.name in packs]
     if suffix in TABLE_SUFFIXES:
         return [read_table(path, kind)]

@@ -1,7 +1,7 @@
 """Is the vehicle inside the conditions its packs' models were fitted on? (docs/service.md, "Fit envelope")
 
 A learned circuit interpolates its training flights. A fit says which of its validation and test
-flights leave their pack and air temperatures or sustained current (``fitting.envelope``), and the
+flights leave their pack and air temperatures or sustained current (``models.training_envelope``), and the
 learned set carries that training envelope per pack (provenance ``packs.<name>.training_envelope``).
 This watch applies the same rule to the vehicle in flight, once a second of message time: a pack
 hotter or colder than any training flight, or drawing more current for a minute, is flown on an
@@ -35,24 +35,25 @@ MAX_GAP_S = 15.0
 #: 10 s); older, or never heard, it is not judged (the estimator's default is not a reading)
 AMBIENT_STALE_S = 30.0
 
-#: each criterion of fitting.envelope.CRITERIA and the reading it judges
+#: each criterion of models.training_envelope.CRITERIA and the reading it judges
 _READING = {"pack_temperature_high": "pack temperature", "pack_temperature_low": "pack temperature",
             "ambient_high": "air temperature", "ambient_low": "air temperature", "current": "current"}
 
 
 def flown_envelopes(estimator) -> dict[str, dict]:
     """Per pack of ``estimator``: the training envelope of the fit that made the values it flies; {}
-    when none did. The paper's aircraft flies its set's packs by name; a described vehicle flies
-    each pack's ``parameters`` reference (its current scaled with the values: vehicle.model_inputs)."""
-    vehicle = getattr(estimator, "vehicle", None)
-    if vehicle is not None:
-        from gcs_pdm.vehicle.model_inputs import pack_training_envelope
+    when none did. A parameter set the estimator flies (``params``: the active set, for the paper's
+    aircraft) gives the values of its packs by name; any other pack flies its description's
+    ``parameters`` reference (its current scaled with the values: vehicle.model_inputs)."""
+    from gcs_pdm.vehicle.model_inputs import pack_training_envelope
 
-        found = {spec.name: pack_training_envelope(spec, f"packs[{i}]") for i, spec in enumerate(vehicle.packs)}
-        return {name: env for name, env in found.items() if env is not None}
     params = getattr(estimator, "params", None)
-    envelopes = training_envelopes(getattr(params, "provenance", None))
-    return {name: env for name, env in envelopes.items() if name in estimator.pack_names}
+    set_packs = params.packs if params is not None else {}
+    from_set = training_envelopes(getattr(params, "provenance", None))
+    found = {name: from_set.get(name) if name in set_packs
+             else pack_training_envelope(estimator.vehicle.packs[i], f"packs[{i}]")
+             for i, name in enumerate(estimator.pack_names)}
+    return {name: env for name, env in found.items() if env is not None}
 
 
 class FitEnvelopeWatch:

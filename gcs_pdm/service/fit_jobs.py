@@ -94,6 +94,7 @@ def make_fit_job(service) -> Callable:
         from gcs_pdm.fitting.logs import read_flights, write_outputs
         from gcs_pdm.fitting.procedure import FitSettings, fit_battery, fit_motor, merge_results
         from gcs_pdm.fitting.search import FitCancelled, SearchSettings
+        from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
         job_dir = service.config.data_path / "jobs" / request.get("_job_id", "fit")
         job_dir.mkdir(parents=True, exist_ok=True)
@@ -114,6 +115,10 @@ def make_fit_job(service) -> Callable:
         model = opts.pop("model", "extended")
         settings = FitSettings(search=search, base=base.name, reference=ref_name, model=model, **opts)
         targets = list(request["packs"]) if component == "battery" else [None]
+        # the request names the paper's packs (schemas.PackName) and the result is merged over a set
+        # of the paper's layout: the flights are read as the paper's aircraft's, the edge540 preset
+        # (a tlog's packs at BATTERY_STATUS ids 0-3, an autopilot log's at battery instances 0-3)
+        paper = PRESETS[DEFAULT_PRESET]
         results, body = {}, {"component": component, "fits": {}, "plots": {}}
         for k, pack in enumerate(targets):
             lo, hi = k / len(targets), (k + 1) / len(targets)
@@ -124,7 +129,8 @@ def make_fit_job(service) -> Callable:
 
             part(0.0, "loading flights")
             splits = {s: [f for ref in refs.get(s, [])
-                          for f in read_flights(service.resolve_flight_ref(ref), component, pack or "all")]
+                          for f in read_flights(service.resolve_flight_ref(ref), component, pack or "all",
+                                                vehicle=paper)]
                       for s in ("train", "validation", "test")}
             try:
                 if component == "battery":

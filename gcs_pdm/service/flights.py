@@ -37,13 +37,6 @@ GROUND_WINDOW_S = 600.0
 HEALTH_AFTER_END_S = HealthSettings().min_rest_after_s + 30.0
 
 
-
-def pack_specs(service) -> dict:
-    """The described packs by slot name; none while the service has not yet identified its vehicle
-    (it derives a description from the first telemetry)."""
-    vehicle = service.vehicle
-    return {p.name: p for p in vehicle.packs} if vehicle is not None else {}
-
 class PackSamples:
     """Each pack's (time, current, voltage, temperature) as heard: the ground window before a flight,
     the flight, and the rest after it, for the flight's health points."""
@@ -107,7 +100,7 @@ class PackSerials:
         serial = serial_text(raw_serial)
         if serial is None:
             return
-        slot = next((name for name, p in pack_specs(self.service).items() if p.mavlink_battery_id == battery_id),
+        slot = next((name for name, p in self.service.described_packs().items() if p.mavlink_battery_id == battery_id),
                     None)
         if slot is None:
             self.unmapped_ids[battery_id] = self.unmapped_ids.get(battery_id, 0) + 1
@@ -190,7 +183,7 @@ class FlightRecorder:
         skipped with a warning."""
         made = 0
         packs_store = getattr(self.service, "packs", None)
-        specs = pack_specs(self.service)
+        specs = self.service.described_packs()
         assignments = {k: v["pack_id"] for k, v in packs_store.assignments().items()} if packs_store else {}
         for fid, start, end in self._pending:
             for pack in list(self.samples.rows):

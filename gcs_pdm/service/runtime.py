@@ -90,6 +90,21 @@ class Service:
             self.state.set_components([p.name for p in desc.packs] if desc is not None else [],
                                       [m.name for m in desc.motors] if desc is not None else [])
 
+    def described_packs(self) -> dict:
+        """The packs of the vehicle description the service follows, by slot name (``PackSpec``).
+        Empty while it follows none: the live loop is deriving one from the first telemetry
+        (service/vehicle_discovery.py), or, built without discovery, flies the paper's aircraft on
+        the active parameter set (``vehicle`` None here: the adapters' paper path)."""
+        return {p.name: p for p in self.vehicle.packs} if self.vehicle is not None else {}
+
+    def flown_vehicle(self):
+        """The description the vehicle is flown as: the one followed, else the paper's aircraft, the
+        ``edge540`` preset (a live loop built without discovery flies it on the active set; so does
+        the intake while discovery waits for the telemetry to derive one)."""
+        from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
+
+        return self.vehicle if self.vehicle is not None else PRESETS[DEFAULT_PRESET]
+
     def adopt_vehicle(self, desc, source: str, notes: list[str]) -> None:
         """A description the service now follows (derived from telemetry): said in /status, the log
         and an event, with how to save and correct it."""
@@ -169,7 +184,7 @@ class Service:
         from gcs_pdm.packs.trend import estimator_priors
 
         assigned = {k: v["pack_id"] for k, v in self.packs.assignments().items()}
-        slots = [p.name for p in self.vehicle.packs] if self.vehicle is not None else sorted(assigned)
+        slots = list(self.described_packs()) or sorted(assigned)
         out = {}
         for slot in slots:
             pack_id = identify(slot, self.flights.serials.latest(slot), assigned).pack_id

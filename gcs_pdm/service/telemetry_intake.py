@@ -32,7 +32,6 @@ from gcs_pdm.service import adapters
 from gcs_pdm.service.live_state import LINK_LOST, LINK_UP
 from gcs_pdm.service.fit_envelope import FitEnvelopeWatch, estimator_readings, flown_envelopes
 from gcs_pdm.service.status_report import model_mismatch_summary
-from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 log = logging.getLogger(__name__)
 
@@ -322,8 +321,8 @@ class TelemetryIntake:
         return self.conditions.phase(t, self._vehicle(), self.estimator)
 
     def _vehicle(self):
-        """The vehicle flown: its description; none given is the paper's aircraft, the edge540 preset."""
-        return self.service.vehicle or PRESETS[DEFAULT_PRESET]
+        """The description the vehicle is flown as (the service resolves "none given": ``Service.flown_vehicle``)."""
+        return self.service.flown_vehicle()
 
     def prediction_inputs(self, t: float) -> PredictionInputs:
         """What a prediction at ``t`` starts from: the core's (``FlightConditions.inputs``), as a replay's."""

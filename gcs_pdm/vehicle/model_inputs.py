@@ -112,7 +112,7 @@ def pack_parameters(spec: PackSpec, where: str = "pack") -> np.ndarray:
 
 
 def pack_training_envelope(spec: PackSpec, where: str = "pack") -> dict | None:
-    """The training envelope of the fit that made the values this pack flies (fitting.envelope), its
+    """The training envelope of the fit that made the values this pack flies (models.training_envelope), its
     current in this pack's amps when the values are scaled to it; None when no fit made them: a set
     without one, or an extended pack (a description flies a pack's paper values, which an extended
     fit does not learn)."""
