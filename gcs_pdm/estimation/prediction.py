@@ -579,14 +579,16 @@ def _within(times: np.ndarray, horizon_s: float) -> np.ndarray:
     return np.where(np.isfinite(times) & (times <= horizon_s), times, np.inf)
 
 
-def with_calibrated_cutoffs(pred: "Prediction", estimator, cutoff_v: np.ndarray, *, rng: np.random.Generator,
+def with_calibrated_cutoffs(pred: "Prediction", estimator, *, rng: np.random.Generator,
                             n_samples: int) -> "Prediction":
     """``pred`` with each self-calibrated pack's time to cut-off its filter's own, at its recent mean
-    load (``calibrated_cutoff``): the per-pack count-down the service shows is one path whatever
-    the airframe (a shaft-power flight of the kernel carries only the calibrated SoC)."""
+    load, to its description's cut-off (``calibrated_cutoff``): the per-pack count-down the service
+    shows is one path whatever the airframe (a shaft-power flight of the kernel carries only the
+    calibrated SoC)."""
     models = calibrated_models(estimator)
     if not any(m is not None for m in models):
         return pred
+    cutoff_v = estimator.inputs.pack_cutoff_v  # only a description's packs self-calibrate
     per_pack = np.array(pred.pack_time_to_cutoff_s, dtype=np.float64, copy=True)
     present = np.nan_to_num(np.asarray(estimator.pack_current, dtype=np.float64))
     for b, m in enumerate(models):

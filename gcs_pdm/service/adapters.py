@@ -58,10 +58,8 @@ def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Se
         pred = predict_from_estimator(frozen, load, rng=rng, n_samples=n_samples, fault=fv, limits=lim,
                                       trajectories=False,
                                       stop_on_failure=False)  # each pack to its own cut-off, not only the first
-        if inputs is None:
-            return pred
         # a self-calibrated pack's count-down is its own filter's, as in the held-current prediction
-        return with_calibrated_cutoffs(pred, frozen, inputs.pack_cutoff_v, rng=rng, n_samples=n_samples)
+        return with_calibrated_cutoffs(pred, frozen, rng=rng, n_samples=n_samples)
 
     return run
 
