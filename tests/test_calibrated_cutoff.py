@@ -20,12 +20,12 @@ from gcs_pdm.vehicle.model_inputs import model_inputs
 from gcs_pdm.vehicle.presets import PRESETS
 
 
-
 @pytest.fixture(scope="module")
 def half_way():
     """A LiPo quad pack the service was never told about (a derived description: the chemistry
     table's prior), its truth 0.8x the label's capacity and twice the resistance, flown at a held
-    1.5 C from 90 % to its cut-off; the estimator fed to half-way. (estimator, seconds truly left)."""
+    1.5 C from 90 % to its cut-off; the estimator fed to half-way.
+    (estimator, seconds truly left, the pack's cut-off voltage)."""
     desc = PRESETS["quad-4s"].model_copy(update={"provisional": True})
     spec = desc.packs[0]
     base = model_inputs(desc).pack_matrix[0]
