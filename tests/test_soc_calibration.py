@@ -170,24 +170,57 @@ def test_a_pack_that_has_just_landed_is_not_read_as_rested():
     assert cal.soc == pytest.approx(0.3, abs=0.03) and "voltage_model" in cal.evidence()
 
 
+def _cutoff_soc(chem, cells, cutoff_v, sag_now, soc_now, rise):
+    """The SoC where cells·OCV(s) − sag_now·rise(s)/rise(soc_now) falls to ``cutoff_v`` (bisection)."""
+    lo, hi = 0.0, soc_now
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        below = cells * chem.ocv(mid) - sag_now * float(rise(mid) / rise(soc_now)) < cutoff_v
+        lo, hi = (mid, hi) if below else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
 def test_time_to_cutoff_keeps_the_sag_the_model_does_not_explain():
     # a pack whose voltage the filter stopped following keeps the prior's resistances; the sag it
-    # shows beyond them is still there at cut-off. Given the loaded voltage, the prediction puts the
-    # cut-off where the curve has fallen by the voltage's present margin over it, not the prior's
+    # shows beyond them is still there at cut-off. Given the recent loaded voltage's shortfall
+    # below the model, the prediction puts the cut-off where the curve has fallen by it, not the prior's
+    from gcs_pdm.estimation.calibrated_cutoff import CutoffModel, low_charge_rise
+
     liion = CHEMISTRIES["liion"]
     cal = PackCalibrator(PackPrior("liion", 5, 7800 * 3.6))
     cal.initialise(0.0, 5 * liion.ocv(0.5), 0.0, 25.0)
     current, cutoff = 15.0, 5 * 2.5
     settled_sag = (cal.x[2] + cal.x[6] + cal.x[8]) * current  # the prior's resistances, at 25 °C
-    present_v = 5 * liion.ocv(cal.soc) - cal.x[2] * current  # the model's now: the pairs still empty
-    prior_only = cal.time_to_cutoff(current, cutoff, 25.0)
+    prior_only = CutoffModel.of(cal).time_to_cutoff(current, cutoff)
     margin_v = 1.2  # the pack sags 1.2 V more than the prior resistances say
-    with_voltage = cal.time_to_cutoff(current, cutoff, 25.0, voltage=present_v - margin_v)
-    soc_cut = liion.soc_at((cutoff + settled_sag + margin_v) / 5)
-    assert with_voltage == pytest.approx((cal.soc - soc_cut) * 7800 * 3.6 / current, rel=1e-6)
-    assert with_voltage < prior_only - 30.0  # 37 s: near empty the curve falls steeply
+    cal.recent_current_a, cal.recent_miss_v = current, margin_v
+    with_miss = CutoffModel.of(cal)
+
+    def expected(amps, sag):
+        soc_cut = _cutoff_soc(liion, 5, cutoff, sag, cal.soc, low_charge_rise)
+        return (cal.soc - soc_cut) * 7800 * 3.6 / amps
+
+    assert with_miss.time_to_cutoff(current, cutoff) == pytest.approx(expected(current, settled_sag + margin_v),
+                                                                      rel=2e-3)  # the solver's 0.0025 SoC grid
+    assert with_miss.time_to_cutoff(current, cutoff) < prior_only - 30.0  # 68 s: near empty the curve falls steeply
+    # the shortfall is a resistance's: at half the current, half of it
+    assert with_miss.time_to_cutoff(current / 2, cutoff) == pytest.approx(
+        expected(current / 2, (settled_sag + margin_v) / 2), rel=2e-3)
     # a voltage the model explains changes nothing
-    assert cal.time_to_cutoff(current, cutoff, 25.0, voltage=present_v) == pytest.approx(prior_only, rel=1e-9)
+    cal.recent_miss_v = 0.0
+    assert CutoffModel.of(cal).time_to_cutoff(current, cutoff) == pytest.approx(prior_only, rel=1e-9)
+
+
+def test_the_sag_rises_near_empty_as_the_papers_fitted_pack():
+    from gcs_pdm.estimation.calibrated_cutoff import low_charge_rise
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.params import BUILTIN_SETS, pack_vector
+
+    llf20 = pack_vector(BUILTIN_SETS["paper_si"].packs["LLF20"])
+    soc = np.array([0.0, 0.02, 0.05, 0.1, 0.3, 0.5, 0.9])
+    total = llf20[kernel.I_RS] + kernel.concentration_resistance(np.repeat(llf20[None], soc.size, 0), soc)
+    np.testing.assert_allclose(low_charge_rise(soc), total / total[5], rtol=1e-9)
+    assert low_charge_rise(0.05) == pytest.approx(1.5, abs=0.01) and low_charge_rise(0.3) == pytest.approx(1.0, abs=1e-3)
 
 
 PRESET_NAMES = ["plane-3s", "quad-4s", "quad-6s", "hex-6s", "edge540"]

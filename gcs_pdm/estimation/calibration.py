@@ -105,6 +105,9 @@ V1_WALK = 0.002
 CAPACITY_PRIOR_REL_SD = 0.25
 #: an innovation beyond this many σ is not applied (a spike), counted
 GATE_SIGMAS = 5.0
+#: the recent load a time-to-cut-off prediction holds (``calibrated_cutoff``): the loaded current
+#: and the model's voltage shortfall at it, means over about this long, s
+RECENT_LOAD_TAU_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -260,6 +263,10 @@ class PackCalibrator:
         #: the recent load, A: the present current, or an earlier larger one decaying with the slow
         #: pair's time constant (the polarisation it left is still relaxing)
         self.load_memory_a = 0.0
+        #: the recent loaded current (A) and the model's loaded voltage less the measured one at it
+        #: (V), means over ``RECENT_LOAD_TAU_S`` (NaN before any load): what the model does not explain now
+        self.recent_current_a = math.nan
+        self.recent_miss_v = math.nan
 
     # ---- model ---------------------------------------------------------------------------------
     def _ocv(self, soc: float) -> tuple[float, float]:
@@ -366,6 +373,22 @@ class PackCalibrator:
             self.start_kind = "rest_voltage"
         elif self.voltage_trusted:
             self._referee()
+        if not at_rest and math.isfinite(voltage) and dt > 0:
+            self._track_recent_load(dt, i, voltage, u)
+
+    def _track_recent_load(self, dt: float, i: float, voltage: float, u: float) -> None:
+        """The recent loaded current and the model's shortfall at it (its mean state after this
+        frame's update: the pairs as they are, not settled)."""
+        x = self.x
+        ocv, _ = _curve(self.table, float(x[I_SOC]))
+        modelled = (self.cells * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_V2]
+                    - x[I_R0] * math.exp(x[I_E] * u) * i)
+        if not math.isfinite(self.recent_current_a):
+            self.recent_current_a, self.recent_miss_v = i, float(modelled - voltage)
+            return
+        w = 1.0 - math.exp(-dt / RECENT_LOAD_TAU_S)
+        self.recent_current_a += w * (i - self.recent_current_a)
+        self.recent_miss_v += w * (float(modelled - voltage) - self.recent_miss_v)
 
     def _predict(self, dt: float, i: float, u: float) -> None:
         _predict_core(self.x, self.P, dt, i, u, self.q0, self.chem.tau1_s, TAU2_FACTOR * self.chem.tau1_s, self.r0p, self.r1p,
@@ -472,32 +495,6 @@ class PackCalibrator:
         self.x[I_COUNT0] = self.count_start
         self.P[I_COUNT0, I_COUNT0] = self.P[I_SOC, I_COUNT0] = self.P[I_COUNT0, I_SOC] = self.count_start_var
         self._clip()
-
-    def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0,
-                       voltage: float = math.nan) -> float:
-        """Seconds until the terminal voltage at a held ``current`` reaches ``cutoff_v``, on this
-        filter's own model (its curve, resistance and capacity; the polarisation settled), from
-        its mean state: the SoC at which S·OCV_cell − sag = cutoff, reached at the charge count's
-        rate, where sag = (R₀ + R₁ + R₂) f(T) I. With ``voltage`` (the pack's recent loaded voltage
-        at ``current``) the model's present miss is kept in the sag: what the model does not explain
-        now (a voltage it stopped following, whose resistances went back to the prior) still sags
-        the pack at cut-off. NaN at no current; 0 if already below."""
-        if not self.initialised or not current > 0:
-            return math.nan
-        x = self.x
-        ft = self._temp_factor(temperature_c)
-        sag = (x[I_R0] + x[I_R1] + x[I_R2]) * ft * current
-        if math.isfinite(voltage):
-            ocv, _ = self._ocv(x[I_SOC])
-            modelled = (self.cells * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_V2]
-                        - x[I_R0] * ft * current)
-            sag = max(sag + modelled - voltage, 0.0)
-        target = (cutoff_v + sag) / self.cells
-        curve = self.table + x[I_DV] + x[I_K] * (self.table - self.mid)
-        soc_cut = 0.0 if target <= curve[0] else float(np.interp(target, curve, _GRID))
-        if soc_cut >= x[I_SOC]:
-            return 0.0
-        return (x[I_SOC] - soc_cut) * self.q0 / (x[I_G] * current)
 
     # ---- read-outs -----------------------------------------------------------------------------
     @property

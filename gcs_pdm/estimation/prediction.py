@@ -13,13 +13,14 @@ route into exactly such a profile, so a route can be predicted by passing its pr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import config as numba_config
 from numba import njit
 
 from gcs_pdm.estimation import held_current_arrays
+from gcs_pdm.estimation.calibrated_cutoff import CutoffModel
 from gcs_pdm.estimation.extended_prediction import ExtendedPacks
 from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
@@ -531,6 +532,9 @@ class HeldCurrentInputs:
     motor_params: np.ndarray  # (5,)
     ambient_c: float
     extended: ExtendedPacks | None
+    #: per pack: its self-calibrating filter's model (``calibrated_cutoff``), whose time to cut-off
+    #: replaces the kernel's flight; None: the kernel pack's own (a fitted or paper pack)
+    calibrated: tuple[CutoffModel | None, ...] = ()
 
 
 def held_current_inputs(estimator, cutoff_v: np.ndarray, current_a: np.ndarray | None = None) -> HeldCurrentInputs:
@@ -539,6 +543,9 @@ def held_current_inputs(estimator, cutoff_v: np.ndarray, current_a: np.ndarray |
     base = np.array(packs.params, dtype=np.float64)
     n_packs = base.shape[0]
     cur = np.nan_to_num(np.array(estimator.pack_current if current_a is None else current_a, dtype=np.float64))
+    calibrated = calibrated_models(estimator)
+    if current_a is None:  # a calibrated pack holds its recent mean load
+        cur = np.array([m.held_current(c) if m is not None else c for m, c in zip(calibrated, cur)])
     cov = np.array(packs.cov, dtype=np.float64)
     soc = kernel.state_of_charge(base, packs.mean)
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * base[:, kernel.I_CMAX]
@@ -549,7 +556,46 @@ def held_current_inputs(estimator, cutoff_v: np.ndarray, current_a: np.ndarray |
         pack_names=tuple(estimator.pack_names), params=base, mean=np.array(packs.mean, dtype=np.float64), cov=cov,
         current_a=cur, cutoff_v=np.array(np.broadcast_to(np.asarray(cutoff_v, dtype=np.float64), (n_packs,))),
         motor_params=np.array(estimator.motors.params[0], dtype=np.float64), ambient_c=float(estimator.ambient_c),
-        extended=ExtendedPacks.of(estimator, inflation))
+        extended=ExtendedPacks.of(estimator, inflation), calibrated=calibrated)
+
+
+def calibrated_models(estimator) -> tuple[CutoffModel | None, ...]:
+    """Per pack of ``estimator``: its self-calibrating filter's model now, None where it has none."""
+    calib = getattr(estimator, "calib", None) or [None] * len(estimator.pack_names)
+    return tuple(CutoffModel.of(c) if c is not None else None for c in calib)
+
+
+def calibrated_cutoff_quantiles(model: CutoffModel, current_a: float, cutoff_v: float, *, rng: np.random.Generator,
+                                n_samples: int, horizon_s: float = 3600.0) -> np.ndarray:
+    """(5 %, 50 %, 95 %) of a calibrated pack's time to cut-off at a held ``current_a`` (``inf``:
+    not within the horizon) over ``n_samples`` draws of its filter's state: what the product shows
+    for such a pack, and what the harness measures."""
+    return np.quantile(_within(model.sample_times(current_a, cutoff_v, rng, n_samples), horizon_s), QUANTILES,
+                       method="nearest")
+
+
+def _within(times: np.ndarray, horizon_s: float) -> np.ndarray:
+    """Times beyond the horizon (or undetermined) as ``inf``, as the kernel's flights report them."""
+    return np.where(np.isfinite(times) & (times <= horizon_s), times, np.inf)
+
+
+def with_calibrated_cutoffs(pred: "Prediction", estimator, *, rng: np.random.Generator,
+                            n_samples: int) -> "Prediction":
+    """``pred`` with each self-calibrated pack's time to cut-off its filter's own, at its recent mean
+    load, to its description's cut-off (``calibrated_cutoff``): the per-pack count-down the service
+    shows is one path whatever the airframe (a shaft-power flight of the kernel carries only the
+    calibrated SoC)."""
+    models = calibrated_models(estimator)
+    if not any(m is not None for m in models):
+        return pred
+    cutoff_v = estimator.inputs.pack_cutoff_v  # only a description's packs self-calibrate
+    per_pack = np.array(pred.pack_time_to_cutoff_s, dtype=np.float64, copy=True)
+    present = np.nan_to_num(np.asarray(estimator.pack_current, dtype=np.float64))
+    for b, m in enumerate(models):
+        if m is not None:
+            per_pack[b] = calibrated_cutoff_quantiles(m, m.held_current(present[b]), float(cutoff_v[b]), rng=rng,
+                                                      n_samples=n_samples, horizon_s=pred.horizon_s)
+    return replace(pred, pack_time_to_cutoff_s=per_pack)
 
 
 def predict_packs_at_current(estimator, cutoff_v: np.ndarray, *, current_a: np.ndarray | None = None,
@@ -585,6 +631,9 @@ class HeldCurrentSamples:
     n_samples: int
     dt: np.ndarray                  # (steps,)
     rows: tuple                     # per variant present: (variant, row indices, params, states)
+    #: (samples, packs) time to cut-off of the calibrated packs on their own model (NaN columns:
+    #: the kernel's flight), drawn with the rest
+    calibrated_ttc: np.ndarray | None = None
 
     def fly(self) -> tuple[np.ndarray, np.ndarray]:
         """(first step below the cut-off or empty, -1 if none; peak temperature up to it) per row."""
@@ -603,6 +652,9 @@ class HeldCurrentSamples:
         n_packs = self.inputs.params.shape[0]
         t_end = np.cumsum(self.dt)
         ttc = np.where(end_step >= 0, t_end[end_step], np.inf).reshape(self.n_samples, n_packs)
+        if self.calibrated_ttc is not None:
+            own = np.array([m is not None for m in self.inputs.calibrated])
+            ttc[:, own] = _within(self.calibrated_ttc[:, own], float(t_end[-1]))
         peak = peak.reshape(self.n_samples, n_packs)
         return PackCutoffPrediction(
             pack_names=self.inputs.pack_names, current_a=self.inputs.current_a, horizon_s=float(t_end[-1]),
@@ -632,4 +684,11 @@ def draw_held_current(inputs: HeldCurrentInputs, *, horizon_s: float = 3600.0, s
     if extended is not None:
         sel = np.flatnonzero(~paper_rows)
         rows.append(("extended", sel, ep.reshape(-1, kernel.N_EXT_PARAMS)[sel], xe.reshape(-1, kernel.N_EXT_STATE)[sel]))
-    return HeldCurrentSamples(inputs, n_samples, np.full(n_steps, horizon_s / n_steps), tuple(rows))
+    calibrated_ttc = None
+    if any(m is not None for m in inputs.calibrated):  # drawn after the kernel's: their draws stay as they were
+        calibrated_ttc = np.full((n_samples, n_packs), np.nan)
+        for b, m in enumerate(inputs.calibrated):
+            if m is not None:
+                calibrated_ttc[:, b] = m.sample_times(float(inputs.current_a[b]), float(inputs.cutoff_v[b]), rng,
+                                                      n_samples)
+    return HeldCurrentSamples(inputs, n_samples, np.full(n_steps, horizon_s / n_steps), tuple(rows), calibrated_ttc)

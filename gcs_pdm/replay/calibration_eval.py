@@ -234,11 +234,19 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     """A PyBaMM flight (``fixtures/pybamm``) through a ``PackCalibrator`` started from a chemistry
     prior only: the chemistry's table, the pack's nominal capacity, nothing fitted (``prior``, a
     ``PackPrior``, replaces it: to measure what each part of the prior costs). Truth SoC:
-    ``pybamm_truth_soc``. Also the time to cut-off predicted from half-way at the mean current and
-    voltage of the last 60 s against the flight's own (flights that reach cut-off)."""
+    ``pybamm_truth_soc``.
+
+    Also, on flights that reach cut-off, the time to cut-off the product shows for such a pack
+    (``prediction.calibrated_cutoff_quantiles`` at the held current ``CutoffModel.held_current``
+    takes, ``TRACE_SAMPLES`` draws: the replay trace's and the service's count-down) against the
+    flight's own: at half-way (``predicted_s``, its 5-95 % ``low_s``/``high_s``, ``true_s``) and
+    every ``TTC_EVERY_S`` after it while a minute is left (``later``: rows of true, 5 %, 50 %, 95 %)."""
     import pyarrow.parquet as pq
 
+    from gcs_pdm.estimation.calibrated_cutoff import CutoffModel
     from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+    from gcs_pdm.estimation.prediction import calibrated_cutoff_quantiles
+    from gcs_pdm.replay.vehicle import TRACE_SAMPLES
 
     table = pq.read_table(Path(root) / flight["file"]).to_pydict()
     t = np.asarray(table["time_s"], dtype=float)
@@ -252,18 +260,27 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     cal = PackCalibrator(prior if prior is not None else PackPrior(chem, cells, capacity_c))
     dt = np.diff(t, prepend=t[0])
     truth = pybamm_truth_soc(t, i, flight, s)
+    cutoff_v = cells * flight.get("cell_cutoff_v", math.nan)
+    rng = np.random.default_rng(0)
     out = []
-    ttc = {}
-    half = t[0] + 0.5 * (t[-1] - t[0])
+    ttc: dict = {}
+    next_ttc_s = t[0] + 0.5 * (t[-1] - t[0])
     for k in range(t.size):
         if not cal.initialised:
             cal.initialise(t[k], v[k], i[k], temp[k])
         else:
             cal.step(t[k], dt[k], i[k], v[k], temp[k])
         out.append((t[k], cal.soc, cal.soc_sd, truth[k]))
-        if flight.get("reached_cutoff") and not ttc and t[k] >= half:
-            recent = (t >= t[k] - 60.0) & (t <= t[k])
-            predicted = cal.time_to_cutoff(float(np.mean(i[recent])), cells * flight["cell_cutoff_v"], temp[k],
-                                           voltage=float(np.nanmean(v[recent])))
-            ttc = {"predicted_s": predicted, "true_s": float(t[-1] - t[k])}
+        if flight.get("reached_cutoff") and t[k] >= next_ttc_s and t[-1] - t[k] >= (60.0 if ttc else 0.0):
+            model = CutoffModel.of(cal)
+            q = calibrated_cutoff_quantiles(model, model.held_current(i[k]), cutoff_v, rng=rng, n_samples=TRACE_SAMPLES)
+            row = (float(t[-1] - t[k]), *(float(x) for x in q))
+            if not ttc:
+                ttc = {"true_s": row[0], "low_s": row[1], "predicted_s": row[2], "high_s": row[3], "later": []}
+            ttc["later"].append(row)
+            next_ttc_s = t[k] + TTC_EVERY_S
     return PackTrack(flight["flight"], *(np.array(c, dtype=float) for c in zip(*out))), ttc
+
+
+#: the time to cut-off is asked again this often after half-way (``pybamm_flight_soc``), s
+TTC_EVERY_S = 60.0

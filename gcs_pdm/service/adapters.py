@@ -42,8 +42,9 @@ def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Se
     while the filters move on; the prediction itself is the estimation package's
     ``predict_from_estimator`` (the diagnoser's prognosis uses the same one, capacity spread included).
     An estimator built from a description flies its packs and motors (``faults`` by its motor
-    names, its own limits; ``limits`` is the paper aircraft's)."""
-    from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator
+    names, its own limits; ``limits`` is the paper aircraft's); its self-calibrated packs' times
+    to cut-off are their own filters' (``prediction.with_calibrated_cutoffs``)."""
+    from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator, with_calibrated_cutoffs
     from gcs_pdm.models.powertrain import Limits, fault_vector
 
     frozen = copy.deepcopy(estimator)
@@ -53,9 +54,12 @@ def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Se
     lim = limits or Limits()
 
     def run():
-        return predict_from_estimator(frozen, load, rng=np.random.default_rng(seed), n_samples=n_samples, fault=fv,
-                                      limits=lim, trajectories=False,
+        rng = np.random.default_rng(seed)
+        pred = predict_from_estimator(frozen, load, rng=rng, n_samples=n_samples, fault=fv, limits=lim,
+                                      trajectories=False,
                                       stop_on_failure=False)  # each pack to its own cut-off, not only the first
+        # a self-calibrated pack's count-down is its own filter's, as in the held-current prediction
+        return with_calibrated_cutoffs(pred, frozen, rng=rng, n_samples=n_samples)
 
     return run
 

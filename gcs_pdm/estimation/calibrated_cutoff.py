@@ -1,0 +1,148 @@
+"""Time to cut-off of a self-calibrated pack, on its own filter's model (issue 29).
+
+A pack whose state comes from a ``calibration.PackCalibrator`` is predicted on that filter's
+model — its chemistry curve with the learned offset and scale, its learned resistances, Arrhenius
+factor and capacity — not on the description's kernel pack, which carries only its SoC (a derived
+LiPo's kernel pack is the paper's LLF20 scaled, with a rested voltage linear in charge). The
+product's held-current prediction (``prediction.draw_held_current``: the replay's trace, a live
+fixed wing) and the service's per-pack count-down (``service.adapters.prediction_job``) both come
+from here, and so does the harness's figure (``replay.calibration_eval.pybamm_flight_soc``).
+
+At a held current I the pack reaches its cut-off where S·OCV_cell(SoC) − sag(SoC) = cut-off, with
+the polarisation settled: sag = (R₀ + R₁ + R₂) f(T) I now, rising near empty as the paper's fitted
+pack's resistance does (``low_charge_rise``: the filter cannot learn that rise before the pack gets
+there, and a cell's sag does grow there — 1.8 V at half-way, 3.1 V at cut-off on a PyBaMM LG M50). What the model does not explain now — the
+recent loaded voltage's shortfall below the model's (``PackCalibrator.recent_miss_v``, a mean over
+``calibration.RECENT_LOAD_TAU_S``), scaled to the held current — stays in the sag: a voltage the
+filter stopped following (its resistances back at the prior) still sags the pack at cut-off. The
+time is the charge between here and there over the charge count's rate.
+
+The interval: the same computation on states drawn from the filter's covariance (SoC, capacity,
+resistances, curve, temperature factor, jointly), held inside what the chemistry allows.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from gcs_pdm.estimation.calibration import (I_DV, I_E, I_G, I_K, I_R0, I_R1, I_R2, I_SOC, I_V1, I_V2, N_STATE,
+                                            PackCalibrator)
+
+#: the state components a draw varies (the charge count's start is not part of the model)
+_DRAWN = np.arange(N_STATE - 1)
+
+
+@dataclass(frozen=True)
+class CutoffModel:
+    """A copy of one calibrator's model and state (it moves on; this does not): a prediction taken
+    now can run later or on another thread with the same numbers."""
+
+    x: np.ndarray
+    P: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    table: np.ndarray
+    mid: float
+    cells: int
+    q0: float
+    #: 1/T − 1/298.15 of the last temperature reading
+    temp_u: float
+    #: the mean loaded current and the model's voltage shortfall at it (NaN: no load seen)
+    recent_current_a: float
+    recent_miss_v: float
+
+    @classmethod
+    def of(cls, cal: PackCalibrator) -> "CutoffModel | None":
+        """The calibrator's model now; None before its first voltage."""
+        if not cal.initialised:
+            return None
+        return cls(cal.x.copy(), cal.P.copy(), cal.lo.copy(), cal.hi.copy(), cal.table.copy(), float(cal.mid),
+                   int(cal.cells), float(cal.q0), float(cal.last_u), float(cal.recent_current_a),
+                   float(cal.recent_miss_v))
+
+    def held_current(self, present_a: float) -> float:
+        """The current a held-current prediction holds: the recent mean load (a flight's draw moves
+        ±10 % over tens of seconds; the present sample's noise is not the future's), else the present."""
+        return self.recent_current_a if math.isfinite(self.recent_current_a) else present_a
+
+    def times(self, states: np.ndarray, current: float, cutoff_v: float) -> np.ndarray:
+        """Seconds to the cut-off at a held ``current`` for each row of ``states`` (N_STATE wide):
+        NaN at no current, 0 where already below."""
+        s = np.atleast_2d(states)
+        if not current > 0:
+            return np.full(s.shape[0], math.nan)
+        ft = np.exp(s[:, I_E] * self.temp_u)
+        settled = (s[:, I_R0] + s[:, I_R1] + s[:, I_R2]) * ft * current
+        sag = settled
+        i_r, miss = self.recent_current_a, self.recent_miss_v
+        if math.isfinite(i_r) and i_r > 0 and math.isfinite(miss):
+            # the recent voltage, as the model at its mean state less its shortfall, against each row's model
+            measured = self._loaded_voltage(self.x[None], i_r)[0] - miss
+            sag = np.maximum(settled + (self._loaded_voltage(s, i_r) - measured) * (current / i_r), 0.0)
+        curves = self.table[None] + s[:, I_DV, None] + s[:, I_K, None] * (self.table[None] - self.mid)
+        # the loaded voltage on a fine SoC grid, the sag rising near empty from where it is now:
+        # it rises as SoC falls, so the cut-off is its one crossing
+        rise = low_charge_rise(_FINE)[None] / low_charge_rise(np.clip(s[:, I_SOC], 0.0, 1.0))[:, None]
+        loaded = self.cells * _on_fine(curves) - sag[:, None] * rise
+        soc_cut = _crossing(loaded, np.full(s.shape[0], cutoff_v), _FINE)
+        left = np.maximum(s[:, I_SOC] - soc_cut, 0.0)
+        return left * self.q0 / (s[:, I_G] * current)
+
+    def time_to_cutoff(self, current: float, cutoff_v: float) -> float:
+        """``times`` of the mean state."""
+        return float(self.times(self.x[None], current, cutoff_v)[0])
+
+    def sample_times(self, current: float, cutoff_v: float, rng: np.random.Generator, n_samples: int) -> np.ndarray:
+        """``times`` of ``n_samples`` states drawn from the filter's covariance, within its bounds."""
+        cov = self.P[np.ix_(_DRAWN, _DRAWN)]
+        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+        z = rng.standard_normal((n_samples, _DRAWN.size))
+        states = np.repeat(self.x[None], n_samples, axis=0)
+        states[:, _DRAWN] += (z * np.sqrt(np.maximum(w, 0.0))) @ v.T
+        np.clip(states, self.lo, self.hi, out=states)
+        return self.times(states, current, cutoff_v)
+
+    def _loaded_voltage(self, s: np.ndarray, current: float) -> np.ndarray:
+        """The model's terminal voltage at ``current`` now (the pairs as they are, not settled)."""
+        ocv = np.interp(np.clip(s[:, I_SOC], 0.0, 1.0), _GRID, self.table)
+        ft = np.exp(s[:, I_E] * self.temp_u)
+        return (self.cells * (ocv + s[:, I_DV] + s[:, I_K] * (ocv - self.mid)) - s[:, I_V1] - s[:, I_V2]
+                - s[:, I_R0] * ft * current)
+
+
+_GRID = np.linspace(0.0, 1.0, 21)
+#: the SoC grid the loaded voltage is solved on (0.0025 apart: the knee's width is a few hundredths)
+_FINE = np.linspace(0.0, 1.0, 401)
+#: the sag's rise near empty: the paper's fitted pack (``paper_si`` LLF20, eq. 6), its total
+#: resistance R_s + R_cp(SoC) over its value at half charge: 1.09x at 10 %, 1.5x at 5 %, 3.8x at 0
+_RISE_RS, _RISE_RCP0, _RISE_RCP1, _RISE_RCP2 = 0.0074, 0.03, 1.2e-16, 34.41
+
+
+def low_charge_rise(soc: np.ndarray) -> np.ndarray:
+    """The sag near empty relative to half charge (1 above ~20 % SoC). With the state right (the
+    PyBaMM cells' own curve and capacity) the time to cut-off from half-way was 7-10 % long on
+    Chen2020 without it, 1-5 % with it (docs/notes/2026-11-27-time-to-cutoff.md)."""
+    def total(s):
+        return _RISE_RS + _RISE_RCP0 + _RISE_RCP1 * np.exp(_RISE_RCP2 * (1.0 - np.asarray(s)))
+
+    return total(soc) / total(0.5)
+
+
+def _on_fine(curves: np.ndarray) -> np.ndarray:
+    """Rows of a 21-knot curve interpolated onto ``_FINE``."""
+    k = np.minimum((_FINE * 20.0).astype(int), 19)
+    frac = _FINE * 20.0 - k
+    return curves[:, k] * (1.0 - frac) + curves[:, k + 1] * frac
+
+
+def _crossing(curves: np.ndarray, target: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Per row: the SoC at which the rising curve (rows × knots on ``grid``) reaches ``target``
+    (0 below its first knot, 1 above its last), linear between knots."""
+    n_seg = curves.shape[1] - 1
+    k = np.clip((curves < target[:, None]).sum(axis=1) - 1, 0, n_seg - 1)
+    rows = np.arange(curves.shape[0])
+    lo, hi = curves[rows, k], curves[rows, k + 1]
+    frac = np.clip((target - lo) / np.maximum(hi - lo, 1e-12), 0.0, 1.0)
+    return np.where(target <= curves[:, 0], 0.0, grid[k] + frac * (grid[k + 1] - grid[k]))

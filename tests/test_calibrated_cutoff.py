@@ -1,0 +1,86 @@
+"""Issue 29: a self-calibrated pack's time to cut-off is its own filter's (``estimation.calibrated_cutoff``)
+on every path the product shows one — the held-current prediction (the replay's trace, a live fixed
+wing) and the service's per-pack count-down (``service.adapters.prediction_job``) — and not the
+description's kernel pack's, which carries only the calibrated SoC."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from gcs_pdm.estimation import prediction
+from gcs_pdm.estimation.calibrated_cutoff import CutoffModel
+from gcs_pdm.estimation.estimator import StateEstimator
+from gcs_pdm.frames import PackFrame
+from gcs_pdm.models import kernel
+from gcs_pdm.models.pack_scaling import scale_pack_vector
+from gcs_pdm.sim.pack_curves import chemistry_curve_pack
+from gcs_pdm.vehicle.model_inputs import model_inputs
+from gcs_pdm.vehicle.presets import PRESETS
+
+
+@pytest.fixture(scope="module")
+def half_way():
+    """A LiPo quad pack the service was never told about (a derived description: the chemistry
+    table's prior), its truth 0.8x the label's capacity and twice the resistance, flown at a held
+    1.5 C from 90 % to its cut-off; the estimator fed to half-way.
+    (estimator, seconds truly left, the pack's cut-off voltage)."""
+    desc = PRESETS["quad-4s"].model_copy(update={"provisional": True})
+    spec = desc.packs[0]
+    base = model_inputs(desc).pack_matrix[0]
+    truth = scale_pack_vector(base, spec.cells_series, spec.capacity_c, spec.cells_series, 0.8 * spec.capacity_c,
+                              spec.full_cell_v)
+    for k in (kernel.I_RS, kernel.I_RCP0, kernel.I_RCP1):
+        truth[k] *= 2.0
+    truth = chemistry_curve_pack(truth, spec.chemistry, spec.cells_series)
+    amps = 1.5 * spec.capacity_c / 3600.0
+    n = 3000
+    current = np.r_[np.zeros(30), np.full(n - 30, amps)]
+    sim = kernel.simulate_packs(truth[None], kernel.initial_extended_state(truth[None], 0.9, 25.0), np.ones(n),
+                                current[None], np.full(n, 25.0), variant="extended")
+    cut = int(np.flatnonzero(sim.voltage[0] < spec.cutoff_voltage)[0])
+    half = 30 + (cut - 30) // 2
+    rng = np.random.default_rng(1)
+    est = StateEstimator(vehicle=desc)
+    for k in range(half):
+        est.consume(PackFrame(k + 1.0, spec.name, float(sim.voltage[0, k] + rng.normal(0.0, 0.018)),
+                              float(current[k] * (1.0 + rng.normal(0.0, 0.01))), None))
+    return est, float(cut - half), spec.cutoff_voltage
+
+
+def test_the_held_current_prediction_of_a_calibrated_pack_is_its_filters(half_way):
+    est, left_s, cutoff_v = half_way
+    cutoff = np.array([cutoff_v])
+    inputs = prediction.held_current_inputs(est, cutoff)
+    model = inputs.calibrated[0]
+    assert isinstance(model, CutoffModel)
+    assert inputs.current_a[0] == pytest.approx(model.recent_current_a)  # the recent mean load is held
+    got = prediction.predict_packs_at_current(est, cutoff, rng=np.random.default_rng(0), n_samples=64)
+    lo, med, hi = got.time_to_cutoff_s[0]
+    # the same draws as the harness's measurement: the kernel's draws first, then the filter's
+    rng = np.random.default_rng(0)
+    prediction.draw_held_current(prediction.HeldCurrentInputs(**{**inputs.__dict__, "calibrated": (None,)}),
+                                 rng=rng, n_samples=64)
+    want = prediction.calibrated_cutoff_quantiles(model, float(inputs.current_a[0]), cutoff_v, rng=rng, n_samples=64)
+    np.testing.assert_array_equal(got.time_to_cutoff_s[0], want)
+    assert abs(med / left_s - 1.0) <= 0.10, (med, left_s)
+    assert lo <= left_s <= hi
+    # the kernel's pack (the paper's LLF20 scaled, a rested voltage linear in charge) says otherwise
+    kernel_only = copy.deepcopy(est)
+    kernel_only.calib = [None]
+    other = prediction.predict_packs_at_current(kernel_only, cutoff, rng=np.random.default_rng(0), n_samples=64)
+    assert abs(other.time_to_cutoff_s[0, 1] / med - 1.0) > 0.10, (other.time_to_cutoff_s[0], med)
+
+
+def test_the_services_count_down_of_a_calibrated_pack_is_its_filters(half_way):
+    from gcs_pdm.service.adapters import prediction_job
+
+    est, left_s, cutoff_v = half_way
+    model = CutoffModel.of(est.calib[0])
+    pred = prediction_job(est, 400.0, 20.0, [], seed=3)()
+    lo, med, hi = pred.pack_time_to_cutoff_s[0]
+    own = model.sample_times(model.recent_current_a, cutoff_v, np.random.default_rng(0), 2000)
+    assert np.quantile(own, 0.05) <= med <= np.quantile(own, 0.95)
+    assert abs(med / left_s - 1.0) <= 0.10, (med, left_s)
+    assert pred.to_dict()["packs"][est.pack_names[0]]["time_to_cutoff_s"][1] == pytest.approx(med, abs=1e-3)
