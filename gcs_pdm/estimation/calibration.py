@@ -22,6 +22,9 @@ The parameters are random walks with small steps; their priors come from the che
 description (cells, capacity: the autopilot's BATT_CAPACITY when the description was derived from
 it) and, when given, the pack's own history (``PackPrior``). After every update they are held
 inside what the chemistry allows (``PARAM_BOUNDS``: a LiPo never rests above 4.25 V per cell).
+The capacity and the curve's scale learn only from evidence that separates them from the dynamics
+(``capacity_separable``): a span of the curve drawn, and a loaded voltage only while the pack's
+temperature stays near where the count started; a rested voltage at any temperature.
 
 **The charge count is the floor.** The filter's SoC is a charge count (SoC' above) that the
 voltage corrects. The voltage is trusted only while it carries information the model can follow:
@@ -96,9 +99,10 @@ LEARN_AFTER_FRACTION = 0.1
 #: ... and, under load, only while the pack is within this many K of its temperature where that
 #: count started: a cell that heats moves its resistance, its curve and its diffusion, the circuit
 #: models only the first (Arrhenius), and the rest of the voltage's drift read as charge — PyBaMM LG
-#: M50 flights heating 20-40 K learned 0.63-1.4x their nominal capacity (truth 1.03x). 4-12 K measure the same on them;
-#: the simulated presets' packs warm 3-5 K in 15 min, and a 30 % small pack must still be learned
-#: there. A rested voltage (no sag to confuse) still teaches the capacity at any temperature
+#: M50 flights heating 20-40 K learned 0.6-1.45x the truth's capacity (4-12 K measure the same on
+#: them). The simulated presets' packs warm 3-5 K in 15 min, and a 30 % small pack must still be
+#: learned there. A rested voltage (no sag to confuse) still teaches the capacity at any temperature
+#: (notes/2026-11-27-capacity-evidence.md)
 CAPACITY_TEMP_SPAN_K = 8.0
 #: share of the loaded sag counted as model error (measurement noise) in a voltage update
 LOAD_MODEL_SIGMA = 0.5
