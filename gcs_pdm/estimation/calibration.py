@@ -22,6 +22,9 @@ The parameters are random walks with small steps; their priors come from the che
 description (cells, capacity: the autopilot's BATT_CAPACITY when the description was derived from
 it) and, when given, the pack's own history (``PackPrior``). After every update they are held
 inside what the chemistry allows (``PARAM_BOUNDS``: a LiPo never rests above 4.25 V per cell).
+The capacity and the curve's scale learn only from evidence that separates them from the dynamics
+(``capacity_separable``): a span of the curve drawn, and a loaded voltage only while the pack's
+temperature stays near where the count started; a rested voltage at any temperature.
 
 **The charge count is the floor.** The filter's SoC is a charge count (SoC' above) that the
 voltage corrects. The voltage is trusted only while it carries information the model can follow:
@@ -93,6 +96,14 @@ REFEREE_SIGMAS = 4.0
 REST_SETTLE_S = 10.0
 #: the capacity and the curve's scale learn once this share of the capacity is drawn since the rest
 LEARN_AFTER_FRACTION = 0.1
+#: ... and, under load, only while the pack is within this many K of its temperature where that
+#: count started: a cell that heats moves its resistance, its curve and its diffusion, the circuit
+#: models only the first (Arrhenius), and the rest of the voltage's drift read as charge — PyBaMM LG
+#: M50 flights heating 20-40 K learned 0.6-1.45x the truth's capacity (4-12 K measure the same on
+#: them). The simulated presets' packs warm 3-5 K in 15 min, and a 30 % small pack must still be
+#: learned there. A rested voltage (no sag to confuse) still teaches the capacity at any temperature
+#: (notes/2026-11-27-capacity-evidence.md)
+CAPACITY_TEMP_SPAN_K = 8.0
 #: share of the loaded sag counted as model error (measurement noise) in a voltage update
 LOAD_MODEL_SIGMA = 0.5
 #: the series resistance's random walk, share of its prior per √s (more lets the SoC trade
@@ -267,6 +278,9 @@ class PackCalibrator:
         #: (V), means over ``RECENT_LOAD_TAU_S`` (NaN before any load): what the model does not explain now
         self.recent_current_a = math.nan
         self.recent_miss_v = math.nan
+        #: the last temperature read (°C) and the one where the charge count started (NaN: none yet)
+        self.temp_c = math.nan
+        self.count_temp_c = math.nan
 
     # ---- model ---------------------------------------------------------------------------------
     def _ocv(self, soc: float) -> tuple[float, float]:
@@ -279,6 +293,9 @@ class PackCalibrator:
         reading is the last one (0 — 25 °C — before any)."""
         if math.isfinite(temperature_c):
             self.last_u = 1.0 / (temperature_c + 273.15) - 1.0 / 298.15
+            self.temp_c = temperature_c
+            if not math.isfinite(self.count_temp_c):
+                self.count_temp_c = temperature_c
         return self.last_u
 
     def _temp_factor(self, temperature_c: float) -> float:
@@ -320,6 +337,7 @@ class PackCalibrator:
         self.P[:, I_COUNT0] = self.P[:, I_SOC]
         self.P[I_COUNT0, I_COUNT0] = self.P[I_SOC, I_SOC]
         self.drawn_c = 0.0
+        self.count_temp_c = self.temp_c
         self.drain = _Drain()
         self.left_rest_s = math.nan
 
@@ -403,8 +421,9 @@ class PackCalibrator:
         # the capacity and the curve's scale are not observable until a span of the curve has been
         # drawn: earlier, every model error would be read as them (measured: the capacity halved
         # within 200 s on a PyBaMM cell). Held (their gain zero; the Joseph form keeps the covariance
-        # right for any gain) until LEARN_AFTER_FRACTION is drawn
-        hold = self.drawn_c < LEARN_AFTER_FRACTION * self.q0
+        # right for any gain) until LEARN_AFTER_FRACTION is drawn, and under load while the pack's
+        # temperature has moved far from the count's start (``capacity_separable``)
+        hold = not self.capacity_separable(i)
         nis = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas)
         self.nis.append(min(nis, 25.0))
         if len(self.nis) > NIS_WINDOW:
@@ -425,6 +444,20 @@ class PackCalibrator:
         np.clip(self.x, self.lo, self.hi, out=self.x)
         self.counters["voltage_updates"] += 1
         self.last_voltage_update_s = t
+
+    def capacity_separable(self, current: float) -> bool:
+        """Whether a voltage at ``current`` can teach the capacity (and the curve's scale) now: a
+        span of the curve has been drawn since the count started (``LEARN_AFTER_FRACTION``), and,
+        under load, the pack is within ``CAPACITY_TEMP_SPAN_K`` of the temperature it started at —
+        else the sag's drift with temperature, which the circuit does not fully model, is what the
+        voltage's fall would teach. At rest there is no sag: a rested voltage after charge drawn is
+        the capacity's cleanest evidence at any temperature."""
+        if self.drawn_c < LEARN_AFTER_FRACTION * self.q0:
+            return False
+        if abs(current) < self.rest_current_a:
+            return True
+        moved = abs(self.temp_c - self.count_temp_c)
+        return not moved > CAPACITY_TEMP_SPAN_K  # no temperature read: nothing moved
 
     def _to_prior(self, soc: float, soc_var: float, v1: float, v1_var: float) -> None:
         """State and covariance at ``soc`` and fast-pair voltage ``v1``, every parameter at its prior."""
