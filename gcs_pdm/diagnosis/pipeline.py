@@ -46,7 +46,7 @@ def _motor_detector(vehicle: VehicleDescription, estimator: StateEstimator, shaf
         if len(estimator.motor_names) != 2:
             raise ValueError(f"vehicle {vehicle.name!r}: motors on one shaft are diagnosed in pairs; it has "
                              f"{len(estimator.motor_names)} motors (set airframe.shared_shaft false)")
-        return MotorPowerLossDetector(estimator.motors.params[0], shaft_config)
+        return MotorPowerLossDetector(estimator.motors.params[0].copy(), shaft_config)  # its own, not a view
     return EscImbalanceDetector(estimator.motor_names, estimator.motors.params,
                                 learn_shares=vehicle.airframe.type == "multirotor")
 
