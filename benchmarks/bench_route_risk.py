@@ -44,7 +44,7 @@ def paper_case():
 
 def quad_case():
     desc = PRESETS["quad-4s"]
-    est = adapters.make_estimator(None, vehicle=desc)
+    est = adapters.make_estimator(desc)
     for t in range(3):
         est.consume(PackFrame(float(t), "battery", 16.0, 11.0, 25.0))
         for m in desc.motor_names:

@@ -12,6 +12,7 @@ import numpy as np
 
 from gcs_pdm.mavlink.replay import replay_tlog
 from gcs_pdm.replay.vehicle import TracedPipeline
+from gcs_pdm.vehicle.presets import PRESETS
 
 sys.path.insert(0, str(Path(__file__).parent / "mavlink"))  # shared helpers; tests/ is not a package
 from mavlink_builders import PacketFactory, tlog_record  # noqa: E402
@@ -35,7 +36,7 @@ def untimed_log(path, stamp_of=lambda i, us: us, seconds=600):
 
 def replayed(path):
     frames = []
-    pipeline = TracedPipeline(None, {}, background=False)
+    pipeline = TracedPipeline(PRESETS["edge540"], {}, background=False)
 
     def consume(frame):
         frames.append(frame)

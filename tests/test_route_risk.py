@@ -111,7 +111,7 @@ def test_per_sample_outputs_agree_with_the_quantiles():
 # --- any vehicle -----------------------------------------------------------------------------------
 
 def _described_estimator(desc, voltage: float, current: float):
-    est = adapters.make_estimator(None, vehicle=desc)
+    est = adapters.make_estimator(desc)
     for t in range(3):
         est.consume(PackFrame(float(t), desc.pack_names[0], voltage, current, 25.0))
         for m in desc.motor_names:

@@ -20,8 +20,10 @@ from gcs_pdm.diagnosis.prognosis import PrognosisConfig, PrognosisMonitor
 from gcs_pdm.estimation.estimator import EstimatorConfig, StateEstimator
 from gcs_pdm.estimation.prediction import FutureLoad
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
-from gcs_pdm.models.params import ParameterSet, default_set
+from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.models.powertrain import Limits
+from gcs_pdm.vehicle.description import VehicleDescription
+from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 log = logging.getLogger(__name__)
 
@@ -32,30 +34,41 @@ log = logging.getLogger(__name__)
 CONSUMED_FRAME_TYPES = frozenset({PackFrame, MotorFrame, AmbientFrame})
 
 
+def _motor_detector(vehicle: VehicleDescription, estimator: StateEstimator, shaft_config: MotorPowerConfig):
+    """The detector of ``vehicle``'s motor power loss, by what its airframe and telemetry show
+    (``motor_diagnosis_capability``): motors on one shaft (two, one type: the paper's) by their
+    shares of the shaft power; others by the ESCs' imbalance, a multirotor's healthy motors each
+    against its own share, learned early in the flight (trim, centre of gravity); else none."""
+    diagnosable, _how = motor_diagnosis_capability(vehicle)
+    if not diagnosable:
+        return NoMotorDiagnosis(len(estimator.motor_names))
+    if vehicle.airframe.type == "fixed_wing" and vehicle.airframe.shared_shaft:
+        if len(estimator.motor_names) != 2:
+            raise ValueError(f"vehicle {vehicle.name!r}: motors on one shaft are diagnosed in pairs; it has "
+                             f"{len(estimator.motor_names)} motors (set airframe.shared_shaft false)")
+        return MotorPowerLossDetector(estimator.motors.params[0].copy(), shaft_config)  # its own, not a view
+    return EscImbalanceDetector(estimator.motor_names, estimator.motors.params,
+                                learn_shares=vehicle.airframe.type == "multirotor")
+
+
 class DiagnosisPipeline:
-    def __init__(self, params: ParameterSet | None = None, *, limits: Limits = Limits(),
+    def __init__(self, params: ParameterSet | None = None, *, limits: Limits | None = None,
                  estimator_config: EstimatorConfig = EstimatorConfig(),
                  motor_config: MotorPowerConfig = MotorPowerConfig(),
                  pack_config: PackHealthConfig = PackHealthConfig(),
                  prognosis_config: PrognosisConfig = PrognosisConfig(), seed: int = 0,
-                 pair_within_s: float = 0.6, voltage_fresh_s: float = 3.0, vehicle=None):
-        """``vehicle``: a ``VehicleDescription`` to diagnose instead of the paper's aircraft (its
-        packs and motors; motor power loss from the ESCs' imbalance where its telemetry shows it)."""
+                 pair_within_s: float = 0.6, voltage_fresh_s: float = 3.0,
+                 vehicle: VehicleDescription = PRESETS[DEFAULT_PRESET]):
+        """``vehicle``: the ``VehicleDescription`` diagnosed (its packs and motors; the paper's
+        aircraft is the ``edge540`` preset); ``params``: a parameter set flown over its values
+        (``StateEstimator``); ``limits``: one limit for every pack and motor in the prognosis (a
+        scenario's) instead of the description's. Motor power loss: motors on one shaft by their
+        shares of the shaft power, others by the ESCs' imbalance, where the telemetry shows it."""
         self.vehicle = vehicle
-        if vehicle is None:
-            self.params = params or default_set()
-            self.estimator = StateEstimator(self.params, estimator_config)
-            self.motor_power = MotorPowerLossDetector(self.params.motor_vector(), motor_config)
-            self.motor_diagnosis = "motors on one shaft: their shares of the shaft power"
-        else:
-            self.params = None
-            self.estimator = StateEstimator(config=estimator_config, vehicle=vehicle)
-            diagnosable, self.motor_diagnosis = motor_diagnosis_capability(vehicle)
-            # a multirotor's healthy motors carry unequal shares (trim, centre of gravity): each is
-            # judged against its own, learned early in the flight (motor_imbalance's docstring)
-            self.motor_power = (EscImbalanceDetector(self.estimator.motor_names, self.estimator.motors.params,
-                                                     learn_shares=vehicle.airframe.type == "multirotor")
-                                if diagnosable else NoMotorDiagnosis(len(self.estimator.motor_names)))
+        self.params = params
+        self.estimator = StateEstimator(params, estimator_config, vehicle=vehicle)
+        self.motor_power = _motor_detector(vehicle, self.estimator, motor_config)
+        self.motor_diagnosis = motor_diagnosis_capability(vehicle)[1]
         est = self.estimator
         self.pack_health = PackHealthMonitor(est.packs.params.copy(), pack_config, names=est.pack_names)
         self.prognosis = PrognosisMonitor(limits, prognosis_config, seed=seed)

@@ -80,7 +80,8 @@ class PrognosisConfig:
 
 
 class PrognosisMonitor:
-    def __init__(self, limits: Limits = Limits(), config: PrognosisConfig = PrognosisConfig(), seed: int = 0):
+    def __init__(self, limits: Limits | None = None, config: PrognosisConfig = PrognosisConfig(), seed: int = 0):
+        #: one limit for every pack and motor (a scenario's); None: the vehicle's own per pack and motor
         self.limits = limits
         self.config = config
         self.rng = np.random.default_rng(seed)

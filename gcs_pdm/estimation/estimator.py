@@ -27,14 +27,12 @@ from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import PowertrainState
-from gcs_pdm.models.topology import PAPER_TOPOLOGY
+from gcs_pdm.vehicle.description import VehicleDescription
+from gcs_pdm.vehicle.model_inputs import model_inputs
+from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 log = logging.getLogger(__name__)
 
-#: pack index -> the other pack in its series string, and its motor (the paper's aircraft, the
-#: layout used when no vehicle description is given)
-STRING_MATE = {0: 2, 2: 0, 1: 3, 3: 1}
-MOTOR_OF_PACK = {b: int(kernel.STRING_OF_PACK[b]) for b in range(4)}
 #: outside these the estimate is not a state the model can be in: report a mismatch instead
 SOC_RANGE = (0.0, 1.0)
 TEMPERATURE_RANGE_C = (-100.0, 100.0)
@@ -162,54 +160,37 @@ class _ArrayCopy:
 class StateEstimator:
     """Per-pack UKF and per-motor thermal filter, driven frame by frame.
 
-    Without ``vehicle`` the packs and motors are the paper's aircraft with ``params``; with a
-    vehicle description (``gcs_pdm.vehicle``) they are the description's, in its order, with
-    their parameters from it (``params`` is then ignored and may be None)."""
+    The packs and motors are ``vehicle``'s (a ``VehicleDescription``; the paper's aircraft is the
+    ``edge540`` preset), in its order, on its buses. ``params``: a parameter set (the paper's, a
+    learned one) whose values are flown over the description's (``model_inputs(vehicle, params)``:
+    each pack's by its name, extended packs on their extended filter); such packs are flown as the
+    set has them, never self-calibrated."""
 
     def __init__(self, params: ParameterSet | None = None, config: EstimatorConfig = EstimatorConfig(), *,
-                 vehicle=None):
+                 vehicle: VehicleDescription = PRESETS[DEFAULT_PRESET]):
+        #: the parameter set flown over the description's values (None: the description's own)
         self.params = params
-        #: the vehicle description the packs and motors come from (None: the paper's aircraft)
+        #: the vehicle description the packs and motors come from
         self.vehicle = vehicle
         self.config = config
-        ext_rows: dict[int, str] = {}
-        if vehicle is not None:
-            from gcs_pdm.vehicle.model_inputs import model_inputs
-
-            inputs = model_inputs(vehicle)
-            self.inputs = inputs
-            #: which bus each pack and motor is on, and how each bus joins its packs
-            self.topology = inputs.topology
-            self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
-            pack_matrix, motor_matrix = inputs.pack_matrix, inputs.motor_matrix
-            self._mates = {b: inputs.series_mates(b) for b in range(inputs.n_packs)}
-            self._motors_of_pack = {b: inputs.motors_of_pack(b) for b in range(inputs.n_packs)}
-            self._packs_of_motor = {q: inputs.packs_of_motor(q) for q in range(inputs.n_motors)}
-            self._pack_reports_temp = np.array([p.reports_temperature for p in vehicle.packs])
-            self._motor_reports = {m.name: m.readings for m in vehicle.motors}
-            # one other sensor against the pack's own reading cannot say which is wrong (stock
-            # ArduPilot SITL's ESC current is a tenth of its battery current): need two
-            self._min_references = 2
-            # a derived (provisional) description's packs start from the chemistry table's curve; a
-            # described pack from its own model's; a pack described as fitted (edge540's) keeps it
-            calib = [PackCalibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
-                     if config.self_calibrate and p.self_calibrate else None for b, p in enumerate(vehicle.packs)]
-        else:
-            if params is None:
-                raise ValueError("StateEstimator: give a parameter set or a vehicle description")
-            ext_rows = {b: n for b, n in enumerate(PACK_NAMES) if params.packs[n].model == "extended"}
-            #: the description's model inputs (None: the paper's aircraft)
-            self.inputs = None
-            self.topology = PAPER_TOPOLOGY  # edge540's buses: two series strings, one motor each
-            self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
-            pack_matrix, motor_matrix = params.pack_matrix(), params.motor_vector()
-            self._mates = {b: (m,) for b, m in STRING_MATE.items()}
-            self._motors_of_pack = {b: (q,) for b, q in MOTOR_OF_PACK.items()}
-            self._packs_of_motor = {q: tuple(b for b in range(4) if MOTOR_OF_PACK[b] == q) for q in range(2)}
-            self._pack_reports_temp = np.ones(4, dtype=bool)
-            self._motor_reports = {}
-            self._min_references = 1
-            calib = [None] * len(PACK_NAMES)  # a parameter set's packs are flown as they are
+        inputs = self.inputs = model_inputs(vehicle, params)
+        #: which bus each pack and motor is on, and how each bus joins its packs
+        self.topology = inputs.topology
+        self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
+        pack_matrix, motor_matrix = inputs.pack_matrix, inputs.motor_matrix
+        self._mates = {b: inputs.series_mates(b) for b in range(inputs.n_packs)}
+        self._motors_of_pack = {b: inputs.motors_of_pack(b) for b in range(inputs.n_packs)}
+        self._packs_of_motor = {q: inputs.packs_of_motor(q) for q in range(inputs.n_motors)}
+        self._pack_reports_temp = np.array([p.reports_temperature for p in vehicle.packs])
+        self._motor_reports = {m.name: m.readings for m in vehicle.motors}
+        self._min_references = vehicle.current_references
+        # a derived (provisional) description's packs start from the chemistry table's curve; a
+        # described pack from its own model's; a pack described as fitted (edge540's) keeps it, and so
+        # does every pack of a parameter set flown over the description
+        calib = [PackCalibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
+                 if config.self_calibrate and p.self_calibrate and not inputs.from_parameter_set else None
+                 for b, p in enumerate(vehicle.packs)]
+        ext_vectors = inputs.extended_packs
         self._base_pack_matrix = np.array(pack_matrix, copy=True)
         #: per pack: its self-calibrating filter (None: the paper filter's SoC: a pack described
         #: with ``self_calibrate`` off, as edge540's, or a parameter set's). The paper filter then
@@ -221,9 +202,9 @@ class StateEstimator:
         # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper
         # filter keeps running on their paper values for the users of the paper layout (the
         # diagnoser's pack-health fit, the planner's state)
-        self.ext_row = {b: r for r, b in enumerate(sorted(ext_rows))}
-        self.ext = (ExtendedPackFilterBank(np.stack([params.packs[ext_rows[b]].extended_vector() for b in sorted(ext_rows)]),
-                                           config.pack) if ext_rows else None)
+        self.ext_row = {b: r for r, b in enumerate(sorted(ext_vectors))}
+        self.ext = (ExtendedPackFilterBank(np.stack([ext_vectors[b] for b in sorted(ext_vectors)]), config.pack)
+                    if ext_vectors else None)
         self._base_ext_matrix = None if self.ext is None else self.ext.params.copy()
         self.motors = MotorThermalFilter(motor_matrix, n_motors, config.motor)
         self.ambient_c = config.default_ambient_c

@@ -3,7 +3,7 @@
 From the estimator's state (mean and covariance of every pack, motor temperatures), draw N
 samples of the state *and* of the parameters (multiplicative log-normal spread around the
 parameter set — the model's own uncertainty), and fly all of them through the future shaft-power
-profile in ONE ``topology.simulate_powertrain`` call with ``stop_on_failure``. Each sample stops at
+profile in ONE ``topology.simulate_vehicle`` call with ``stop_on_failure``. Each sample stops at
 its first failure (cut-off voltage, depletion, over-temperature, power); the spread of the
 results is the prediction's uncertainty.
 
@@ -26,8 +26,12 @@ from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
 from gcs_pdm.models.powertrain import Limits
+from gcs_pdm.vehicle.model_inputs import ModelInputs, model_inputs
+from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 QUANTILES = (0.05, 0.5, 0.95)
+#: the paper's aircraft (the ``edge540`` preset): what ``predict`` flies when no vehicle is named
+EDGE540_INPUTS = model_inputs(PRESETS[DEFAULT_PRESET])
 
 
 @dataclass(frozen=True)
@@ -190,39 +194,43 @@ def restate(base: np.ndarray, x: np.ndarray, sampled: np.ndarray) -> np.ndarray:
 
 def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: np.ndarray,
             motor_temp_sd: np.ndarray, load: FutureLoad, *, rng: np.random.Generator, n_samples: int = 100,
-            param_rel_sigma: float = 0.08, fault: np.ndarray | None = None, limits: Limits = Limits(),
+            param_rel_sigma: float = 0.08, fault: np.ndarray | None = None, limits: Limits | None = None,
             trajectories: bool = True, stop_on_failure: bool = True, trajectory_every_s: float = 10.0,
-            vehicle=None, per_sample: bool = False, extended=None) -> Prediction:
+            vehicle: ModelInputs = EDGE540_INPUTS, per_sample: bool = False, extended=None) -> Prediction:
     """Monte Carlo prediction over state and parameter uncertainty (one kernel call).
 
-    ``params``: a ParameterSet or a (pack matrix (4, 12), motor vector (5,)) pair.
+    ``vehicle``: the description's ``ModelInputs`` (its P packs, M motors, buses and per-pack and
+    per-motor limits; default the paper's aircraft, ``edge540``). ``params``: a ParameterSet or a
+    (pack matrix (P, 12), motor vector (5,) or matrix (M, 5)) pair. Motors with one parameter
+    vector are one type and share each sample's draw (as the planner's risk draws do).
 
-    ``fault``: (2,) motor fault magnitudes (fwd, aft) believed present — the diagnoser's faults.
+    ``fault``: (M,) motor fault magnitudes believed present — the diagnoser's faults.
+    ``limits``: one ``Limits`` for every pack and motor instead of the description's (a scenario's).
     With ``stop_on_failure`` a sample ends at the vehicle's first failure, so a pack that had not
     reached its cut-off by then reports ``inf`` for that sample; pass ``False`` to run every sample
     through the whole horizon and read each pack's own cut-off time.
-
-    ``vehicle``: a description's ``ModelInputs``; then ``params`` is a (pack matrix (P, 12), motor
-    matrix (M, 5)) pair, ``fault`` is (M,), the limits are the description's per pack and motor, and
-    the samples fly ``models.topology.simulate_vehicle`` instead of the paper's four-pack layout.
 
     ``per_sample``: also report each sample's failure time and cause and its packs' SoC at the end
     of the load (``Prediction.sample_*``), for a caller that needs more than the quantiles (a
     route's landing SoC over the samples that land).
 
-    ``extended``: an ``extended_prediction.ExtendedPacks`` (the paper's aircraft only): those packs
-    are drawn from their extended filter and fly the kernel's extended variant
-    (``topology.simulate_vehicle_extended``)."""
+    ``extended``: an ``extended_prediction.ExtendedPacks``: those packs are drawn from their
+    extended filter and fly the kernel's extended variant (``topology.simulate_vehicle_extended``)."""
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
-    pp, mp = sample_parameters(params, n_samples, rng, param_rel_sigma)
+    n_motors = vehicle.n_motors
+    packs0, motors0 = base_arrays(params)
+    motor_types, type_of_motor = np.unique(np.broadcast_to(motors0, (n_motors, kernel.N_MOTOR_PARAMS)), axis=0,
+                                           return_inverse=True)
+    pp, mp = sample_parameters((packs0, motor_types), n_samples, rng, param_rel_sigma)
+    mp = mp[:, np.asarray(type_of_motor).reshape(-1)]  # (n, M, 5): each motor its type's draw
     x0, tm0 = sample_states(np.asarray(pack_mean, dtype=np.float64), np.asarray(pack_cov, dtype=np.float64),
                             np.asarray(motor_temp_c, dtype=np.float64), np.asarray(motor_temp_sd, dtype=np.float64),
                             n_samples, rng)
-    x0 = restate(base_arrays(params)[0], x0, pp)
+    x0 = restate(packs0, x0, pp)
     if extended is not None:
         x0, ep = extended.sample(x0, n_samples, rng, param_rel_sigma)
-    n_motors = 2 if vehicle is None else vehicle.n_motors
+    topo = vehicle.topology if limits is None else vehicle.topology.with_limits(*limits.as_tuple())
     f = np.zeros((1, n_motors)) if fault is None else np.clip(
         np.asarray(fault, dtype=np.float64).reshape(1, n_motors), 0.0, 1.0)
     dt = np.asarray(load.dt, dtype=np.float64)
@@ -246,17 +254,12 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         keeps each pack's end — cut-off or empty — and the peaks to the first failure as it flies;
         per-step values only on the trajectories' coarse grid)."""
         f_rows = f if f.shape[0] == 1 else f[rows]
-        if extended is not None:
-            run = topology.simulate_vehicle_extended(
-                topology.PAPER_TOPOLOGY.with_limits(*limits.as_tuple()), pp[rows], ep[rows], extended.is_ext,
-                np.repeat(mp[rows][:, None, :], 2, axis=1), x0[rows], tm0[rows], dt, power, amb, f_rows,
-                stop_on_failure=stop_on_failure, record_at=rec_k)
-        elif vehicle is None:
-            run = topology.simulate_powertrain(pp[rows], mp[rows], x0[rows], tm0[rows], dt, power, amb, f_rows,
-                                               limits=limits.as_tuple(), stop_on_failure=stop_on_failure,
-                                               record_at=rec_k)
+        if extended is not None:  # some packs on the extended variant: the kernel's extended driver
+            run = topology.simulate_vehicle_extended(topo, pp[rows], ep[rows], extended.is_ext, mp[rows], x0[rows],
+                                                     tm0[rows], dt, power, amb, f_rows,
+                                                     stop_on_failure=stop_on_failure, record_at=rec_k)
         else:
-            run = topology.simulate_vehicle(vehicle, pp[rows], mp[rows], x0[rows], tm0[rows], dt, power, amb, f_rows,
+            run = topology.simulate_vehicle(topo, pp[rows], mp[rows], x0[rows], tm0[rows], dt, power, amb, f_rows,
                                             stop_on_failure=stop_on_failure, record_at=rec_k)
         out = {"fail_step": run.fail_step, "fail_cause": run.fail_cause, "reached": run.pack_end_step >= 0,
                "k_cut": run.pack_end_step, "energy": run.pack_end_energy_j,
@@ -290,7 +293,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         pack_energy_to_cutoff_j=np.quantile(energy, QUANTILES, axis=0, method="nearest").T,
         peak_pack_temp_c=np.quantile(peak_pack, QUANTILES, axis=0, method="nearest").T,
         peak_motor_temp_c=np.quantile(peak_motor, QUANTILES, axis=0, method="nearest").T,
-        **({} if vehicle is None else {"pack_names": vehicle.pack_names, "motor_names": vehicle.motor_names}),
+        pack_names=vehicle.pack_names, motor_names=vehicle.motor_names,
         **({} if not per_sample else {"sample_failure_time_s": ttf,
                                       "sample_failure_cause": np.where(failed, run["fail_cause"], kernel.FAIL_NONE),
                                       "sample_end_soc": run["end_soc"]}),
@@ -399,12 +402,9 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
     inflation = estimator.prediction_inflation()
     cov *= inflation[:, None, None]  # wider while a pack does not match its model
-    inputs = getattr(estimator, "inputs", None)
-    if inputs is not None:
-        return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
-                       n_samples=n_samples, fault=fault, vehicle=inputs, **kw)
-    return predict((packs.params, estimator.motors.params[0]), packs.mean, cov, tm, tm_sd, load, rng=rng,
-                   n_samples=n_samples, fault=fault, extended=ExtendedPacks.of(estimator, inflation), **kw)
+    return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
+                   n_samples=n_samples, fault=fault, vehicle=estimator.inputs,
+                   extended=ExtendedPacks.of(estimator, inflation), **kw)
 
 
 @dataclass(frozen=True)

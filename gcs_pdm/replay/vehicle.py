@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from gcs_pdm.vehicle.description import VehicleDescription, VehicleError
-from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS, is_paper_aircraft, resolve
+from gcs_pdm.vehicle.presets import resolve
 
 #: a pack is "drawing" (its time to cut-off is worth predicting) from this current, A
 DRAWING_CURRENT_A = 1.0
@@ -41,13 +41,11 @@ def replay_vehicle(log: Path, spec: str | None) -> tuple[VehicleDescription | No
                   "save": f"gcs-pdm vehicle init --from {log} --out vehicle.toml"}
 
 
-def pipeline_for(desc: VehicleDescription | None, params=None, **kwargs):
-    """The diagnosis pipeline for a description (the paper's own for ``edge540`` or None)."""
+def pipeline_for(desc: VehicleDescription, params=None, **kwargs):
+    """The diagnosis pipeline for a description, ``params`` (a parameter set) flown over its values."""
     from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 
-    if desc is None or is_paper_aircraft(desc):
-        return DiagnosisPipeline(params, **kwargs)
-    return DiagnosisPipeline(vehicle=desc, **kwargs)
+    return DiagnosisPipeline(params, vehicle=desc, **kwargs)
 
 
 class TracedPipeline:
@@ -61,7 +59,7 @@ class TracedPipeline:
     twice, not at every chunk); ``report`` reduces the flights to quantiles in order. The same
     numbers as ``background=False`` (all on the calling thread)."""
 
-    def __init__(self, desc: VehicleDescription | None, about: dict, *, period_s: float = 30.0, seed: int = 0,
+    def __init__(self, desc: VehicleDescription, about: dict, *, period_s: float = 30.0, seed: int = 0,
                  background: bool = True):
         from gcs_pdm.estimation.flight_conditions import FlightConditions
         from gcs_pdm.vehicle.model_inputs import model_inputs
@@ -69,8 +67,8 @@ class TracedPipeline:
         self.pipeline = pipeline_for(desc)
         self.about = about
         self.period_s = period_s
-        #: the vehicle flown: none derived is the paper's aircraft, the edge540 preset (as the service)
-        self.vehicle = desc if desc is not None else PRESETS[DEFAULT_PRESET]
+        #: the vehicle flown (``gcs-pdm replay`` resolves none given and none derived to ``edge540``)
+        self.vehicle = desc
         self.cutoff_v = model_inputs(self.vehicle).pack_cutoff_v
         #: the prediction's inputs from the flight, worked out as the live service does
         self.conditions = FlightConditions()

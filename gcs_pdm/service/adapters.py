@@ -23,15 +23,12 @@ log = logging.getLogger(__name__)
 
 # --- estimation --------------------------------------------------------------------------------
 
-def make_estimator(params: ParameterSet, vehicle=None):
-    """The estimator of ``vehicle`` (a ``VehicleDescription``), or the paper's aircraft on ``params``
-    (None or the ``edge540`` preset: the paper's code path with the active parameter set)."""
+def make_estimator(vehicle, params: ParameterSet | None = None):
+    """The estimator of ``vehicle`` (a ``VehicleDescription``), ``params`` (a parameter set: the
+    service's ``parameter_override()``) flown over its values."""
     from gcs_pdm.estimation.estimator import StateEstimator
-    from gcs_pdm.vehicle.presets import is_paper_aircraft
 
-    if vehicle is None or is_paper_aircraft(vehicle):
-        return StateEstimator(params)
-    return StateEstimator(vehicle=vehicle)
+    return StateEstimator(params, vehicle=vehicle)
 
 
 def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Sequence[MotorFault], limits=None,
@@ -41,21 +38,19 @@ def prediction_job(estimator, shaft_power_w: float, ambient_c: float, faults: Se
     The estimator is copied here (on the telemetry thread) so the prediction can run on a worker
     while the filters move on; the prediction itself is the estimation package's
     ``predict_from_estimator`` (the diagnoser's prognosis uses the same one, capacity spread included).
-    An estimator built from a description flies its packs and motors (``faults`` by its motor
-    names, its own limits; ``limits`` is the paper aircraft's); its self-calibrated packs' times
-    to cut-off are their own filters' (``prediction.with_calibrated_cutoffs``)."""
+    The estimator's vehicle flies its packs and motors (``faults`` by its motor names) with its own
+    limits, or ``limits`` (a ``Limits``: the service's ``limits_override()``) for every pack and motor;
+    its self-calibrated packs' times to cut-off are their own filters' (``prediction.with_calibrated_cutoffs``)."""
     from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator, with_calibrated_cutoffs
-    from gcs_pdm.models.powertrain import Limits, fault_vector
+    from gcs_pdm.models.powertrain import fault_vector
 
     frozen = copy.deepcopy(estimator)
     load = FutureLoad.constant(shaft_power_w, horizon_s, step_s, ambient_c)
-    inputs = getattr(estimator, "inputs", None)
-    fv = fault_vector(list(faults), None if inputs is None else inputs.motor_names)
-    lim = limits or Limits()
+    fv = fault_vector(list(faults), estimator.motor_names)
 
     def run():
         rng = np.random.default_rng(seed)
-        pred = predict_from_estimator(frozen, load, rng=rng, n_samples=n_samples, fault=fv, limits=lim,
+        pred = predict_from_estimator(frozen, load, rng=rng, n_samples=n_samples, fault=fv, limits=limits,
                                       trajectories=False,
                                       stop_on_failure=False)  # each pack to its own cut-off, not only the first
         # a self-calibrated pack's count-down is its own filter's, as in the held-current prediction
@@ -74,9 +69,9 @@ def route_risk(estimator, load, faults: Sequence[MotorFault], limits=None, *, n_
     frozen estimator, through the estimation package's ``predict_from_estimator`` (state and
     parameter uncertainty, the believed motor faults): one batched call of ``n_samples``.
 
-    Any vehicle: an estimator built from a description (``make_estimator(vehicle=…)``) flies its
-    own packs, buses and motors with the description's limits, and ``faults`` name its motors
-    (``powertrain.fault_vector``); the paper's aircraft flies its two-motor layout with ``limits``.
+    Any vehicle: the estimator's vehicle flies its own packs, buses and motors with the
+    description's limits (or ``limits``, one for every pack and motor), and ``faults`` name its
+    motors (``powertrain.fault_vector``).
 
     A sample fails if any failure (cut-off, depletion, over-temperature, power) occurs on the way.
     ``landing_soc`` is the lowest pack's SoC at the landing of the samples that land (5/50/95 %
@@ -84,14 +79,13 @@ def route_risk(estimator, load, faults: Sequence[MotorFault], limits=None, *, n_
     says how many they are. Two routes assessed with one ``seed`` start from the same state and
     parameter draws, so their difference is the route's."""
     from gcs_pdm.estimation.prediction import QUANTILES, predict_from_estimator
-    from gcs_pdm.models.powertrain import Limits, fault_vector
+    from gcs_pdm.models.powertrain import fault_vector
 
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
-    inputs = getattr(estimator, "inputs", None)
-    fv = fault_vector(list(faults), None if inputs is None else inputs.motor_names)
+    fv = fault_vector(list(faults), estimator.motor_names)
     p = predict_from_estimator(estimator, load, rng=np.random.default_rng(seed), n_samples=n_samples, fault=fv,
-                               limits=limits or Limits(), trajectories=False, per_sample=True)
+                               limits=limits, trajectories=False, per_sample=True)
     landed = ~np.isfinite(p.sample_failure_time_s)
     soc = p.sample_end_soc[landed]  # (landed samples, packs)
 
@@ -104,13 +98,6 @@ def route_risk(estimator, load, faults: Sequence[MotorFault], limits=None, *, n_
     return {"failure_probability": p.p_failure, "failure_causes": dict(p.failure_causes), "n_samples": n_samples,
             "seed": seed, "landing_samples": int(landed.sum()), "landing_soc": q(soc.min(axis=1)),
             "landing_soc_packs": {n: q(soc[:, i]) for i, n in enumerate(p.pack_names)}}
-
-
-def follows_description(vehicle) -> bool:
-    """A vehicle description other than the paper's aircraft (whose own code path runs for it)."""
-    from gcs_pdm.vehicle.presets import is_paper_aircraft
-
-    return vehicle is not None and not is_paper_aircraft(vehicle)
 
 
 def cutoff_at_present_draw_job(estimator, vehicle, *, n_samples: int = 64, seed: int = 0):
@@ -126,15 +113,13 @@ def cutoff_at_present_draw_job(estimator, vehicle, *, n_samples: int = 64, seed:
 
 # --- diagnosis ---------------------------------------------------------------------------------
 
-def make_diagnoser(params: ParameterSet, limits=None, vehicle=None):
-    """The diagnosis pipeline: ``.consume(frame)``, ``active_faults()``, ``readiness()``; of
-    ``vehicle`` or (None, ``edge540``) the paper's aircraft on ``params``."""
-    from gcs_pdm.vehicle.presets import is_paper_aircraft
+def make_diagnoser(vehicle, params: ParameterSet | None = None, limits=None):
+    """The diagnosis pipeline of ``vehicle``: ``.consume(frame)``, ``active_faults()``,
+    ``readiness()``; ``params`` flown over its values, ``limits`` (a ``Limits``) for every pack and
+    motor in its prognosis (the service's ``parameter_override()``, ``limits_override()``)."""
     from gcs_pdm.replay.vehicle import pipeline_for
 
-    # the scenario's limits are the paper aircraft's; a described vehicle carries its own
-    paper = vehicle is None or is_paper_aircraft(vehicle)
-    return pipeline_for(vehicle, params, limits=limits) if paper and limits is not None else pipeline_for(vehicle, params)
+    return pipeline_for(vehicle, params, limits=limits)
 
 
 def estimator_of(diagnoser):

@@ -54,11 +54,11 @@ class LiveLoop:
             service.describe_vehicle(None, "deriving", waiting=self.discovery.waiting())
         elif service.vehicle is None:
             service.describe_vehicle(PRESETS["edge540"], "default")
-        self.diagnoser = diagnoser if diagnoser is not None else adapters.make_diagnoser(
-            service.params, service.limits.kernel_limits() if service.limits is not None else None,
-            vehicle=service.vehicle)
+        # none given and none to derive: the paper's aircraft, the edge540 preset
+        vehicle = service.vehicle or PRESETS["edge540"]
+        self.diagnoser = diagnoser if diagnoser is not None else self._make_diagnoser(vehicle)
         shared = adapters.estimator_of(self.diagnoser) if estimator is None else None
-        self.estimator = estimator or shared or adapters.make_estimator(service.params, service.vehicle)
+        self.estimator = estimator or shared or adapters.make_estimator(vehicle, service.parameter_override(vehicle))
         self.telemetry = TelemetryIntake(service, link, self.estimator, self.diagnoser, feed_estimator=shared is None)
         self._last_reevaluation_s = -math.inf
         self.faults = FaultTracker(service, self.diagnoser)
@@ -101,13 +101,18 @@ class LiveLoop:
 
     # --- the vehicle description and readiness ----------------------------------------------------
 
+    def _make_diagnoser(self, vehicle):
+        """The diagnoser of ``vehicle`` with the service's overrides of its values and limits."""
+        svc = self.service
+        return adapters.make_diagnoser(vehicle, svc.parameter_override(vehicle), svc.limits_override(vehicle))
+
     def adopt_vehicle(self, desc, notes: list[str]) -> None:
         """A description derived from the first telemetry: the link maps its packs and motors from
         now on, and the estimator and diagnoser are built from it (on the telemetry thread)."""
         from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping
 
         self.link.mapper.remap(frame_mapping(desc), envelope(desc))
-        self.diagnoser = adapters.make_diagnoser(self.service.params, vehicle=desc)
+        self.diagnoser = self._make_diagnoser(desc)
         self.estimator = adapters.estimator_of(self.diagnoser)
         for part in (self.telemetry, self.executor):
             part.estimator, part.diagnoser = self.estimator, self.diagnoser
@@ -121,9 +126,7 @@ class LiveLoop:
         if rebooted:
             self.telemetry.restart_clock()
         if (rebooted or self._flights_begun) and self._owns_filters and self.service.vehicle is not None:
-            self.diagnoser = adapters.make_diagnoser(
-                self.service.params, self.service.limits.kernel_limits() if self.service.limits is not None else None,
-                vehicle=self.service.vehicle)
+            self.diagnoser = self._make_diagnoser(self.service.vehicle)
             self.estimator = adapters.estimator_of(self.diagnoser)
             for part in (self.telemetry, self.executor):
                 part.estimator, part.diagnoser = self.estimator, self.diagnoser

@@ -448,7 +448,7 @@ class PlanExecutor:
         the snapshot's estimator flies the description's packs and motors (its faults by the
         description's motor names, its limits). Without an estimate or a route load a candidate
         gets ``risk_unknown`` with the reason instead."""
-        limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
+        limits = self.service.limits_override(self.service.vehicle)
         out, new_chosen = [], chosen
         for c in cands:
             if c.name not in (chosen.name, "keep"):

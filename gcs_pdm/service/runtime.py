@@ -16,6 +16,7 @@ from gcs_pdm.service.jobs import JobRunner
 from gcs_pdm.service.live_state import LiveState
 from gcs_pdm.service.status_report import model_variant_report
 from gcs_pdm.service.storage import Conflict, NotFound, Store
+from gcs_pdm.vehicle.presets import is_paper_aircraft
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +105,23 @@ class Service:
         from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
         return self.vehicle if self.vehicle is not None else PRESETS[DEFAULT_PRESET]
+
+    # The active parameter set and a scenario's limits are the paper layout's (its four packs by name,
+    # one cut-off for 5S packs): they are flown over the paper's aircraft only; any other vehicle
+    # flies its description's own values and per-pack limits (a 4S pack would "fail" at 17.5 V).
+    # Resolved here, at the service's entry point, so the core below takes one vehicle and overrides.
+
+    def parameter_override(self, vehicle) -> ParameterSet | None:
+        """The parameter set to fly over ``vehicle``'s description values: the active one for the
+        paper's aircraft (``edge540``), else None (the description's own)."""
+        return self.params if is_paper_aircraft(vehicle) else None
+
+    def limits_override(self, vehicle):
+        """One ``Limits`` for every pack and motor of ``vehicle`` (the scenario's, for the paper's
+        aircraft), else None: the description's per pack and motor."""
+        if self.limits is None or not is_paper_aircraft(vehicle):
+            return None
+        return self.limits.kernel_limits()
 
     def adopt_vehicle(self, desc, source: str, notes: list[str]) -> None:
         """A description the service now follows (derived from telemetry): said in /status, the log

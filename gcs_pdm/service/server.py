@@ -10,7 +10,6 @@ import time
 
 import uvicorn
 
-from gcs_pdm.service import adapters
 from gcs_pdm.service.api import create_app
 from gcs_pdm.service.config import ServiceConfig
 from gcs_pdm.service.runtime import Service
@@ -85,17 +84,19 @@ def start_mavlink(service: Service):
         tlog_path = str(folder / time.strftime("live_%Y%m%dT%H%M%S.tlog"))
     target = None if cfg.target_system == "auto" else cfg.target_system
     # Frames are mapped by the vehicle description's pack ids and ESC indices, and gated against what
-    # its packs (the paper's aircraft: the active parameter set's) can physically report. Without a
-    # description no pack or motor is mapped until one is derived (service/vehicle_discovery.py).
+    # its packs (with a parameter set flown over them, the paper's aircraft: that set's) can physically
+    # report. Without a description no pack or motor is mapped until one is derived
+    # (service/vehicle_discovery.py).
     from gcs_pdm.mavlink.vehicle_mapping import envelope, frame_mapping, waiting_mapping
 
     desc = service.vehicle
+    override = service.parameter_override(desc)
     if desc is None:
         mapper = FrameMapper(waiting_mapping(), target_system=target)
-    elif adapters.follows_description(desc):
+    elif override is None:
         mapper = FrameMapper(frame_mapping(desc), target_system=target, envelope=envelope(desc))
     else:
-        mapper = FrameMapper(target_system=target, envelope=PhysicalEnvelope.from_parameter_set(service.params))
+        mapper = FrameMapper(target_system=target, envelope=PhysicalEnvelope.from_parameter_set(override))
     link = Link(LinkConfig(url=cfg.mavlink_url, source_system=cfg.source_system,
                            source_component=cfg.source_component, signing_key_file=cfg.signing_key_file,
                            target_system=target, tlog_path=tlog_path), mapper).start()

@@ -353,9 +353,9 @@ class TelemetryIntake:
         power = inputs.shaft_power_w
         if power is None:
             job = adapters.cutoff_at_present_draw_job(self.estimator, vehicle, seed=int(t))
-        else:  # the limits are the paper aircraft's; a described vehicle's estimator flies its own
-            limits = self.service.limits.kernel_limits() if self.service.limits is not None else None
-            job = adapters.prediction_job(self.estimator, power, inputs.ambient_c, self.motor_faults(), limits,
+        else:
+            job = adapters.prediction_job(self.estimator, power, inputs.ambient_c, self.motor_faults(),
+                                          self.service.limits_override(vehicle),
                                           seed=int(t))
         self._predicting = True
 

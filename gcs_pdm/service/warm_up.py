@@ -15,6 +15,7 @@ def predictions() -> None:
 
     from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator
     from gcs_pdm.models.params import builtin
+    from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
     from gcs_pdm.planning.plan import make_plan
     from gcs_pdm.planning.simulator import VehicleSimulator, original_order
     from gcs_pdm.planning.table3_scenario import preflight_scenario
@@ -23,7 +24,7 @@ def predictions() -> None:
     from gcs_pdm.sim.model import SimConfig
     from gcs_pdm.sim.truth import true_parameters
 
-    est = adapters.make_estimator(builtin("paper_si"))
+    est = adapters.make_estimator(PRESETS[DEFAULT_PRESET], builtin("paper_si"))
     adapters.prediction_job(est, 3000.0, 20.0, [])()
     load = FutureLoad.constant(3000.0, 600.0, 10.0, 20.0)
     adapters.route_risk(est, load, [], n_samples=8)

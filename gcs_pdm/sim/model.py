@@ -30,7 +30,7 @@ from gcs_pdm.geo import enu_from_geodetic, geodetic_from_enu
 from gcs_pdm.missions import (MAV_CMD_NAV_LAND, MAV_CMD_NAV_RETURN_TO_LAUNCH, MAV_CMD_NAV_TAKEOFF,
                               MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT, MissionItem)
 from gcs_pdm.models import kernel
-from gcs_pdm.models.params import ParameterSet, pack_vector
+from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.models.powertrain import (EDGE_540, Airframe, Limits, air_density, ambient_temperature, shaft_power,
                                        shaft_rpm)
 from gcs_pdm.models.topology import simulate_vehicle, simulate_vehicle_extended
@@ -121,15 +121,7 @@ class SimConfig:
         motor the set's one motor type; the limits ``limits`` if given."""
         from gcs_pdm.vehicle.model_inputs import model_inputs
 
-        inputs = model_inputs(self.vehicle)
-        truth = self.truth()
-        if truth is not None:
-            missing = [n for n in inputs.pack_names if n not in truth.packs]
-            if missing:
-                raise ValueError(f"truth: set {truth.name!r} has no pack {', '.join(missing)} of vehicle "
-                                 f"{self.vehicle.name!r} (its packs: {', '.join(truth.packs)})")
-            inputs = replace(inputs, pack_matrix=np.stack([pack_vector(truth.packs[n]) for n in inputs.pack_names]),
-                             motor_matrix=np.tile(truth.motor_vector(), (inputs.n_motors, 1)))
+        inputs = model_inputs(self.vehicle, self.truth())
         if self.limits is not None:
             lim = self.limits
             inputs = replace(inputs, pack_cutoff_v=np.full(inputs.n_packs, float(lim.pack_cutoff_v)),

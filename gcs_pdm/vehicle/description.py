@@ -199,6 +199,11 @@ class VehicleDescription(_Strict):
     mission_reward: float = Field(default=100.0, ge=0)
     #: charge that must be left in every pack on landing, fraction of capacity
     landing_reserve: float = Field(default=0.2, ge=0, lt=1)
+    #: how many other fresh current readings (its series string's other packs, the motor it alone
+    #: feeds) a pack's own current is checked against (a spike replaced, a missing one filled). 2:
+    #: one other sensor against the pack's own cannot say which is wrong (stock ArduPilot SITL's ESC
+    #: current is a tenth of its battery current); 1 where they are known to agree (``edge540``)
+    current_references: int = Field(default=2, ge=1, le=8)
 
     @model_validator(mode="after")
     def _consistent(self) -> "VehicleDescription":

@@ -7,7 +7,7 @@ pack matrix and ``kernel.STRING_OF_PACK`` (tests/test_vehicle_description.py hol
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -35,6 +35,11 @@ class ModelInputs:
     pack_cutoff_v: np.ndarray    # (N,) terminal voltage floor, V
     pack_max_temp_c: np.ndarray  # (N,)
     motor_max_temp_c: np.ndarray  # (M,)
+    #: per pack index: its extended-variant values (``PackParams.extended_vector``) where a parameter
+    #: set flown over the description holds the pack on the extended model (docs/model.md)
+    extended_packs: dict = field(default_factory=dict)
+    #: a parameter set's values were flown over the description's (``model_inputs(desc, params)``)
+    from_parameter_set: bool = False
 
     @property
     def n_packs(self) -> int:
@@ -126,7 +131,26 @@ def pack_training_envelope(spec: PackSpec, where: str = "pack") -> dict | None:
     return envelope
 
 
-def model_inputs(desc: VehicleDescription) -> ModelInputs:
+def model_inputs(desc: VehicleDescription, params: ParameterSet | None = None) -> ModelInputs:
+    """The description's packs, motors, buses and limits, with their values from it or, given
+    ``params`` (the paper's set, a learned one, a scenario's truth), from that set: each pack's by
+    its name (its extended values too where the set holds it extended), every motor the set's one
+    motor type. The set overrides values only: the layout and limits stay the description's."""
+    inputs = _described_inputs(desc)
+    if params is None:
+        return inputs
+    missing = [n for n in inputs.pack_names if n not in params.packs]
+    if missing:
+        raise VehicleError(f"parameter set {params.name!r} has no pack {', '.join(missing)} of vehicle "
+                           f"{desc.name!r} (its packs: {', '.join(params.packs)})")
+    return replace(inputs, pack_matrix=np.stack([pack_vector(params.packs[n]) for n in inputs.pack_names]),
+                   motor_matrix=np.tile(params.motor_vector(), (inputs.n_motors, 1)),
+                   extended_packs={b: params.packs[n].extended_vector() for b, n in enumerate(inputs.pack_names)
+                                   if params.packs[n].model == "extended"},
+                   from_parameter_set=True)
+
+
+def _described_inputs(desc: VehicleDescription) -> ModelInputs:
     packs = np.stack([pack_parameters(p, f"packs[{i}]") for i, p in enumerate(desc.packs)])
     motors = []
     for m in desc.motors:

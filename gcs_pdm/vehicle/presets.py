@@ -40,6 +40,7 @@ def _edge540() -> dict:
         "climb_rate_mps": a.max_climb_rate,
         "mission_reward": 100.0,
         "landing_reserve": 0.15,
+        "current_references": 1,  # the paper's packs and ESCs read one current: one other reading suffices
     }
 
 
