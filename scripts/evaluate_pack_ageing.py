@@ -87,6 +87,7 @@ def evaluate(fixtures: Path, sets=None, own_electrodes: bool = False) -> dict:
             "capacity_true_first_last": [float(true_c[0]), float(true_c[-1])],
             "capacity_abs_error_max": float(np.nanmax(np.abs(err))),
             "capacity_abs_error_mean": float(np.nanmean(np.abs(err))),
+            "capacity_error_mean_signed": float(np.nanmean(err)),
             "capacity_within_3pct": int(np.sum(np.abs(err) <= 0.03)),
             "capacity_truth_within_2sd": int(np.sum(np.abs(est_c - true_c) <= 2 * sd_c)),
             "capacity_errors": [round(float(x), 4) for x in err],
@@ -108,7 +109,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     res = evaluate(Path(args.fixtures), args.sets, args.own_electrodes)
     for name, r in res.items():
-        print(f"{name}: capacity error max {r['capacity_abs_error_max']:.2%} mean {r['capacity_abs_error_mean']:.2%}, "
+        print(f"{name}: capacity error max {r['capacity_abs_error_max']:.2%} mean {r['capacity_abs_error_mean']:.2%} "
+              f"(signed {r['capacity_error_mean_signed']:+.2%}), "
               f"{r['capacity_within_3pct']}/{r['flights']} within 3 %, truth within 2σ in "
               f"{r['capacity_truth_within_2sd']}; resistance rank correlation {r['resistance_rank_correlation']:.2f}, "
               f"growth true {r['resistance_growth_true']:.2f} est {r['resistance_growth_estimated']:.2f}; "
