@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -153,7 +154,7 @@ class ElectrodeCurves:
         crossing = charge(lo) + w * (charge(hi) - charge(lo))
         return np.where(never, stop, np.where(at_start, 0.0, crossing))[:, 0]
 
-    @property
+    @cached_property
     def monotone(self) -> bool:
         """The positive's potential falls strictly as it fills and the negative's never rises as
         it fills: the cell's open-circuit voltage then falls strictly along a discharge."""
