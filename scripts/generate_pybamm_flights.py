@@ -363,6 +363,25 @@ def ageing_profile(rng: np.random.Generator, cap_ah: float, c_lo: float, c_hi: f
     return i
 
 
+#: the take-off step, as the health point reads it (gcs_pdm/packs/health.py): the flight's first current
+#: step of at least this share of 1C between two samples, within TAKEOFF_WINDOW_S of its first load
+TAKEOFF_STEP_C, TAKEOFF_WINDOW_S = 0.2, 120.0
+
+
+def takeoff_step_resistance(t: np.ndarray, i: np.ndarray, v: np.ndarray, first: int, cap_ah: float) -> float | None:
+    """The noiseless 1-s resistance at the take-off step (idle to climb, ~2C on these flights): the
+    quantity the health point reads, where ``true_pulse_resistance_ohm`` is the small-signal one at
+    the rest-to-idle step (~0.08C). Butler-Volmer kinetics make the two differ by up to 3x and move
+    differently as the electrodes' windows shift (docs/notes/2026-11-27-pack-capacity-rests.md)."""
+    di = np.diff(i[first:])
+    near = t[first:-1] - t[first] <= TAKEOFF_WINDOW_S
+    steps = np.flatnonzero((np.abs(di) >= TAKEOFF_STEP_C * cap_ah) & near)
+    if steps.size == 0:
+        return None
+    k = first + int(steps[0])
+    return float((v[k] - v[k + 1]) / (i[k + 1] - i[k]))
+
+
 def fresh_electrodes(pybamm, pv) -> dict:
     """The fresh cell's electrodes (what a chemistry's datasheet-level model gives): each electrode's
     potential on a stoichiometry grid at 25 °C, their capacities (Ah) and the cell's stoichiometry
@@ -391,7 +410,9 @@ def ageing_main(args) -> int:
     1 Hz for a minute, then every 30 s) is ``<set>/<set>_NNN.parquet`` (cell current, voltage,
     temperature, ambient); the manifest has, per flight, the cell's true capacity (a C/20 discharge
     from the charged, rested state, on a copy of the cell with its wear held still, WEAR_RATES: the
-    cell itself never sees it) and its true pulse resistance (the noiseless voltage step over the take-off current step), and per set the
+    cell itself never sees it) and its true pulse resistances (the noiseless 1-s voltage step over the
+    rest-to-idle current step that opens the flight, and over the take-off step:
+    ``takeoff_step_resistance``), and per set the
     fresh cell's open-circuit voltage curve along that C/20 discharge."""
     import pandas as pd
     import pybamm
@@ -484,6 +505,7 @@ def ageing_main(args) -> int:
             j = int(np.searchsorted(grid, flight_start))
             # 1 s after the step, as a 1 Hz log sees it
             true_r = float((v[j - 1] - v[j + 1]) / (i[j + 1] - i[j - 1])) if abs(i[j + 1] - i[j - 1]) > 1e-6 else None
+            true_r_takeoff = takeoff_step_resistance(grid, i, v, j, cap)
             n = grid.size
             cols = {"time_s": grid - grid[0], "current_a": i + rng.normal(0, AGEING_NOISE_A, n),
                     "voltage_v": v + rng.normal(0, AGEING_NOISE_V, n),
@@ -500,6 +522,8 @@ def ageing_main(args) -> int:
                                         "true_stoichiometry_rested": [round(x, 6) for x in stoich],
                                         "lithium_lost_flight_and_rest_ah": round(lost_in_flight, 6),
                                         "true_pulse_resistance_ohm": None if true_r is None else round(true_r, 7),
+                                        "true_takeoff_resistance_ohm": (None if true_r_takeoff is None
+                                                                        else round(true_r_takeoff, 7)),
                                         "drawn_ah": round(drawn, 5), "flight_s": int(profiles[k].size),
                                         "samples": int(n)})
             print(f"{name}: true C/20 capacity {true_ah:.4f} Ah, pulse R {true_r * 1e3:.2f} mOhm", flush=True)

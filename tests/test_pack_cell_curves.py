@@ -4,6 +4,9 @@ read on its electrodes' curves; its full-cell curve, whose shape changes as it l
 high."""
 from __future__ import annotations
 
+import dataclasses
+
+import numpy as np
 import pytest
 
 from gcs_pdm.models.chemistry import CHEMISTRIES
@@ -70,3 +73,34 @@ def test_the_fresh_full_cell_curve_reads_the_same_aged_pack_high():
     on_fresh_curve = health_point("P", t, i, v, nominal_capacity_ah=5.0, ocv=fresh_curve)
     assert abs(on_electrodes.capacity_ah / 4.25 - 1.0) < 0.02
     assert on_fresh_curve.capacity_ah / 4.25 - 1.0 > 0.03
+
+
+def _capacity_by_full_scan(el, x0: float, y0: float, pol: float) -> float:
+    """The charge to the cut-off by evaluating every sample of the 4000-sample grid (the reference
+    the bisection must reproduce to the bit)."""
+    q = np.linspace(0.0, min(x0 * el.negative_ah, (1.0 - y0) * el.positive_ah), 4000)
+    v = el.u_p(y0 + q / el.positive_ah) - el.u_n(x0 - q / el.negative_ah) - pol
+    below = np.flatnonzero(v <= el.lower_cutoff_v)
+    if below.size == 0:
+        return float(q[-1])
+    k = int(below[0])
+    if k == 0:
+        return 0.0
+    w = (v[k - 1] - el.lower_cutoff_v) / (v[k - 1] - v[k])
+    return float(q[k - 1] + w * (q[k] - q[k - 1]))
+
+
+@pytest.mark.parametrize("bumpy", [False, True])
+def test_the_capacity_to_the_cut_off_is_the_full_scans_to_the_bit(bumpy):
+    el = capacity_reading("liion", 5.0).electrodes
+    if bumpy:  # a measured table whose negative potential rises here and there: evaluated in full
+        neg = np.array(el.negative_v)
+        neg[100:300:7] += 2e-4
+        el = dataclasses.replace(el, negative_v=tuple(neg))
+    assert el.monotone is not bumpy
+    rng = np.random.default_rng(1)
+    x0 = np.concatenate([rng.uniform(0.0, 1.0, 300), [0.0, 0.999]])
+    for v0, pol in ((4.2, 0.0), (3.7, 0.004), (2.9, 0.3)):
+        y0 = el.y_at(v0 + el.u_n(x0))
+        got = el.capacities_from(x0, y0, pol)
+        assert got.tolist() == [_capacity_by_full_scan(el, float(x), float(y), pol) for x, y in zip(x0, y0)]

@@ -51,23 +51,34 @@ def test_each_flights_capacity_is_near_the_truth(results):
     for name, r in results.items():
         errors = r["capacity_errors"]
         assert all(e == e for e in errors), f"{name}: a flight's capacity unknown"
-        # measured (docs/notes/2026-11-27-pack-capacity.md), on the liion chemistry's electrodes
-        # (what the live service and packs ingest read on): Chen 63/64 within 3 %, worst 3.2 % (its
-        # first flight), mean |error| 0.44 %, mean -0.02 %; O'Kane 43/44, worst 3.0 %, mean 0.97 %,
-        # mean +0.33 %. With the wear running during the truth's discharge Chen leaned +1.7 % (60/64)
-        assert r["capacity_within_3pct"] >= r["flights"] - 1, (name, errors)
-        assert r["capacity_abs_error_max"] < 0.033, (name, errors)
-        assert r["capacity_abs_error_mean"] < 0.011, (name, errors)
+        # measured (docs/notes/2026-11-27-pack-capacity-rests.md), on the liion chemistry's
+        # electrodes (what the live service and packs ingest read on): Chen 64/64 within 3 %, worst
+        # 1.9 %, mean |error| 0.22 %; O'Kane 44/44, worst 2.5 %, mean 0.90 %. With the end rest read
+        # from its last minute (3 samples of a log thinned to one every 30 s) Chen's first flight
+        # was -3.2 % and O'Kane's 43rd +3.0 %
+        assert r["capacity_within_3pct"] == r["flights"], (name, errors)
+        assert r["capacity_abs_error_max"] < 0.03, (name, errors)
+        assert r["capacity_abs_error_mean"] < 0.01, (name, errors)
         assert abs(sum(errors) / len(errors)) < 0.005, (name, errors)  # no lean
         # the σ is a claim: 2σ covers the truth (measured 64/64 and 44/44)
         assert r["capacity_truth_within_2sd"] >= 0.97 * r["flights"], name
 
 
 def test_the_resistance_trend_follows_the_truth(results):
-    chen = results["Chen2020"]  # the SEI film's resistance grows: the truth rises by half
-    assert chen["resistance_growth_true"] > 1.3
-    assert chen["resistance_rank_correlation"] > 0.9
-    assert chen["resistance_growth_estimated"] > 1.3
+    """Against the truth at the step the health point reads (the 1-s step at take-off, ~2C): Chen's SEI
+    film makes it rise by 73 %, O'Kane's stays (x0.97). The small-signal truth at the rest-to-idle
+    step (~0.08C) falls x0.84 on O'Kane: Butler-Volmer charge transfer, whose small-signal
+    resistance falls as the graphite's window moves down with the lithium lost, while at 2C it
+    barely changes (docs/notes/2026-11-27-pack-capacity-rests.md)."""
+    chen = results["Chen2020"]
+    assert chen["resistance_growth_true"] > 1.3 and chen["resistance_growth_estimated"] > 1.3
+    for name, r in results.items():
+        # measured: rank correlation 1.00 / 0.90, growth equal to the truth's to 0.01, mean error
+        # -0.0 % / -0.5 %, worst 1.8 % / 4.5 %
+        assert r["resistance_rank_correlation"] > 0.8, name
+        assert abs(r["resistance_growth_estimated"] / r["resistance_growth_true"] - 1.0) < 0.03, name
+        assert abs(r["resistance_error_mean"]) < 0.02 and r["resistance_abs_error_max"] < 0.08, name
+    assert results["OKane2022"]["resistance_small_step_growth_true"] < 0.9  # the other truth falls
 
 
 def test_the_retirement_forecast_from_the_first_half_of_life_is_within_20_percent(results):
