@@ -21,6 +21,7 @@ from numba import njit
 
 from gcs_pdm.estimation import held_current_arrays
 from gcs_pdm.estimation.calibrated_cutoff import CutoffModel
+from gcs_pdm.estimation.calibrated_pack import CalibratedPacks
 from gcs_pdm.estimation.extended_prediction import ExtendedPacks
 from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
@@ -210,8 +211,9 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
     of the load (``Prediction.sample_*``), for a caller that needs more than the quantiles (a
     route's landing SoC over the samples that land).
 
-    ``extended``: an ``extended_prediction.ExtendedPacks`` (the paper's aircraft only): those packs
-    are drawn from their extended filter and fly the kernel's extended variant
+    ``extended``: an ``extended_prediction.ExtendedPacks`` (the paper's aircraft) or a
+    ``calibrated_pack.CalibratedPacks`` (a description's self-calibrated packs): those packs are
+    drawn from their own filter and fly the kernel's extended variant
     (``topology.simulate_vehicle_extended``)."""
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
@@ -246,7 +248,11 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         keeps each pack's end — cut-off or empty — and the peaks to the first failure as it flies;
         per-step values only on the trajectories' coarse grid)."""
         f_rows = f if f.shape[0] == 1 else f[rows]
-        if extended is not None:
+        if extended is not None and vehicle is not None:  # a description's self-calibrated packs
+            run = topology.simulate_vehicle_extended(vehicle.topology, pp[rows], ep[rows], extended.is_ext, mp[rows],
+                                                     x0[rows], tm0[rows], dt, power, amb, f_rows,
+                                                     stop_on_failure=stop_on_failure, record_at=rec_k)
+        elif extended is not None:
             run = topology.simulate_vehicle_extended(
                 topology.PAPER_TOPOLOGY.with_limits(*limits.as_tuple()), pp[rows], ep[rows], extended.is_ext,
                 np.repeat(mp[rows][:, None, :], 2, axis=1), x0[rows], tm0[rows], dt, power, amb, f_rows,
@@ -401,8 +407,9 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     cov *= inflation[:, None, None]  # wider while a pack does not match its model
     inputs = getattr(estimator, "inputs", None)
     if inputs is not None:
+        # a self-calibrated pack flies its filter's learned model (``calibrated_pack``), not the kernel pack
         return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
-                       n_samples=n_samples, fault=fault, vehicle=inputs, **kw)
+                       n_samples=n_samples, fault=fault, vehicle=inputs, extended=CalibratedPacks.of(estimator), **kw)
     return predict((packs.params, estimator.motors.params[0]), packs.mean, cov, tm, tm_sd, load, rng=rng,
                    n_samples=n_samples, fault=fault, extended=ExtendedPacks.of(estimator, inflation), **kw)
 
