@@ -224,7 +224,11 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
     x0 = restate(base_arrays(params)[0], x0, pp)
     if extended is not None:
         x0, ep = extended.sample(x0, n_samples, rng, param_rel_sigma)
-    n_motors = 2 if vehicle is None else vehicle.n_motors
+    if vehicle is None:  # the extended packs fly the paper's layout, one motor vector for both motors
+        n_motors, ext_topology = 2, topology.PAPER_TOPOLOGY.with_limits(*limits.as_tuple())
+        ext_mp = np.repeat(mp[:, None, :], 2, axis=1)
+    else:
+        n_motors, ext_topology, ext_mp = vehicle.n_motors, vehicle.topology, mp
     f = np.zeros((1, n_motors)) if fault is None else np.clip(
         np.asarray(fault, dtype=np.float64).reshape(1, n_motors), 0.0, 1.0)
     dt = np.asarray(load.dt, dtype=np.float64)
@@ -248,15 +252,10 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         keeps each pack's end — cut-off or empty — and the peaks to the first failure as it flies;
         per-step values only on the trajectories' coarse grid)."""
         f_rows = f if f.shape[0] == 1 else f[rows]
-        if extended is not None and vehicle is not None:  # a description's self-calibrated packs
-            run = topology.simulate_vehicle_extended(vehicle.topology, pp[rows], ep[rows], extended.is_ext, mp[rows],
+        if extended is not None:
+            run = topology.simulate_vehicle_extended(ext_topology, pp[rows], ep[rows], extended.is_ext, ext_mp[rows],
                                                      x0[rows], tm0[rows], dt, power, amb, f_rows,
                                                      stop_on_failure=stop_on_failure, record_at=rec_k)
-        elif extended is not None:
-            run = topology.simulate_vehicle_extended(
-                topology.PAPER_TOPOLOGY.with_limits(*limits.as_tuple()), pp[rows], ep[rows], extended.is_ext,
-                np.repeat(mp[rows][:, None, :], 2, axis=1), x0[rows], tm0[rows], dt, power, amb, f_rows,
-                stop_on_failure=stop_on_failure, record_at=rec_k)
         elif vehicle is None:
             run = topology.simulate_powertrain(pp[rows], mp[rows], x0[rows], tm0[rows], dt, power, amb, f_rows,
                                                limits=limits.as_tuple(), stop_on_failure=stop_on_failure,
