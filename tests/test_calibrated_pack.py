@@ -34,12 +34,12 @@ def half_way():
 
 def _kernel_flight(vectors: np.ndarray, states: np.ndarray, circuit: CalibratedCircuit, current: float,
                    temperature_c: float):
-    """The kernel's extended step on ``vectors`` at a held current, its resistances at the
-    calibrator's temperature (the filter reads a measured one; the kernel's own would drift)."""
+    """The kernel's extended step on ``vectors`` at a held current, from the calibrator's
+    temperature on its own thermal model (the pack heats; its resistances stay the present's)."""
     n = vectors.shape[0]
     x0 = circuit.pack_states(states, temperature_c)
     return kernel.simulate_packs(vectors, x0, np.ones(STEPS), np.full((n, STEPS), current), np.full(STEPS, 25.0),
-                                 variant="extended", measured_temperature=np.full(STEPS, temperature_c))
+                                 variant="extended")
 
 
 def test_the_kernel_flies_the_calibrators_model_on_its_mapped_pack(half_way):
@@ -82,33 +82,42 @@ def test_each_draw_is_its_own_count_down(half_way):
     assert np.corrcoef(flown, own)[0, 1] > 0.95  # the draws' spread (capacity, curve, resistances) is carried
 
 
-def _truth_landing_soc(case, k_stop: int, load: FutureLoad) -> float:
+def _truth_flight(case, k_stop: int, load: FutureLoad) -> tuple[float, bool]:
+    """The truth's SoC at the end of ``load`` from its state after sample ``k_stop`` (the estimator's
+    motors), and whether it reached its cut-off on the way."""
     inputs = model_inputs(case.description)
     motors = np.asarray(case.estimator.motors.params, dtype=np.float64)
     run = topology.simulate_vehicle_extended(inputs.topology, inputs.pack_matrix[None], case.truth[None, None],
                                              np.ones(1, dtype=bool), motors[None], case.truth_run.states[0, k_stop][None, None],
                                              np.full((1, motors.shape[0]), 25.0), load.dt, load.shaft_power_w,
                                              load.ambient_c, record=True)
-    return float(run.pack_soc[0, -1, 0])
+    return float(run.pack_soc[0, -1, 0]), bool(run.pack_end_step[0, 0] >= 0)
 
 
 def test_the_route_risk_lands_a_calibrated_pack_on_its_learned_model(half_way):
     from gcs_pdm.service.adapters import route_risk
 
     case, k_stop, _ = half_way
-    load = FutureLoad.constant(120.0, 300.0, 5.0, 25.0)
-    truth = _truth_landing_soc(case, k_stop, load)
     est = case.estimator
-    got = route_risk(est, load, [])
     kernel_only = copy.deepcopy(est)
     kernel_only.calib = [None]
-    before = route_risk(kernel_only, load, [])
+    # a route the truth flies with margin: its landing SoC
+    load = FutureLoad.constant(80.0, 300.0, 5.0, 25.0)
+    truth, cut_off = _truth_flight(case, k_stop, load)
+    assert not cut_off
+    got, before = route_risk(est, load, []), route_risk(kernel_only, load, [])
     assert got["landing_samples"] == got["n_samples"]
     p05, p50, p95 = (got["landing_soc"][q] for q in ("p05", "p50", "p95"))
     assert abs(p50 - truth) < 0.03, (got["landing_soc"], truth)
     assert p05 <= truth <= p95
-    # the kernel pack (the label's capacity) lands it higher than it will be
+    # the kernel pack (the label's capacity, LLF20's resistance) lands it higher than it will be
     assert before["landing_soc"]["p50"] - truth > 2 * abs(p50 - truth), (before["landing_soc"], truth)
+    # a harder route, on which the truth reaches its cut-off: the learned resistance and curve say so
+    load = FutureLoad.constant(120.0, 300.0, 5.0, 25.0)
+    assert _truth_flight(case, k_stop, load)[1]
+    got, before = route_risk(est, load, []), route_risk(kernel_only, load, [])
+    assert got["failure_probability"] > 0.9, got
+    assert before["failure_probability"] < 0.1, before
 
 
 def test_packs_that_do_not_self_calibrate_are_left_to_the_kernel():

@@ -7,7 +7,12 @@ a fast pair R₁/τ₁ and a slow pair R₂/τ₂, the capacity Q_prior / g — 
 kernel, so this module writes that model as the kernel's extended-variant vector
 (``kernel.EXT_PACK_PARAMS``), for the filter's mean state or for states drawn from its covariance:
 
-* R_0, R_1, R_2, E_r: the learned values (the kernel's f(T) is the same Arrhenius factor);
+* R_0, R_1, R_2: the learned values at the present temperature's Arrhenius factor, held there
+  (E_r = 0), as the count-down holds them. The kernel could carry E (its f(T) is the same factor),
+  but it would apply it to its own modelled heating: on a pack without a temperature sensor the
+  filter's E is learned against a modelled temperature (6582 ± 1095 K against the prior's 2500 on
+  the note's case, whose truth has none), and the resistances then fell 38 % over the flight:
+  the count-down 28 % long (docs/notes/2026-11-27-calibrated-pack.md);
   τ_1 = the chemistry's τ₁ · R₁ / R₁_prior and τ_2 = ``TAU2_FACTOR`` τ₁, the calibrator's own;
   C_max = Q_prior / g;
 * the rested curve: the calibrator's, sampled at ``kernel.EXT_OCV_SOC``; the kernel draws a
@@ -22,8 +27,8 @@ kernel, so this module writes that model as the kernel's extended-variant vector
   temperature): C_t and h are the description's kernel pack's, dU/dT = 0; no charge-transfer or
   diffusion term (b_ct = k_d = 0).
 
-The kernel cannot carry the calibrator's temperature as a reading: it flies its own temperature
-from the pack's estimated one. The measured differences (voltage, time to cut-off) against the
+The pack's temperature is the kernel's own (from the pack's estimated one): it sets the limits
+and the peak temperature, not the resistances. The measured differences (voltage, time to cut-off) against the
 calibrator's own model are in docs/notes/2026-11-27-calibrated-pack.md.
 """
 from __future__ import annotations
@@ -71,6 +76,7 @@ class CalibratedCircuit:
         rise_c, k_soc, knee = low_charge_rise_terms()
         # the learned resistances are the present SoC's; the kernel multiplies them by its rise
         per_rise = rise_c / low_charge_rise(np.clip(s[:, I_SOC], 0.0, 1.0))
+        # the resistances at the present temperature's factor, held (E_r = 0), as the count-down holds them
         f_now = np.exp(s[:, I_E] * m.temp_u)
         cell = np.interp(kernel.EXT_OCV_SOC, _GRID, m.table)
         ocv = m.cells * (cell[None] + s[:, I_DV, None] + s[:, I_K, None] * (cell[None] - m.mid))
@@ -79,12 +85,12 @@ class CalibratedCircuit:
             # the kernel's curve is parametrised by positive increments (a monotone curve)
             raise ValueError("calibrated pack: its rested curve is not increasing on the kernel's knots")
         out = np.zeros((s.shape[0], kernel.N_EXT_PARAMS))
-        out[:, kernel.E_R0] = np.maximum(s[:, I_R0] + m.sag_beyond_model_ohm(s) / f_now, 0.0) * per_rise
-        out[:, kernel.E_R1] = s[:, I_R1] * per_rise
+        out[:, kernel.E_R0] = np.maximum(s[:, I_R0] * f_now + m.sag_beyond_model_ohm(s), 0.0) * per_rise
+        out[:, kernel.E_R1] = s[:, I_R1] * f_now * per_rise
         out[:, kernel.E_TAU1] = self.tau1_s * s[:, I_R1] / self.r1_prior_ohm
-        out[:, kernel.E_R2] = s[:, I_R2] * per_rise
+        out[:, kernel.E_R2] = s[:, I_R2] * f_now * per_rise
         out[:, kernel.E_TAU2] = TAU2_FACTOR * self.tau1_s
-        out[:, kernel.E_ER] = s[:, I_E]
+        out[:, kernel.E_ER] = 0.0
         out[:, kernel.E_KSOC] = k_soc
         out[:, kernel.E_KNEE] = knee
         out[:, kernel.E_ICT] = 1.0  # b_ct = 0: no charge-transfer term
