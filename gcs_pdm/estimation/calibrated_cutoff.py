@@ -76,11 +76,9 @@ class CutoffModel:
         ft = np.exp(s[:, I_E] * self.temp_u)
         settled = (s[:, I_R0] + s[:, I_R1] + s[:, I_R2]) * ft * current
         sag = settled
-        i_r, miss = self.recent_current_a, self.recent_miss_v
-        if math.isfinite(i_r) and i_r > 0 and math.isfinite(miss):
-            # the recent voltage, as the model at its mean state less its shortfall, against each row's model
-            measured = self._loaded_voltage(self.x[None], i_r)[0] - miss
-            sag = np.maximum(settled + (self._loaded_voltage(s, i_r) - measured) * (current / i_r), 0.0)
+        shortfall = self._shortfall(s)
+        if shortfall is not None:
+            sag = np.maximum(settled + shortfall * (current / self.recent_current_a), 0.0)
         curves = self.table[None] + s[:, I_DV, None] + s[:, I_K, None] * (self.table[None] - self.mid)
         # the loaded voltage on a fine SoC grid, the sag rising near empty from where it is now:
         # it rises as SoC falls, so the cut-off is its one crossing
@@ -96,13 +94,34 @@ class CutoffModel:
 
     def sample_times(self, current: float, cutoff_v: float, rng: np.random.Generator, n_samples: int) -> np.ndarray:
         """``times`` of ``n_samples`` states drawn from the filter's covariance, within its bounds."""
+        return self.times(self.draw_states(rng, n_samples), current, cutoff_v)
+
+    def draw_states(self, rng: np.random.Generator, n_samples: int) -> np.ndarray:
+        """(n_samples, N_STATE) states drawn from the filter's covariance, held within its bounds."""
         cov = self.P[np.ix_(_DRAWN, _DRAWN)]
         w, v = np.linalg.eigh(0.5 * (cov + cov.T))
         z = rng.standard_normal((n_samples, _DRAWN.size))
         states = np.repeat(self.x[None], n_samples, axis=0)
         states[:, _DRAWN] += (z * np.sqrt(np.maximum(w, 0.0))) @ v.T
         np.clip(states, self.lo, self.hi, out=states)
-        return self.times(states, current, cutoff_v)
+        return states
+
+    def sag_beyond_model_ohm(self, states: np.ndarray) -> np.ndarray:
+        """Per row of ``states``: what ``times`` adds to the settled sag, per ampere — the recent
+        loaded voltage's shortfall below that row's model (``recent_miss_v`` at the mean state),
+        over the recent current (0 with no load seen)."""
+        s = np.atleast_2d(states)
+        shortfall = self._shortfall(s)
+        return np.zeros(s.shape[0]) if shortfall is None else shortfall / self.recent_current_a
+
+    def _shortfall(self, s: np.ndarray) -> np.ndarray | None:
+        """Per row: its model's loaded voltage at the recent current less the recent measured one
+        (the model at its mean state less its shortfall); None with no load seen."""
+        i_r, miss = self.recent_current_a, self.recent_miss_v
+        if not (math.isfinite(i_r) and i_r > 0 and math.isfinite(miss)):
+            return None
+        measured = self._loaded_voltage(self.x[None], i_r)[0] - miss
+        return self._loaded_voltage(s, i_r) - measured
 
     def _loaded_voltage(self, s: np.ndarray, current: float) -> np.ndarray:
         """The model's terminal voltage at ``current`` now (the pairs as they are, not settled)."""
@@ -120,14 +139,22 @@ _FINE = np.linspace(0.0, 1.0, 401)
 _RISE_RS, _RISE_RCP0, _RISE_RCP1, _RISE_RCP2 = 0.0074, 0.03, 1.2e-16, 34.41
 
 
+def low_charge_rise_terms() -> tuple[float, float, float]:
+    """``low_charge_rise`` as c (1 + k exp(−SoC / knee)): (c, k, knee) — the kernel's extended
+    variant's low-charge factor (``k_soc``, ``soc_knee``) times a constant."""
+    base = _RISE_RS + _RISE_RCP0
+    return base / float(_total_resistance(0.5)), _RISE_RCP1 * math.exp(_RISE_RCP2) / base, 1.0 / _RISE_RCP2
+
+
+def _total_resistance(soc):
+    return _RISE_RS + _RISE_RCP0 + _RISE_RCP1 * np.exp(_RISE_RCP2 * (1.0 - np.asarray(soc)))
+
+
 def low_charge_rise(soc: np.ndarray) -> np.ndarray:
     """The sag near empty relative to half charge (1 above ~20 % SoC). With the state right (the
     PyBaMM cells' own curve and capacity) the time to cut-off from half-way was 7-10 % long on
     Chen2020 without it, 1-5 % with it (docs/notes/2026-11-27-time-to-cutoff.md)."""
-    def total(s):
-        return _RISE_RS + _RISE_RCP0 + _RISE_RCP1 * np.exp(_RISE_RCP2 * (1.0 - np.asarray(s)))
-
-    return total(soc) / total(0.5)
+    return _total_resistance(soc) / _total_resistance(0.5)
 
 
 def _on_fine(curves: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ from numba import njit
 
 from gcs_pdm.estimation import held_current_arrays
 from gcs_pdm.estimation.calibrated_cutoff import CutoffModel
+from gcs_pdm.estimation.calibrated_pack import CalibratedPacks
 from gcs_pdm.estimation.extended_prediction import ExtendedPacks
 from gcs_pdm.estimation.parallel import available_threads, thread_map
 from gcs_pdm.models import kernel, topology
@@ -214,8 +215,10 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
     of the load (``Prediction.sample_*``), for a caller that needs more than the quantiles (a
     route's landing SoC over the samples that land).
 
-    ``extended``: an ``extended_prediction.ExtendedPacks``: those packs are drawn from their
-    extended filter and fly the kernel's extended variant (``topology.simulate_vehicle_extended``)."""
+    ``extended``: an ``extended_prediction.ExtendedPacks`` (the paper's aircraft) or a
+    ``calibrated_pack.CalibratedPacks`` (a description's self-calibrated packs): those packs are
+    drawn from their own filter and fly the kernel's extended variant
+    (``topology.simulate_vehicle_extended``)."""
     if n_samples < 1:
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     n_motors = vehicle.n_motors
@@ -402,9 +405,12 @@ def predict_from_estimator(estimator, load: FutureLoad, *, rng: np.random.Genera
     cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
     inflation = estimator.prediction_inflation()
     cov *= inflation[:, None, None]  # wider while a pack does not match its model
+    # a self-calibrated pack flies its filter's learned model (``calibrated_pack``), not the kernel
+    # pack; otherwise a parameter set's extended packs their extended filter. (A description whose
+    # packs are of both kinds at once flies the calibrated ones' models and its others' kernel packs.)
+    extended = CalibratedPacks.of(estimator) or ExtendedPacks.of(estimator, inflation)
     return predict((packs.params, estimator.motors.params), packs.mean, cov, tm, tm_sd, load, rng=rng,
-                   n_samples=n_samples, fault=fault, vehicle=estimator.inputs,
-                   extended=ExtendedPacks.of(estimator, inflation), **kw)
+                   n_samples=n_samples, fault=fault, vehicle=estimator.inputs, extended=extended, **kw)
 
 
 @dataclass(frozen=True)

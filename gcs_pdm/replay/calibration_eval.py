@@ -144,6 +144,46 @@ def simulated_pack_soc(preset: str, *, capacity_scale: float, resistance_scale: 
     ``chemistry_curve``: the truth rests on its chemistry's curve (``sim.pack_curves``) and the
     estimator is told only what a derived description says (the preset marked provisional: the
     chemistry table's prior, as for a vehicle the service was never told about)."""
+    case = simulated_case(preset, capacity_scale=capacity_scale, resistance_scale=resistance_scale,
+                          start_soc=start_soc, seed=seed, duration_s=duration_s, rest_s=rest_s, dt=dt, c_rate=c_rate,
+                          chemistry_curve=chemistry_curve)
+    out = []
+    for k in range(case.end):
+        case.feed(k)
+        e = case.estimator.estimate(details=False)
+        out.append(((k + 1) * dt, e.soc[0], e.soc_sd[0], case.truth_run.soc[0, k]))
+    return PackTrack(case.description.packs[0].name, *(np.array(c, dtype=float) for c in zip(*out)))
+
+
+@dataclass
+class SimulatedCase:
+    """``simulated_pack_soc``'s case before the estimator has seen it: the description the
+    estimator is told, the truth's pack vector (``variant``) and its run over ``current``
+    (states recorded), the first sample past the cut-off (or the length), and the estimator with
+    the frames' noise source; ``feed(k)`` gives it sample k."""
+
+    description: object
+    truth: np.ndarray
+    variant: str
+    current: np.ndarray
+    dt: float
+    truth_run: object
+    end: int
+    estimator: object
+    rng: np.random.Generator
+
+    def feed(self, k: int) -> None:
+        spec = self.description.packs[0]
+        sd_v = 0.01 + 0.002 * spec.cells_series
+        v = float(self.truth_run.voltage[0, k] + self.rng.normal(0.0, sd_v))
+        i = float(self.current[k] * (1.0 + self.rng.normal(0.0, 0.01)))
+        self.estimator.consume(PackFrame((k + 1) * self.dt, spec.name, v, i, None))
+
+
+def simulated_case(preset: str, *, capacity_scale: float, resistance_scale: float, start_soc: float, seed: int,
+                   duration_s: float = 900.0, rest_s: float = 30.0, dt: float = 1.0,
+                   c_rate: tuple[float, float] = (0.5, 2.5), chemistry_curve: bool = False) -> SimulatedCase:
+    """The truth and estimator of ``simulated_pack_soc`` (its arguments)."""
     from gcs_pdm.estimation.estimator import StateEstimator
     from gcs_pdm.models import kernel
     from gcs_pdm.models.pack_scaling import scale_pack_vector
@@ -172,25 +212,16 @@ def simulated_pack_soc(preset: str, *, capacity_scale: float, resistance_scale: 
         truth = chemistry_curve_pack(truth, spec.chemistry, spec.cells_series)
         x0 = kernel.initial_extended_state(truth[None], start_soc, 25.0)
         sim = kernel.simulate_packs(truth[None], x0, np.full(n, dt), current[None], np.full(n, 25.0),
-                                    variant="extended")
+                                    variant="extended", record_states=True)
         desc = desc.model_copy(update={"provisional": True})
     else:
         x0 = kernel.initial_pack_state(truth[None], start_soc, 25.0, 0.0)
-        sim = kernel.simulate_packs(truth[None], x0, np.full(n, dt), current[None], np.full(n, 25.0))
-    v_true, soc_true = sim.voltage[0], sim.soc[0]
-    alive = np.flatnonzero(v_true < spec.cutoff_voltage)
+        sim = kernel.simulate_packs(truth[None], x0, np.full(n, dt), current[None], np.full(n, 25.0),
+                                    record_states=True)
+    alive = np.flatnonzero(sim.voltage[0] < spec.cutoff_voltage)
     end = int(alive[0]) if alive.size else n
-    est = StateEstimator(vehicle=desc)
-    sd_v = 0.01 + 0.002 * spec.cells_series
-    out = []
-    for k in range(end):
-        t = (k + 1) * dt
-        v = float(v_true[k] + rng.normal(0.0, sd_v))
-        i = float(current[k] * (1.0 + rng.normal(0.0, 0.01)))
-        est.consume(PackFrame(t, spec.name, v, i, None))
-        e = est.estimate(details=False)
-        out.append((t, e.soc[0], e.soc_sd[0], soc_true[k]))
-    return PackTrack(spec.name, *(np.array(c, dtype=float) for c in zip(*out)))
+    return SimulatedCase(desc, truth, "extended" if chemistry_curve else "paper", current, dt, sim, end,
+                         StateEstimator(vehicle=desc), rng)
 
 
 #: PyBaMM parameter set -> the chemistry a user would name for such a cell (the prior it starts from):
