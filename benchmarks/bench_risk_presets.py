@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from gcs_pdm.planning.planners import run_risk_bounded  # noqa: E402
-from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw  # noqa: E402
+from gcs_pdm.planning.risk import Draws, ParameterSpread, RiskSimulator, Uncertainty, draw, prior_spread  # noqa: E402
 from gcs_pdm.planning.scenario import Home, Scenario, StartState, Waypoint  # noqa: E402
 from gcs_pdm.planning.simulator import VehicleSimulator  # noqa: E402
 from gcs_pdm.planning.table3_scenario import table3_scenario  # noqa: E402
@@ -97,24 +97,105 @@ def time_plans(make_sim, trials: int, samples: int) -> dict:
 TRUTH_PARAM_SD = 0.0866
 
 
-def coverage(sim: VehicleSimulator, samples: int, truths: int, param_sd: float | None = None) -> dict:
-    """The plan's landing-SoC interval against hidden truths of the planner's uncertainty model
-    (``param_sd``: their parameters spread by that instead of the planner's own spread)."""
-    plan = run_risk_bounded("pf", RiskSimulator(sim, draw(sim, samples, seed=0)), seed=0)
+def coverage(sim: VehicleSimulator, samples: int, truths: int, param_sd: float | None = None,
+             spread: ParameterSpread | None = None) -> dict:
+    """The plan's landing-SoC interval against hidden truths (another seed: not the planner's draws).
+    The planner draws its parameters with ``spread`` (None: the fixed ``Uncertainty`` 5 %); the
+    truths are spread like the planner's draws (``param_sd`` None) or by ``param_sd`` on every
+    parameter (the simulated vehicle's kind of model error)."""
+    plan = run_risk_bounded("pf", RiskSimulator(sim, draw(sim, samples, seed=0, spread=spread)), seed=0)
     lo, _, hi = plan.stats["risk"]["landing_soc_quantiles"]["soc"]
-    spread = Uncertainty() if param_sd is None else Uncertainty(param_rel_sigma=param_sd)
-    # another seed: not the planner's draws
-    truth = RiskSimulator(sim, draw(sim, truths, uncertainty=spread, seed=10_000))
+    if param_sd is None:
+        truth_draws = draw(sim, truths, seed=10_000, spread=spread)
+    else:
+        truth_draws = draw(sim, truths, uncertainty=Uncertainty(param_rel_sigma=param_sd), seed=10_000)
+    low, landed = fly_truths(sim, truth_draws, plan.route)
+    inside = (low >= lo) & (low <= hi)
+    return {"route": list(plan.numbers), "interval": [lo, hi], "width": round(hi - lo, 4), "truths": truths,
+            "landed": int(landed.sum()), "coverage_p05_p95": float(inside.mean()) if low.size else None,
+            "truth_failure_rate": float(1.0 - landed.mean())}
+
+
+def fly_truths(sim: VehicleSimulator, truths: Draws, route) -> tuple[np.ndarray, np.ndarray]:
+    """Each truth (a row of ``truths``) flies ``route`` and lands: the lowest pack's landing SoC of
+    the truths that land, and which landed."""
+    truth = RiskSimulator(sim, truths)
     st = truth.start_state(1)
-    for w in plan.route:
+    for w in route:
         st = truth._fly(st, np.array([w]))
     fin = truth._fly(st, np.array([truth.landing_node]))
     landed = ~fin.failed[0]
-    low = truth._soc(fin.x)[0].min(axis=1)[landed]
-    inside = (low >= lo) & (low <= hi)
-    return {"route": list(plan.numbers), "interval": [lo, hi], "truths": truths, "landed": int(landed.sum()),
-            "coverage_p05_p95": float(inside.mean()) if low.size else None,
-            "truth_failure_rate": float(1.0 - landed.mean())}
+    return truth._soc(fin.x)[0].min(axis=1)[landed], landed
+
+
+#: the learned case: the estimator watches each pack discharge from full to START_SOC at
+#: LEARN_C_RATE (C) in legs of 20-120 s, voltage noise 10 mV + 2 mV per cell, current noise 1 %
+LEARN_C_RATE = (0.5, 2.5)
+
+
+def learned_coverage(desc, samples: int, truths: int, seed: int = 20_000) -> dict:
+    """The service's case for a self-calibrated pack: per truth, a vehicle whose every parameter is
+    off the description by the simulated vehicle's kind of error (``TRUTH_PARAM_SD``); the
+    estimator (``StateEstimator`` on the description) watches its packs discharge from full to
+    ``START_SOC``; the planner draws from the estimator (its SoC and covariance, and
+    ``spread_from_estimator``) and plans; the truth flies the plan. Coverage of each truth's own
+    interval, its width, and the posterior's capacity σ and error."""
+    from gcs_pdm.estimation.estimator import StateEstimator
+    from gcs_pdm.frames import PackFrame
+    from gcs_pdm.models import kernel
+    from gcs_pdm.service.adapters import _estimated_start
+
+    base_sim = simulator(desc)
+    rng = np.random.default_rng(seed)
+    pp0 = base_sim._pp[0]
+    P = pp0.shape[0]
+    inside, widths, cap_sd, cap_err, failed = [], [], [], [], 0
+    for k in range(truths):
+        one = draw(base_sim, 1, uncertainty=Uncertainty(param_rel_sigma=TRUTH_PARAM_SD, soc_sd=0.0), seed=rng)
+        true_pp = one.pack_params[0]
+        est = StateEstimator(vehicle=desc)
+        # a pack's current: a share of the bus's, the legs' C-rate of the description's capacity
+        amps = pp0[:, kernel.I_CMAX] / 3600.0
+        current = []
+        while len(current) < 4000:
+            current += [rng.uniform(*LEARN_C_RATE)] * int(rng.uniform(20, 120))
+        current = np.concatenate([np.zeros(30), np.array(current)])[None] * amps[:, None]
+        n = current.shape[1]
+        run = kernel.simulate_packs(true_pp, kernel.initial_pack_state(true_pp, 1.0, 20.0, 0.0), np.ones(n),
+                                    current, np.full(n, 20.0), record_states=True)
+        end = int(np.argmax(run.soc.min(axis=0) <= START_SOC))
+        sd_v = 0.01 + 0.002 * np.array([p.cells_series for p in desc.packs])
+        for j in range(end + 1):
+            for b, spec in enumerate(desc.packs):
+                est.consume(PackFrame(j + 1.0, spec.name, float(run.voltage[b, j] + rng.normal(0.0, sd_v[b])),
+                                      float(current[b, j] * (1.0 + rng.normal(0.0, 0.01))), None))
+        # the planned start: the estimator's packs, the truth's temperatures as flown
+        from gcs_pdm.models.powertrain import PowertrainState
+
+        state = PowertrainState(np.array(est.packs.mean, copy=True), np.full(len(desc.motor_names), 20.0))
+        motor = desc.motor_names[min(1, len(desc.motor_names) - 1)]
+        sim = VehicleSimulator(field(desc), vehicle=desc, state=state, motor_faults={motor: FAULT})
+        start = _estimated_start(est, sim)
+        plan = run_risk_bounded("pf", RiskSimulator(sim, draw(sim, samples, seed=k, **start)), seed=k)
+        lo, _, hi = plan.stats["risk"]["landing_soc_quantiles"]["soc"]
+        true_x = run_state(run, end)
+        truth = Draws(true_x[None], one.motor_temp, one.pack_params, one.motor_params, one.fault, one.wind_en)
+        low, landed = fly_truths(sim, truth, plan.route)
+        failed += int(not landed[0])
+        inside.append(bool(landed[0] and lo <= low[0] <= hi))
+        widths.append(hi - lo)
+        spread = start["spread"]
+        cap_sd.append(float(np.mean(spread.pack_log_sd[:, kernel.I_CMAX])))
+        cap_err.append(float(np.mean(np.log(true_pp[:, kernel.I_CMAX] / (pp0[:, kernel.I_CMAX]
+                                                                         * spread.pack_scale[:, kernel.I_CMAX])))))
+    return {"truths": truths, "coverage_p05_p95": float(np.mean(inside)), "width_median": round(float(np.median(widths)), 4),
+            "truth_failure_rate": failed / truths, "posterior_capacity_log_sd_median": round(float(np.median(cap_sd)), 4),
+            "posterior_capacity_log_error_rms": round(float(np.sqrt(np.mean(np.square(cap_err)))), 4)}
+
+
+def run_state(run, j: int) -> np.ndarray:
+    """(P, 4) the packs' kernel state after step ``j`` of a ``kernel.simulate_packs`` run."""
+    return np.array(run.states[:, j], copy=True)
 
 
 def main() -> int:
@@ -122,22 +203,30 @@ def main() -> int:
     ap.add_argument("--trials", type=int, default=5)
     ap.add_argument("--samples", type=int, default=200)
     ap.add_argument("--truths", type=int, default=400)
+    ap.add_argument("--learned-truths", type=int, default=0,
+                    help="per preset, truths whose packs the estimator watched discharge (learned_coverage)")
+    ap.add_argument("--presets", nargs="*", default=list(PRESET_NAMES))
     args = ap.parse_args()
     out = {"samples": args.samples, "trials": args.trials, "start_soc": START_SOC, "fault": FAULT,
            "cpus": os.cpu_count(), "presets": {}}
-    for name in PRESET_NAMES:
+    for name in args.presets:
         desc = PRESETS[name]
         row = time_plans(lambda: simulator(desc), args.trials, args.samples)
         if args.truths:
-            row["coverage"] = coverage(simulator(desc), args.samples, args.truths)
-            row["coverage_off_model"] = coverage(simulator(desc), args.samples, args.truths, TRUTH_PARAM_SD)
+            prior = prior_spread(len(desc.packs))
+            for key, spread in (("fixed_5pct", None), ("prior_spread", prior)):
+                row[f"coverage_{key}"] = coverage(simulator(desc), args.samples, args.truths, spread=spread)
+                row[f"coverage_{key}_off_model"] = coverage(simulator(desc), args.samples, args.truths,
+                                                            TRUTH_PARAM_SD, spread=spread)
+        if args.learned_truths:
+            row["coverage_learned"] = learned_coverage(desc, args.samples, args.learned_truths)
         out["presets"][name] = row
-        cov = row.get("coverage", {})
+        cov = {k: (v.get("coverage_p05_p95"), v.get("width", v.get("width_median")))
+               for k, v in row.items() if k.startswith("coverage")}
         print(f"{name:9s} plan median {row['median_s']:.3f} s (min {row['min_s']:.3f}), CPU median "
               f"{row['cpu_median_s']:.3f} s; route {row['route']} P(fail) {row['p_failure']:.3f} landing SoC "
-              f"{row['landing_soc_p05_p50_p95']}; coverage {cov.get('coverage_p05_p95')} of {cov.get('landed')} "
-              f"landed truths, {row.get('coverage_off_model', {}).get('coverage_p05_p95')} off the model "
-              f"(load {row['load_average_1min']:.1f})", flush=True)
+              f"{row['landing_soc_p05_p50_p95']}; coverage, width {cov} (load {row['load_average_1min']:.1f})",
+              flush=True)
     paper = table3_scenario(true_parameters(), 10)
     out["paper_code_path_table3_10"] = time_plans(lambda: VehicleSimulator(paper), args.trials, args.samples)
     p = out["paper_code_path_table3_10"]

@@ -64,6 +64,75 @@ class Uncertainty:
     wind_sd_mps: float = 1.5        # per component, about the scenario's wind
 
 
+#: the log-normal spread of a parameter nothing has narrowed: a parameter set's value against the
+#: real vehicle's (the paper aircraft's set, a pack described as fitted, every motor). The
+#: prediction's own ``param_rel_sigma`` (``predict``): one prior for both Monte Carlos, measured to
+#: hold its intervals against truths up to 15 % off the set (docs/intervals.md)
+PRIOR_PARAM_REL_SIGMA = 0.08
+#: pack parameters a self-calibrated pack's posterior speaks for: its capacity (the calibrator's
+#: inverse capacity scale g moves C_b, q_max and C_max together) and its series resistance (R₀:
+#: R_s and R_cp0, as ``StateEstimator.adopt_pack_scales`` moves them)
+CAPACITY_PARAMS = (kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX)
+RESISTANCE_PARAMS = (kernel.I_RS, kernel.I_RCP0)
+
+
+@dataclass(frozen=True)
+class ParameterSpread:
+    """What is known of each parameter: the draws are log-normal about ``pack_scale`` × the
+    simulator's values with log-σ ``pack_log_sd`` (both (P, 12)); the motors' log-σ is one number
+    (nothing in flight narrows a motor's parameters). ``learned`` (P,): the pack's capacity and
+    resistance are its estimator's posterior, not the prior."""
+
+    pack_log_sd: np.ndarray
+    pack_scale: np.ndarray
+    motor_log_sd: float = PRIOR_PARAM_REL_SIGMA
+    learned: tuple[bool, ...] = ()
+
+    def to_dict(self, pack_names: Sequence[str]) -> dict:
+        """Per pack: the capacity's and series resistance's centre (× the description's) and
+        relative σ, and whether they were learned; the prior spread of everything else."""
+        def row(b: int) -> dict:
+            return {"capacity_scale": round(float(self.pack_scale[b, kernel.I_CMAX]), 4),
+                    "capacity_log_sd": round(float(self.pack_log_sd[b, kernel.I_CMAX]), 4),
+                    "resistance_scale": round(float(self.pack_scale[b, kernel.I_RS]), 4),
+                    "resistance_log_sd": round(float(self.pack_log_sd[b, kernel.I_RS]), 4),
+                    "source": "estimator posterior" if self.learned[b] else "prior"}
+
+        return {"packs": {n: row(b) for b, n in enumerate(pack_names)}, "motor_log_sd": self.motor_log_sd,
+                "other_parameters_log_sd": PRIOR_PARAM_REL_SIGMA}
+
+
+def prior_spread(n_packs: int) -> ParameterSpread:
+    """Every parameter at the prior spread about its set's value (nothing learned)."""
+    return ParameterSpread(np.full((n_packs, kernel.N_PACK_PARAMS), PRIOR_PARAM_REL_SIGMA),
+                           np.ones((n_packs, kernel.N_PACK_PARAMS)), learned=(False,) * n_packs)
+
+
+def spread_from_estimator(estimator) -> ParameterSpread:
+    """The spread of what ``estimator`` (a ``StateEstimator``) knows: a self-calibrated pack's
+    capacity and series resistance from its calibrator's posterior — centred where it learned them
+    (× its prior, which is the description's), log-σ the posterior's relative σ (moment-matched:
+    √ln(1 + cv²)); before it has learned, that posterior is the description's prior (its capacity's
+    σ, 0.25 for a label) — every other parameter, and every pack without a calibrator (the paper
+    aircraft's set, a pack described as fitted), at the prior ``PRIOR_PARAM_REL_SIGMA``."""
+    from gcs_pdm.estimation import calibration as cal_state
+
+    calibrators = list(getattr(estimator, "calib", None) or [None] * len(estimator.pack_names))
+    spread = prior_spread(len(calibrators))
+    log_sd, scale, learned = spread.pack_log_sd, spread.pack_scale, []
+    for b, cal in enumerate(calibrators):
+        learned.append(cal is not None and cal.initialised)
+        if not learned[-1]:
+            continue
+        sd = np.sqrt(np.maximum(np.diag(cal.P), 0.0))
+        g, r0 = float(cal.x[cal_state.I_G]), float(cal.x[cal_state.I_R0])
+        for params, centre, cv in ((CAPACITY_PARAMS, 1.0 / g, sd[cal_state.I_G] / g),
+                                   (RESISTANCE_PARAMS, r0 / cal.r0p, sd[cal_state.I_R0] / r0)):
+            scale[b, list(params)] = centre
+            log_sd[b, list(params)] = np.sqrt(np.log1p(cv ** 2))
+    return ParameterSpread(log_sd, scale, learned=tuple(learned))
+
+
 @dataclass(frozen=True)
 class Draws:
     """S draws of everything uncertain; row s of each array is one possible vehicle."""
@@ -81,18 +150,28 @@ class Draws:
 
 def draw(sim: VehicleSimulator, n: int = DEFAULT_SAMPLES, *, uncertainty: Uncertainty = Uncertainty(),
          seed: int | np.random.Generator = 0, pack_mean: np.ndarray | None = None,
-         pack_cov: np.ndarray | None = None, motor_sd: np.ndarray | None = None) -> Draws:
+         pack_cov: np.ndarray | None = None, motor_sd: np.ndarray | None = None,
+         spread: ParameterSpread | None = None) -> Draws:
     """``n`` draws about ``sim``'s start (its state, pack and motor parameters, motor faults and
     its scenario's wind), for any vehicle the simulator flies (P packs, M motors).
 
     ``pack_mean``/``pack_cov`` (P, 4) / (P, 4, 4): an estimator's pack state and covariance to draw
     the start from instead of the simulator's state with ``uncertainty.soc_sd``/``temp_sd_c``;
-    ``motor_sd`` (M,): its motor temperatures' spread."""
+    ``motor_sd`` (M,): its motor temperatures' spread. ``spread``: what is known of each parameter
+    (``spread_from_estimator``); None: every parameter at ``uncertainty.param_rel_sigma`` about the
+    simulator's values (a scenario's stated spread)."""
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     pp0 = sim._pp[0]
     # one draw per motor type (for the paper's aircraft: one vector for both motors, as drawn so far)
     motor_types, type_of_motor = np.unique(sim._motor_rows[0], axis=0, return_inverse=True)
-    pp, mp = sample_parameters((pp0, motor_types), n, rng, uncertainty.param_rel_sigma)
+    if spread is None:
+        pp, mp = sample_parameters((pp0, motor_types), n, rng, uncertainty.param_rel_sigma)
+    else:
+        if spread.pack_log_sd.shape != pp0.shape:
+            raise ValueError(f"spread: {spread.pack_log_sd.shape[0]} packs, the simulator flies {pp0.shape[0]}")
+        # centred on what was learned; the start state, estimated under pp0, is restated below
+        pp, mp = sample_parameters((pp0 * spread.pack_scale, motor_types), n, rng, spread.pack_log_sd,
+                                   spread.motor_log_sd)
     mp = mp[:, np.asarray(type_of_motor).reshape(-1)]
     if pack_mean is not None:
         cov = np.asarray(pack_cov, dtype=np.float64)
@@ -532,5 +611,6 @@ def _scatter(base, idx: np.ndarray, values):
     return type(base)(**fields)
 
 
-__all__ = ["DEFAULT_MAX_FAILURE_PROBABILITY", "DEFAULT_RESERVE_QUANTILE", "DEFAULT_SAMPLES", "Draws", "RiskOutcome",
-           "RiskSimulator", "RiskState", "Uncertainty", "draw", "plan_risk_bounded"]
+__all__ = ["DEFAULT_MAX_FAILURE_PROBABILITY", "DEFAULT_RESERVE_QUANTILE", "DEFAULT_SAMPLES", "Draws",
+           "PRIOR_PARAM_REL_SIGMA", "ParameterSpread", "RiskOutcome", "RiskSimulator", "RiskState", "Uncertainty",
+           "draw", "plan_risk_bounded", "prior_spread", "spread_from_estimator"]
