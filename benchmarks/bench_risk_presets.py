@@ -149,10 +149,13 @@ def learned_coverage(desc, samples: int, truths: int, seed: int = 20_000) -> dic
     rng = np.random.default_rng(seed)
     pp0 = base_sim._pp[0]
     P = pp0.shape[0]
-    inside, widths, cap_sd, cap_err, failed = [], [], [], [], 0
+    inside, widths, cap_sd, cap_err, failed, per_truth = [], [], [], [], 0, []
     for k in range(truths):
         one = draw(base_sim, 1, uncertainty=Uncertainty(param_rel_sigma=TRUTH_PARAM_SD, soc_sd=0.0), seed=rng)
         true_pp = one.pack_params[0]
+        # a pack's capacity is one number (the calibrator's g, ``pack_scaling.scale_pack_vector``):
+        # its usable charge C_max moves with its bulk capacitance C_b, not on its own
+        true_pp[:, kernel.I_CMAX] = pp0[:, kernel.I_CMAX] * true_pp[:, kernel.I_CB] / pp0[:, kernel.I_CB]
         est = StateEstimator(vehicle=desc)
         # a pack's current: a share of the bus's, the legs' C-rate of the description's capacity
         amps = pp0[:, kernel.I_CMAX] / 3600.0
@@ -183,6 +186,15 @@ def learned_coverage(desc, samples: int, truths: int, seed: int = 20_000) -> dic
         low, landed = fly_truths(sim, truth, plan.route)
         failed += int(not landed[0])
         inside.append(bool(landed[0] and lo <= low[0] <= hi))
+        soc_true = kernel.state_of_charge(true_pp, true_x)
+        soc_est = kernel.state_of_charge(pp0, state.pack_state)
+        soc_sd = np.sqrt(start["pack_cov"][:, kernel.S_QB, kernel.S_QB]) / pp0[:, kernel.I_CMAX]
+        per_truth.append({"start_soc_true": soc_true.round(4).tolist(), "start_soc_est": soc_est.round(4).tolist(),
+                          "start_soc_sd": soc_sd.round(4).tolist(),
+                          "cmax_true_rel": (true_pp[:, kernel.I_CMAX] / pp0[:, kernel.I_CMAX]).round(4).tolist(),
+                          "cb_true_rel": (true_pp[:, kernel.I_CB] / pp0[:, kernel.I_CB]).round(4).tolist(),
+                          "capacity_learned_rel": start["spread"].pack_scale[:, kernel.I_CMAX].round(4).tolist(),
+                          "interval": [lo, hi], "landing_true": float(low[0]) if landed[0] else None})
         widths.append(hi - lo)
         spread = start["spread"]
         cap_sd.append(float(np.mean(spread.pack_log_sd[:, kernel.I_CMAX])))
@@ -190,7 +202,8 @@ def learned_coverage(desc, samples: int, truths: int, seed: int = 20_000) -> dic
                                                                          * spread.pack_scale[:, kernel.I_CMAX])))))
     return {"truths": truths, "coverage_p05_p95": float(np.mean(inside)), "width_median": round(float(np.median(widths)), 4),
             "truth_failure_rate": failed / truths, "posterior_capacity_log_sd_median": round(float(np.median(cap_sd)), 4),
-            "posterior_capacity_log_error_rms": round(float(np.sqrt(np.mean(np.square(cap_err)))), 4)}
+            "posterior_capacity_log_error_rms": round(float(np.sqrt(np.mean(np.square(cap_err)))), 4),
+            "per_truth": per_truth}
 
 
 def run_state(run, j: int) -> np.ndarray:
