@@ -2,8 +2,10 @@
 
 The deterministic vehicle simulator flies each route once, on the nominal model. Here each route is
 flown on the same S draws (common random numbers, so two routes differ by the route, not by luck)
-of the start state (SoC and temperatures), the parameters (log-normal spread, as the prediction
-draws them), the fault's magnitude and the wind; routes × samples go through the one kernel in one
+of the start state (SoC and temperatures), the parameters (log-normal, as the prediction draws
+them; in the service spread as the estimator knows them, ``spread_from_estimator``: a
+self-calibrated pack's capacity and resistance from its posterior, the rest at the prior), the
+fault's magnitude and the wind; routes × samples go through the one kernel in one
 call per leg. A route's verdict is then a risk verdict:
 
 * P(failure) — the share of draws that fail in the air (cut-off voltage, depleted pack, over
@@ -55,7 +57,7 @@ DEFAULT_SEARCH_DT_S = 30.0
 @dataclass(frozen=True)
 class Uncertainty:
     """1-sigma spreads of what a plan cannot know exactly (a scenario's; the service draws the
-    state from its estimator instead)."""
+    state and the parameters as its estimator knows them instead: ``ParameterSpread``)."""
 
     soc_sd: float = 0.02            # per pack, absolute SoC
     temp_sd_c: float = 1.0          # packs and motors
