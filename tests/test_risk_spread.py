@@ -52,30 +52,40 @@ def quad_estimator():
     return est
 
 
-def test_a_self_calibrated_pack_is_drawn_from_its_posterior(quad_estimator):
+def test_a_self_calibrated_pack_is_drawn_from_what_it_learned_on_the_prior(quad_estimator):
     est = quad_estimator
     cal = est.calib[0]
-    # what it learned (as after a flight): a capacity 20 % short (g = 1.25) ± 8 %, R0 1.5x its prior ± 30 %
+    # nothing learned yet (the posterior is the calibrator's loose prior): the prior, as for any pack
+    cal.P[calibration.I_G, calibration.I_G] = cal.prior.capacity_rel_sd ** 2
+    cal.P[calibration.I_R0, calibration.I_R0] = (cal.prior.r0_rel_sd * cal.r0p) ** 2
+    cal.x[calibration.I_G], cal.x[calibration.I_R0] = 1.0, cal.r0p
+    unlearned = spread_from_estimator(est)
+    np.testing.assert_allclose(unlearned.pack_log_sd, PRIOR_PARAM_REL_SIGMA)
+    np.testing.assert_allclose(unlearned.pack_scale, 1.0)
+
+    # what a flight taught it: g = 1.25 ± 0.1 from its prior 1 ± 0.25 (precision 100 = 16 from the prior
+    # + 84 learned), R0 1.5 ± 0.45 × its prior (± 1.0). On the 8 % prior (precision 156.25): g =
+    # (156.25 + 1.25·100 − 16) / 240.25 = 1.10406 ± 0.064517, R0 = 1.015423 ± 0.079012 × its prior
     cal.x[calibration.I_G], cal.P[calibration.I_G, calibration.I_G] = 1.25, 0.1 ** 2
     cal.x[calibration.I_R0] = 1.5 * cal.r0p
     cal.P[calibration.I_R0, calibration.I_R0] = (0.45 * cal.r0p) ** 2
     spread = spread_from_estimator(est)
     assert spread.learned == (True,)
     for k in (kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX):
-        assert spread.pack_scale[0, k] == pytest.approx(0.8)
-        assert spread.pack_log_sd[0, k] == pytest.approx(np.sqrt(np.log1p(0.08 ** 2)))
+        assert spread.pack_scale[0, k] == pytest.approx(1 / 1.10406, rel=1e-4)
+        assert spread.pack_log_sd[0, k] == pytest.approx(0.064517 / 1.10406, rel=1e-3)
     for k in (kernel.I_RS, kernel.I_RCP0):
-        assert spread.pack_scale[0, k] == pytest.approx(1.5)
-        assert spread.pack_log_sd[0, k] == pytest.approx(np.sqrt(np.log1p(0.3 ** 2)))
+        assert spread.pack_scale[0, k] == pytest.approx(1.015423, rel=1e-4)
+        assert spread.pack_log_sd[0, k] == pytest.approx(0.079012 / 1.015423, rel=1e-3)
     assert spread.pack_log_sd[0, kernel.I_CT] == PRIOR_PARAM_REL_SIGMA
     assert spread.pack_scale[0, kernel.I_CT] == 1.0
 
-    # the draws: C_max about 0.8 x the description's with that spread; the start SoC kept
+    # the draws: C_max about that centre with that spread; the start SoC kept
     sim = _simulator("quad-4s")
     d = draw(sim, 4000, seed=1, spread=spread)
     log_cap = np.log(d.pack_params[:, 0, kernel.I_CMAX] / sim._pp[0][0, kernel.I_CMAX])
-    assert np.median(log_cap) == pytest.approx(np.log(0.8), abs=0.01)
-    assert np.std(log_cap) == pytest.approx(np.sqrt(np.log1p(0.08 ** 2)), rel=0.1)
+    assert np.median(log_cap) == pytest.approx(-np.log(1.10406), abs=0.01)
+    assert np.std(log_cap) == pytest.approx(spread.pack_log_sd[0, kernel.I_CMAX], rel=0.1)
     soc = kernel.state_of_charge(d.pack_params[:, 0], d.x0[:, 0])
     assert np.mean(soc) == pytest.approx(0.6, abs=0.005)
 

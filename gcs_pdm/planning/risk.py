@@ -111,12 +111,16 @@ def prior_spread(n_packs: int) -> ParameterSpread:
 
 
 def spread_from_estimator(estimator) -> ParameterSpread:
-    """The spread of what ``estimator`` (a ``StateEstimator``) knows: a self-calibrated pack's
-    capacity and series resistance from its calibrator's posterior — centred where it learned them
-    (× its prior, which is the description's), log-σ the posterior's relative σ (moment-matched:
-    √ln(1 + cv²)); before it has learned, that posterior is the description's prior (its capacity's
-    σ, 0.25 for a label) — every other parameter, and every pack without a calibrator (the paper
-    aircraft's set, a pack described as fitted), at the prior ``PRIOR_PARAM_REL_SIGMA``."""
+    """The spread of what ``estimator`` (a ``StateEstimator``) knows. A self-calibrated pack's
+    capacity and series resistance: what its calibrator learned, on the prior every other parameter
+    gets — the calibrator starts deliberately loose (capacity σ 0.25, resistance σ 1.0: it must
+    learn a mislabelled pack within a flight), and drawn at that looseness a pack nothing has been
+    learned about yet cuts off in the draws at take-off. So its posterior is re-based (``_rebased``):
+    its prior's σ is replaced by ``PRIOR_PARAM_REL_SIGMA`` where that is tighter (a pack history's
+    tighter prior is kept), which leaves what the flight taught it (the likelihood) as it is.
+    Centred where that puts them (× the description's), log-σ their relative σ (as the prior's). Every
+    other parameter, and every pack without a calibrator (the paper aircraft's set, a pack described
+    as fitted), at the prior."""
     from gcs_pdm.estimation import calibration as cal_state
 
     calibrators = list(getattr(estimator, "calib", None) or [None] * len(estimator.pack_names))
@@ -126,13 +130,31 @@ def spread_from_estimator(estimator) -> ParameterSpread:
         learned.append(cal is not None and cal.initialised)
         if not learned[-1]:
             continue
-        sd = np.sqrt(np.maximum(np.diag(cal.P), 0.0))
-        g, r0 = float(cal.x[cal_state.I_G]), float(cal.x[cal_state.I_R0])
-        for params, centre, cv in ((CAPACITY_PARAMS, 1.0 / g, sd[cal_state.I_G] / g),
-                                   (RESISTANCE_PARAMS, r0 / cal.r0p, sd[cal_state.I_R0] / r0)):
+        var = np.maximum(np.diag(cal.P), 0.0)
+        # inverse capacity scale g (1: the prior's capacity q0) and R0 (its prior r0p), each re-based
+        g, g_var = _rebased(float(cal.x[cal_state.I_G]), float(var[cal_state.I_G]), 1.0, cal.prior.capacity_rel_sd)
+        r0, r0_var = _rebased(float(cal.x[cal_state.I_R0]), float(var[cal_state.I_R0]), cal.r0p,
+                              cal.prior.r0_rel_sd * cal.r0p)
+        capacity = cal.q0 / g / float(estimator.packs.params[b, kernel.I_CMAX])
+        for params, centre, cv in ((CAPACITY_PARAMS, capacity, np.sqrt(g_var) / g),
+                                   (RESISTANCE_PARAMS, r0 / cal.r0p, np.sqrt(r0_var) / r0)):
             scale[b, list(params)] = centre
-            log_sd[b, list(params)] = np.sqrt(np.log1p(cv ** 2))
+            log_sd[b, list(params)] = cv
     return ParameterSpread(log_sd, scale, learned=tuple(learned))
+
+
+def _rebased(mean: float, var: float, prior_mean: float, prior_sd: float) -> tuple[float, float]:
+    """A Gaussian posterior (``mean``, ``var``) from a prior (``prior_mean``, ``prior_sd``), re-based
+    on the same prior with its σ at most ``PRIOR_PARAM_REL_SIGMA`` × ``prior_mean``: precisions add,
+    so the likelihood's precision is the posterior's less the old prior's (floored at 0: a
+    posterior no tighter than its prior learned nothing), and the new prior's is added back."""
+    new_sd = min(prior_sd, PRIOR_PARAM_REL_SIGMA * abs(prior_mean))
+    old_precision, new_precision = 1.0 / prior_sd ** 2, 1.0 / new_sd ** 2
+    learned = max(1.0 / max(var, 1e-300) - old_precision, 0.0)
+    precision = new_precision + learned
+    # the likelihood's information about the mean: posterior's less the old prior's
+    info = (mean / max(var, 1e-300) - prior_mean * old_precision) if learned > 0 else 0.0
+    return (prior_mean * new_precision + info) / precision, 1.0 / precision
 
 
 @dataclass(frozen=True)
