@@ -199,6 +199,7 @@ def learned_coverage(desc, samples: int, truths: int, seed: int = 20_000, *, bef
         low, landed = fly_truths(sim, truth, plan.route)
         failed += int(not landed[0])
         inside.append(bool(landed[0] and lo <= low[0] <= hi))
+        spread = start["spread"] or prior_spread(P)
         soc_true = kernel.state_of_charge(true_pp, true_x)
         soc_est = kernel.state_of_charge(pp0, state.pack_state)
         soc_sd = np.sqrt(start["pack_cov"][:, kernel.S_QB, kernel.S_QB]) / pp0[:, kernel.I_CMAX]
@@ -206,10 +207,9 @@ def learned_coverage(desc, samples: int, truths: int, seed: int = 20_000, *, bef
                           "start_soc_sd": soc_sd.round(4).tolist(),
                           "cmax_true_rel": (true_pp[:, kernel.I_CMAX] / pp0[:, kernel.I_CMAX]).round(4).tolist(),
                           "cb_true_rel": (true_pp[:, kernel.I_CB] / pp0[:, kernel.I_CB]).round(4).tolist(),
-                          "capacity_learned_rel": start["spread"].pack_scale[:, kernel.I_CMAX].round(4).tolist(),
+                          "capacity_learned_rel": spread.pack_scale[:, kernel.I_CMAX].round(4).tolist(),
                           "interval": [lo, hi], "landing_true": float(low[0]) if landed[0] else None})
         widths.append(hi - lo)
-        spread = start["spread"] or prior_spread(P)
         cap_sd.append(float(np.mean(spread.pack_log_sd[:, kernel.I_CMAX])))
         cap_err.append(float(np.mean(np.log(true_pp[:, kernel.I_CMAX] / (pp0[:, kernel.I_CMAX]
                                                                          * spread.pack_scale[:, kernel.I_CMAX])))))
