@@ -83,25 +83,12 @@ class ParameterSpread:
     """What is known of each parameter: the draws are log-normal about ``pack_scale`` × the
     simulator's values with log-σ ``pack_log_sd`` (both (P, 12)); the motors' log-σ is one number
     (nothing in flight narrows a motor's parameters). ``learned`` (P,): the pack's capacity and
-    resistance are its estimator's posterior, not the prior."""
+    resistance are from its calibrator's posterior (re-based on the prior), not the prior alone."""
 
     pack_log_sd: np.ndarray
     pack_scale: np.ndarray
     motor_log_sd: float = PRIOR_PARAM_REL_SIGMA
     learned: tuple[bool, ...] = ()
-
-    def to_dict(self, pack_names: Sequence[str]) -> dict:
-        """Per pack: the capacity's and series resistance's centre (× the description's) and
-        relative σ, and whether they were learned; the prior spread of everything else."""
-        def row(b: int) -> dict:
-            return {"capacity_scale": round(float(self.pack_scale[b, kernel.I_CMAX]), 4),
-                    "capacity_log_sd": round(float(self.pack_log_sd[b, kernel.I_CMAX]), 4),
-                    "resistance_scale": round(float(self.pack_scale[b, kernel.I_RS]), 4),
-                    "resistance_log_sd": round(float(self.pack_log_sd[b, kernel.I_RS]), 4),
-                    "source": "estimator posterior" if self.learned[b] else "prior"}
-
-        return {"packs": {n: row(b) for b, n in enumerate(pack_names)}, "motor_log_sd": self.motor_log_sd,
-                "other_parameters_log_sd": PRIOR_PARAM_REL_SIGMA}
 
 
 def prior_spread(n_packs: int) -> ParameterSpread:
