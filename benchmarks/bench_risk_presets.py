@@ -9,15 +9,21 @@ average beside it, the chosen route's P(failure) and landing-SoC p05/p50/p95, an
 paper's own code path (``table3_10``, the figure of bench_risk_planner.py) for reference.
 
 Coverage (``--truths``): each preset's chosen route is flown by ``--truths`` hidden truths that are
-NOT the planner's draws: each truth's pack and motor values are the description's off by a seeded
-log-normal error of the planner's own spread (5 %), its start SoC, fault magnitude and wind off by the
-planner's stated spreads, drawn with another seed. Reported: the share of truths that land with
-their lowest pack's SoC inside the plan's p05–p95 interval (nominal 90 %) and the truths' failure
-rate. This checks the intervals against truths of the planner's own uncertainty model. A second
-figure has truths off that model: their parameters spread by 8.7 % (the standard deviation of the
-simulator's hidden truth, ``sim.truth``: ±15 % log-uniform), wider than the 5 % the planner assumes.
+NOT the planner's draws (another seed). Per planner spread — the fixed 5 % it drew until
+2026-11-27 (``fixed_5pct``), and the prior spread the service now draws for a pack nothing has
+narrowed (``prior_spread``: 8 % on every parameter, ``planning.risk.prior_spread``) — two truth
+models: the planner's own (truths spread as its draws), and ``_off_model``: every parameter spread by
+8.7 % (the standard deviation of the simulated vehicle's hidden truth, ``sim.truth``: ±15 %
+log-uniform). Reported: the share of truths whose lowest pack lands inside the plan's p05–p95
+(nominal 90 %), the interval's width, the truths' failure rate.
+
+``--learned-truths N``: the service's case for a self-calibrated pack (``learned_coverage``): per
+truth (8.7 % off the description), the estimator watches its packs discharge to 60 %, the planner
+draws from what it learned (``risk.spread_from_estimator``), the truth flies the plan. ``--before``
+adds the same truths with the draws as they were (fixed 5 %, the capacity term counted twice).
 
     python benchmarks/bench_risk_presets.py [--trials 5] [--samples 200] [--truths 400]
+        [--learned-truths 20 [--before] [--per-truth]] [--presets NAME ...] [--no-paper]
 
 Prints one line per preset, then the figures as ONE JSON object on the last line.
 """
@@ -36,7 +42,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from gcs_pdm.planning.planners import run_risk_bounded  # noqa: E402
-from gcs_pdm.planning.risk import RiskSimulator, Uncertainty, draw  # noqa: E402
+from gcs_pdm.planning.risk import Draws, ParameterSpread, RiskSimulator, Uncertainty, draw, prior_spread  # noqa: E402
 from gcs_pdm.planning.scenario import Home, Scenario, StartState, Waypoint  # noqa: E402
 from gcs_pdm.planning.simulator import VehicleSimulator  # noqa: E402
 from gcs_pdm.planning.table3_scenario import table3_scenario  # noqa: E402
@@ -97,24 +103,125 @@ def time_plans(make_sim, trials: int, samples: int) -> dict:
 TRUTH_PARAM_SD = 0.0866
 
 
-def coverage(sim: VehicleSimulator, samples: int, truths: int, param_sd: float | None = None) -> dict:
-    """The plan's landing-SoC interval against hidden truths of the planner's uncertainty model
-    (``param_sd``: their parameters spread by that instead of the planner's own spread)."""
-    plan = run_risk_bounded("pf", RiskSimulator(sim, draw(sim, samples, seed=0)), seed=0)
+def coverage(sim: VehicleSimulator, samples: int, truths: int, param_sd: float | None = None,
+             spread: ParameterSpread | None = None) -> dict:
+    """The plan's landing-SoC interval against hidden truths (another seed: not the planner's draws).
+    The planner draws its parameters with ``spread`` (None: the fixed ``Uncertainty`` 5 %); the
+    truths are spread like the planner's draws (``param_sd`` None) or by ``param_sd`` on every
+    parameter (the simulated vehicle's kind of model error)."""
+    plan = run_risk_bounded("pf", RiskSimulator(sim, draw(sim, samples, seed=0, spread=spread)), seed=0)
     lo, _, hi = plan.stats["risk"]["landing_soc_quantiles"]["soc"]
-    spread = Uncertainty() if param_sd is None else Uncertainty(param_rel_sigma=param_sd)
-    # another seed: not the planner's draws
-    truth = RiskSimulator(sim, draw(sim, truths, uncertainty=spread, seed=10_000))
+    if param_sd is None:
+        truth_draws = draw(sim, truths, seed=10_000, spread=spread)
+    else:
+        truth_draws = draw(sim, truths, uncertainty=Uncertainty(param_rel_sigma=param_sd), seed=10_000)
+    low, landed = fly_truths(sim, truth_draws, plan.route)
+    inside = (low >= lo) & (low <= hi)
+    return {"route": list(plan.numbers), "interval": [lo, hi], "width": round(hi - lo, 4), "truths": truths,
+            "landed": int(landed.sum()), "coverage_p05_p95": float(inside.mean()) if low.size else None,
+            "truth_failure_rate": float(1.0 - landed.mean())}
+
+
+def fly_truths(sim: VehicleSimulator, truths: Draws, route) -> tuple[np.ndarray, np.ndarray]:
+    """Each truth (a row of ``truths``) flies ``route`` and lands: the lowest pack's landing SoC of
+    the truths that land, and which landed."""
+    truth = RiskSimulator(sim, truths)
     st = truth.start_state(1)
-    for w in plan.route:
+    for w in route:
         st = truth._fly(st, np.array([w]))
     fin = truth._fly(st, np.array([truth.landing_node]))
     landed = ~fin.failed[0]
-    low = truth._soc(fin.x)[0].min(axis=1)[landed]
-    inside = (low >= lo) & (low <= hi)
-    return {"route": list(plan.numbers), "interval": [lo, hi], "truths": truths, "landed": int(landed.sum()),
-            "coverage_p05_p95": float(inside.mean()) if low.size else None,
-            "truth_failure_rate": float(1.0 - landed.mean())}
+    return truth._soc(fin.x)[0].min(axis=1)[landed], landed
+
+
+#: the learned case: the estimator watches each pack discharge from full to START_SOC at
+#: LEARN_C_RATE (C) in legs of 20-120 s, voltage noise 10 mV + 2 mV per cell, current noise 1 %
+LEARN_C_RATE = (0.5, 2.5)
+
+
+def learned_coverage(desc, samples: int, truths: int, seed: int = 20_000, *, before: bool = False) -> dict:
+    """The service's case for a self-calibrated pack: per truth, a vehicle whose every parameter is
+    off the description by the simulated vehicle's kind of error (``TRUTH_PARAM_SD``); the
+    estimator (``StateEstimator`` on the description) watches its packs discharge from full to
+    ``START_SOC``; the planner draws from the estimator (its SoC and covariance, and
+    ``spread_from_estimator``) and plans; the truth flies the plan. Coverage of each truth's own
+    interval, its width, and the posterior's capacity σ and error. ``before``: the draws as they
+    were before 2026-11-27 (every parameter at the fixed 5 %, and the parameter set's capacity term
+    added to the calibrated SoC's σ, which carries it already), on the same truths."""
+    from gcs_pdm.estimation.estimator import StateEstimator
+    from gcs_pdm.frames import PackFrame
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.powertrain import PowertrainState
+    from gcs_pdm.service.adapters import _estimated_start
+
+    base_sim = simulator(desc)
+    rng = np.random.default_rng(seed)
+    pp0 = base_sim._pp[0]
+    P = pp0.shape[0]
+    inside, widths, cap_sd, cap_err, failed, per_truth = [], [], [], [], 0, []
+    for k in range(truths):
+        one = draw(base_sim, 1, uncertainty=Uncertainty(param_rel_sigma=TRUTH_PARAM_SD, soc_sd=0.0), seed=rng)
+        true_pp = one.pack_params[0]
+        # a pack's capacity is one number (the calibrator's g, ``pack_scaling.scale_pack_vector``):
+        # its usable charge C_max moves with its bulk capacitance C_b, not on its own
+        true_pp[:, kernel.I_CMAX] = pp0[:, kernel.I_CMAX] * true_pp[:, kernel.I_CB] / pp0[:, kernel.I_CB]
+        est = StateEstimator(vehicle=desc)
+        # a pack's current: a share of the bus's, the legs' C-rate of the description's capacity
+        amps = pp0[:, kernel.I_CMAX] / 3600.0
+        current = []
+        while len(current) < 4000:
+            current += [rng.uniform(*LEARN_C_RATE)] * int(rng.uniform(20, 120))
+        current = np.concatenate([np.zeros(30), np.array(current)])[None] * amps[:, None]
+        n = current.shape[1]
+        run = kernel.simulate_packs(true_pp, kernel.initial_pack_state(true_pp, 1.0, 20.0, 0.0), np.ones(n),
+                                    current, np.full(n, 20.0), record_states=True)
+        end = int(np.argmax(run.soc.min(axis=0) <= START_SOC))
+        sd_v = 0.01 + 0.002 * np.array([p.cells_series for p in desc.packs])
+        for j in range(end + 1):
+            for b, spec in enumerate(desc.packs):
+                est.consume(PackFrame(j + 1.0, spec.name, float(run.voltage[b, j] + rng.normal(0.0, sd_v[b])),
+                                      float(current[b, j] * (1.0 + rng.normal(0.0, 0.01))), None))
+        # the planned start: the estimator's packs, the truth's temperatures as flown
+        state = PowertrainState(np.array(est.packs.mean, copy=True), np.full(len(desc.motor_names), 20.0))
+        motor = desc.motor_names[min(1, len(desc.motor_names) - 1)]
+        sim = VehicleSimulator(field(desc), vehicle=desc, state=state, motor_faults={motor: FAULT})
+        start = _estimated_start(est, sim)
+        if before:
+            start = dict(start, spread=None, pack_cov=start["pack_cov"].copy())
+            soc = kernel.state_of_charge(pp0, state.pack_state)
+            calibrated = np.array([c is not None for c in est.calib])
+            start["pack_cov"][:, kernel.S_QB, kernel.S_QB] += calibrated * (est.config.capacity_rel_sigma * (1.0 - soc)
+                                                                            * pp0[:, kernel.I_CMAX]) ** 2
+        plan = run_risk_bounded("pf", RiskSimulator(sim, draw(sim, samples, seed=k, **start)), seed=k)
+        lo, _, hi = plan.stats["risk"]["landing_soc_quantiles"]["soc"]
+        true_x = run_state(run, end)
+        truth = Draws(true_x[None], one.motor_temp, one.pack_params, one.motor_params, one.fault, one.wind_en)
+        low, landed = fly_truths(sim, truth, plan.route)
+        failed += int(not landed[0])
+        inside.append(bool(landed[0] and lo <= low[0] <= hi))
+        spread = start["spread"] or prior_spread(P)
+        soc_true = kernel.state_of_charge(true_pp, true_x)
+        soc_est = kernel.state_of_charge(pp0, state.pack_state)
+        soc_sd = np.sqrt(start["pack_cov"][:, kernel.S_QB, kernel.S_QB]) / pp0[:, kernel.I_CMAX]
+        per_truth.append({"start_soc_true": soc_true.round(4).tolist(), "start_soc_est": soc_est.round(4).tolist(),
+                          "start_soc_sd": soc_sd.round(4).tolist(),
+                          "cmax_true_rel": (true_pp[:, kernel.I_CMAX] / pp0[:, kernel.I_CMAX]).round(4).tolist(),
+                          "cb_true_rel": (true_pp[:, kernel.I_CB] / pp0[:, kernel.I_CB]).round(4).tolist(),
+                          "capacity_learned_rel": spread.pack_scale[:, kernel.I_CMAX].round(4).tolist(),
+                          "interval": [lo, hi], "landing_true": float(low[0]) if landed[0] else None})
+        widths.append(hi - lo)
+        cap_sd.append(float(np.mean(spread.pack_log_sd[:, kernel.I_CMAX])))
+        cap_err.append(float(np.mean(np.log(true_pp[:, kernel.I_CMAX] / (pp0[:, kernel.I_CMAX]
+                                                                         * spread.pack_scale[:, kernel.I_CMAX])))))
+    return {"truths": truths, "coverage_p05_p95": float(np.mean(inside)), "width_median": round(float(np.median(widths)), 4),
+            "truth_failure_rate": failed / truths, "posterior_capacity_log_sd_median": round(float(np.median(cap_sd)), 4),
+            "posterior_capacity_log_error_rms": round(float(np.sqrt(np.mean(np.square(cap_err)))), 4),
+            "per_truth": per_truth}
+
+
+def run_state(run, j: int) -> np.ndarray:
+    """(P, 4) the packs' kernel state after step ``j`` of a ``kernel.simulate_packs`` run."""
+    return np.array(run.states[:, j], copy=True)
 
 
 def main() -> int:
@@ -122,26 +229,42 @@ def main() -> int:
     ap.add_argument("--trials", type=int, default=5)
     ap.add_argument("--samples", type=int, default=200)
     ap.add_argument("--truths", type=int, default=400)
+    ap.add_argument("--learned-truths", type=int, default=0,
+                    help="per preset, truths whose packs the estimator watched discharge (learned_coverage)")
+    ap.add_argument("--before", action="store_true", help="the learned case also with the draws as they were")
+    ap.add_argument("--per-truth", action="store_true", help="the learned case's truths one by one in the JSON")
+    ap.add_argument("--presets", nargs="*", default=list(PRESET_NAMES))
+    ap.add_argument("--no-paper", action="store_true", help="skip the paper code path's timing")
     args = ap.parse_args()
     out = {"samples": args.samples, "trials": args.trials, "start_soc": START_SOC, "fault": FAULT,
            "cpus": os.cpu_count(), "presets": {}}
-    for name in PRESET_NAMES:
+    for name in args.presets:
         desc = PRESETS[name]
         row = time_plans(lambda: simulator(desc), args.trials, args.samples)
         if args.truths:
-            row["coverage"] = coverage(simulator(desc), args.samples, args.truths)
-            row["coverage_off_model"] = coverage(simulator(desc), args.samples, args.truths, TRUTH_PARAM_SD)
+            prior = prior_spread(len(desc.packs))
+            for key, spread in (("fixed_5pct", None), ("prior_spread", prior)):
+                row[f"coverage_{key}"] = coverage(simulator(desc), args.samples, args.truths, spread=spread)
+                row[f"coverage_{key}_off_model"] = coverage(simulator(desc), args.samples, args.truths,
+                                                            TRUTH_PARAM_SD, spread=spread)
+        for key, before in (("coverage_learned", False), ("coverage_learned_before", True)):
+            if args.learned_truths and (not before or args.before):
+                row[key] = learned_coverage(desc, args.samples, args.learned_truths, before=before)
+                if not args.per_truth:
+                    row[key].pop("per_truth")
         out["presets"][name] = row
-        cov = row.get("coverage", {})
+        cov = {k: (v.get("coverage_p05_p95"), v.get("width", v.get("width_median")))
+               for k, v in row.items() if k.startswith("coverage")}
         print(f"{name:9s} plan median {row['median_s']:.3f} s (min {row['min_s']:.3f}), CPU median "
               f"{row['cpu_median_s']:.3f} s; route {row['route']} P(fail) {row['p_failure']:.3f} landing SoC "
-              f"{row['landing_soc_p05_p50_p95']}; coverage {cov.get('coverage_p05_p95')} of {cov.get('landed')} "
-              f"landed truths, {row.get('coverage_off_model', {}).get('coverage_p05_p95')} off the model "
-              f"(load {row['load_average_1min']:.1f})", flush=True)
-    paper = table3_scenario(true_parameters(), 10)
-    out["paper_code_path_table3_10"] = time_plans(lambda: VehicleSimulator(paper), args.trials, args.samples)
-    p = out["paper_code_path_table3_10"]
-    print(f"paper code path table3_10: median {p['median_s']:.3f} s, CPU median {p['cpu_median_s']:.3f} s", flush=True)
+              f"{row['landing_soc_p05_p50_p95']}; coverage, width {cov} (load {row['load_average_1min']:.1f})",
+              flush=True)
+    if not args.no_paper:
+        paper = table3_scenario(true_parameters(), 10)
+        out["paper_code_path_table3_10"] = time_plans(lambda: VehicleSimulator(paper), args.trials, args.samples)
+        p = out["paper_code_path_table3_10"]
+        print(f"paper code path table3_10: median {p['median_s']:.3f} s, CPU median {p['cpu_median_s']:.3f} s",
+              flush=True)
     print(json.dumps(out))
     return 0
 

@@ -151,20 +151,26 @@ def base_arrays(params) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(packs, dtype=np.float64), np.asarray(motor, dtype=np.float64)
 
 
-def sample_parameters(params, n: int, rng: np.random.Generator, rel_sigma: float
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def sample_parameters(params, n: int, rng: np.random.Generator, rel_sigma: float | np.ndarray,
+                      motor_rel_sigma: float | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(n, 4, 12) pack and (n, 5) motor parameter samples, log-normal around ``params``.
 
     q_max keeps its ratio to C_b (a full pack stays at full voltage), C_max never exceeds q_max,
     and R_cp2 — an exponent — moves by a tenth of the spread with R_cp1 compensating, so the
-    end-of-discharge resistance varies by the spread itself (as ``params.perturbed`` does)."""
+    end-of-discharge resistance varies by the spread itself (as ``params.perturbed`` does).
+
+    ``rel_sigma``: one log-σ for every pack parameter, or one per pack and parameter (the pack
+    matrix's shape: what is known differs by pack and parameter, ``planning.risk.ParameterSpread``);
+    ``motor_rel_sigma``: the motors' (default ``rel_sigma``, which must then be a number)."""
     base, motor_base = base_arrays(params)
     packs = base[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n,) + base.shape))
-    packs[..., kernel.I_RCP2] = base[:, kernel.I_RCP2] * (1.0 + rng.normal(0.0, rel_sigma / 10.0, size=(n, base.shape[0])))
+    rcp2_sigma = rel_sigma if np.ndim(rel_sigma) == 0 else np.asarray(rel_sigma)[:, kernel.I_RCP2]
+    packs[..., kernel.I_RCP2] = base[:, kernel.I_RCP2] * (1.0 + rng.normal(0.0, rcp2_sigma / 10.0, size=(n, base.shape[0])))
     packs[..., kernel.I_RCP1] *= np.exp(base[:, kernel.I_RCP2] - packs[..., kernel.I_RCP2])
     packs[..., kernel.I_QMAX] = packs[..., kernel.I_CB] * (base[:, kernel.I_QMAX] / base[:, kernel.I_CB])
     packs[..., kernel.I_CMAX] = np.minimum(packs[..., kernel.I_CMAX], packs[..., kernel.I_QMAX])
-    motor = motor_base[None] * np.exp(rng.normal(0.0, rel_sigma, size=(n,) + motor_base.shape))
+    motor_sigma = rel_sigma if motor_rel_sigma is None else motor_rel_sigma
+    motor = motor_base[None] * np.exp(rng.normal(0.0, motor_sigma, size=(n,) + motor_base.shape))
     return packs, motor
 
 

@@ -2,8 +2,10 @@
 
 The deterministic vehicle simulator flies each route once, on the nominal model. Here each route is
 flown on the same S draws (common random numbers, so two routes differ by the route, not by luck)
-of the start state (SoC and temperatures), the parameters (log-normal spread, as the prediction
-draws them), the fault's magnitude and the wind; routes × samples go through the one kernel in one
+of the start state (SoC and temperatures), the parameters (log-normal, as the prediction draws
+them; in the service spread as the estimator knows them, ``spread_from_estimator``: a
+self-calibrated pack's capacity and resistance from its posterior, the rest at the prior), the
+fault's magnitude and the wind; routes × samples go through the one kernel in one
 call per leg. A route's verdict is then a risk verdict:
 
 * P(failure) — the share of draws that fail in the air (cut-off voltage, depleted pack, over
@@ -55,13 +57,91 @@ DEFAULT_SEARCH_DT_S = 30.0
 @dataclass(frozen=True)
 class Uncertainty:
     """1-sigma spreads of what a plan cannot know exactly (a scenario's; the service draws the
-    state from its estimator instead)."""
+    state and the parameters as its estimator knows them instead: ``ParameterSpread``)."""
 
     soc_sd: float = 0.02            # per pack, absolute SoC
     temp_sd_c: float = 1.0          # packs and motors
     param_rel_sigma: float = 0.05   # log-normal, every parameter (``prediction.sample_parameters``)
     fault_sd: float = 0.08          # absolute, on each fault present (clipped to [0, 1])
     wind_sd_mps: float = 1.5        # per component, about the scenario's wind
+
+
+#: the log-normal spread of a parameter nothing has narrowed: a parameter set's value against the
+#: real vehicle's (the paper aircraft's set, a pack described as fitted, every motor). The
+#: prediction's own ``param_rel_sigma`` (``predict``): one prior for both Monte Carlos, measured to
+#: hold its intervals against truths up to 15 % off the set (docs/intervals.md)
+PRIOR_PARAM_REL_SIGMA = 0.08
+#: pack parameters a self-calibrated pack's posterior speaks for: its capacity (the calibrator's
+#: inverse capacity scale g moves C_b, q_max and C_max together) and its series resistance (R₀:
+#: R_s and R_cp0, as ``StateEstimator.adopt_pack_scales`` moves them)
+CAPACITY_PARAMS = (kernel.I_CB, kernel.I_QMAX, kernel.I_CMAX)
+RESISTANCE_PARAMS = (kernel.I_RS, kernel.I_RCP0)
+
+
+@dataclass(frozen=True)
+class ParameterSpread:
+    """What is known of each parameter: the draws are log-normal about ``pack_scale`` × the
+    simulator's values with log-σ ``pack_log_sd`` (both (P, 12)); the motors' log-σ is one number
+    (nothing in flight narrows a motor's parameters). ``learned`` (P,): the pack's capacity and
+    resistance are from its calibrator's posterior (re-based on the prior), not the prior alone."""
+
+    pack_log_sd: np.ndarray
+    pack_scale: np.ndarray
+    motor_log_sd: float = PRIOR_PARAM_REL_SIGMA
+    learned: tuple[bool, ...] = ()
+
+
+def prior_spread(n_packs: int) -> ParameterSpread:
+    """Every parameter at the prior spread about its set's value (nothing learned)."""
+    return ParameterSpread(np.full((n_packs, kernel.N_PACK_PARAMS), PRIOR_PARAM_REL_SIGMA),
+                           np.ones((n_packs, kernel.N_PACK_PARAMS)), learned=(False,) * n_packs)
+
+
+def spread_from_estimator(estimator) -> ParameterSpread:
+    """The spread of what ``estimator`` (a ``StateEstimator``) knows. A self-calibrated pack's
+    capacity and series resistance: what its calibrator learned, on the prior every other parameter
+    gets — the calibrator starts deliberately loose (capacity σ 0.25, resistance σ 1.0: it must
+    learn a mislabelled pack within a flight), and drawn at that looseness a pack nothing has been
+    learned about yet cuts off in the draws at take-off. So its posterior is re-based (``_rebased``):
+    its prior's σ is replaced by ``PRIOR_PARAM_REL_SIGMA`` where that is tighter (a pack history's
+    tighter prior is kept), which leaves what the flight taught it (the likelihood) as it is.
+    Centred where that puts them (× the description's), log-σ their relative σ (as the prior's). Every
+    other parameter, and every pack without a calibrator (the paper aircraft's set, a pack described
+    as fitted), at the prior."""
+    from gcs_pdm.estimation import calibration as cal_state
+
+    calibrators = list(getattr(estimator, "calib", None) or [None] * len(estimator.pack_names))
+    spread = prior_spread(len(calibrators))
+    log_sd, scale, learned = spread.pack_log_sd, spread.pack_scale, []
+    for b, cal in enumerate(calibrators):
+        learned.append(cal is not None and cal.initialised)
+        if not learned[-1]:
+            continue
+        var = np.maximum(np.diag(cal.P), 0.0)
+        # inverse capacity scale g (1: the prior's capacity q0) and R0 (its prior r0p), each re-based
+        g, g_var = _rebased(float(cal.x[cal_state.I_G]), float(var[cal_state.I_G]), 1.0, cal.prior.capacity_rel_sd)
+        r0, r0_var = _rebased(float(cal.x[cal_state.I_R0]), float(var[cal_state.I_R0]), cal.r0p,
+                              cal.prior.r0_rel_sd * cal.r0p)
+        capacity = cal.q0 / g / float(estimator.packs.params[b, kernel.I_CMAX])
+        for params, centre, cv in ((CAPACITY_PARAMS, capacity, np.sqrt(g_var) / g),
+                                   (RESISTANCE_PARAMS, r0 / cal.r0p, np.sqrt(r0_var) / r0)):
+            scale[b, list(params)] = centre
+            log_sd[b, list(params)] = cv
+    return ParameterSpread(log_sd, scale, learned=tuple(learned))
+
+
+def _rebased(mean: float, var: float, prior_mean: float, prior_sd: float) -> tuple[float, float]:
+    """A Gaussian posterior (``mean``, ``var``) from a prior (``prior_mean``, ``prior_sd``), re-based
+    on the same prior with its σ at most ``PRIOR_PARAM_REL_SIGMA`` × ``prior_mean``: precisions add,
+    so the likelihood's precision is the posterior's less the old prior's (floored at 0: a
+    posterior no tighter than its prior learned nothing), and the new prior's is added back."""
+    new_sd = min(prior_sd, PRIOR_PARAM_REL_SIGMA * abs(prior_mean))
+    old_precision, new_precision = 1.0 / prior_sd ** 2, 1.0 / new_sd ** 2
+    learned = max(1.0 / max(var, 1e-300) - old_precision, 0.0)
+    precision = new_precision + learned
+    # the likelihood's information about the mean: posterior's less the old prior's
+    info = (mean / max(var, 1e-300) - prior_mean * old_precision) if learned > 0 else 0.0
+    return (prior_mean * new_precision + info) / precision, 1.0 / precision
 
 
 @dataclass(frozen=True)
@@ -81,18 +161,28 @@ class Draws:
 
 def draw(sim: VehicleSimulator, n: int = DEFAULT_SAMPLES, *, uncertainty: Uncertainty = Uncertainty(),
          seed: int | np.random.Generator = 0, pack_mean: np.ndarray | None = None,
-         pack_cov: np.ndarray | None = None, motor_sd: np.ndarray | None = None) -> Draws:
+         pack_cov: np.ndarray | None = None, motor_sd: np.ndarray | None = None,
+         spread: ParameterSpread | None = None) -> Draws:
     """``n`` draws about ``sim``'s start (its state, pack and motor parameters, motor faults and
     its scenario's wind), for any vehicle the simulator flies (P packs, M motors).
 
     ``pack_mean``/``pack_cov`` (P, 4) / (P, 4, 4): an estimator's pack state and covariance to draw
     the start from instead of the simulator's state with ``uncertainty.soc_sd``/``temp_sd_c``;
-    ``motor_sd`` (M,): its motor temperatures' spread."""
+    ``motor_sd`` (M,): its motor temperatures' spread. ``spread``: what is known of each parameter
+    (``spread_from_estimator``); None: every parameter at ``uncertainty.param_rel_sigma`` about the
+    simulator's values (a scenario's stated spread)."""
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     pp0 = sim._pp[0]
     # one draw per motor type (for the paper's aircraft: one vector for both motors, as drawn so far)
     motor_types, type_of_motor = np.unique(sim._motor_rows[0], axis=0, return_inverse=True)
-    pp, mp = sample_parameters((pp0, motor_types), n, rng, uncertainty.param_rel_sigma)
+    if spread is None:
+        pp, mp = sample_parameters((pp0, motor_types), n, rng, uncertainty.param_rel_sigma)
+    else:
+        if spread.pack_log_sd.shape != pp0.shape:
+            raise ValueError(f"spread: {spread.pack_log_sd.shape[0]} packs, the simulator flies {pp0.shape[0]}")
+        # centred on what was learned; the start state, estimated under pp0, is restated below
+        pp, mp = sample_parameters((pp0 * spread.pack_scale, motor_types), n, rng, spread.pack_log_sd,
+                                   spread.motor_log_sd)
     mp = mp[:, np.asarray(type_of_motor).reshape(-1)]
     if pack_mean is not None:
         cov = np.asarray(pack_cov, dtype=np.float64)
@@ -532,5 +622,6 @@ def _scatter(base, idx: np.ndarray, values):
     return type(base)(**fields)
 
 
-__all__ = ["DEFAULT_MAX_FAILURE_PROBABILITY", "DEFAULT_RESERVE_QUANTILE", "DEFAULT_SAMPLES", "Draws", "RiskOutcome",
-           "RiskSimulator", "RiskState", "Uncertainty", "draw", "plan_risk_bounded"]
+__all__ = ["DEFAULT_MAX_FAILURE_PROBABILITY", "DEFAULT_RESERVE_QUANTILE", "DEFAULT_SAMPLES", "Draws",
+           "PRIOR_PARAM_REL_SIGMA", "ParameterSpread", "RiskOutcome", "RiskSimulator", "RiskState", "Uncertainty",
+           "draw", "plan_risk_bounded", "prior_spread", "spread_from_estimator"]

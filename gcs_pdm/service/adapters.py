@@ -246,22 +246,28 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
 
 
 def _estimated_start(estimator, sim) -> dict:
-    """The risk draws' start: the planned state with the estimator's pack covariance (plus the
-    capacity mismatch it adds to its SoC spread, as the prediction does); {} without an estimator.
-    Any vehicle: the estimator tracks the packs and motors the simulator flies, in its order."""
+    """The risk draws' start and parameters: the planned state with the estimator's pack covariance
+    (plus the capacity mismatch it adds to the SoC spread of a pack it has not calibrated, as the
+    prediction does: a self-calibrated pack's σ carries its capacity's uncertainty already), and
+    the parameters spread as the estimator knows them (``risk.spread_from_estimator``); without an
+    estimator, the prior spread. Any vehicle: the estimator tracks the packs and motors the
+    simulator flies, in its order."""
+    from gcs_pdm.planning.risk import prior_spread, spread_from_estimator
+
     if estimator is None:
-        return {}
+        return {"spread": prior_spread(len(sim.pack_names))}
     from gcs_pdm.models import kernel
 
     packs = estimator.packs
     cov = np.array(packs.cov, dtype=np.float64, copy=True)
     soc = kernel.state_of_charge(packs.params, packs.mean)
+    calibrated = np.array([c is not None for c in getattr(estimator, "calib", [None] * len(soc))])
     extra = estimator.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0) * packs.params[:, kernel.I_CMAX]
-    cov[:, kernel.S_QB, kernel.S_QB] += extra ** 2
+    cov[:, kernel.S_QB, kernel.S_QB] += np.where(calibrated, 0.0, extra) ** 2
     cov *= estimator.prediction_inflation()[:, None, None]
     tm_sd = np.asarray(estimator.motors.temperature()[1], dtype=np.float64)
     return {"pack_mean": np.asarray(sim.initial.pack_state, dtype=np.float64), "pack_cov": cov,
-            "motor_sd": np.where(np.isfinite(tm_sd), tm_sd, 2.0)}
+            "motor_sd": np.where(np.isfinite(tm_sd), tm_sd, 2.0), "spread": spread_from_estimator(estimator)}
 
 
 def _placeholder_state(params: ParameterSet, temp_c: float) -> PowertrainState:
