@@ -137,8 +137,11 @@ def test_the_load_held_after_take_off_is_the_mean_of_the_load_seen():
 
 def test_the_future_loads_spread_is_how_far_the_held_load_moved():
     """A load that steps 10 <-> 14 A every minute moves its held mean by tens of per cent a span;
-    a steady one by nothing."""
+    a steady one by nothing, and 20 s of taxi at 0.5 A before it only by the first minute's mix (its
+    first sample is not a span's start: against it the climb read as a factor of 24)."""
     steady = _loaded_calibrator(np.full(600, 12.0))
+    after_taxi = _loaded_calibrator(np.r_[np.full(20, 0.5), np.full(600, 12.0)])
     stepping = _loaded_calibrator(np.tile(np.r_[np.full(60, 10.0), np.full(60, 14.0)], 5))
     assert CutoffModel.of(steady).current_log_sd < 0.01
+    assert CutoffModel.of(after_taxi).current_log_sd < 0.3
     assert 0.1 < CutoffModel.of(stepping).current_log_sd < 0.4

@@ -416,7 +416,7 @@ class PackCalibrator:
         self.loaded_s += dt
         if not math.isfinite(self.recent_current_a):
             self.recent_current_a, self.recent_miss_v = i, miss
-            self._span_start_s, self._span_start_a = self.loaded_s, i
+            self._span_start_s = self.loaded_s
             return
         # a plain mean over the load seen while that is shorter than the span: an exponential mean
         # started at the first loaded sample kept 56 % of it at 35 s (a taxi's draw held after take-off)
@@ -426,11 +426,14 @@ class PackCalibrator:
         w_spread = 1.0 - math.exp(-dt / LOAD_SPREAD_TAU_S)
         self.recent_miss_var += w_spread * ((miss - self.recent_miss_v) ** 2 - self.recent_miss_var)
         if self.loaded_s - self._span_start_s >= RECENT_LOAD_TAU_S:
-            # the held mean's move over one span: how far a held current is from the next span's
-            move = math.log(max(self.recent_current_a, 1e-6) / max(self._span_start_a, 1e-6)) ** 2
-            spans = RECENT_LOAD_TAU_S / LOAD_SPREAD_TAU_S
-            self.current_move_log_var = (move if not math.isfinite(self.current_move_log_var)
-                                         else self.current_move_log_var + spans * (move - self.current_move_log_var))
+            # the held mean's move over one span: how far a held current is from the next span's.
+            # The first span's end is the first held mean (its start was one sample: a taxi's 0.5 A
+            # against a climb's 17 A read as a factor of 30)
+            if math.isfinite(self._span_start_a):
+                move = math.log(max(self.recent_current_a, 1e-6) / max(self._span_start_a, 1e-6)) ** 2
+                spans = RECENT_LOAD_TAU_S / LOAD_SPREAD_TAU_S
+                self.current_move_log_var = (move if not math.isfinite(self.current_move_log_var) else
+                                             self.current_move_log_var + spans * (move - self.current_move_log_var))
             self._span_start_s, self._span_start_a = self.loaded_s, self.recent_current_a
 
     def _predict(self, dt: float, i: float, u: float) -> None:
