@@ -17,7 +17,7 @@ truth (nominal 90 %), the share whose median is within 10 %, and the median rela
 ((95 % − 5 %) / 2 over the time truly left); at half-way alone and over every prediction.
 
 Run: ``PYTHONPATH=$PWD python benchmarks/bench_time_to_cutoff.py [--sets pybamm,simulated]``
-(≈ 2-4 min of CPU). Prints one line per flight or case, then ONE JSON object.
+(its `cpu_s` ≈ 11 s; 4-5 min wall at load 8). Prints one line per flight or case, then ONE JSON object.
 """
 from __future__ import annotations
 
