@@ -428,7 +428,7 @@ class PackCalibrator:
         if self.loaded_s - self._span_start_s >= RECENT_LOAD_TAU_S:
             # the held mean's move over one span: how far a held current is from the next span's.
             # The first span's end is the first held mean (its start was one sample: a taxi's 0.5 A
-            # against a climb's 17 A read as a factor of 30)
+            # against a cruise's 12 A read as a factor of 24)
             if math.isfinite(self._span_start_a):
                 move = math.log(max(self.recent_current_a, 1e-6) / max(self._span_start_a, 1e-6)) ** 2
                 spans = RECENT_LOAD_TAU_S / LOAD_SPREAD_TAU_S
