@@ -84,3 +84,64 @@ def test_the_services_count_down_of_a_calibrated_pack_is_its_filters(half_way):
     assert np.quantile(own, 0.05) <= med <= np.quantile(own, 0.95)
     assert abs(med / left_s - 1.0) <= 0.10, (med, left_s)
     assert pred.to_dict()["packs"][est.pack_names[0]]["time_to_cutoff_s"][1] == pytest.approx(med, abs=1e-3)
+
+
+def _spread(model: CutoffModel, cutoff_v: float) -> float:
+    """The 5-95 % width of 2000 draws of ``model``'s time to cut-off at its held load, s."""
+    t = model.sample_times(model.recent_current_a, cutoff_v, np.random.default_rng(5), 2000)
+    return float(np.quantile(t, 0.95) - np.quantile(t, 0.05))
+
+
+def test_what_the_filter_does_not_carry_widens_the_interval(half_way):
+    """The future load, the model's unexplained sag and the near-empty rise are each drawn: each
+    alone widens the count-down's interval beyond the filter's covariance's (the rise near empty,
+    where it acts: the same state at SoC 0.25)."""
+    from dataclasses import replace
+
+    from gcs_pdm.estimation.calibration import I_SOC
+
+    est, _, cutoff_v = half_way
+    filter_only = CutoffModel.of(est.calib[0]).without_unmodelled()
+    near_empty = replace(filter_only, x=np.where(np.arange(filter_only.x.size) == I_SOC, 0.25, filter_only.x))
+    for extra in ({"current_log_sd": 0.3}, {"recent_miss_sd_v": 0.5}):
+        assert _spread(replace(filter_only, **extra), cutoff_v) > 1.1 * _spread(filter_only, cutoff_v), extra
+    # a steeper rise cuts off sooner; drawn, it widens the interval (a few per cent on this pack)
+    at = [float(near_empty.times(near_empty.x[None], near_empty.recent_current_a, cutoff_v, rise_power=p)[0])
+          for p in (2.0, 1.0, 0.5)]
+    assert at[0] < at[1] < at[2], at
+    assert _spread(replace(near_empty, rise_log_sd=1.0), cutoff_v) > _spread(near_empty, cutoff_v)
+
+
+def _loaded_calibrator(currents_a: np.ndarray):
+    """A derived 4S LiPo's calibrator fed one loaded frame a second at ``currents_a`` (a voltage
+    sagging 0.05 Ω below a rested 15.6 V: only the load's tracking is looked at)."""
+    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+
+    cal = PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600.0))
+    cal.initialise(0.0, 15.6, 0.0, 25.0)
+    for k, i in enumerate(currents_a):
+        cal.step(k + 1.0, 1.0, float(i), 15.6 - 0.05 * float(i), 25.0)
+    return cal
+
+
+def test_the_load_held_after_take_off_is_the_mean_of_the_load_seen():
+    """35 s after the load began (20 s of taxi at 3 A, then the climb at 20 A) the held load is the
+    mean of what was drawn, not the first sample's exponential memory (it held 56 % of the taxi);
+    until a whole span of load has been seen its future is drawn with the prior's spread."""
+    from gcs_pdm.estimation.calibrated_cutoff import CURRENT_PRIOR_LOG_SD
+
+    cal = _loaded_calibrator(np.r_[np.full(20, 3.0), np.full(15, 20.0)])
+    assert cal.recent_current_a == pytest.approx((20 * 3.0 + 15 * 20.0) / 35.0, rel=1e-6)
+    assert CutoffModel.of(cal).current_log_sd == CURRENT_PRIOR_LOG_SD
+
+
+def test_the_future_loads_spread_is_how_far_the_held_load_moved():
+    """A load that steps 10 <-> 14 A every minute moves its held mean by tens of per cent a span;
+    a steady one by nothing, and 20 s of taxi at 0.5 A before it only by the first minute's mix (its
+    first sample is not a span's start: against it the climb read as a factor of 24)."""
+    steady = _loaded_calibrator(np.full(600, 12.0))
+    after_taxi = _loaded_calibrator(np.r_[np.full(20, 0.5), np.full(600, 12.0)])
+    stepping = _loaded_calibrator(np.tile(np.r_[np.full(60, 10.0), np.full(60, 14.0)], 5))
+    assert CutoffModel.of(steady).current_log_sd < 0.01
+    assert CutoffModel.of(after_taxi).current_log_sd < 0.3
+    assert 0.1 < CutoffModel.of(stepping).current_log_sd < 0.4

@@ -17,13 +17,23 @@ recent loaded voltage's shortfall below the model's (``PackCalibrator.recent_mis
 filter stopped following (its resistances back at the prior) still sags the pack at cut-off. The
 time is the charge between here and there over the charge count's rate.
 
-The interval: the same computation on states drawn from the filter's covariance (SoC, capacity,
-resistances, curve, temperature factor, jointly), held inside what the chemistry allows.
+The interval: the same computation on draws of what is uncertain — the filter's state from its
+covariance (SoC, capacity, resistances, curve, temperature factor, jointly; a capacity whose learning
+was held keeps its prior's σ), held inside what the chemistry allows — and three things the filter
+does not carry:
+
+* the future load: the held mean times a log-normal factor whose σ is how far the held mean has moved
+  over each ``RECENT_LOAD_TAU_S`` of this flight's load (``PackCalibrator.current_move_log_var``),
+  ``CURRENT_PRIOR_LOG_SD`` before one whole span was seen;
+* the sag the model does not explain: the shortfall drawn about its recent mean with its recent
+  variability (``PackCalibrator.recent_miss_var``);
+* the sag's rise near empty: one fitted pack's (``low_charge_rise``), raised to a log-normal power
+  (σ ``RISE_LOG_SD``): a cell's own rise is not seen before it gets there.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -32,6 +42,12 @@ from gcs_pdm.estimation.calibration import (I_DV, I_E, I_G, I_K, I_R0, I_R1, I_R
 
 #: the state components a draw varies (the charge count's start is not part of the model)
 _DRAWN = np.arange(N_STATE - 1)
+#: σ of the log of the future mean load over the held one before one whole span of load has been
+#: seen: a flight's phases differ by about this much (a PyBaMM flight's climb 17 A, its cruise 12 A)
+CURRENT_PRIOR_LOG_SD = 0.3
+#: σ of the log of the near-empty rise's power: the rise is the paper's LLF20's; a cell's own can be
+#: half or twice as steep in log (an LG M50's sag at cut-off is 1.7x its half-way one, LLF20's 1.1-1.5x)
+RISE_LOG_SD = 0.7
 
 
 @dataclass(frozen=True)
@@ -52,49 +68,72 @@ class CutoffModel:
     #: the mean loaded current and the model's voltage shortfall at it (NaN: no load seen)
     recent_current_a: float
     recent_miss_v: float
+    #: the shortfall's recent σ (V); σ of the log of the future mean load over the held one
+    recent_miss_sd_v: float = 0.0
+    current_log_sd: float = CURRENT_PRIOR_LOG_SD
+    #: σ of the log of the near-empty rise's power
+    rise_log_sd: float = RISE_LOG_SD
 
     @classmethod
     def of(cls, cal: PackCalibrator) -> "CutoffModel | None":
         """The calibrator's model now; None before its first voltage."""
         if not cal.initialised:
             return None
+        move = cal.current_move_log_var
         return cls(cal.x.copy(), cal.P.copy(), cal.lo.copy(), cal.hi.copy(), cal.table.copy(), float(cal.mid),
                    int(cal.cells), float(cal.q0), float(cal.last_u), float(cal.recent_current_a),
-                   float(cal.recent_miss_v))
+                   float(cal.recent_miss_v), math.sqrt(max(cal.recent_miss_var, 0.0)),
+                   math.sqrt(move) if math.isfinite(move) else CURRENT_PRIOR_LOG_SD)
+
+    def without_unmodelled(self) -> "CutoffModel":
+        """This model with only the filter's covariance drawn (the load held exactly, the shortfall
+        at its mean, LLF20's rise): what the interval was before those were drawn, to measure them."""
+        return replace(self, recent_miss_sd_v=0.0, current_log_sd=0.0, rise_log_sd=0.0)
 
     def held_current(self, present_a: float) -> float:
         """The current a held-current prediction holds: the recent mean load (a flight's draw moves
         ±10 % over tens of seconds; the present sample's noise is not the future's), else the present."""
         return self.recent_current_a if math.isfinite(self.recent_current_a) else present_a
 
-    def times(self, states: np.ndarray, current: float, cutoff_v: float) -> np.ndarray:
-        """Seconds to the cut-off at a held ``current`` for each row of ``states`` (N_STATE wide):
-        NaN at no current, 0 where already below."""
+    def times(self, states: np.ndarray, current, cutoff_v: float, miss_v=None, rise_power=1.0) -> np.ndarray:
+        """Seconds to the cut-off at a held ``current`` (A, or one per row) for each row of ``states``
+        (N_STATE wide), the model's recent shortfall ``miss_v`` (V, or one per row; None: its recent
+        mean) and the near-empty rise to ``rise_power`` (or one per row): NaN at no current, 0 where
+        already below."""
         s = np.atleast_2d(states)
-        if not current > 0:
+        cur = np.broadcast_to(np.asarray(current, dtype=float), (s.shape[0],))
+        if not np.all(cur > 0):
             return np.full(s.shape[0], math.nan)
         ft = np.exp(s[:, I_E] * self.temp_u)
-        settled = (s[:, I_R0] + s[:, I_R1] + s[:, I_R2]) * ft * current
+        settled = (s[:, I_R0] + s[:, I_R1] + s[:, I_R2]) * ft * cur
         sag = settled
-        shortfall = self._shortfall(s)
-        if shortfall is not None:
-            sag = np.maximum(settled + shortfall * (current / self.recent_current_a), 0.0)
+        i_r = self.recent_current_a
+        miss = self.recent_miss_v if miss_v is None else np.asarray(miss_v, dtype=float)
+        if math.isfinite(i_r) and i_r > 0 and np.all(np.isfinite(miss)):
+            # the recent voltage, as the model at its mean state less its shortfall, against each row's model
+            measured = self._loaded_voltage(self.x[None], i_r)[0] - miss
+            sag = np.maximum(settled + (self._loaded_voltage(s, i_r) - measured) * (cur / i_r), 0.0)
         curves = self.table[None] + s[:, I_DV, None] + s[:, I_K, None] * (self.table[None] - self.mid)
         # the loaded voltage on a fine SoC grid, the sag rising near empty from where it is now:
         # it rises as SoC falls, so the cut-off is its one crossing
-        rise = low_charge_rise(_FINE)[None] / low_charge_rise(np.clip(s[:, I_SOC], 0.0, 1.0))[:, None]
+        power = np.broadcast_to(np.asarray(rise_power, dtype=float), (s.shape[0],))[:, None]
+        rise = (low_charge_rise(_FINE)[None] / low_charge_rise(np.clip(s[:, I_SOC], 0.0, 1.0))[:, None]) ** power
         loaded = self.cells * _on_fine(curves) - sag[:, None] * rise
         soc_cut = _crossing(loaded, np.full(s.shape[0], cutoff_v), _FINE)
         left = np.maximum(s[:, I_SOC] - soc_cut, 0.0)
-        return left * self.q0 / (s[:, I_G] * current)
+        return left * self.q0 / (s[:, I_G] * cur)
 
     def time_to_cutoff(self, current: float, cutoff_v: float) -> float:
         """``times`` of the mean state."""
         return float(self.times(self.x[None], current, cutoff_v)[0])
 
     def sample_times(self, current: float, cutoff_v: float, rng: np.random.Generator, n_samples: int) -> np.ndarray:
-        """``times`` of ``n_samples`` states drawn from the filter's covariance, within its bounds."""
-        return self.times(self.draw_states(rng, n_samples), current, cutoff_v)
+        """``times`` of ``n_samples`` draws: states from the filter's covariance, within its bounds,
+        and the future load, the shortfall and the near-empty rise (the module doc)."""
+        states = self.draw_states(rng, n_samples)
+        e = rng.standard_normal((3, n_samples))
+        return self.times(states, current * np.exp(self.current_log_sd * e[0]), cutoff_v,
+                          self.recent_miss_v + self.recent_miss_sd_v * e[1], np.exp(self.rise_log_sd * e[2]))
 
     def draw_states(self, rng: np.random.Generator, n_samples: int) -> np.ndarray:
         """(n_samples, N_STATE) states drawn from the filter's covariance, held within its bounds."""

@@ -119,6 +119,9 @@ GATE_SIGMAS = 5.0
 #: the recent load a time-to-cut-off prediction holds (``calibrated_cutoff``): the loaded current
 #: and the model's voltage shortfall at it, means over about this long, s
 RECENT_LOAD_TAU_S = 60.0
+#: how far back the recent load's spread is measured (its minute-to-minute moves, the model's
+#: shortfall's variability): about five held means, s
+LOAD_SPREAD_TAU_S = 300.0
 
 
 @dataclass(frozen=True)
@@ -278,6 +281,14 @@ class PackCalibrator:
         #: (V), means over ``RECENT_LOAD_TAU_S`` (NaN before any load): what the model does not explain now
         self.recent_current_a = math.nan
         self.recent_miss_v = math.nan
+        #: how the recent load varies (``calibrated_cutoff`` draws the future from it): the variance
+        #: of the shortfall about its mean (V², over ``LOAD_SPREAD_TAU_S``), and of the log of the
+        #: held mean's move over each ``RECENT_LOAD_TAU_S`` of load (NaN until one whole span is seen)
+        self.recent_miss_var = 0.0
+        self.current_move_log_var = math.nan
+        self.loaded_s = 0.0
+        self._span_start_s = 0.0
+        self._span_start_a = math.nan
         #: the last temperature read (°C) and the one where the charge count started (NaN: none yet)
         self.temp_c = math.nan
         self.count_temp_c = math.nan
@@ -401,12 +412,29 @@ class PackCalibrator:
         ocv, _ = _curve(self.table, float(x[I_SOC]))
         modelled = (self.cells * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_V2]
                     - x[I_R0] * math.exp(x[I_E] * u) * i)
+        miss = float(modelled - voltage)
+        self.loaded_s += dt
         if not math.isfinite(self.recent_current_a):
-            self.recent_current_a, self.recent_miss_v = i, float(modelled - voltage)
+            self.recent_current_a, self.recent_miss_v = i, miss
+            self._span_start_s = self.loaded_s
             return
-        w = 1.0 - math.exp(-dt / RECENT_LOAD_TAU_S)
+        # a plain mean over the load seen while that is shorter than the span: an exponential mean
+        # started at the first loaded sample kept 56 % of it at 35 s (a taxi's draw held after take-off)
+        w = max(1.0 - math.exp(-dt / RECENT_LOAD_TAU_S), dt / self.loaded_s)
         self.recent_current_a += w * (i - self.recent_current_a)
-        self.recent_miss_v += w * (float(modelled - voltage) - self.recent_miss_v)
+        self.recent_miss_v += w * (miss - self.recent_miss_v)
+        w_spread = 1.0 - math.exp(-dt / LOAD_SPREAD_TAU_S)
+        self.recent_miss_var += w_spread * ((miss - self.recent_miss_v) ** 2 - self.recent_miss_var)
+        if self.loaded_s - self._span_start_s >= RECENT_LOAD_TAU_S:
+            # the held mean's move over one span: how far a held current is from the next span's.
+            # The first span's end is the first held mean (its start was one sample: a taxi's 0.5 A
+            # against a cruise's 12 A read as a factor of 24)
+            if math.isfinite(self._span_start_a):
+                move = math.log(max(self.recent_current_a, 1e-6) / max(self._span_start_a, 1e-6)) ** 2
+                spans = RECENT_LOAD_TAU_S / LOAD_SPREAD_TAU_S
+                self.current_move_log_var = (move if not math.isfinite(self.current_move_log_var) else
+                                             self.current_move_log_var + spans * (move - self.current_move_log_var))
+            self._span_start_s, self._span_start_a = self.loaded_s, self.recent_current_a
 
     def _predict(self, dt: float, i: float, u: float) -> None:
         _predict_core(self.x, self.P, dt, i, u, self.q0, self.chem.tau1_s, TAU2_FACTOR * self.chem.tau1_s, self.r0p, self.r1p,

@@ -271,7 +271,8 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     (``prediction.calibrated_cutoff_quantiles`` at the held current ``CutoffModel.held_current``
     takes, ``TRACE_SAMPLES`` draws: the replay trace's and the service's count-down) against the
     flight's own: at half-way (``predicted_s``, its 5-95 % ``low_s``/``high_s``, ``true_s``) and
-    every ``TTC_EVERY_S`` after it while a minute is left (``later``: rows of true, 5 %, 50 %, 95 %)."""
+    every ``TTC_EVERY_S`` after it while a minute is left (``later``: rows of true, 5 %, 50 %, 95 %;
+    ``later_filter_only``: the same with only the filter's covariance drawn, ``without_unmodelled``)."""
     import pyarrow.parquet as pq
 
     from gcs_pdm.estimation.calibrated_cutoff import CutoffModel
@@ -292,7 +293,7 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     dt = np.diff(t, prepend=t[0])
     truth = pybamm_truth_soc(t, i, flight, s)
     cutoff_v = cells * flight.get("cell_cutoff_v", math.nan)
-    rng = np.random.default_rng(0)
+    rng, rng_filter_only = np.random.default_rng(0), np.random.default_rng(0)
     out = []
     ttc: dict = {}
     next_ttc_s = t[0] + 0.5 * (t[-1] - t[0])
@@ -304,14 +305,82 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
         out.append((t[k], cal.soc, cal.soc_sd, truth[k]))
         if flight.get("reached_cutoff") and t[k] >= next_ttc_s and t[-1] - t[k] >= (60.0 if ttc else 0.0):
             model = CutoffModel.of(cal)
-            q = calibrated_cutoff_quantiles(model, model.held_current(i[k]), cutoff_v, rng=rng, n_samples=TRACE_SAMPLES)
+            held = model.held_current(i[k])
+            q = calibrated_cutoff_quantiles(model, held, cutoff_v, rng=rng, n_samples=TRACE_SAMPLES)
             row = (float(t[-1] - t[k]), *(float(x) for x in q))
             if not ttc:
-                ttc = {"true_s": row[0], "low_s": row[1], "predicted_s": row[2], "high_s": row[3], "later": []}
+                ttc = {"true_s": row[0], "low_s": row[1], "predicted_s": row[2], "high_s": row[3], "later": [],
+                       "later_filter_only": []}
             ttc["later"].append(row)
+            q = calibrated_cutoff_quantiles(model.without_unmodelled(), held, cutoff_v, rng=rng_filter_only,
+                                            n_samples=TRACE_SAMPLES)
+            ttc["later_filter_only"].append((row[0], *(float(x) for x in q)))
             next_ttc_s = t[k] + TTC_EVERY_S
     return PackTrack(flight["flight"], *(np.array(c, dtype=float) for c in zip(*out))), ttc
 
 
 #: the time to cut-off is asked again this often after half-way (``pybamm_flight_soc``), s
 TTC_EVERY_S = 60.0
+
+
+def simulated_cutoff_case(preset: str, *, capacity_scale: float, resistance_scale: float, start_soc: float,
+                          seed: int, c_rate: float = 1.5, spread: float = 0.10, dt: float = 1.0) -> dict:
+    """The time to cut-off the service shows for a pack it was never told about, against the truth:
+    ``preset``'s first pack on its chemistry's curve, off its label by ``capacity_scale`` and
+    ``resistance_scale`` (``sim.pack_curves``), read through the derived prior (the preset marked
+    provisional); 30 s of rest at ``start_soc``, then legs of 20-120 s at ``c_rate`` ± ``spread`` of
+    the label's capacity until its cut-off; voltage noise 10 mV + 2 mV per cell, current noise 1 %.
+    At half-way and every ``TTC_EVERY_S`` after it while a minute is left, the count-down
+    (``prediction.calibrated_cutoff_quantiles`` at ``CutoffModel.held_current``, ``TRACE_SAMPLES``
+    draws) and the same with only the filter's covariance drawn: ``{"later": rows of (true, 5 %,
+    50 %, 95 %), "later_filter_only": ...}`` (empty rows: no cut-off within the flight's hour)."""
+    from gcs_pdm.estimation.calibrated_cutoff import CutoffModel
+    from gcs_pdm.estimation.estimator import StateEstimator
+    from gcs_pdm.estimation.prediction import calibrated_cutoff_quantiles
+    from gcs_pdm.models import kernel
+    from gcs_pdm.models.pack_scaling import scale_pack_vector
+    from gcs_pdm.replay.vehicle import TRACE_SAMPLES
+    from gcs_pdm.sim.pack_curves import chemistry_curve_pack
+    from gcs_pdm.vehicle.model_inputs import model_inputs
+    from gcs_pdm.vehicle.presets import PRESETS
+
+    desc = PRESETS[preset].model_copy(update={"provisional": True})
+    spec = desc.packs[0]
+    base = model_inputs(desc).pack_matrix[0]
+    truth = scale_pack_vector(base, spec.cells_series, spec.capacity_c, spec.cells_series,
+                              spec.capacity_c * capacity_scale, spec.full_cell_v)
+    for k in (kernel.I_RS, kernel.I_RCP0, kernel.I_RCP1):
+        truth[k] *= resistance_scale
+    truth = chemistry_curve_pack(truth, spec.chemistry, spec.cells_series)
+    rng = np.random.default_rng(seed)
+    amps = c_rate * spec.capacity_c / 3600.0
+    n_rest, n = int(30.0 / dt), int(3600.0 / dt)
+    current = [0.0] * n_rest
+    while len(current) < n:
+        current += [amps * rng.uniform(1.0 - spread, 1.0 + spread)] * int(rng.uniform(20, 120) / dt)
+    current = np.array(current[:n])
+    sim = kernel.simulate_packs(truth[None], kernel.initial_extended_state(truth[None], start_soc, 25.0),
+                                np.full(n, dt), current[None], np.full(n, 25.0), variant="extended")
+    below = np.flatnonzero(sim.voltage[0] < spec.cutoff_voltage)
+    out: dict = {"later": [], "later_filter_only": []}
+    if not below.size:
+        return out
+    cut = int(below[0])
+    half = n_rest + (cut - n_rest) // 2
+    est = StateEstimator(vehicle=desc)
+    sd_v = 0.01 + 0.002 * spec.cells_series
+    draws, draws_filter_only = np.random.default_rng(0), np.random.default_rng(0)
+    next_ask = half
+    for k in range(cut - int(60.0 / dt)):
+        i_meas = float(current[k] * (1.0 + rng.normal(0.0, 0.01)))
+        est.consume(PackFrame((k + 1) * dt, spec.name, float(sim.voltage[0, k] + rng.normal(0.0, sd_v)), i_meas, None))
+        if k + 1 < next_ask:
+            continue
+        model = CutoffModel.of(est.calib[0])
+        held = model.held_current(i_meas)
+        left = (cut - k - 1) * dt
+        for key, m, r in (("later", model, draws), ("later_filter_only", model.without_unmodelled(), draws_filter_only)):
+            q = calibrated_cutoff_quantiles(m, held, spec.cutoff_voltage, rng=r, n_samples=TRACE_SAMPLES)
+            out[key].append((left, *(float(x) for x in q)))
+        next_ask += int(TTC_EVERY_S / dt)
+    return out
