@@ -238,7 +238,8 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     voltage of the last 60 s against the flight's own (flights that reach cut-off)."""
     import pyarrow.parquet as pq
 
-    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+    from gcs_pdm.estimation.calibration import PackPrior
+    from gcs_pdm.estimation.curve_bank import pack_calibrator
 
     table = pq.read_table(Path(root) / flight["file"]).to_pydict()
     t = np.asarray(table["time_s"], dtype=float)
@@ -249,7 +250,7 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     # the prior: the nominal capacity, what a user reads on the pack (the truth's is not it)
     capacity_c = s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0
     chem = chemistry or PYBAMM_CHEMISTRY[flight["set"]]
-    cal = PackCalibrator(prior if prior is not None else PackPrior(chem, cells, capacity_c))
+    cal = pack_calibrator(prior if prior is not None else PackPrior(chem, cells, capacity_c))
     dt = np.diff(t, prepend=t[0])
     truth = pybamm_truth_soc(t, i, flight, s)
     out = []
