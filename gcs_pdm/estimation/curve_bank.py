@@ -127,6 +127,11 @@ class CurveBank:
         return self.lead.chem
 
     @property
+    def q0(self) -> float:
+        """The prior capacity, C (every hypothesis's)."""
+        return self.members[0].q0
+
+    @property
     def voltage_trusted(self) -> bool:
         return self.lead.voltage_trusted
 
