@@ -25,9 +25,9 @@ from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
 from gcs_pdm.models.curve_hypotheses import CurveHypothesis, curve_hypotheses
 
 #: each innovation's log-likelihood counts this much in the weights (about one independent sample
-#: per 5 s). Measured (docs/notes/2026-11-27-curve-hypotheses.md): at 1, a LiPo with 3x its
-#: resistance was read as the 4.10 V cell (chemistry-curve presets 22 -> 19 of 24 met); at 1/30 a
-#: simulated 4.10 V cell drained from full for 30 min was not recognised (its weight 0.1 -> 0.1)
+#: per 5 s). Measured (docs/notes/2026-11-27-curve-hypotheses.md): at 1, LiPos of 2-3x their
+#: resistance missed (chemistry-curve presets 22 -> 19 of 24 met); at 1/30 a simulated 4.10 V cell
+#: drained for up to 30 min was hardly recognised (its weight 0.1 -> 0.11-0.23)
 LIKELIHOOD_TEMPERING = 0.2
 #: no hypothesis falls further than this (natural log) below the leading one: it can come back
 #: when the voltage turns (an IMM's mixing, in its simplest form)
