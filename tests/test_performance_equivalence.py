@@ -37,9 +37,10 @@ Re-recorded again (replay_cli only, pack-health fits kept; issue 29, branch marq
 LiPo's filter became a bank of curve hypotheses (``estimation.curve_bank``): every calibration
 report gained ``curve_hypotheses``; on 16 of the 17 logs nothing else moved (their packs rested
 above a 4.10 V charge's curve, which is ruled out). On fault_03 (the paper's linear-curve pack,
-resting at 4.0-4.1 V per cell, where the two curves disagree) the SoCs moved by -0.015 to +0.011,
-their σ grew 1.2-2.3x (the spread between the curves) and the evidence gained ``curve_open``; every
-fault is as before (type, component, raise and clear times).
+resting at 4.0-4.1 V per cell, where the two curves disagree) the SoCs are as before (the leading
+curve's), their σ grew 1.2-2.5x (the other curve's spread), the trace's time-to-cut-off quantiles
+moved with it, and the evidence gained ``curve_open``; every fault is as before (type, component,
+raise and clear times).
 """
 from __future__ import annotations
 
