@@ -84,6 +84,9 @@ def test_a_pack_resting_above_a_4v10_charge_rules_that_curve_out():
     assert bank.soc == pytest.approx(bank.members[0].soc) and bank.soc_sd == pytest.approx(bank.members[0].soc_sd)
     assert bank.soc == pytest.approx(LIPO.soc_at(4.18), abs=0.02)
     assert "curve_open" not in bank.evidence()
+    # started again (after a gap the pack may have been swapped): from the priors, the weights too
+    _rest(bank, 3.97)
+    assert not bank.ruled_out.any() and bank.weights[1] == pytest.approx(0.1, abs=0.01)
 
 
 def test_where_the_curves_disagree_the_soc_and_its_sigma_cover_both():

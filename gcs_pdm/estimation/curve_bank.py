@@ -71,6 +71,11 @@ class CurveBank:
             m.initialised = value
 
     def initialise(self, t: float, voltage: float, current: float, temperature_c: float) -> None:
+        """Start (or, after a gap in which the pack may have been swapped, start again) from the
+        priors: the weights too."""
+        self.log_weight = np.log(np.array([h.prior_weight for h in self.hypotheses], dtype=float))
+        self.ruled_out[:] = False
+        self._scored = np.array([m.log_likelihood for m in self.members])
         for m in self.members:
             m.initialise(t, voltage, current, temperature_c)
         self._weigh(voltage, current)
@@ -157,7 +162,7 @@ class CurveBank:
         return self.lead.time_to_cutoff(current, cutoff_v, temperature_c, voltage)
 
     def report(self) -> dict:
-        """The leading hypothesis's report with the mixture's SoC and σ, and every hypothesis's
+        """The leading hypothesis's report with the bank's σ, and every hypothesis's
         curve, weight and SoC."""
         out = self.lead.report()
         out["soc"] = round(self.soc, 4) if math.isfinite(self.soc) else None

@@ -47,8 +47,8 @@ def _lco_pouch_4v10() -> Chemistry:
 
 #: per chemistry name with more than one curve: the hypotheses, their prior weights summing to 1.
 #: A hobby LiPo is charged to 4.20 V far more often than to 4.10 V; the weight is a base rate, not
-#: a measurement: at 0.5 the mixture read simulated 4.20 V LiPos 0.03-0.09 high (chemistry-curve
-#: presets 22 -> 7 of 24 met, 0.07-0.14 off), at 0.1 the same 22 of 24 as one curve
+#: a measurement. At 0.5 (the bank's SoC then the weighted mean) the chemistry-curve presets of
+#: bench_soc_calibration went 22 -> 7 of 24 met (0.07-0.12 off); at 0.1, the lead's SoC, 23 of 24
 CURVE_HYPOTHESES: dict[str, tuple[CurveHypothesis, ...]] = {
     "lipo": (CurveHypothesis(CHEMISTRIES["lipo"], 0.9), CurveHypothesis(_lco_pouch_4v10(), 0.1)),
 }
