@@ -86,7 +86,7 @@ def test_a_pack_resting_above_a_4v10_charge_rules_that_curve_out():
     assert "curve_open" not in bank.evidence()
     # started again (after a gap the pack may have been swapped): from the priors, the weights too
     _rest(bank, 3.97)
-    assert not bank.ruled_out.any() and bank.weights[1] == pytest.approx(0.1, abs=0.01)
+    assert not any(bank.ruled_out) and bank.weights[1] == pytest.approx(0.1, abs=0.01)
 
 
 def test_where_the_curves_disagree_the_soc_and_its_sigma_cover_both():

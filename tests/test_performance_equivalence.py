@@ -35,8 +35,8 @@ rested), fault_03 (battery0/2 0.700 -> 0.678), and by at most 0.002 elsewhere.
 
 Re-recorded again (replay_cli only, pack-health fits kept; issue 29, branch marquis) after a derived
 LiPo's filter became a bank of curve hypotheses (``estimation.curve_bank``): every calibration
-report gained ``curve_hypotheses``; on 16 of the 17 logs nothing else moved (their packs rested
-above a 4.10 V charge's curve, which is ruled out). On fault_03 (the paper's linear-curve pack,
+report gained ``curve_hypotheses`` (a ruled-out curve's SoC null); on 16 of the 17 logs nothing
+else moved (their packs rested above a 4.10 V charge's curve, which is ruled out). On fault_03 (the paper's linear-curve pack,
 resting at 4.0-4.1 V per cell, where the two curves disagree) the SoCs are as before (the leading
 curve's), their σ grew 1.2-2.5x (the other curve's spread), the trace's time-to-cut-off quantiles
 moved with it, and the evidence gained ``curve_open``; every fault is as before (type, component,

@@ -56,9 +56,9 @@ class CurveBank:
         self.hypotheses = hypotheses
         self.members = [PackCalibrator(replace(prior, curve=h.curve), sigma_v=sigma_v) for h in hypotheses]
         self.sigma_v = self.members[0].sigma_v
-        self.log_weight = np.log(np.array([h.prior_weight for h in hypotheses], dtype=float))
-        self.ruled_out = np.zeros(len(hypotheses), dtype=bool)
-        self._scored = np.zeros(len(hypotheses))
+        self.log_weight = [math.log(h.prior_weight) for h in hypotheses]
+        self.ruled_out = [False] * len(hypotheses)
+        self._scored = [0.0] * len(hypotheses)
 
     # ---- what the estimator sets and calls ------------------------------------------------------
     @property
@@ -73,45 +73,53 @@ class CurveBank:
     def initialise(self, t: float, voltage: float, current: float, temperature_c: float) -> None:
         """Start (or, after a gap in which the pack may have been swapped, start again) from the
         priors: the weights too."""
-        self.log_weight = np.log(np.array([h.prior_weight for h in self.hypotheses], dtype=float))
-        self.ruled_out[:] = False
-        self._scored = np.array([m.log_likelihood for m in self.members])
+        self.log_weight = [math.log(h.prior_weight) for h in self.hypotheses]
+        self.ruled_out = [False] * len(self.hypotheses)
+        self._scored = [m.log_likelihood for m in self.members]
         for m in self.members:
             m.initialise(t, voltage, current, temperature_c)
         self._weigh(voltage, current)
 
     def step(self, t: float, dt: float, current: float, voltage: float, temperature_c: float) -> None:
-        for m in self.members:
-            m.step(t, dt, current, voltage, temperature_c)
+        # a ruled-out curve's filter stops (its weight stays 0 until a restart): a full LiPo costs one
+        for m, out in zip(self.members, self.ruled_out):
+            if not out:
+                m.step(t, dt, current, voltage, temperature_c)
         self._weigh(voltage, current)
 
     def _weigh(self, voltage: float, current: float) -> None:
-        scores = np.array([m.log_likelihood for m in self.members])
-        if all(m.voltage_trusted for m in self.members):
+        # plain floats: a per-frame call on two or three hypotheses (with numpy arrays the bank's
+        # own bookkeeping cost 3x its two filters)
+        members, lw = self.members, self.log_weight
+        scores = [m.log_likelihood for m in members]
+        if all(m.voltage_trusted for m, out in zip(members, self.ruled_out) if not out):
             # scored only while every hypothesis follows the voltage: a filter that stopped (its
             # circuit could not follow a pack of 3x the resistance) scores its priors, not its curve
-            self.log_weight += LIKELIHOOD_TEMPERING * (scores - self._scored)
+            for k, (now, before) in enumerate(zip(scores, self._scored)):
+                lw[k] += LIKELIHOOD_TEMPERING * (now - before)
         self._scored = scores
-        lead = self.members[0]
-        if math.isfinite(voltage) and math.isfinite(current) and abs(current) < lead.rest_current_a:
+        if math.isfinite(voltage) and abs(current) < members[0].rest_current_a:
             # a pack resting above what a cell on a curve can show is not on that curve
-            over = np.array([voltage / m.cells > m.chem.max_rest_cell_v for m in self.members])
-            if not over.all():
-                self.ruled_out |= over
-        lw = np.where(self.ruled_out, -np.inf, self.log_weight)
-        top = lw.max()
+            over = [voltage / m.cells > m.chem.max_rest_cell_v for m in members]
+            if not all(over):
+                for k, above in enumerate(over):
+                    self.ruled_out[k] = self.ruled_out[k] or above
+        top = max(w for w, out in zip(lw, self.ruled_out) if not out)
         # the floor keeps a hypothesis the voltage has not yet ruled out within reach
-        self.log_weight = np.where(self.ruled_out, -np.inf, np.maximum(lw - top, LOG_WEIGHT_FLOOR))
+        for k, out in enumerate(self.ruled_out):
+            lw[k] = -math.inf if out else max(lw[k] - top, LOG_WEIGHT_FLOOR)
 
     # ---- read-outs -----------------------------------------------------------------------------
     @property
     def weights(self) -> np.ndarray:
-        w = np.exp(self.log_weight - np.max(self.log_weight))
-        return w / w.sum()
+        w = [math.exp(x) for x in self.log_weight]  # the lead's log-weight is 0
+        total = sum(w)
+        return np.array([x / total for x in w])
 
     @property
     def lead(self) -> PackCalibrator:
-        return self.members[int(np.argmax(self.log_weight))]
+        lw = self.log_weight
+        return self.members[lw.index(max(lw))]
 
     @property
     def soc(self) -> float:
@@ -125,9 +133,9 @@ class CurveBank:
         expected squared error of the lead's SoC if the weights are right."""
         if not self.initialised:
             return math.nan
-        soc = np.array([m.soc for m in self.members])
-        sd = np.array([m.soc_sd for m in self.members])
-        return math.sqrt(float(self.weights @ (sd ** 2 + (soc - self.lead.soc) ** 2)))
+        lead = self.lead.soc
+        return math.sqrt(sum(w * (m.soc_sd ** 2 + (m.soc - lead) ** 2)
+                             for w, m, out in zip(self.weights, self.members, self.ruled_out) if not out))
 
     @property
     def chem(self):
@@ -170,6 +178,6 @@ class CurveBank:
         out["evidence"] = self.evidence()
         out["curve_hypotheses"] = [
             {"curve": m.chem.name, "weight": round(float(w), 4), "ruled_out": bool(r),
-             "soc": round(m.soc, 4) if math.isfinite(m.soc) else None}
+             "soc": round(m.soc, 4) if math.isfinite(m.soc) and not r else None}
             for m, w, r in zip(self.members, self.weights, self.ruled_out)]
         return out
