@@ -32,6 +32,15 @@ its load is still relaxing: the count carries the SoC until the load has decayed
 Final SoCs moved on learn_05 (battery0/1 0.863/0.870 -> 0.788/0.796; the autopilot's count 0.67),
 learn_06 (0.66-0.75 -> 0.26-0.27; the count 0.26: the old value was the landed voltage read as
 rested), fault_03 (battery0/2 0.700 -> 0.678), and by at most 0.002 elsewhere.
+
+Re-recorded again (replay_cli only, pack-health fits kept; issue 29, branch marquis) after a derived
+LiPo's filter became a bank of curve hypotheses (``estimation.curve_bank``): every calibration
+report gained ``curve_hypotheses`` (a ruled-out curve's SoC null); on 16 of the 17 logs nothing
+else moved (their packs rested above a 4.10 V charge's curve, which is ruled out). On fault_03 (the paper's linear-curve pack,
+resting at 4.0-4.1 V per cell, where the two curves disagree) the SoCs are as before (the leading
+curve's), their σ grew 1.2-2.5x (the other curve's spread), the trace's time-to-cut-off quantiles
+moved with it, and the evidence gained ``curve_open``; every fault is as before (type, component,
+raise and clear times).
 """
 from __future__ import annotations
 

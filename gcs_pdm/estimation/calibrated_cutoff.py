@@ -76,11 +76,21 @@ class CutoffModel:
 
     @classmethod
     def of(cls, cal: PackCalibrator) -> "CutoffModel | None":
-        """The calibrator's model now; None before its first voltage."""
+        """The calibrator's model now; None before its first voltage. A ``CurveBank`` (curve
+        hypotheses) gives its leading curve's filter, its SoC variance widened to the bank's (which
+        holds the other curves in proportion to their weight)."""
         if not cal.initialised:
             return None
+        bank_soc_var = None
+        if hasattr(cal, "lead"):
+            bank_soc_var, cal = cal.soc_sd ** 2, cal.lead
         move = cal.current_move_log_var
-        return cls(cal.x.copy(), cal.P.copy(), cal.lo.copy(), cal.hi.copy(), cal.table.copy(), float(cal.mid),
+        P = cal.P.copy()
+        if bank_soc_var is not None and math.isfinite(bank_soc_var) and bank_soc_var > P[I_SOC, I_SOC]:
+            f = math.sqrt(bank_soc_var / P[I_SOC, I_SOC])  # the same correlations, a wider SoC
+            P[I_SOC, :] *= f
+            P[:, I_SOC] *= f
+        return cls(cal.x.copy(), P, cal.lo.copy(), cal.hi.copy(), cal.table.copy(), float(cal.mid),
                    int(cal.cells), float(cal.q0), float(cal.last_u), float(cal.recent_current_a),
                    float(cal.recent_miss_v), math.sqrt(max(cal.recent_miss_var, 0.0)),
                    math.sqrt(move) if math.isfinite(move) else CURRENT_PRIOR_LOG_SD)

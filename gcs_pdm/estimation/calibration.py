@@ -150,6 +150,9 @@ class PackPrior:
     #: the curve and circuit priors when they are not the chemistry table's: a described pack's own
     #: model (``described_chemistry``)
     curve: Chemistry | None = None
+    #: what the description declares the pack is charged to, V per cell (None: not declared): picks
+    #: among a chemistry's curves (``models.curve_hypotheses``)
+    full_cell_v: float | None = None
 
     @property
     def chem(self) -> Chemistry:
@@ -187,7 +190,7 @@ def prior_of_spec(spec, pack_vector: np.ndarray | None = None,
     capacity; with ``pack_vector`` (a described, not derived, pack) the curve and circuit of its own
     model, else the chemistry table's."""
     return PackPrior(chemistry=spec.chemistry, cells=int(spec.cells_series), capacity_c=float(spec.capacity_c),
-                     capacity_rel_sd=capacity_rel_sd,
+                     capacity_rel_sd=capacity_rel_sd, full_cell_v=spec.full_cell_voltage,
                      curve=None if pack_vector is None else described_chemistry(spec, pack_vector))
 
 
@@ -273,6 +276,8 @@ class PackCalibrator:
         self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0,
                          "voltage_relaxing": 0}
         self.last_voltage_update_s = -math.inf
+        #: the sum of the voltage's innovation log-likelihoods so far (every voltage the filter read)
+        self.log_likelihood = 0.0
         self.last_u = 0.0
         #: the recent load, A: the present current, or an earlier larger one decaying with the slow
         #: pair's time constant (the polarisation it left is still relaxing)
@@ -452,7 +457,10 @@ class PackCalibrator:
         # right for any gain) until LEARN_AFTER_FRACTION is drawn, and under load while the pack's
         # temperature has moved far from the count's start (``capacity_separable``)
         hold = not self.capacity_separable(i)
-        nis = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas)
+        nis, s = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas)
+        # how well this filter's curve explains the voltage (a Gaussian innovation's log-likelihood,
+        # the squared term capped as the window's is): ``curve_bank`` weighs curve hypotheses by it
+        self.log_likelihood -= 0.5 * (min(nis, 25.0) + math.log(s))
         self.nis.append(min(nis, 25.0))
         if len(self.nis) > NIS_WINDOW:
             del self.nis[0]
@@ -677,7 +685,7 @@ def _measurement(x, table, cells, mid, i, u, h):
 
 @njit(cache=True, nogil=True)
 def _innovation_core(x, P, table, cells, mid, v, i, u, r_meas):
-    """ν²/S of the voltage ``v`` against the mean state."""
+    """(ν²/S, S) of the voltage ``v`` against the mean state."""
     h = np.empty(x.size)
     pred = _measurement(x, table, cells, mid, i, u, h)
     s = r_meas
@@ -685,7 +693,7 @@ def _innovation_core(x, P, table, cells, mid, v, i, u, r_meas):
         for c in range(x.size):
             s += h[r] * P[r, c] * h[c]
     nu = v - pred
-    return nu * nu / s
+    return nu * nu / s, s
 
 
 @njit(cache=True, nogil=True)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gcs_pdm.estimation.calibration import PackCalibrator, prior_of_spec
+from gcs_pdm.estimation.curve_bank import CurveBank, pack_calibrator
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
 from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
@@ -187,7 +188,7 @@ class StateEstimator:
         # a derived (provisional) description's packs start from the chemistry table's curve; a
         # described pack from its own model's; a pack described as fitted (edge540's) keeps it, and so
         # does every pack of a parameter set flown over the description
-        calib = [PackCalibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
+        calib = [pack_calibrator(prior_of_spec(p, None if vehicle.provisional else pack_matrix[b]))
                  if config.self_calibrate and p.self_calibrate and not inputs.from_parameter_set else None
                  for b, p in enumerate(vehicle.packs)]
         ext_vectors = inputs.extended_packs
@@ -196,7 +197,7 @@ class StateEstimator:
         #: with ``self_calibrate`` off, as edge540's, or a parameter set's). The paper filter then
         #: carries the pack's temperature and, for the users of its layout (predictions, the
         #: planner), the calibrated SoC (``_sync_paper``)
-        self.calib: list[PackCalibrator | None] = calib
+        self.calib: list[PackCalibrator | CurveBank | None] = calib
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
         # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper

@@ -48,7 +48,7 @@ def start_from_history(estimator, priors_by_slot: dict[str, dict | None]) -> dic
     """Restart each self-calibrated pack's filter of ``estimator`` (a ``StateEstimator`` that has
     not yet taken a frame of that pack) from its pack's latest health; per pack slot, what it
     starts from. ``priors_by_slot``: ``Service.pack_priors()`` ({slot: estimator_priors + pack_id})."""
-    from gcs_pdm.estimation.calibration import PackCalibrator
+    from gcs_pdm.estimation.curve_bank import pack_calibrator
 
     calib = getattr(estimator, "calib", None)
     names = getattr(estimator, "pack_names", ())
@@ -67,6 +67,6 @@ def start_from_history(estimator, priors_by_slot: dict[str, dict | None]) -> dic
             if prior is cal.prior:
                 out[slot] = "its health has no capacity or resistance known: the description's priors"
                 continue
-            calib[b] = PackCalibrator(prior, sigma_v=cal.sigma_v)
+            calib[b] = pack_calibrator(prior, sigma_v=cal.sigma_v)
             out[slot] = f"pack history ({history.get('pack_id') or slot}, flight ending t={history.get('from_flight_end_s')})"
     return out

@@ -279,6 +279,7 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
     from gcs_pdm.estimation.prediction import calibrated_cutoff_quantiles
     from gcs_pdm.replay.vehicle import TRACE_SAMPLES
+    from gcs_pdm.estimation.curve_bank import pack_calibrator
 
     table = pq.read_table(Path(root) / flight["file"]).to_pydict()
     t = np.asarray(table["time_s"], dtype=float)
@@ -289,7 +290,7 @@ def pybamm_flight_soc(root: str | Path, flight: dict, sets: dict, *, chemistry: 
     # the prior: the nominal capacity, what a user reads on the pack (the truth's is not it)
     capacity_c = s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0
     chem = chemistry or PYBAMM_CHEMISTRY[flight["set"]]
-    cal = PackCalibrator(prior if prior is not None else PackPrior(chem, cells, capacity_c))
+    cal = pack_calibrator(prior if prior is not None else PackPrior(chem, cells, capacity_c))
     dt = np.diff(t, prepend=t[0])
     truth = pybamm_truth_soc(t, i, flight, s)
     cutoff_v = cells * flight.get("cell_cutoff_v", math.nan)

@@ -67,7 +67,7 @@ class PackStatus(BaseModel):
     time_to_cutoff_sd: float | None = None
     evidence: list[str] | None = Field(None, description=(
         "what the SoC rests on (a self-calibrated pack, docs/estimation.md): rest_voltage, loaded_voltage, history, "
-        "coulomb, voltage_model, prior"))
+        "coulomb, voltage_model, prior, curve_open (the chemistry's curve hypotheses still disagree)"))
     model_config = ConfigDict(extra="allow")
 
 

@@ -1,0 +1,73 @@
+"""The rested curves a pack of one named chemistry may have (issue 29).
+
+A user names a pack's chemistry; the name does not fix its curve. A cobalt-oxide pouch cell *is* a
+"LiPo" to a hobbyist, and it may be charged to 4.20 V or to 4.10 V (a Li-ion charger mode, a cell
+rated so): at 3.97 V per cell the first is 74 % full, the second 87-94 %. A rested voltage cannot
+tell them apart (an offset and a SoC read the same); the voltage against the charge drawn can,
+slowly. ``estimation.curve_bank`` runs one filter per hypothesis here and weighs them by how well
+each explains the voltage.
+
+Every curve is published data (docs/estimation.md names them), never a test cell's own:
+
+* ``lipo`` — the hobby LiPo chart (``models.chemistry``), 4.20 V full;
+* ``lco_4v10`` — an LCO/graphite *pouch* cell charged to 4.10 V: the Enertech cell of Ai et al.
+  2020 (J. Electrochem. Soc. 167 013512; electrode curves from Rieger et al. 2016, J. Electrochem.
+  Soc. 163 A1566) as PyBaMM ships it (set ``Ai2020``), its 3.0-4.2 V window cut where it reaches
+  4.10 V (91 % of it). ``scripts/curve_hypotheses_pybamm.py`` recomputes the table. Its 4.20 V
+  window rests within 0.05 V of the hobby chart between 10 and 95 %, so it adds no hypothesis there.
+
+Chemistries with one curve (LiHV, Li-ion, LiFePO4) keep it: one filter, as before.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from gcs_pdm.models.chemistry import CHEMISTRIES, Chemistry, chemistry
+
+#: Ai2020 (Enertech LCO/graphite pouch) charged to 4.10 V, on ``chemistry.SOC_GRID``
+_LCO_POUCH_4V10 = (3.0, 3.5202, 3.6346, 3.6554, 3.6861, 3.7089, 3.7243, 3.739, 3.7523, 3.765, 3.778, 3.7932,
+                   3.811, 3.8326, 3.8597, 3.895, 3.9349, 3.9729, 4.0135, 4.0559, 4.1)
+
+
+@dataclass(frozen=True)
+class CurveHypothesis:
+    """One curve a pack of a named chemistry may rest on, and how likely it is before any flight."""
+
+    curve: Chemistry
+    prior_weight: float
+
+
+def _lco_pouch_4v10() -> Chemistry:
+    # the circuit priors stay the LiPo's (the same cells); only the curve and its limits change
+    return replace(CHEMISTRIES["lipo"], name="lco_4v10", ocv_cell_v=_LCO_POUCH_4V10, full_cell_v=4.10,
+                   max_rest_cell_v=4.12,
+                   source="LCO/graphite pouch (Enertech; Ai et al. 2020, J. Electrochem. Soc. 167 013512, via "
+                          "PyBaMM Ai2020) charged to 4.10 V")
+
+
+#: per chemistry name with more than one curve: the hypotheses, their prior weights summing to 1.
+#: A hobby LiPo is charged to 4.20 V far more often than to 4.10 V; the weight is a base rate, not
+#: a measurement. At 0.5 (the bank's SoC then the weighted mean) the chemistry-curve presets of
+#: bench_soc_calibration went 22 -> 7 of 24 met (0.07-0.12 off); at 0.1, the lead's SoC, 23 of 24
+CURVE_HYPOTHESES: dict[str, tuple[CurveHypothesis, ...]] = {
+    "lipo": (CurveHypothesis(CHEMISTRIES["lipo"], 0.9), CurveHypothesis(_lco_pouch_4v10(), 0.1)),
+}
+
+
+#: a declared full voltage picks the curves whose full cell is within this of it (a charger's end
+#: voltage is set to 0.01-0.05 V)
+DECLARED_FULL_MATCH_V = 0.05
+
+
+def curve_hypotheses(name: str, full_cell_v: float | None = None) -> tuple[CurveHypothesis, ...]:
+    """The curves a pack named ``name`` may rest on (one, the chemistry table's, for most). With
+    ``full_cell_v`` (the description declares what the pack is charged to) only those full within
+    ``DECLARED_FULL_MATCH_V`` of it, their weights renormalised; all of them if none is."""
+    hyps = CURVE_HYPOTHESES.get(name, (CurveHypothesis(chemistry(name), 1.0),))
+    if full_cell_v is None:
+        return hyps
+    kept = [h for h in hyps if abs(h.curve.full_cell_v - full_cell_v) <= DECLARED_FULL_MATCH_V + 1e-9]
+    if not kept or len(kept) == len(hyps):
+        return hyps
+    total = sum(h.prior_weight for h in kept)
+    return tuple(replace(h, prior_weight=h.prior_weight / total) for h in kept)
