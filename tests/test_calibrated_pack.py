@@ -32,6 +32,12 @@ def half_way():
     return case, half - 1, CalibratedCircuit.of(cal, case.estimator.packs.params[0])
 
 
+def _lead_filter(case):
+    """The pack's filter the circuit was built from (a LiPo's curve bank: its leading curve's)."""
+    cal = case.estimator.calib[0]
+    return getattr(cal, "lead", cal)
+
+
 def _kernel_flight(vectors: np.ndarray, states: np.ndarray, circuit: CalibratedCircuit, current: float,
                    temperature_c: float):
     """The kernel's extended step on ``vectors`` at a held current, from the calibrator's
@@ -44,7 +50,7 @@ def _kernel_flight(vectors: np.ndarray, states: np.ndarray, circuit: CalibratedC
 
 def test_the_kernel_flies_the_calibrators_model_on_its_mapped_pack(half_way):
     case, _, circuit = half_way
-    cal, m = case.estimator.calib[0], circuit.model
+    cal, m = _lead_filter(case), circuit.model
     cutoff_v = case.description.packs[0].cutoff_voltage
     current = m.held_current(1.5 * cal.q0 / 3600.0)
     run = _kernel_flight(circuit.mean_vector()[None], m.x[None], circuit, current, cal.temp_c)
@@ -69,7 +75,7 @@ def test_the_kernel_flies_the_calibrators_model_on_its_mapped_pack(half_way):
 
 def test_each_draw_is_its_own_count_down(half_way):
     case, _, circuit = half_way
-    cal, m = case.estimator.calib[0], circuit.model
+    cal, m = _lead_filter(case), circuit.model
     cutoff_v = case.description.packs[0].cutoff_voltage
     current = m.held_current(1.5 * cal.q0 / 3600.0)
     states = m.draw_states(np.random.default_rng(3), 24)

@@ -119,3 +119,28 @@ def test_the_voltage_moves_the_weight_to_the_curve_that_explains_it(drained):
     assert abs(bank.members[1].soc - soc) < 0.02 and abs(bank.soc - soc) <= 2.0 * bank.soc_sd, (bank.soc, bank.soc_sd)
     bank, soc = drained["lipo"]
     assert bank.weights[0] > 0.99 and abs(bank.soc - soc) < 0.01
+
+
+def test_a_bank_offers_its_leading_filters_state_to_every_reader():
+    """The planner's spread and the calibrated pack read a pack's filter (``x``, ``P``, ``r0p``, ``q0``):
+    a LiPo from a chemistry table's prior is a bank, and must answer as its leading curve's filter."""
+    import copy
+
+    from gcs_pdm.estimation.calibration import PackPrior
+    from gcs_pdm.estimation.curve_bank import CurveBank, pack_calibrator
+
+    bank = pack_calibrator(PackPrior("lipo", 4, 5.0 * 3600.0))
+    assert isinstance(bank, CurveBank)
+    bank.initialise(0.0, 4 * 3.95, 0.0, 25.0)
+    for k in range(30):
+        bank.step(1.0 + k, 1.0, 10.0, 4 * 3.85, 25.0)
+    lead = bank.lead
+    assert bank.x is lead.x and bank.P is lead.P and bank.r0p == lead.r0p and bank.q0 == lead.q0
+    clone = copy.deepcopy(bank)  # the prediction copies the estimator: no recursion before __init__
+    assert clone.lead.soc == bank.lead.soc
+    try:
+        bank.no_such_thing
+    except AttributeError:
+        pass
+    else:
+        raise AssertionError("an unknown name must raise AttributeError")

@@ -60,6 +60,15 @@ class CurveBank:
         self.ruled_out = [False] * len(hypotheses)
         self._scored = [0.0] * len(hypotheses)
 
+    def __getattr__(self, name: str):
+        # Anything else a reader takes from a ``PackCalibrator`` (its state and covariance, its
+        # priors' resistances, the recent load the count-down holds: the planner's spread, the
+        # calibrated pack) is the leading curve's filter's, as the reported SoC is. Only called for
+        # names the bank does not have itself; never before ``__init__`` has set the members (copy).
+        if name.startswith("__") or "members" not in self.__dict__ or "log_weight" not in self.__dict__:
+            raise AttributeError(name)
+        return getattr(self.lead, name)
+
     # ---- what the estimator sets and calls ------------------------------------------------------
     @property
     def initialised(self) -> bool:
