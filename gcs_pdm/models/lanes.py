@@ -27,8 +27,10 @@ from gcs_pdm.models.kernel import (_JIT, C_DECAY_S, C_DECAY_T, C_DT, C_H, C_NSUB
                                    N_STEP_CACHE, S_QB, S_QCP, S_QS, S_T, X_SOC, _ext_advance, _ext_decays,
                                    _ext_step_soa, _ext_substeps_at, _ocv_knots, _pack_step_soa)
 
-#: samples flown together, time loop outside
-LANES = 16
+#: samples flown together, time loop outside: the Monte Carlo's chunk of 50 in one block (every stage
+#: of a time step is a loop over the active lanes with a fixed cost of its own, so 16 lanes cost
+#: 14 % more on the benchmark's prediction; docs/notes/2026-11-27-extended-mc.md)
+LANES = 64
 
 #: an extended pack's parameters the step reads (E_R0 … E_OCV0; the OCV increments go to its knots)
 N_EXT_STEP_PARAMS = E_OCV0 + 1
