@@ -198,39 +198,39 @@ def _pack_advance_cached(p, i, x, r, current, ambient, dt, max_dt, v, cache):
 
 
 @njit(inline="always", **_JIT)
-def _pack_step_lanes(p, p_rows, x, rows, n_lanes, current, ambient, cache, v, work):
-    """``_pack_advance_cached`` of ``n_lanes`` packs at once, each taking one step (``dt`` > 0 and
-    one sub-step, its step cache already set for the interval): lane l is state, cache and voltage
-    row ``rows[l]`` with parameters ``p[p_rows[l]]``, terminal current ``current[l]`` and ambient
-    ``ambient[l]``. ``_pack_step``'s operations per lane in its order (the same numbers, bit for
-    bit), stage by stage over the lanes so that their exponentials overlap. ``work`` is (3, n)."""
-    i_b, e, decay_cp = work[0], work[1], work[2]
-    for l in range(n_lanes):
-        i, r = p_rows[l], rows[l]
-        i_b[l] = current[l] + v[r] / p[i, I_RP]
-        e[l] = p[i, I_RCP2] * (1.0 - _soc(p, i, x[r, S_QB] - 0.5 * i_b[l] * cache[r, C_H]))
-    for l in range(n_lanes):
-        e[l] = math.exp(e[l])
-    for l in range(n_lanes):
-        i, r = p_rows[l], rows[l]
-        e[l] = p[i, I_RCP0] + p[i, I_RCP1] * e[l]  # r_cp
-        decay_cp[l] = -cache[r, C_H] / (e[l] * p[i, I_CCP])
-    for l in range(n_lanes):
-        decay_cp[l] = math.exp(decay_cp[l])
-    for l in range(n_lanes):
-        i, r = p_rows[l], rows[l]
-        ib = i_b[l]
-        h = cache[r, C_H]
-        tau_s = cache[r, C_TAU_S]
-        r_cp = e[l]
-        tau_cp = r_cp * p[i, I_CCP]
-        x[r, S_QS] = ib * tau_s + (x[r, S_QS] - ib * tau_s) * cache[r, C_DECAY_S]
-        x[r, S_QCP] = ib * tau_cp + (x[r, S_QCP] - ib * tau_cp) * decay_cp[l]
-        x[r, S_QB] -= ib * h
-        heat = (p[i, I_RS] + r_cp) * current[l] * current[l]
-        t_inf = ambient[l] + heat / p[i, I_H]
-        x[r, S_T] = t_inf + (x[r, S_T] - t_inf) * cache[r, C_DECAY_T]
-        v[r] = _terminal_voltage(p, i, x, r)
+def _pack_step_soa(p, p0, x, x0, cache, c0, b, lo, hi, current, ambient, v, work):
+    """``_pack_advance_cached`` of lanes ``lo`` … ``hi`` - 1 of one pack at once, each taking one step
+    (``dt`` > 0 and one sub-step, its step cache already set for the interval), in tables with the
+    lane innermost: parameter ``I_*`` of lane l is ``p[p0 + I_*, l]``, state ``x[x0 + S_*, l]``,
+    step cache ``cache[c0 + C_*, l]``; terminal current ``current[b, l]``, voltage ``v[b, l]``
+    (read at the start, written at the end), ambient ``ambient[l]``. ``_pack_step``'s operations per
+    lane in its order (the same numbers, bit for bit), stage by stage over the lanes: the
+    arithmetic stages compile to SIMD instructions and the exponentials of the lanes overlap.
+    ``work`` is (3, LANES)."""
+    for l in range(lo, hi):
+        work[0, l] = current[b, l] + v[b, l] / p[p0 + I_RP, l]  # i_b
+        q_mid = x[x0 + S_QB, l] - 0.5 * work[0, l] * cache[c0 + C_H, l]
+        work[1, l] = p[p0 + I_RCP2, l] * (1.0 - (1.0 - (p[p0 + I_QMAX, l] - q_mid) / p[p0 + I_CMAX, l]))
+    for l in range(lo, hi):
+        work[1, l] = math.exp(work[1, l])
+    for l in range(lo, hi):
+        work[1, l] = p[p0 + I_RCP0, l] + p[p0 + I_RCP1, l] * work[1, l]  # r_cp
+        work[2, l] = -cache[c0 + C_H, l] / (work[1, l] * p[p0 + I_CCP, l])
+    for l in range(lo, hi):
+        work[2, l] = math.exp(work[2, l])
+    for l in range(lo, hi):
+        ib = work[0, l]
+        tau_s = cache[c0 + C_TAU_S, l]
+        r_cp = work[1, l]
+        tau_cp = r_cp * p[p0 + I_CCP, l]
+        x[x0 + S_QS, l] = ib * tau_s + (x[x0 + S_QS, l] - ib * tau_s) * cache[c0 + C_DECAY_S, l]
+        x[x0 + S_QCP, l] = ib * tau_cp + (x[x0 + S_QCP, l] - ib * tau_cp) * work[2, l]
+        x[x0 + S_QB, l] -= ib * cache[c0 + C_H, l]
+        heat = (p[p0 + I_RS, l] + r_cp) * current[b, l] * current[b, l]
+        t_inf = ambient[l] + heat / p[p0 + I_H, l]
+        x[x0 + S_T, l] = t_inf + (x[x0 + S_T, l] - t_inf) * cache[c0 + C_DECAY_T, l]
+        v[b, l] = (x[x0 + S_QB, l] / p[p0 + I_CB, l] - x[x0 + S_QCP, l] / p[p0 + I_CCP, l]
+                   - x[x0 + S_QS, l] / p[p0 + I_CS, l])
 
 
 #: vectors a driver advances together, time loop outside (see ``_simulate_pack_block``)
@@ -746,66 +746,69 @@ def _asinh_by_log(z):
     return math.copysign(math.log(abs(z) + math.sqrt(z * z + 1.0)), z)
 
 
+#: decay-table rows of an extended pack's interval (``_ext_decays``): sub-step length, then the R1, R2,
+#: diffusion and thermal decays
+(D_H, D_1, D_2, D_D, D_T) = range(5)
+N_EXT_DECAYS = 5
+
+
 @njit(inline="always", **_JIT)
-def _ext_step_lanes(p, p_rows, y, d, x, rows, n_lanes, current, ambient, decay, v_out, work):
-    """One step (a single sub-step) of ``n_lanes`` extended packs at once: lane l is state row
-    ``x[rows[l]]`` with its OCV knots at the same row of ``y``/``d`` and parameters ``p[p_rows[l]]``,
-    terminal current ``current[l]``, ambient ``ambient[l]`` and ``decay[rows[l]]`` = (sub-step
-    length, R1, R2, diffusion and thermal decays); the model's own temperature drives it. Writes
-    the terminal voltages to ``v_out[rows[l]]``.
+def _ext_step_soa(p, p0, y, d, knot_row, x, x0, decay, d0, b, lo, hi, current, ambient, v, work):
+    """One step (a single sub-step) of lanes ``lo`` … ``hi`` - 1 of one extended pack at once, in
+    tables with the lane innermost: parameter ``E_*`` of lane l is ``p[p0 + E_*, l]``, state
+    ``x[x0 + X_*, l]``, decays ``decay[d0 + D_*, l]`` (``_ext_decays``), OCV knots rows
+    ``knot_row[b, l]`` of ``y``/``d``; terminal current ``current[b, l]``, ambient ``ambient[l]``;
+    the model's own temperature drives it. Writes the terminal voltages to ``v[b, l]``.
 
     ``_ext_substeps_at``'s operations per lane, in its order, taken stage by stage over the lanes:
-    one pack's step is a chain of three exponentials, an asinh and seven divisions that wait on
-    each other; over independent lanes they overlap in the processor. The one difference: the
-    asinh is ``_asinh_by_log`` (a third of the step's cost less), so a lane's voltages follow the
-    one-pack step's to ~1e-14 relative, not bit for bit (docs/notes/2026-11-27-extended-mc.md).
-    ``work`` is (8, n) scratch."""
-    a_rho, a_f, a_g, arg, s_d, d_soc, t_k = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
-    for l in range(n_lanes):
-        i, r = p_rows[l], rows[l]
-        cur = current[l]
-        h = decay[r, 0]
-        d_soc[l] = cur * h / p[i, E_CMAX]
-        s_inf = cur * p[i, E_KD] / p[i, E_CMAX]
-        s_d[l] = s_inf + (x[r, X_SD] - s_inf) * decay[r, 3]
-        surface_mid = x[r, X_SOC] - 0.5 * d_soc[l] - 0.5 * (x[r, X_SD] + s_d[l])
-        a_rho[l] = -max(surface_mid, 0.0) / p[i, E_KNEE]
-        a_f[l] = p[i, E_ER] * (1.0 / (x[r, X_T] + 273.15) - 1.0 / EXT_T_REF_K)
-        t_k[l] = x[r, X_T] + 273.15
-        a_g[l] = p[i, E_ECT] * (1.0 / t_k[l] - 1.0 / EXT_T_REF_K)
-    for l in range(n_lanes):
-        a_rho[l] = math.exp(a_rho[l])
-    for l in range(n_lanes):
-        a_f[l] = math.exp(a_f[l])
-    for l in range(n_lanes):
-        a_g[l] = math.exp(a_g[l])
-    for l in range(n_lanes):
-        i = p_rows[l]
-        rho = 1.0 + p[i, E_KSOC] * a_rho[l]
-        a_f[l] = a_f[l] * rho  # f
-        arg[l] = current[l] * (a_g[l] * rho) / p[i, E_ICT]
-    for l in range(n_lanes):
-        arg[l] = _asinh_by_log(arg[l])
-    for l in range(n_lanes):
-        i, r = p_rows[l], rows[l]
-        cur = current[l]
-        f = a_f[l]
-        i1 = cur * p[i, E_R1] * f
-        i2 = cur * p[i, E_R2] * f
-        v1 = i1 + (x[r, X_V1] - i1) * decay[r, 1]
-        v2 = i2 + (x[r, X_V2] - i2) * decay[r, 2]
-        eta = cur * p[i, E_R0] * f + p[i, E_BCT] * (t_k[l] / EXT_T_REF_K) * arg[l]
-        soc_new = x[r, X_SOC] - d_soc[l]
-        ocv_surface = _ocv_eval_at(y, d, r, soc_new - s_d[l])
-        over = eta + 0.5 * (x[r, X_V1] + v1 + x[r, X_V2] + v2)
-        heat = cur * over - cur * (x[r, X_T] + 273.15) * p[i, E_DUDT]
-        t_inf = ambient[l] + heat / p[i, E_H]
-        x[r, X_T] = t_inf + (x[r, X_T] - t_inf) * decay[r, 4]
-        x[r, X_V1] = v1
-        x[r, X_V2] = v2
-        x[r, X_SD] = s_d[l]
-        x[r, X_SOC] = soc_new
-        v_out[r] = ocv_surface - eta - v1 - v2
+    the arithmetic stages compile to SIMD instructions, and the three exponentials, the log and the
+    OCV look-up of the lanes overlap. The one difference: the asinh is ``_asinh_by_log`` (a third of
+    the step's cost less), so a lane's voltages follow the one-pack step's to ~1e-14 relative, not
+    bit for bit (docs/notes/2026-11-27-extended-mc.md). ``work`` is (9, LANES) scratch."""
+    for l in range(lo, hi):
+        cur = current[b, l]
+        cmax = p[p0 + E_CMAX, l]
+        work[5, l] = cur * decay[d0 + D_H, l] / cmax  # d_soc
+        s_inf = cur * p[p0 + E_KD, l] / cmax
+        work[4, l] = s_inf + (x[x0 + X_SD, l] - s_inf) * decay[d0 + D_D, l]  # s_d
+        surface_mid = x[x0 + X_SOC, l] - 0.5 * work[5, l] - 0.5 * (x[x0 + X_SD, l] + work[4, l])
+        work[0, l] = -max(surface_mid, 0.0) / p[p0 + E_KNEE, l]
+        work[1, l] = p[p0 + E_ER, l] * (1.0 / (x[x0 + X_T, l] + 273.15) - 1.0 / EXT_T_REF_K)
+        work[6, l] = x[x0 + X_T, l] + 273.15  # t_k
+        work[2, l] = p[p0 + E_ECT, l] * (1.0 / work[6, l] - 1.0 / EXT_T_REF_K)
+    for l in range(lo, hi):
+        work[0, l] = math.exp(work[0, l])
+    for l in range(lo, hi):
+        work[1, l] = math.exp(work[1, l])
+    for l in range(lo, hi):
+        work[2, l] = math.exp(work[2, l])
+    for l in range(lo, hi):
+        rho = 1.0 + p[p0 + E_KSOC, l] * work[0, l]
+        work[1, l] = work[1, l] * rho  # f
+        work[3, l] = current[b, l] * (work[2, l] * rho) / p[p0 + E_ICT, l]
+    for l in range(lo, hi):
+        work[3, l] = _asinh_by_log(work[3, l])
+    for l in range(lo, hi):
+        work[7, l] = x[x0 + X_SOC, l] - work[5, l]  # the SoC after the step
+    for l in range(lo, hi):  # the look-up branches per lane: a stage of its own
+        work[8, l] = _ocv_eval_at(y, d, knot_row[b, l], work[7, l] - work[4, l])
+    for l in range(lo, hi):
+        cur = current[b, l]
+        f = work[1, l]
+        i1 = cur * p[p0 + E_R1, l] * f
+        i2 = cur * p[p0 + E_R2, l] * f
+        v1 = i1 + (x[x0 + X_V1, l] - i1) * decay[d0 + D_1, l]
+        v2 = i2 + (x[x0 + X_V2, l] - i2) * decay[d0 + D_2, l]
+        eta = cur * p[p0 + E_R0, l] * f + p[p0 + E_BCT, l] * (work[6, l] / EXT_T_REF_K) * work[3, l]
+        over = eta + 0.5 * (x[x0 + X_V1, l] + v1 + x[x0 + X_V2, l] + v2)
+        heat = cur * over - cur * (x[x0 + X_T, l] + 273.15) * p[p0 + E_DUDT, l]
+        t_inf = ambient[l] + heat / p[p0 + E_H, l]
+        x[x0 + X_T, l] = t_inf + (x[x0 + X_T, l] - t_inf) * decay[d0 + D_T, l]
+        x[x0 + X_V1, l] = v1
+        x[x0 + X_V2, l] = v2
+        x[x0 + X_SD, l] = work[4, l]
+        x[x0 + X_SOC, l] = work[7, l]
+        v[b, l] = work[8, l] - eta - v1 - v2
 
 
 @njit(inline="always", **_JIT)
