@@ -75,3 +75,29 @@ def test_an_unanswered_proposal_holds_the_demo_clock_only_for_a_while(monkeypatc
     assert hold() is True                 # a new proposal holds again
     proposed.clear()
     assert hold() is False
+
+
+def test_a_service_whose_telemetry_stands_still_does_not_hold_the_vehicle_for_ever(monkeypatch):
+    """The hold waits while the service's telemetry lags the vehicle's; if the service's time stands
+    still (its clock waiting to confirm a forward step that only the vehicle's later messages can
+    confirm) the vehicle flies on after LAG_STALL_S, and a moving service time holds again."""
+    import time
+    from types import SimpleNamespace
+
+    from gcs_pdm.service.demo import DecisionHold
+
+    telemetry = SimpleNamespace(time_s=72.0)
+    service = SimpleNamespace(
+        loop=SimpleNamespace(telemetry=telemetry, executor=SimpleNamespace(working=False)),
+        store=SimpleNamespace(plans=lambda status=None, limit=100: []))
+    monkeypatch.setattr(DecisionHold, "LAG_STALL_S", 0.3)
+    monkeypatch.setattr(DecisionHold, "PROPOSALS_EVERY_S", 0.0)
+    hold = DecisionHold(service)
+    hold.vehicle = SimpleNamespace(core=SimpleNamespace(time_s=75.5))
+    assert hold() is True                 # the service has not seen the last 3.5 s yet
+    time.sleep(0.4)
+    assert hold() is False                # it stood still: the vehicle's next messages are what it waits for
+    telemetry.time_s = 72.2               # it moved, and still lags: hold again
+    assert hold() is True
+    hold.vehicle.core.time_s = 74.0       # caught up to within LAG_S
+    assert hold() is False

@@ -396,21 +396,33 @@ class DecisionHold:
     #: wall seconds a proposal may hold the clock: the demo's operator answers within a tenth of a
     #: second or never (it approves only feasible proposals), and an aircraft does not wait forever
     OPERATOR_WAIT_S = 15.0
+    #: wall seconds the service's telemetry time may stand still behind the vehicle's before the hold
+    #: lets the vehicle fly on: a forward step the service's clock waits to confirm (the simulation
+    #: resynchronising on a loaded machine) is confirmed only by the vehicle's later messages, which a
+    #: held vehicle never sends (measured: test_risk_every_preset[edge540] stalled 120 s at load 7-12)
+    LAG_STALL_S = 15.0
 
     def __init__(self, service: Service):
         self.service = service
         self.vehicle = None  # set once started
         self._proposals = (0.0, False)
         self._seen: dict[int, float] = {}  # proposal id -> when the hold first saw it (monotonic)
+        self._lag = (None, 0.0)  # (the service's telemetry time while lagging, since when: monotonic)
 
     def __call__(self) -> bool:
         loop, vehicle = self.service.loop, self.vehicle
         if loop is None or vehicle is None:
             return False
         seen = loop.telemetry.time_s
-        if seen is not None and vehicle.core.time_s - seen > self.LAG_S:
+        if seen is not None and vehicle.core.time_s - seen > self.LAG_S and not self._lag_stalled(seen):
             return True
         return loop.executor.working or self._proposal_waiting()
+
+    def _lag_stalled(self, seen: float) -> bool:
+        now = time.monotonic()
+        if self._lag[0] != seen:
+            self._lag = (seen, now)
+        return now - self._lag[1] >= self.LAG_STALL_S
 
     def _proposal_waiting(self) -> bool:
         at, waiting = self._proposals
