@@ -25,7 +25,7 @@ draws' own prior (an in-model check: what is left is the Monte Carlo's own error
     python benchmarks/bench_failure_reliability.py [--presets NAME ...] [--truths 100] [--samples 200]
         [--socs 0.25 0.3 ...] [--legs 1 2 ...] [--truth-param-sd 0.0866] [--no-planned]
 
-Prints one line per preset, the table, then the figures as ONE JSON object on the last line.
+Prints one line per preset and start (each route: P said / share of truths failed), the tables, then the figures as ONE JSON object on the last line.
 """
 from __future__ import annotations
 
