@@ -41,7 +41,9 @@ from gcs_pdm.models.params import MOTOR_NAMES, builtin  # noqa: E402
 from gcs_pdm.sim.truth import true_parameters  # noqa: E402
 
 
-def one_flight(k: int, seed: int, horizon_s: float, n_samples: int) -> dict | None:
+def calibration_flight(k: int, seed: int):
+    """Flight ``k``: (its generator, positioned for the draws after the flight, the flight, the
+    faulty motor, its true magnitude, the checkpoint s). Shared with ``bench_motor_temp_calibration``."""
     rng = np.random.default_rng([seed, k])
     truth = true_parameters(1000 + k)
     motor = MOTOR_NAMES[int(rng.integers(0, 2))]
@@ -50,9 +52,14 @@ def one_flight(k: int, seed: int, horizon_s: float, n_samples: int) -> dict | No
     soc0 = float(rng.uniform(0.8, 1.0))
     flight = fly_synthetic(truth, rng, duration_s=4000.0, fault_motor=motor, fault_magnitude=magnitude,
                            fault_time_s=fault_s, initial_soc=soc0)
+    checkpoint = fault_s + float(rng.uniform(60.0, 240.0))
+    return rng, flight, motor, magnitude, checkpoint
+
+
+def one_flight(k: int, seed: int, horizon_s: float, n_samples: int) -> dict | None:
+    rng, flight, motor, magnitude, checkpoint = calibration_flight(k, seed)
     t_end = float(flight.time_s[-1])
     failed_at = flight.info.get("failed_at_s")
-    checkpoint = fault_s + float(rng.uniform(60.0, 240.0))
     if checkpoint > t_end - 30.0:
         return None
     est = StateEstimator(builtin("paper_si"))
