@@ -41,7 +41,10 @@ def test_gate_marks_an_old_proposal_or_changed_faults_stale():
 def test_outlook_alarm_and_line():
     ok = {"p_failure": 0.0, "landing_soc_p05": 0.2, "landing_soc_p50": 0.3, "landing_soc_p95": 0.4}
     assert outlook_alarm(ok, max_failure_probability=0.02, reserve_soc=0.15) is None
-    assert outlook_line(ok) == "gets home with 30% (20%–40%), P(failure) 0.0%"
+    assert outlook_line(ok) == "gets home with 30% (20%–40%), P(failure) 0.0%"  # draws not said: the value
+    # no failing draw among 200 is a bound (1 - 0.05^(1/200) = 1.49 %), not "0 %"
+    assert outlook_line(dict(ok, samples=200)) == "gets home with 30% (20%–40%), P(failure) < 1.5% (0 of 200 draws failed)"
+    assert outlook_line(dict(ok, p_failure=0.035, samples=200)).endswith("P(failure) 3.5%")
     low = dict(ok, landing_soc_p05=0.1)
     a = outlook_alarm(low, max_failure_probability=0.02, reserve_soc=0.15)
     assert a["severity"] == "warning" and "reserve" in a["text"] and a["statustext"].startswith("PDM:")
