@@ -5,6 +5,7 @@ description's kernel pack's, which carries only the calibrated SoC."""
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -145,3 +146,28 @@ def test_the_future_loads_spread_is_how_far_the_held_load_moved():
     assert CutoffModel.of(steady).current_log_sd < 0.01
     assert CutoffModel.of(after_taxi).current_log_sd < 0.3
     assert 0.1 < CutoffModel.of(stepping).current_log_sd < 0.4
+
+
+def test_a_restart_forgets_the_previous_packs_recent_shortfall():
+    """After a gap the filter starts again from its priors (the pack may have been swapped): the
+    count-down must not keep the old state's shortfall and load spread (it read a fresh pack's
+    count-down as 291 s where a fresh filter on the same frames says 646 s)."""
+    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+
+    def calibrator():
+        return PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600.0))
+
+    worn = calibrator()
+    worn.initialise(0.0, 16.4, 0.0, 25.0)
+    for k in range(260):  # the sag jumps 1.5 V after 200 s: more than the filter follows
+        worn.step(1.0 + k, 1.0, 20.0, 15.6 - 0.001 * k if k < 200 else 13.9, 25.0)
+    assert worn.recent_miss_v > 0.5 and math.isfinite(worn.current_move_log_var)
+    fresh = calibrator()
+    for cal in (worn, fresh):
+        cal.initialise(2000.0, 16.6, 0.0, 25.0)
+        for k in range(5):
+            cal.step(2001.0 + k, 1.0, 20.0, 15.8, 25.0)
+    restarted, new = CutoffModel.of(worn), CutoffModel.of(fresh)
+    assert restarted.recent_miss_v == pytest.approx(new.recent_miss_v)
+    assert restarted.current_log_sd == new.current_log_sd
+    assert restarted.time_to_cutoff(20.0, 14.0) == pytest.approx(new.time_to_cutoff(20.0, 14.0))
