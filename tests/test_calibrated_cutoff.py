@@ -171,3 +171,21 @@ def test_a_restart_forgets_the_previous_packs_recent_shortfall():
     assert restarted.recent_miss_v == pytest.approx(new.recent_miss_v)
     assert restarted.current_log_sd == new.current_log_sd
     assert restarted.time_to_cutoff(20.0, 14.0) == pytest.approx(new.time_to_cutoff(20.0, 14.0))
+
+
+def test_a_restart_after_a_gap_reads_the_rest_as_rested():
+    """The load before a gap relaxed during it (no step counted that time): a restarted filter at
+    rest reads its rested voltage as a fresh one does (it ignored 600 s of rest after a 28-min gap)."""
+    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+
+    flown, fresh = (PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600.0)) for _ in range(2))
+    flown.initialise(0.0, 16.4, 0.0, 25.0)
+    for k in range(300):
+        flown.step(1.0 + k, 1.0, 20.0, 15.6 - 0.002 * k, 25.0)
+    relaxing_before = flown.counters["voltage_relaxing"]
+    for cal in (flown, fresh):
+        cal.initialise(2000.0, 16.0, 0.0, 25.0)
+        for k in range(120):
+            cal.step(2001.0 + k, 1.0, 0.0, 16.0, 25.0)
+    assert flown.counters["voltage_relaxing"] - relaxing_before == fresh.counters["voltage_relaxing"] == 0
+    assert flown.soc == pytest.approx(fresh.soc, abs=1e-6)

@@ -279,9 +279,6 @@ class PackCalibrator:
         #: the sum of the voltage's innovation log-likelihoods so far (every voltage the filter read)
         self.log_likelihood = 0.0
         self.last_u = 0.0
-        #: the recent load, A: the present current, or an earlier larger one decaying with the slow
-        #: pair's time constant (the polarisation it left is still relaxing)
-        self.load_memory_a = 0.0
         self._forget_recent_load()
         #: the last temperature read (°C) and the one where the charge count started (NaN: none yet)
         self.temp_c = math.nan
@@ -289,7 +286,11 @@ class PackCalibrator:
 
     def _forget_recent_load(self) -> None:
         """No load seen yet (a start, or a start again after a gap in which the pack may have been
-        swapped: the shortfall is the old state's model against the old pack)."""
+        swapped: the shortfall is the old state's model against the old pack, and the old load's
+        polarisation has relaxed over the gap, which no step counted)."""
+        #: the recent load, A: the present current, or an earlier larger one decaying with the slow
+        #: pair's time constant (the polarisation it left is still relaxing)
+        self.load_memory_a = 0.0
         #: the recent loaded current (A) and the model's loaded voltage less the measured one at it
         #: (V), means over ``RECENT_LOAD_TAU_S`` (NaN before any load): what the model does not explain now
         self.recent_current_a = math.nan
