@@ -5,6 +5,7 @@ description's kernel pack's, which carries only the calibrated SoC."""
 from __future__ import annotations
 
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -145,3 +146,46 @@ def test_the_future_loads_spread_is_how_far_the_held_load_moved():
     assert CutoffModel.of(steady).current_log_sd < 0.01
     assert CutoffModel.of(after_taxi).current_log_sd < 0.3
     assert 0.1 < CutoffModel.of(stepping).current_log_sd < 0.4
+
+
+def test_a_restart_forgets_the_previous_packs_recent_shortfall():
+    """After a gap the filter starts again from its priors (the pack may have been swapped): the
+    count-down must not keep the old state's shortfall and load spread (it read a fresh pack's
+    count-down as 291 s where a fresh filter on the same frames says 646 s)."""
+    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+
+    def calibrator():
+        return PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600.0))
+
+    worn = calibrator()
+    worn.initialise(0.0, 16.4, 0.0, 25.0)
+    for k in range(260):  # the sag jumps 1.5 V after 200 s: more than the filter follows
+        worn.step(1.0 + k, 1.0, 20.0, 15.6 - 0.001 * k if k < 200 else 13.9, 25.0)
+    assert worn.recent_miss_v > 0.5 and math.isfinite(worn.current_move_log_var)
+    fresh = calibrator()
+    for cal in (worn, fresh):
+        cal.initialise(2000.0, 16.6, 0.0, 25.0)
+        for k in range(5):
+            cal.step(2001.0 + k, 1.0, 20.0, 15.8, 25.0)
+    restarted, new = CutoffModel.of(worn), CutoffModel.of(fresh)
+    assert restarted.recent_miss_v == pytest.approx(new.recent_miss_v)
+    assert restarted.current_log_sd == new.current_log_sd
+    assert restarted.time_to_cutoff(20.0, 14.0) == pytest.approx(new.time_to_cutoff(20.0, 14.0))
+
+
+def test_a_restart_after_a_gap_reads_the_rest_as_rested():
+    """The load before a gap relaxed during it (no step counted that time): a restarted filter at
+    rest reads its rested voltage as a fresh one does (it ignored 600 s of rest after a 28-min gap)."""
+    from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+
+    flown, fresh = (PackCalibrator(PackPrior("lipo", 4, 5.0 * 3600.0)) for _ in range(2))
+    flown.initialise(0.0, 16.4, 0.0, 25.0)
+    for k in range(300):
+        flown.step(1.0 + k, 1.0, 20.0, 15.6 - 0.002 * k, 25.0)
+    relaxing_before = flown.counters["voltage_relaxing"]
+    for cal in (flown, fresh):
+        cal.initialise(2000.0, 16.0, 0.0, 25.0)
+        for k in range(120):
+            cal.step(2001.0 + k, 1.0, 0.0, 16.0, 25.0)
+    assert flown.counters["voltage_relaxing"] - relaxing_before == fresh.counters["voltage_relaxing"] == 0
+    assert flown.soc == pytest.approx(fresh.soc, abs=1e-6)

@@ -144,3 +144,16 @@ def test_a_bank_offers_its_leading_filters_state_to_every_reader():
         pass
     else:
         raise AssertionError("an unknown name must raise AttributeError")
+
+
+def test_everything_a_bank_offers_as_a_filter_a_filter_has():
+    """A bank stands in for a ``PackCalibrator`` (module doc): each of its public names but its own
+    read-outs of the curves (``weights``, ``lead``, the members) is one a filter answers too. (The
+    merge of the curve bank and the count-down's move out of the filter left the bank's
+    ``time_to_cutoff`` calling a filter method that no longer exists.)"""
+    bank = pack_calibrator(PackPrior("lipo", 4, 5.0 * 3600.0))
+    _rest(bank, 3.97)
+    own = {"weights", "lead", "members", "hypotheses", "log_weight", "ruled_out", "prior"}
+    offered = [n for n in vars(CurveBank) if not n.startswith("_") and n not in own]
+    missing = [n for n in offered if not hasattr(bank.lead, n)]
+    assert offered and missing == []

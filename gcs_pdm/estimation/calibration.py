@@ -279,6 +279,15 @@ class PackCalibrator:
         #: the sum of the voltage's innovation log-likelihoods so far (every voltage the filter read)
         self.log_likelihood = 0.0
         self.last_u = 0.0
+        self._forget_recent_load()
+        #: the last temperature read (°C) and the one where the charge count started (NaN: none yet)
+        self.temp_c = math.nan
+        self.count_temp_c = math.nan
+
+    def _forget_recent_load(self) -> None:
+        """No load seen yet (a start, or a start again after a gap in which the pack may have been
+        swapped: the shortfall is the old state's model against the old pack, and the old load's
+        polarisation has relaxed over the gap, which no step counted)."""
         #: the recent load, A: the present current, or an earlier larger one decaying with the slow
         #: pair's time constant (the polarisation it left is still relaxing)
         self.load_memory_a = 0.0
@@ -294,9 +303,6 @@ class PackCalibrator:
         self.loaded_s = 0.0
         self._span_start_s = 0.0
         self._span_start_a = math.nan
-        #: the last temperature read (°C) and the one where the charge count started (NaN: none yet)
-        self.temp_c = math.nan
-        self.count_temp_c = math.nan
 
     # ---- model ---------------------------------------------------------------------------------
     def _ocv(self, soc: float) -> tuple[float, float]:
@@ -339,6 +345,9 @@ class PackCalibrator:
         self._anchor()
         self.voltage_trusted, self.why_not_voltage, self.drain_failed = True, None, False
         self.nis.clear()
+        # the recent shortfall is measured against the state just replaced (a restart after a gap:
+        # a swapped pack's count-down read its predecessor's sag, 291 s against 646 s fresh)
+        self._forget_recent_load()
         self._clip()
         if math.isfinite(voltage):
             self._update(voltage, i, self.last_u, t)

@@ -173,11 +173,6 @@ class CurveBank:
             out.append("curve_open")
         return out
 
-    def time_to_cutoff(self, current: float, cutoff_v: float, temperature_c: float = 25.0,
-                       voltage: float = math.nan) -> float:
-        """The leading hypothesis's (``PackCalibrator.time_to_cutoff``)."""
-        return self.lead.time_to_cutoff(current, cutoff_v, temperature_c, voltage)
-
     def report(self) -> dict:
         """The leading hypothesis's report with the bank's σ, and every hypothesis's
         curve, weight and SoC."""

@@ -54,8 +54,8 @@ class LiveLoop:
             service.describe_vehicle(None, "deriving", waiting=self.discovery.waiting())
         elif service.vehicle is None:
             service.describe_vehicle(PRESETS["edge540"], "default")
-        # none given and none to derive: the paper's aircraft, the edge540 preset
-        vehicle = service.vehicle or PRESETS["edge540"]
+        # none given and none to derive: the paper's aircraft, the edge540 preset (``Service.flown_vehicle``)
+        vehicle = service.flown_vehicle()
         self.diagnoser = diagnoser if diagnoser is not None else self._make_diagnoser(vehicle)
         shared = adapters.estimator_of(self.diagnoser) if estimator is None else None
         self.estimator = estimator or shared or adapters.make_estimator(vehicle, service.parameter_override(vehicle))
