@@ -24,6 +24,13 @@ sample and 0.012 °C/√s, was 0.5 and 0.02; the 2σ band held 99.6 %): every fa
 event equal; on ``degraded_packs`` the two model_mismatch advisories' temperature evidence moved
 (statistic 0.368 -> 0.601 and 0.439 -> 0.692, residual +0.01-0.02 K): the same innovations over a
 smaller expected variance.
+
+The ``described`` entries re-recorded after the one-vehicle change (issue 32: ``edge540`` given as
+a description is the paper's aircraft on one path, so its two motors on one shaft are diagnosed
+by the shared-shaft detector, not the ESC-imbalance one it got as "a described vehicle"): every
+motor fault raised and cleared at the same message time on the same motor, magnitudes within 3e-4;
+the evidence is the shared-shaft detector's; fault_02's last update 800 -> 720 s; the detector's
+sample counters are its own.
 """
 from __future__ import annotations
 
