@@ -66,7 +66,6 @@ class CalibratedCircuit:
         model = CutoffModel.of(cal)
         if model is None:
             return None
-        cal = getattr(cal, "lead", cal)  # a curve bank: its leading curve's filter (as CutoffModel.of)
         return cls(model, float(cal.chem.tau1_s), float(cal.r1p), float(paper_vector[kernel.I_CT]),
                    float(paper_vector[kernel.I_H]))
 
