@@ -8,8 +8,10 @@
   slope there, and the current sensor's gain error. Without both rests, or with too shallow a
   discharge (less than ``min_soc_used`` of the pack), the capacity is unknown and the point says why.
 * **Resistance at 25 °C** (Ω) from the voltage steps at the flight's current steps (take-off,
-  climbs, throttle-back): ΔV/ΔI one sample apart, the median over the flight, scaled to 25 °C by an
-  Arrhenius law (``activation_energy_j_mol``); σ from the spread of the steps.
+  climbs, throttle-back): ΔV/ΔI one sample apart, read at the take-off step (the same condition every
+  flight: the pack at its starting charge, barely loaded before; σ from the voltage noise just before
+  it), else the median over the flight's steps (σ from their spread), scaled to 25 °C by an
+  Arrhenius law (``activation_energy_j_mol``).
 * **Use**: charge and energy drawn, equivalent full cycles (charge drawn / nominal capacity), depth
   of discharge (SoC used when the rests tell it, else charge / nominal), peak temperature.
 
@@ -475,8 +477,7 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
                 and before.sum() >= 5):
             noise = float(np.std(np.diff(v[before]))) / math.sqrt(2.0)  # one sample's voltage noise
             r_med = float(r[0])
-            sd = math.hypot(math.sqrt(2.0) * noise / abs(di[k]), mad / math.sqrt(max(r.size, 1)) * 0.0)
-            sd = max(sd, 1e-6)
+            sd = max(math.sqrt(2.0) * noise / abs(di[k]), 1e-6)  # one step: its two samples' noise
             temp_step = temp[1:][step][:1]
             how = f"the take-off step ({di[k]:+.3g} A)"
         t_c = float(np.nanmedian(temp_step)) if np.isfinite(temp_step).any() else None
