@@ -64,7 +64,7 @@ def test_bad_scenarios_name_the_field(edit, message):
     data = json.loads((FIXTURES / "table3_7.json").read_text())
     edit(data)
     with pytest.raises(ScenarioError, match=message):
-        Scenario.from_dict(data).parameter_set()
+        Scenario.from_dict(data).flown_vehicle()  # its vehicle resolved: faults by the paper's motors
 
 
 def test_not_json_is_a_clear_error():

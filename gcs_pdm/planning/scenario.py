@@ -19,7 +19,7 @@ import numpy as np
 from gcs_pdm.geo import enu_from_geodetic
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, builtin
-from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState, fault_vector
+from gcs_pdm.models.powertrain import DescribedMotorFault, Limits, MotorFault, PowertrainState, fault_vector
 from gcs_pdm.models.wind import wind_from_speed_direction
 from gcs_pdm.vehicle.description import VehicleDescription
 from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
@@ -216,8 +216,12 @@ class Scenario:
         paper's motors) and its limits and landing reserve for every pack and motor."""
         ps = params if params is not None else self.parameter_set()
         vehicle = PRESETS[DEFAULT_PRESET]
-        return FlownVehicle(vehicle=vehicle, params=ps, state=self.start.powertrain(ps),
-                            motor_faults=named_motor_faults(self.faults, vehicle.motor_names), limits=self.limits)
+        state = self.start.powertrain(ps)
+        try:
+            faults = named_motor_faults(self.faults, vehicle.motor_names)
+        except ValueError as exc:
+            raise ScenarioError(f"faults: {exc}") from None
+        return FlownVehicle(vehicle=vehicle, params=ps, state=state, motor_faults=faults, limits=self.limits)
 
     def subset(self, numbers: Sequence[int], name: str | None = None) -> "Scenario":
         keep = set(numbers)
@@ -319,8 +323,10 @@ class Scenario:
                     raise ScenarioError(f"waypoints[{i}]: give lat_deg/lon_deg or east_m/north_m")
                 wps.append(Waypoint(number=number, east_m=e, north_m=n, alt_m=float(wd["alt_m"]),
                                     reward=float(wd["reward"]), airspeed_mps=float(wd.get("airspeed_mps", 25.0))))
-            faults = tuple(MotorFault(motor=str(f["motor"]), magnitude=float(f["magnitude"]),
-                                      kind=str(f.get("kind", "motor_power_loss"))) for f in data.get("faults", ()))
+            # any motor's name: a plan record's faults are its vehicle's (flown_vehicle checks the paper's)
+            faults = tuple((MotorFault if str(f["motor"]) in MOTOR_NAMES else DescribedMotorFault)(
+                motor=str(f["motor"]), magnitude=float(f["magnitude"]), kind=str(f.get("kind", "motor_power_loss")))
+                for f in data.get("faults", ()))
             ld = dict(data.get("limits", {}))
             unknown = set(ld) - set(PlanLimits.__dataclass_fields__)
             if unknown:
