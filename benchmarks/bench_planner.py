@@ -59,18 +59,18 @@ def main() -> int:
     scenarios.append(preflight_scenario(10))
     scenarios.append(random_field_scenario(12, seed=101))
     # compile/load the kernel outside the timings
-    warm = VehicleSimulator(scenarios[0])
+    warm = VehicleSimulator.for_scenario(scenarios[0])
     particle_filter(warm, particles=2, seed=0)
     exact_search(warm)
     out: dict = {"trials": args.trials, "particles": args.particles, "scenarios": {}}
     floors_ok = True
     for sc in scenarios:
-        sim = VehicleSimulator(sc)
+        sim = VehicleSimulator.for_scenario(sc)
         ex, t_ex = timed(exact_search, sim)
         pf = trials(particle_filter, sim, args.trials, args.particles)
         ls = trials(pf_local_search, sim, args.trials, args.particles)
         if len(sc.waypoints) <= 10:
-            ex_as, t_as = timed(exact_search, VehicleSimulator(sc, optimise_airspeed=True))
+            ex_as, t_as = timed(exact_search, VehicleSimulator.for_scenario(sc, optimise_airspeed=True))
             airspeed = {"reward": ex_as.reward, "route": list(ex_as.numbers), "time_s": t_as}
         else:  # slower legs keep many more routes feasible: not part of this figure
             airspeed = None

@@ -51,12 +51,12 @@ def wilson_upper(k: int, n: int, z: float = 1.96) -> float:
 
 
 def speed(trials: int, samples: int, sc) -> dict:
-    warm = VehicleSimulator(sc)
+    warm = VehicleSimulator.for_scenario(sc)
     run_risk_bounded("pf", RiskSimulator(warm, draw(warm, samples, seed=99)), seed=99)
     times, cpu, load = [], [], []
     for seed in range(trials):
         t, c = time.perf_counter(), time.process_time()
-        base = VehicleSimulator(sc)
+        base = VehicleSimulator.for_scenario(sc)
         run_risk_bounded("pf", RiskSimulator(base, draw(base, samples, seed=seed)), seed=seed)
         times.append(time.perf_counter() - t)
         cpu.append(time.process_time() - c)  # both threads' CPU: what the plan costs whatever the load
@@ -90,8 +90,8 @@ def table3(truths: int, samples: int, wind_text: str, eps: float) -> dict:
     out = {}
     for n in (7, 8, 9, 10):
         sc = table3_scenario(truth_params, n).with_wind(*wind)
-        base = VehicleSimulator(sc)  # the planner's model: paper_si
-        truth = RiskSimulator(VehicleSimulator(sc, truth_params), draw(VehicleSimulator(sc, truth_params), truths,
+        base = VehicleSimulator.for_scenario(sc)  # the planner's model: paper_si
+        truth = RiskSimulator(VehicleSimulator.for_scenario(sc, truth_params), draw(VehicleSimulator.for_scenario(sc, truth_params), truths,
                                                                          seed=10_000 + n))
         rows = {}
         t = time.perf_counter()

@@ -261,7 +261,7 @@ def main() -> int:
               flush=True)
     if not args.no_paper:
         paper = table3_scenario(true_parameters(), 10)
-        out["paper_code_path_table3_10"] = time_plans(lambda: VehicleSimulator(paper), args.trials, args.samples)
+        out["paper_code_path_table3_10"] = time_plans(lambda: VehicleSimulator.for_scenario(paper), args.trials, args.samples)
         p = out["paper_code_path_table3_10"]
         print(f"paper code path table3_10: median {p['median_s']:.3f} s, CPU median {p['cpu_median_s']:.3f} s",
               flush=True)

@@ -38,7 +38,7 @@ def paper_case():
     est = StateEstimator(true_parameters())
     for fr in fly_synthetic(true_parameters(), np.random.default_rng(2), duration_s=150.0, initial_soc=1.0).frames:
         est.consume(fr)
-    sim = VehicleSimulator(preflight_scenario(10), true_parameters())
+    sim = VehicleSimulator.for_scenario(preflight_scenario(10), true_parameters())
     return est, adapters.route_load(sim, original_order(sim.scenario)), (MotorFault("aft", 0.7),)
 
 

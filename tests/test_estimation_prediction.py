@@ -83,7 +83,7 @@ def test_load_for_route_follows_the_planner_and_predicts_its_outcome():
 
     root = Path(__file__).resolve().parent.parent / "fixtures" / "scenarios"
     scenario = Scenario.from_json((root / "table3_10.json").read_text())
-    sim = VehicleSimulator(scenario)
+    sim = VehicleSimulator.for_scenario(scenario)
     route = [0, 1, 2]
     load = load_for_route(sim, route)
     nodes = [sim.start_node, *route, sim.landing_node]

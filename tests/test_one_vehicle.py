@@ -33,11 +33,9 @@ ENTRY_POINTS = {"cli.py", "signing_cli.py", "server.py", "runtime.py", "demo.py"
 
 #: still-present branches (see the module docstring); to be removed, never added to
 ALLOWED = {
-    # issue 32's layering engineer's packages (vehicle/, service/, replay/)
-    "vehicle/presets.py": 1,       # the predicate's own definition
-    "service/adapters.py": 2,      # plan_candidates: the scenario's paper-layout start, faults and limits
-    # this session's modules (issue 32's battery/planning part): not yet removed
-    "planning/simulator.py": 2,
+    # the predicate's own definition, called only by the service's entry point (runtime.py: which
+    # parameter set and limits to fly over the paper's aircraft)
+    "vehicle/presets.py": 1,
 }
 
 

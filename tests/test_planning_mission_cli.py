@@ -21,7 +21,7 @@ FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "scenarios"
 @pytest.fixture(scope="module")
 def planned():
     sc = Scenario.from_json((FIXTURES / "table3_9.json").read_text())
-    return sc, exact_search(VehicleSimulator(sc, builtin("paper_si")))
+    return sc, exact_search(VehicleSimulator.for_scenario(sc, builtin("paper_si")))
 
 
 def test_mission_layout_airborne(planned):
@@ -53,7 +53,7 @@ def test_mission_on_ground_starts_with_take_off_and_survives_a_file(planned):
 
 def test_speed_items_follow_the_leg_airspeeds(planned):
     sc, _ = planned
-    sim = VehicleSimulator(sc, builtin("paper_si"), optimise_airspeed=True)
+    sim = VehicleSimulator.for_scenario(sc, builtin("paper_si"), optimise_airspeed=True)
     plan = exact_search(sim)
     items = plan_to_mission(sc, plan).items
     speeds = [i.param2 for i in items if i.command == MAV_CMD_DO_CHANGE_SPEED]
@@ -117,7 +117,7 @@ def test_truth_scoring_counts_a_missed_reserve_as_a_failed_plan():
     from gcs_pdm.sim.truth import true_parameters
 
     sc = Scenario.from_json((Path(__file__).resolve().parents[1] / "fixtures" / "scenarios" / "table3_9.json").read_text())
-    truth = VehicleSimulator(sc, true_parameters())
+    truth = VehicleSimulator.for_scenario(sc, true_parameters())
     routes = [r for k in range(1, 6) for r in itertools.permutations(range(len(sc.waypoints)), k)][::5]
     ev = truth.evaluate(routes)
     score, lost, reserve_missed = score_on_truth(truth, routes)

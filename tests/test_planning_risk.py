@@ -35,7 +35,7 @@ def _some_routes(n: int, count: int, seed: int = 0) -> list[tuple[int, ...]]:
 
 
 def test_without_spread_every_draw_is_the_deterministic_vehicle(table3_10):
-    base = VehicleSimulator(table3_10.with_wind(3.0, -2.0))
+    base = VehicleSimulator.for_scenario(table3_10.with_wind(3.0, -2.0))
     risk = RiskSimulator(base, draw(base, 3, uncertainty=NO_SPREAD, seed=0))
     routes = _some_routes(base.n, 40)
     det, rsk = base.evaluate(routes), risk.evaluate(routes)
@@ -47,7 +47,7 @@ def test_without_spread_every_draw_is_the_deterministic_vehicle(table3_10):
 
 
 def test_carried_states_give_the_whole_route_numbers(table3_10):
-    base = VehicleSimulator(table3_10)
+    base = VehicleSimulator.for_scenario(table3_10)
     risk = RiskSimulator(base, draw(base, 40, seed=2))
     routes = [(4, 1), (4, 1, 7), (2,), ()]
     whole = risk.evaluate(routes)
@@ -63,7 +63,7 @@ def test_carried_states_give_the_whole_route_numbers(table3_10):
 
 
 def test_risk_plan_keeps_the_bound_where_the_nominal_plan_does_not(table3_10):
-    base = VehicleSimulator(table3_10)
+    base = VehicleSimulator.for_scenario(table3_10)
     risk = RiskSimulator(base, draw(base, 200, seed=5), max_failure_probability=0.02)
     nominal = particle_filter(base, particles=30, seed=0)
     nominal_risk = risk.risk_of(nominal.route)
@@ -81,7 +81,7 @@ def test_risk_plan_keeps_the_bound_where_the_nominal_plan_does_not(table3_10):
 def test_exact_search_on_the_risk_objective_matches_brute_force():
     sc = table3_scenario(true_parameters(), 10)
     sc = sc.subset([w.number for w in sc.waypoints][:5])
-    base = VehicleSimulator(sc)
+    base = VehicleSimulator.for_scenario(sc)
     risk = RiskSimulator(base, draw(base, 24, seed=3), max_failure_probability=0.05)
     routes = [r for k in range(6) for r in itertools.permutations(range(base.n), k)]
     ev = RiskSimulator(base, risk.draws, max_failure_probability=0.05).evaluate(routes)
@@ -93,7 +93,7 @@ def test_exact_search_on_the_risk_objective_matches_brute_force():
 
 
 def test_unsupported_vehicle_and_bad_settings_are_refused(table3_10):
-    base = VehicleSimulator(table3_10)
+    base = VehicleSimulator.for_scenario(table3_10)
     dr = draw(base, 4, seed=0)
     with pytest.raises(ValueError, match="max_failure_probability"):
         RiskSimulator(base, dr, max_failure_probability=1.5)
@@ -118,7 +118,7 @@ def test_step_groups_cover_every_row_once_and_split_only_where_padding_costs_mor
 
 
 def test_a_failed_draw_is_not_flown_on(table3_10):
-    base = VehicleSimulator(table3_10)
+    base = VehicleSimulator.for_scenario(table3_10)
     risk = RiskSimulator(base, draw(base, 8, seed=1))
     st = risk.start_state(1)
     failed = np.zeros((1, 8), dtype=bool)

@@ -40,8 +40,8 @@ def test_from_live_keeps_the_estimated_pack_states():
     ps = builtin("paper_si")
     st = PowertrainState.full(ps, 25.0, 0.6)
     wps = [Waypoint(1, 100.0, 200.0, 100.0, 10.0)]
-    sc = Scenario.from_live(ps, st, [MotorFault("fwd", 0.3)], wps, (10.0, 20.0, 80.0), Home(),
-                            PlanLimits(landing_reserve_soc=0.1), time_s=123.0)
+    sc = Scenario.from_live(st, [MotorFault("fwd", 0.3)], wps, (10.0, 20.0, 80.0), Home(),
+                            PlanLimits(landing_reserve_soc=0.1), params=ps, time_s=123.0)
     back = Scenario.from_json(sc.to_json())
     np.testing.assert_allclose(back.start.powertrain(back.parameter_set()).pack_state, st.pack_state)
     assert back.parameter_set().pack_matrix().tolist() == ps.pack_matrix().tolist()
@@ -64,7 +64,7 @@ def test_bad_scenarios_name_the_field(edit, message):
     data = json.loads((FIXTURES / "table3_7.json").read_text())
     edit(data)
     with pytest.raises(ScenarioError, match=message):
-        Scenario.from_dict(data).parameter_set()
+        Scenario.from_dict(data).flown_vehicle()  # its vehicle resolved: faults by the paper's motors
 
 
 def test_not_json_is_a_clear_error():

@@ -42,7 +42,7 @@ def test_exact_matches_brute_force(case):
         ps = true_parameters() if case.endswith("truth") else builtin("previous_si")
     else:
         sc, ps = random_instance(int(case[1:]), hot=case[0] == "h"), builtin("paper_si")
-    sim = VehicleSimulator(sc, ps)
+    sim = VehicleSimulator.for_scenario(sc, ps)
     ex = exact_search(sim)
     bf = brute_force(sim)
     assert ex.stats["proven_optimal"]
@@ -58,21 +58,21 @@ def test_exact_matches_brute_force(case):
 
 def test_exact_beats_the_original_order_which_fails():
     sc = load(10)
-    sim = VehicleSimulator(sc, true_parameters())
+    sim = VehicleSimulator.for_scenario(sc, true_parameters())
     assert not sim.evaluate([original_order(sc)]).feasible[0]
     ex = exact_search(sim)
     assert ex.feasible and ex.reward > 0 and 0 < len(ex.route) < len(sc.waypoints)
 
 
 def test_interrupted_exact_returns_a_feasible_route_and_says_so():
-    sim = VehicleSimulator(load(10), true_parameters())
+    sim = VehicleSimulator.for_scenario(load(10), true_parameters())
     calls = iter(range(100))
     ex = exact_search(sim, should_stop=lambda: next(calls) >= 2)
     assert not ex.stats["proven_optimal"] and ex.feasible and len(ex.route) <= 2
 
 
 def test_particle_filter_is_seeded_and_reproducible():
-    sim = VehicleSimulator(load(10), builtin("paper_si"))
+    sim = VehicleSimulator.for_scenario(load(10), builtin("paper_si"))
     a = particle_filter(sim, particles=20, seed=7)
     b = particle_filter(sim, particles=20, seed=7)
     assert a.route == b.route and a.reward == b.reward
@@ -82,7 +82,7 @@ def test_particle_filter_is_seeded_and_reproducible():
 
 @pytest.mark.parametrize("n", [7, 8, 9, 10])
 def test_particle_filter_never_returns_an_infeasible_route_as_feasible(n):
-    sim = VehicleSimulator(load(n), builtin("previous_si"))
+    sim = VehicleSimulator.for_scenario(load(n), builtin("previous_si"))
     opt = exact_search(sim).reward
     rewards = []
     for seed in range(10):
@@ -95,7 +95,7 @@ def test_particle_filter_never_returns_an_infeasible_route_as_feasible(n):
 
 
 def test_particle_filter_deadline_returns_the_best_so_far():
-    sim = VehicleSimulator(load(10), builtin("paper_si"))
+    sim = VehicleSimulator.for_scenario(load(10), builtin("paper_si"))
     stop_now = particle_filter(sim, particles=30, seed=0, should_stop=lambda: True)
     assert stop_now.route == () and stop_now.stats["interrupted"] and stop_now.feasible
     calls = iter(range(100))
@@ -104,7 +104,7 @@ def test_particle_filter_deadline_returns_the_best_so_far():
 
 
 def test_theta_steers_the_particle_filter():
-    sim = VehicleSimulator(load(9), builtin("paper_si"))
+    sim = VehicleSimulator.for_scenario(load(9), builtin("paper_si"))
     frugal = [particle_filter(sim, particles=20, seed=s, theta=(0.0, 0.0, 1.0)) for s in range(3)]
     greedy = [particle_filter(sim, particles=20, seed=s) for s in range(3)]
     # a weight that only counts energy keeps short routes (each particle is still weighed by its
@@ -123,14 +123,14 @@ def test_neighbourhood_moves():
 
 
 def test_local_search_climbs_from_nothing_to_a_feasible_route():
-    sim = VehicleSimulator(load(8), builtin("paper_si"))
+    sim = VehicleSimulator.for_scenario(load(8), builtin("paper_si"))
     route, reward, _, flown = improve(sim, ())
     assert reward > 0 and flown > 1 and sim.evaluate([route]).feasible[0]
 
 
 @pytest.mark.parametrize("n", [7, 10])
 def test_stronger_planner_reaches_the_optimum(n):
-    sim = VehicleSimulator(load(n), true_parameters())
+    sim = VehicleSimulator.for_scenario(load(n), true_parameters())
     opt = exact_search(sim)
     for seed in range(3):
         p = pf_local_search(sim, particles=30, seed=seed)
@@ -140,15 +140,15 @@ def test_stronger_planner_reaches_the_optimum(n):
 def test_chosen_route_completes_on_the_truth():
     """Where the original order fails, the route planned on a model flies home on the true vehicle."""
     sc = load(10)
-    truth_sim = VehicleSimulator(sc, true_parameters())
+    truth_sim = VehicleSimulator.for_scenario(sc, true_parameters())
     assert truth_sim.evaluate([original_order(sc)]).fail_leg[0] >= 0
-    p = pf_local_search(VehicleSimulator(sc, builtin("paper_si")), seed=0)
+    p = pf_local_search(VehicleSimulator.for_scenario(sc, builtin("paper_si")), seed=0)
     ev = truth_sim.evaluate([p.route])
     assert ev.fail_leg[0] == -1 and ev.reward_reached[0] == p.reward > 0
 
 
 def test_beam_search_is_a_feasible_heuristic_and_exact_when_wide():
-    sim = VehicleSimulator(load(10), builtin("paper_si"))
+    sim = VehicleSimulator.for_scenario(load(10), builtin("paper_si"))
     ex = exact_search(sim)
     narrow = exact_search(sim, beam=4, warm_start=False)
     assert narrow.planner == "beam" and not narrow.stats["proven_optimal"]
@@ -161,9 +161,10 @@ def test_no_waypoints_and_no_way_home(planner):
     from gcs_pdm.planning.planners import plan_scenario
 
     sc = load(7)
-    empty = plan_scenario(dataclasses.replace(sc, waypoints=()), planner)
+    empty_sc = dataclasses.replace(sc, waypoints=())
+    empty = plan_scenario(empty_sc, empty_sc.flown_vehicle(), planner)
     assert empty.route == () and empty.feasible
     dead = dataclasses.replace(sc, start=dataclasses.replace(sc.start, pack_soc=(0.02, 0.5, 0.02, 0.5)))
-    p = plan_scenario(dead, planner)
+    p = plan_scenario(dead, dead.flown_vehicle(), planner)
     # nothing is reachable: the plan is the way home, reported as infeasible with its cause
     assert p.route == () and not p.feasible and p.failure != "none"

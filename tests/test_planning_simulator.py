@@ -22,7 +22,7 @@ def sc9():
 
 @pytest.fixture(scope="module")
 def sim9(sc9):
-    return VehicleSimulator(sc9, true_parameters())
+    return VehicleSimulator.for_scenario(sc9, true_parameters())
 
 
 def test_incremental_prefix_flight_equals_whole_route_flight(sim9):
@@ -70,7 +70,7 @@ def test_original_order_fails_on_every_table3_scenario():
     truth = true_parameters()
     for n in (7, 8, 9, 10):
         sc = Scenario.from_json((FIXTURES / f"table3_{n}.json").read_text())
-        ev = VehicleSimulator(sc, truth).evaluate([original_order(sc)])
+        ev = VehicleSimulator.for_scenario(sc, truth).evaluate([original_order(sc)])
         assert not ev.feasible[0]
         assert ev.reward[0] == 0.0
         # it fails in the air (energy), not just on the reserve, and we know on which leg
@@ -82,27 +82,27 @@ def test_original_order_fails_on_every_table3_scenario():
 
 
 def test_reserve_is_a_failure_at_landing(sc9):
-    sim = VehicleSimulator(sc9, true_parameters())
+    sim = VehicleSimulator.for_scenario(sc9, true_parameters())
     ev = sim.evaluate([(5, 3, 6)])
     assert ev.feasible[0]
     strict = dataclasses.replace(sc9, limits=dataclasses.replace(sc9.limits,
                                                                  landing_reserve_soc=ev.final_soc[0].min() + 0.01))
-    ev2 = VehicleSimulator(strict, true_parameters()).evaluate([(5, 3, 6)])
+    ev2 = VehicleSimulator.for_scenario(strict, true_parameters()).evaluate([(5, 3, 6)])
     assert not ev2.feasible[0] and ev2.cause[0] == FAIL_RESERVE and ev2.fail_leg[0] == -1
     assert ev2.reward[0] == 0 and ev2.reward_reached[0] == ev.reward[0]
 
 
 def test_motor_temperature_limit_is_located_on_the_leg(sc9):
     hot = dataclasses.replace(sc9, limits=dataclasses.replace(sc9.limits, motor_max_temp_c=sc9.start.motor_temp_c[0] + 4))
-    ev = VehicleSimulator(hot, true_parameters()).evaluate([(0, 1, 2)])
+    ev = VehicleSimulator.for_scenario(hot, true_parameters()).evaluate([(0, 1, 2)])
     assert ev.cause[0] == kernel.FAIL_MOTOR_OVERTEMP and ev.fail_leg[0] == 0 and ev.reward_reached[0] == 0
 
 
 def test_fault_loads_the_healthy_string(sc9):
     healthy = dataclasses.replace(sc9, faults=())
     route = [(5, 3, 6)]
-    faulted = VehicleSimulator(sc9, builtin("paper_si")).evaluate(route)
-    ok = VehicleSimulator(healthy, builtin("paper_si")).evaluate(route)
+    faulted = VehicleSimulator.for_scenario(sc9, builtin("paper_si")).evaluate(route)
+    ok = VehicleSimulator.for_scenario(healthy, builtin("paper_si")).evaluate(route)
     assert faulted.feasible[0] and ok.feasible[0]
     # the healthy (fwd) string carries more than its half: it lands far emptier than the aft one,
     # and emptier than it would on a healthy vehicle
@@ -113,8 +113,8 @@ def test_fault_loads_the_healthy_string(sc9):
 
 def test_airspeed_optimisation_lowers_energy(sc9):
     ps = builtin("paper_si")
-    nominal = VehicleSimulator(sc9, ps)
-    tuned = VehicleSimulator(sc9, ps, optimise_airspeed=True)
+    nominal = VehicleSimulator.for_scenario(sc9, ps)
+    tuned = VehicleSimulator.for_scenario(sc9, ps, optimise_airspeed=True)
     route = [(0, 2, 4, 6)]
     assert tuned.evaluate(route).power_cost[0] < nominal.evaluate(route).power_cost[0]
     assert np.all(tuned.legs.airspeed[tuned.legs.duration_s > 0] != 0)
@@ -129,7 +129,7 @@ def test_bad_route_is_rejected(sim9):
 
 def test_steep_leg_spirals_at_the_climb_rate(sc9):
     tall = dataclasses.replace(sc9, waypoints=(Waypoint(1, sc9.start.east_m + 100.0, sc9.start.north_m, sc9.start.alt_m + 1000.0, 1.0),))
-    sim = VehicleSimulator(tall, builtin("paper_si"))
+    sim = VehicleSimulator.for_scenario(tall, builtin("paper_si"))
     assert sim.legs.duration_s[sim.start_node, 0] == pytest.approx(1000.0 / tall.max_climb_rate_mps)
 
 
@@ -140,7 +140,7 @@ def test_planned_routes_hold_at_1s():
 
     for n in (8, 10):
         sc = Scenario.from_json((FIXTURES / f"table3_{n}.json").read_text())
-        sim = VehicleSimulator(sc, builtin("paper_si"))
+        sim = VehicleSimulator.for_scenario(sc, builtin("paper_si"))
         routes = [exact_search(sim).route] + [particle_filter(sim, particles=10, seed=s).route for s in range(3)]
         coarse, fine = sim.evaluate(routes), sim.evaluate(routes, dt_s=1.0)
         assert coarse.feasible.all() and fine.feasible.all()

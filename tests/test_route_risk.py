@@ -52,7 +52,7 @@ def test_the_batched_call_gives_the_per_sample_loops_numbers_on_the_paper_aircra
     case is compared as the mean over its three seeds within the sampling tolerance, and a verdict
     that was certain (p = 0 or 1 for every seed) must stay exactly that."""
     ref = json.loads(REFERENCE.read_text())
-    sim = VehicleSimulator(preflight_scenario(10), true_parameters())
+    sim = VehicleSimulator.for_scenario(preflight_scenario(10), true_parameters())
     full = original_order(sim.scenario)
     loads = {"full": adapters.route_load(sim, full), "half": adapters.route_load(sim, full[:5]),
              "two": adapters.route_load(sim, full[:2])}

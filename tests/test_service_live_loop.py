@@ -61,7 +61,7 @@ class FakeVehicleMissions:
 
 def original_mission():
     sc = preflight_scenario(10)
-    sim = VehicleSimulator(sc, true_parameters())
+    sim = VehicleSimulator.for_scenario(sc, true_parameters())
     return plan_to_mission(sc, make_plan(sim, original_order(sc), "original"), airborne=False)
 
 
@@ -326,7 +326,7 @@ def _direct_loop(tmp_path, vehicle_cls, mission, link=None, policy="auto"):
 def _new_mission():
     """The Table III mission flown in another order: a plan the loop might upload."""
     sc = preflight_scenario(10)
-    sim = VehicleSimulator(sc, true_parameters())
+    sim = VehicleSimulator.for_scenario(sc, true_parameters())
     order = list(reversed(original_order(sc)))
     return plan_to_mission(sc, make_plan(sim, order, "reversed"), airborne=True)
 
@@ -835,7 +835,7 @@ def test_a_proposal_carries_the_monte_carlo_risk_of_its_route_and_of_the_current
     from gcs_pdm.service import adapters
     from gcs_pdm.service.api import create_app
 
-    sim = VehicleSimulator(preflight_scenario(10), true_parameters())
+    sim = VehicleSimulator.for_scenario(preflight_scenario(10), true_parameters())
     full = original_order(sim.scenario)
 
     def plan_candidates(*args, **kwargs):
@@ -881,7 +881,7 @@ def test_without_an_estimate_a_proposal_says_its_risk_is_unknown(tmp_path, monke
 
     svc, loop, link, vehicle = _direct_loop(tmp_path, FakeVehicleMissions, original_mission(), policy="advise")
     try:
-        sim = VehicleSimulator(preflight_scenario(10), true_parameters())
+        sim = VehicleSimulator.for_scenario(preflight_scenario(10), true_parameters())
         monkeypatch.setattr(adapters, "plan_candidates", _home_proposal(sim))
         loop.executor.plan("fault", _snap(loop))  # no estimator in the snapshot
         (plan,) = svc.store.plans(status="proposed")

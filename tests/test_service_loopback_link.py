@@ -66,7 +66,7 @@ def test_an_upload_to_an_arduplane_storing_vehicle_is_confirmed(running):
     svc, vehicle, _ = running
     vehicle.call(lambda core: setattr(core.missions, "store_like_arduplane", True))
     sc = preflight_scenario(10)
-    new = plan_to_mission(sc, make_plan(VehicleSimulator(sc, true_parameters()),
+    new = plan_to_mission(sc, make_plan(VehicleSimulator.for_scenario(sc, true_parameters()),
                                         list(reversed(original_order(sc))), "reversed"), airborne=True)
     pid = svc.store.add_plan({"items": [], "chosen": {}}, "test", "approved", 0.0)
     ok = svc.loop.upload(pid, list(new.items), Candidate("planner", (10, 9), True, 1.0, 1.0, 1.0), None,

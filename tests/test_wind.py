@@ -120,8 +120,8 @@ def test_scenario_wind_round_trips_and_calm_files_are_unchanged(table3_7):
 
 
 def test_leg_times_follow_the_wind_triangle(table3_7):
-    calm = VehicleSimulator(table3_7)
-    windy = VehicleSimulator(table3_7.with_wind(0.0, 6.0))  # blowing north
+    calm = VehicleSimulator.for_scenario(table3_7)
+    windy = VehicleSimulator.for_scenario(table3_7.with_wind(0.0, 6.0))  # blowing north
     home = calm.landing_node
     for i, w in enumerate(table3_7.waypoints):
         d = calm.legs.distance_m[i, home]
@@ -132,13 +132,13 @@ def test_leg_times_follow_the_wind_triangle(table3_7):
 
 
 def test_the_planners_choice_changes_where_the_wind_makes_its_calm_route_infeasible(table3_7):
-    calm_plan = plan_scenario(table3_7, "exact")
+    calm_plan = plan_scenario(table3_7, table3_7.flown_vehicle(), "exact")
     assert calm_plan.feasible
     windy = table3_7.with_wind(*wind_from_speed_direction(8.0, 270.0))
-    windy_sim = VehicleSimulator(windy)
+    windy_sim = VehicleSimulator.for_scenario(windy)
     ev = windy_sim.evaluate([calm_plan.route])
     assert not ev.feasible[0], "the calm optimum must not get home with its reserve in this wind"
-    windy_plan = plan_scenario(windy, "exact")
+    windy_plan = plan_scenario(windy, windy.flown_vehicle(), "exact")
     assert windy_plan.feasible and windy_plan.route != calm_plan.route
 
 
@@ -153,8 +153,8 @@ def test_a_headwind_route_reaches_cutoff_sooner_than_in_calm_air(table3_7):
                                                             north_m=table3_7.start.north_m, alt_m=100.0,
                                                             reward=50.0),))
     headwind = far.with_wind(*wind_from_speed_direction(8.0, 90.0))
-    calm_sim = VehicleSimulator(far, optimise_airspeed=True)
-    head_sim = VehicleSimulator(headwind, optimise_airspeed=True)
+    calm_sim = VehicleSimulator.for_scenario(far, optimise_airspeed=True)
+    head_sim = VehicleSimulator.for_scenario(headwind, optimise_airspeed=True)
     calm, head = calm_sim.evaluate([[0]]), head_sim.evaluate([[0]])
     assert calm.fail_leg[0] == 0 and head.fail_leg[0] == 0  # both cut off on the way out
     assert head.flight_time_s[0] < calm.flight_time_s[0]
@@ -170,8 +170,8 @@ def test_a_headwind_route_reaches_cutoff_sooner_than_in_calm_air(table3_7):
 
 
 def test_airspeed_optimisation_flies_faster_into_a_headwind(table3_7):
-    calm = VehicleSimulator(table3_7, optimise_airspeed=True)
-    south = VehicleSimulator(table3_7.with_wind(0.0, -12.0), optimise_airspeed=True)  # from the north
+    calm = VehicleSimulator.for_scenario(table3_7, optimise_airspeed=True)
+    south = VehicleSimulator.for_scenario(table3_7.with_wind(0.0, -12.0), optimise_airspeed=True)  # from the north
     north_legs = [i for i, w in enumerate(table3_7.waypoints) if w.north_m - table3_7.start.north_m > 1000]
     s = calm.start_node
     for i in north_legs:

@@ -4,8 +4,8 @@ planner (PF + local search) and the mission they produce. See docs/planning.md.
 Typical use (the CLI; the service does the same through ``gcs_pdm.service.adapters.plan_candidates``,
 which builds the ``VehicleSimulator`` itself and calls ``planners.run_planner``)::
 
-    scenario = Scenario.from_json(text)        # or Scenario.from_live(params, state, faults, ...)
-    plan = plan_scenario(scenario, "pfls")     # any name of planners.REGISTRY or ALIASES
+    scenario = Scenario.from_json(text)        # or Scenario.from_live(state, faults, ...)
+    plan = plan_scenario(scenario, scenario.flown_vehicle(), "pfls")   # any name of REGISTRY or ALIASES
     mission = plan_to_mission(scenario, plan, airborne=True)   # items + the seq to set current
 """
 from gcs_pdm.planning.exact import brute_force, exact_search

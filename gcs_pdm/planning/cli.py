@@ -74,24 +74,27 @@ def cmd_plan(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError) as exc:
         print(f"gcs-pdm plan: error: {args.scenario}: {exc}", file=sys.stderr)
         return 2
-    vehicle, motor_faults = None, {}
+    # the vehicle flown: a description given with --vehicle, else the scenario's own (the paper's aircraft)
+    described = None
     if args.vehicle:
+        from gcs_pdm.planning.scenario import FlownVehicle
         from gcs_pdm.vehicle.description import VehicleError
         from gcs_pdm.vehicle.presets import resolve
 
         try:
-            vehicle = resolve(args.vehicle)
+            motor_faults = {}
             for spec in args.motor_fault:
                 name, _, mag = spec.partition("=")
                 motor_faults[name] = float(mag)
+            described = FlownVehicle(resolve(args.vehicle), motor_faults=motor_faults)
         except (VehicleError, ValueError) as exc:
             print(f"gcs-pdm plan: error: {exc}", file=sys.stderr)
             return 2
     t0 = time.perf_counter()
     try:
-        plan = plan_scenario(scenario, args.planner, particles=args.particles, seed=args.seed, dt_s=args.dt,
+        flown = described if described is not None else scenario.flown_vehicle()
+        plan = plan_scenario(scenario, flown, args.planner, particles=args.particles, seed=args.seed, dt_s=args.dt,
                              optimise_airspeed=args.optimise_airspeed, should_stop=_deadline(args.deadline),
-                             vehicle=vehicle, motor_faults=motor_faults or None,
                              max_failure_probability=args.risk, risk_samples=args.samples)
     except ValueError as exc:
         print(f"gcs-pdm plan: error: {exc}", file=sys.stderr)

@@ -93,11 +93,11 @@ def run_table3(truth: ParameterSet, prior: ParameterSet, learned: ParameterSet, 
     rows = []
     for n in sizes:
         sc = table3_scenario(truth, n)
-        truth_sim = VehicleSimulator(sc, truth, dt_s=dt_s)
+        truth_sim = VehicleSimulator.for_scenario(sc, truth, dt_s=dt_s)
         opt = exact_search(truth_sim)
         no_reserve = dataclasses.replace(sc, limits=dataclasses.replace(sc.limits, landing_reserve_soc=0.0))
-        opt0 = exact_search(VehicleSimulator(no_reserve, truth, dt_s=dt_s))
-        sims = {"prior": VehicleSimulator(sc, prior, dt_s=dt_s), "learned": VehicleSimulator(sc, learned, dt_s=dt_s)}
+        opt0 = exact_search(VehicleSimulator.for_scenario(no_reserve, truth, dt_s=dt_s))
+        sims = {"prior": VehicleSimulator.for_scenario(sc, prior, dt_s=dt_s), "learned": VehicleSimulator.for_scenario(sc, learned, dt_s=dt_s)}
         cols = {}
         for key, sim in sims.items():
             routes = [particle_filter(sim, particles=particles, seed=t).route for t in range(trials)]

@@ -11,10 +11,9 @@ import importlib
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
-from gcs_pdm.models.params import ParameterSet
 from gcs_pdm.planning.plan import Plan
 from gcs_pdm.planning.risk import RiskSimulator, draw, plan_risk_bounded
-from gcs_pdm.planning.scenario import Scenario
+from gcs_pdm.planning.scenario import FlownVehicle, Scenario
 from gcs_pdm.planning.simulator import DEFAULT_DT_S, DEFAULT_THETA, VehicleSimulator
 
 StopCheck = Callable[[], bool]
@@ -75,22 +74,20 @@ def run_risk_bounded(name: str, sim: RiskSimulator, **kw) -> Plan:
     return plan_risk_bounded(resolve(name).run, sim, **kw)
 
 
-def plan_scenario(scenario: Scenario, planner: str = "pfls", *, params: ParameterSet | None = None,
-                  particles: int = 30, seed: int = 0, theta: Sequence[float] = DEFAULT_THETA,
-                  dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
-                  should_stop: StopCheck | None = None, vehicle=None,
-                  motor_faults: dict[str, float] | None = None, max_failure_probability: float | None = None,
-                  risk_samples: int = 200) -> Plan:
-    """Plan ``scenario`` with the named planner on ``params`` (default: the scenario's own set), or
-    on a vehicle description (``vehicle``, with ``motor_faults`` by its motor names); the CLI's entry
-    (the service builds its simulator itself: ``service.adapters.plan_candidates``).
+def plan_scenario(scenario: Scenario, flown: FlownVehicle, planner: str = "pfls", *, particles: int = 30,
+                  seed: int = 0, theta: Sequence[float] = DEFAULT_THETA, dt_s: float = DEFAULT_DT_S,
+                  optimise_airspeed: bool = False, should_stop: StopCheck | None = None,
+                  max_failure_probability: float | None = None, risk_samples: int = 200) -> Plan:
+    """Plan ``scenario`` flown by ``flown`` (``scenario.flown_vehicle(params)``: the scenario file's
+    own vehicle, the paper's aircraft; or a description with its state and motor faults) with the
+    named planner; the CLI's entry (the service builds its simulator itself:
+    ``service.adapters.plan_candidates``).
 
     ``max_failure_probability`` ε: plan risk-bounded (``planning.risk``: expected reward subject to
     P(failure) <= ε and the reserve at the 5 % quantile, over ``risk_samples`` draws about the
     scenario); None: the deterministic planner on the nominal model (the paper's Table III)."""
     entry = resolve(planner)
-    sim = VehicleSimulator(scenario, params, dt_s=dt_s, optimise_airspeed=optimise_airspeed, vehicle=vehicle,
-                           motor_faults=motor_faults)
+    sim = VehicleSimulator(scenario, **flown.simulator_args(), dt_s=dt_s, optimise_airspeed=optimise_airspeed)
     if max_failure_probability is not None:
         risk = RiskSimulator(sim, draw(sim, risk_samples, seed=seed), max_failure_probability=max_failure_probability)
         return plan_risk_bounded(entry.run, risk, particles=particles, seed=seed, theta=theta,

@@ -19,8 +19,10 @@ import numpy as np
 from gcs_pdm.geo import enu_from_geodetic
 from gcs_pdm.models import kernel
 from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet, builtin
-from gcs_pdm.models.powertrain import Limits, MotorFault, PowertrainState
+from gcs_pdm.models.powertrain import DescribedMotorFault, Limits, MotorFault, PowertrainState, fault_vector
 from gcs_pdm.models.wind import wind_from_speed_direction
+from gcs_pdm.vehicle.description import VehicleDescription
+from gcs_pdm.vehicle.presets import DEFAULT_PRESET, PRESETS
 
 FORMAT_VERSION = 1
 
@@ -69,7 +71,9 @@ class StartState:
 
     The powertrain is given either as full kernel pack states (only meaningful with the parameter
     set that produced them) or as per-pack SoC and temperatures, from which a settled state is
-    built for whichever parameter set plans (the R–C pairs settled at ``pack_current_a``).
+    built for whichever parameter set plans (the R–C pairs settled at ``pack_current_a``). A
+    scenario file's start is the paper aircraft's (four packs, two motors); the service records a
+    described vehicle's live state here too, one row per pack and motor of its description.
     """
 
     east_m: float
@@ -79,30 +83,46 @@ class StartState:
     motor_temp_c: tuple[float, ...]
     pack_soc: tuple[float, ...] | None = None
     pack_state: tuple[tuple[float, ...], ...] | None = None
-    pack_current_a: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    #: the packs' present currents (empty: 0 A each)
+    pack_current_a: tuple[float, ...] = ()
     time_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if len(self.pack_temp_c) != len(PACK_NAMES):
-            raise ScenarioError(f"start.pack_temp_c: expected {len(PACK_NAMES)} values, got {len(self.pack_temp_c)}")
-        if len(self.motor_temp_c) != len(MOTOR_NAMES):
-            raise ScenarioError(f"start.motor_temp_c: expected {len(MOTOR_NAMES)} values, got {len(self.motor_temp_c)}")
+        n = len(self.pack_temp_c)
+        if n < 1:
+            raise ScenarioError("start.pack_temp_c: expected one value per pack, got none")
+        if len(self.motor_temp_c) < 1:
+            raise ScenarioError("start.motor_temp_c: expected one value per motor, got none")
+        if self.pack_current_a and len(self.pack_current_a) != n:
+            raise ScenarioError(f"start.pack_current_a: expected {n} values (one per pack), "
+                                f"got {len(self.pack_current_a)}")
         if self.pack_soc is None and self.pack_state is None:
             raise ScenarioError("start: give pack_soc or pack_state")
         if self.pack_soc is not None:
-            if len(self.pack_soc) != len(PACK_NAMES):
-                raise ScenarioError(f"start.pack_soc: expected {len(PACK_NAMES)} values, got {len(self.pack_soc)}")
+            if len(self.pack_soc) != n:
+                raise ScenarioError(f"start.pack_soc: expected {n} values (one per pack), got {len(self.pack_soc)}")
             if any(not 0.0 <= s <= 1.0 for s in self.pack_soc):
                 raise ScenarioError(f"start.pack_soc: values must be within [0, 1], got {self.pack_soc}")
-        if self.pack_state is not None and np.shape(self.pack_state) != (len(PACK_NAMES), kernel.N_PACK_STATE):
-            raise ScenarioError(f"start.pack_state: expected shape (4, 4), got {np.shape(self.pack_state)}")
+        if self.pack_state is not None and np.shape(self.pack_state) != (n, kernel.N_PACK_STATE):
+            raise ScenarioError(f"start.pack_state: expected shape ({n}, {kernel.N_PACK_STATE}), "
+                                f"got {np.shape(self.pack_state)}")
+
+    @property
+    def n_packs(self) -> int:
+        return len(self.pack_temp_c)
 
     def powertrain(self, params: ParameterSet) -> PowertrainState:
+        """The start as the kernel's state of the paper's four-pack layout under ``params``."""
+        if self.n_packs != len(PACK_NAMES) or len(self.motor_temp_c) != len(MOTOR_NAMES):
+            raise ScenarioError(f"start: {self.n_packs} pack(s) and {len(self.motor_temp_c)} motor(s); the "
+                                f"scenario's own vehicle (the paper's aircraft) has {len(PACK_NAMES)} and "
+                                f"{len(MOTOR_NAMES)}: plan it for its vehicle description (--vehicle)")
         if self.pack_state is not None:
             x = np.array(self.pack_state, dtype=np.float64)
         else:
+            current = self.pack_current_a or (0.0,) * self.n_packs
             x = kernel.initial_pack_state(params.pack_matrix(), np.array(self.pack_soc), np.array(self.pack_temp_c),
-                                          np.array(self.pack_current_a))
+                                          np.array(current))
         x[:, kernel.S_T] = self.pack_temp_c
         return PowertrainState(pack_state=x, motor_temp_c=np.array(self.motor_temp_c, dtype=np.float64))
 
@@ -118,6 +138,31 @@ class PlanLimits:
 
     def kernel_limits(self) -> Limits:
         return Limits(self.pack_cutoff_v, self.pack_max_temp_c, self.motor_max_temp_c)
+
+
+def named_motor_faults(faults: Sequence[MotorFault], motor_names: Sequence[str]) -> dict[str, float]:
+    """Each motor's power-loss magnitude, by name (several faults on one motor compound, as
+    ``powertrain.fault_vector`` has them); a fault on a motor the vehicle lacks is an error."""
+    return dict(zip(motor_names, (float(m) for m in fault_vector(list(faults), tuple(motor_names)))))
+
+
+@dataclass(frozen=True)
+class FlownVehicle:
+    """What a planner's simulator flies: a vehicle description, a parameter set flown over its
+    values (None: the description's own), its powertrain state now (None: full packs at the
+    ground temperature), its motors' power losses by name, and limits for every pack and motor
+    with the landing reserve (None: the description's per pack and motor, and its reserve).
+    ``VehicleSimulator(scenario, **flown.simulator_args())`` flies it."""
+
+    vehicle: VehicleDescription
+    params: ParameterSet | None = None
+    state: PowertrainState | None = None
+    motor_faults: Mapping[str, float] = field(default_factory=dict)
+    limits: "PlanLimits | None" = None
+
+    def simulator_args(self) -> dict[str, Any]:
+        return {"vehicle": self.vehicle, "params": self.params, "state": self.state,
+                "motor_faults": dict(self.motor_faults), "limits": self.limits}
 
 
 @dataclass(frozen=True)
@@ -165,6 +210,19 @@ class Scenario:
                 raise ScenarioError(f"params: {exc.args[0]}") from None
         return ParameterSet.from_dict(self.params)
 
+    def flown_vehicle(self, params: ParameterSet | None = None) -> FlownVehicle:
+        """The vehicle a scenario file describes: the paper's aircraft, the ``edge540`` preset, on
+        ``params`` (default the scenario's own set), from its start, with its faults (named by the
+        paper's motors) and its limits and landing reserve for every pack and motor."""
+        ps = params if params is not None else self.parameter_set()
+        vehicle = PRESETS[DEFAULT_PRESET]
+        state = self.start.powertrain(ps)
+        try:
+            faults = named_motor_faults(self.faults, vehicle.motor_names)
+        except ValueError as exc:
+            raise ScenarioError(f"faults: {exc}") from None
+        return FlownVehicle(vehicle=vehicle, params=ps, state=state, motor_faults=faults, limits=self.limits)
+
     def subset(self, numbers: Sequence[int], name: str | None = None) -> "Scenario":
         keep = set(numbers)
         return _replace(self, name=name or self.name, waypoints=tuple(w for w in self.waypoints if w.number in keep))
@@ -174,27 +232,30 @@ class Scenario:
 
     # ---- construction from live state --------------------------------------------------------
     @classmethod
-    def from_live(cls, params: ParameterSet, state: PowertrainState, faults: Sequence[MotorFault],
-                  waypoints: Sequence[Waypoint], position_enu: tuple[float, float, float], home: Home,
-                  limits: PlanLimits | None = None, *, name: str = "live", time_s: float = 0.0,
+    def from_live(cls, state: PowertrainState, faults: Sequence[MotorFault], waypoints: Sequence[Waypoint],
+                  position_enu: tuple[float, float, float], home: Home, limits: PlanLimits | None = None, *,
+                  params: ParameterSet | None = None, name: str = "live", time_s: float = 0.0,
                   reward_collected: float = 0.0, visited: Sequence[int] = (),
                   wind_en_mps: tuple[float, float] = (0.0, 0.0)) -> "Scenario":
-        """The scenario the service builds: the estimated state (full pack states) of ``params``."""
+        """The scenario the service builds: the estimated state (full pack states, one row per pack
+        of the vehicle flown) and ``params``, the set they were estimated under (None: the
+        vehicle's description values; the record keeps the default set's name)."""
         x = np.asarray(state.pack_state, dtype=np.float64)
         start = StartState(east_m=position_enu[0], north_m=position_enu[1], alt_m=position_enu[2],
                            pack_temp_c=tuple(float(t) for t in x[:, kernel.S_T]),
                            motor_temp_c=tuple(float(t) for t in state.motor_temp_c),
                            pack_state=tuple(tuple(float(v) for v in row) for row in x), time_s=time_s)
         return cls(name=name, home=home, start=start, waypoints=tuple(waypoints), faults=tuple(faults),
-                   limits=limits or PlanLimits(), params=params.to_dict(), reward_collected=reward_collected,
-                   visited=tuple(visited), wind_east_mps=float(wind_en_mps[0]), wind_north_mps=float(wind_en_mps[1]))
+                   limits=limits or PlanLimits(), params=params.to_dict() if params is not None else "paper_si",
+                   reward_collected=reward_collected, visited=tuple(visited), wind_east_mps=float(wind_en_mps[0]),
+                   wind_north_mps=float(wind_en_mps[1]))
 
     # ---- JSON ----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         s = self.start
         start: dict[str, Any] = {"east_m": s.east_m, "north_m": s.north_m, "alt_m": s.alt_m, "time_s": s.time_s,
                                  "pack_temp_c": list(s.pack_temp_c), "motor_temp_c": list(s.motor_temp_c),
-                                 "pack_current_a": list(s.pack_current_a)}
+                                 "pack_current_a": list(s.pack_current_a or (0.0,) * s.n_packs)}
         if s.pack_soc is not None:
             start["pack_soc"] = list(s.pack_soc)
         if s.pack_state is not None:
@@ -250,7 +311,7 @@ class Scenario:
                 motor_temp_c=tuple(float(v) for v in sd["motor_temp_c"]),
                 pack_soc=tuple(float(v) for v in sd["pack_soc"]) if "pack_soc" in sd else None,
                 pack_state=tuple(tuple(float(v) for v in r) for r in sd["pack_state"]) if "pack_state" in sd else None,
-                pack_current_a=tuple(float(v) for v in sd.get("pack_current_a", (0.0,) * 4)))
+                pack_current_a=tuple(float(v) for v in sd.get("pack_current_a", ())))
             wps = []
             for i, wd in enumerate(data["waypoints"]):
                 number = int(wd.get("number", i + 1))
@@ -262,8 +323,10 @@ class Scenario:
                     raise ScenarioError(f"waypoints[{i}]: give lat_deg/lon_deg or east_m/north_m")
                 wps.append(Waypoint(number=number, east_m=e, north_m=n, alt_m=float(wd["alt_m"]),
                                     reward=float(wd["reward"]), airspeed_mps=float(wd.get("airspeed_mps", 25.0))))
-            faults = tuple(MotorFault(motor=str(f["motor"]), magnitude=float(f["magnitude"]),
-                                      kind=str(f.get("kind", "motor_power_loss"))) for f in data.get("faults", ()))
+            # any motor's name: a plan record's faults are its vehicle's (flown_vehicle checks the paper's)
+            faults = tuple((MotorFault if str(f["motor"]) in MOTOR_NAMES else DescribedMotorFault)(
+                motor=str(f["motor"]), magnitude=float(f["magnitude"]), kind=str(f.get("kind", "motor_power_loss")))
+                for f in data.get("faults", ()))
             ld = dict(data.get("limits", {}))
             unknown = set(ld) - set(PlanLimits.__dataclass_fields__)
             if unknown:

@@ -4,7 +4,7 @@ A route is an ordered list of waypoint indices (positions in ``scenario.waypoint
 vehicle's current position and always closed by the return to the landing site. Each leg is
 flown at constant airspeed and climb rate, so its shaft power (``powertrain.shaft_power``) is
 constant; the leg is cut into equal samples of at most ``dt_s`` seconds and all candidate routes
-are flown through ``topology.simulate_powertrain`` together in one call (profiles padded with
+are flown through ``topology.simulate_vehicle`` together in one call (profiles padded with
 zero-length samples, which the kernel treats as no-ops).
 
 Two ways in, one physics:
@@ -26,18 +26,18 @@ cost ``C_p`` is the electrical energy drawn, in MJ.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from functools import partial
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
-from gcs_pdm.models import kernel, topology
-from gcs_pdm.models.params import MOTOR_NAMES, PACK_NAMES, ParameterSet
-from gcs_pdm.models.powertrain import (EDGE_540, Airframe, PowertrainState, air_density, ambient_temperature,
-                                       fault_vector, shaft_power)
+from gcs_pdm.models import kernel
+from gcs_pdm.models.params import ParameterSet
+from gcs_pdm.models.powertrain import PowertrainState, air_density, ambient_temperature
 from gcs_pdm.models.topology import simulate_vehicle
 from gcs_pdm.models.wind import ground_speed
-from gcs_pdm.planning.scenario import Scenario
+from gcs_pdm.planning.scenario import PlanLimits, Scenario
+from gcs_pdm.vehicle.description import VehicleDescription
+from gcs_pdm.vehicle.model_inputs import model_inputs, powertrain_airframe, shaft_power_model
 
 #: safety margins on the verdicts of coarse (> 1 s) planning steps; see _set_verdict_limits
 VERDICT_MARGIN_SOC = 0.001
@@ -144,63 +144,51 @@ def _sampled_legs(info: np.ndarray, dt_s: float) -> LegTable:
 
 
 class VehicleSimulator:
-    """Flies candidate routes of one scenario on one parameter set (the planner's model)."""
+    """Flies candidate routes of one scenario on one vehicle (the planner's model)."""
 
-    def __init__(self, scenario: Scenario, params: ParameterSet | None = None, *, dt_s: float = DEFAULT_DT_S,
-                 optimise_airspeed: bool = False, airspeed_candidates: Sequence[float] | None = None,
-                 airframe: Airframe = EDGE_540, state: PowertrainState | None = None, vehicle=None,
-                 motor_faults: dict[str, float] | None = None) -> None:
-        """``pack_names``/``motor_names``: what the rows of its states are, in order.
+    def __init__(self, scenario: Scenario, vehicle: VehicleDescription, *, params: ParameterSet | None = None,
+                 state: PowertrainState | None = None, motor_faults: Mapping[str, float] | None = None,
+                 limits: PlanLimits | None = None, dt_s: float = DEFAULT_DT_S, optimise_airspeed: bool = False,
+                 airspeed_candidates: Sequence[float] | None = None) -> None:
+        """Fly ``vehicle`` (a ``VehicleDescription``: its packs, motors and topology,
+        ``models.topology``; its airframe's power model) over the scenario's places.
 
-        ``vehicle``: a ``VehicleDescription`` to fly instead of the paper's aircraft: its packs,
-        motors and topology (``models.topology``), its airframe's power model, its limits and
-        landing reserve; ``motor_faults`` then names its motors ({"m2": 0.3}); ``state`` defaults
-        to full packs at the ground temperature. The scenario's waypoints and airspeeds are used
-        as they are (they must suit the vehicle)."""
+        ``params``: a parameter set flown over the description's values (its packs by name,
+        ``model_inputs``), None for the description's own; ``state``: its powertrain now (None:
+        full packs at the ground temperature); ``motor_faults``: power losses by its motor names
+        ({"m2": 0.3}); ``limits`` (a ``PlanLimits``): one cut-off and temperature limit for every
+        pack and motor plus the landing reserve, None for the description's. ``pack_names`` /
+        ``motor_names`` say what the rows of its states are, in order. The scenario's waypoints and
+        airspeeds are used as they are (they must suit the vehicle); a scenario file's own vehicle
+        (the paper's aircraft, from its start, faults and limits) is :meth:`for_scenario`."""
+        if not isinstance(vehicle, VehicleDescription):
+            raise TypeError(f"vehicle: expected a VehicleDescription, got {type(vehicle).__name__} (a scenario's own "
+                            f"vehicle on a parameter set: VehicleSimulator.for_scenario(scenario, params))")
         if dt_s <= 0:
             raise ValueError(f"dt_s: must be > 0, got {dt_s}")
         self.scenario = scenario
-        self.params = params if params is not None or vehicle is not None else scenario.parameter_set()
-        self.dt_s = float(dt_s)
-        self.airframe = airframe
         self.vehicle = vehicle
+        self.params = params
+        self.dt_s = float(dt_s)
         self.n = len(scenario.waypoints)
         self.start_node = self.n
         self.landing_node = self.n + 1
         self.rewards = np.array([w.reward for w in scenario.waypoints] + [0.0, 0.0])
         self._t_ground = scenario.home.ground_temp_c
-        if vehicle is None:
-            self._inputs = None
-            self._pp = self.params.pack_matrix()[None]
-            self._mp = self.params.motor_vector()[None]
-            self._fault = fault_vector(list(scenario.faults))[None]
-            self.initial = state if state is not None else scenario.start.powertrain(self.params)
-            # the kernel's topology flies it (edge540's, the same numbers as a description of it)
-            self._motor_rows = np.repeat(self._mp[:, None, :], kernel.N_MOTORS, axis=1)
-            self._free_topology = topology.PAPER_TOPOLOGY
-            self._limit_topology = topology.PAPER_TOPOLOGY.with_limits(*scenario.limits.kernel_limits().as_tuple())
-            self._base_reserve = scenario.limits.landing_reserve_soc
-            self._vehicle_power = partial(shaft_power, airframe=self.airframe)
-            self.pack_names, self.motor_names = PACK_NAMES, MOTOR_NAMES
-            self._multirotor = False
-        else:
-            self._init_vehicle(vehicle, motor_faults or {}, state)
-        self._set_verdict_limits()
-        self.legs = self._leg_table(optimise_airspeed, airspeed_candidates)
-
-    def _init_vehicle(self, vehicle, motor_faults: dict[str, float], state: PowertrainState | None) -> None:
-        from gcs_pdm.vehicle.model_inputs import model_inputs, powertrain_airframe, shaft_power_model
-
-        inputs = self._inputs = model_inputs(vehicle)
-        unknown = set(motor_faults) - set(inputs.motor_names)
+        inputs = model_inputs(vehicle, params)
+        faults = dict(motor_faults or {})
+        unknown = set(faults) - set(inputs.motor_names)
         if unknown:
             raise ValueError(f"motor_faults: no motor {sorted(unknown)[0]!r}; have {', '.join(inputs.motor_names)}")
         self._pp = inputs.pack_matrix[None]
-        self._mp = self._motor_rows = inputs.motor_matrix[None]
+        self._motor_rows = inputs.motor_matrix[None]
+        self._fault = np.array([[float(faults.get(n, 0.0)) for n in inputs.motor_names]])
         self._free_topology = inputs.topology.with_limits(-np.inf, np.inf, np.inf)
-        self._limit_topology = inputs.topology
-        self._base_reserve = vehicle.landing_reserve
-        self._fault = np.array([[float(motor_faults.get(n, 0.0)) for n in inputs.motor_names]])
+        if limits is None:
+            self._limit_topology, self._base_reserve = inputs.topology, vehicle.landing_reserve
+        else:
+            self._limit_topology = inputs.topology.with_limits(*limits.kernel_limits().as_tuple())
+            self._base_reserve = limits.landing_reserve_soc
         if state is None:
             t0 = self._t_ground
             state = PowertrainState(kernel.initial_pack_state(inputs.pack_matrix, 1.0, t0),
@@ -210,6 +198,14 @@ class VehicleSimulator:
         self._vehicle_power = shaft_power_model(vehicle)
         self.pack_names, self.motor_names = inputs.pack_names, inputs.motor_names
         self._multirotor = vehicle.airframe.type == "multirotor"
+        self._set_verdict_limits()
+        self.legs = self._leg_table(optimise_airspeed, airspeed_candidates)
+
+    @classmethod
+    def for_scenario(cls, scenario: Scenario, params: ParameterSet | None = None, **kw) -> "VehicleSimulator":
+        """The scenario file's own vehicle (``Scenario.flown_vehicle``: the ``edge540`` preset from
+        its start, with its faults and limits) on ``params`` (default the scenario's set)."""
+        return cls(scenario, **scenario.flown_vehicle(params).simulator_args(), **kw)
 
     def _default_airspeeds(self) -> np.ndarray:
         """The airspeeds the optimisation tries by default: a multirotor's from 2 m/s to its maximum;

@@ -48,7 +48,7 @@ def _pre_fault_state(truth: ParameterSet) -> tuple[PowertrainState, tuple[float,
     ground = StartState(east_m=0.0, north_m=0.0, alt_m=0.0, pack_temp_c=(t0,) * 4, motor_temp_c=(t0,) * 2,
                         pack_soc=(1.0,) * 4)
     sc = Scenario(name="pre-fault", home=TABLE3_HOME, start=ground, waypoints=legs, limits=TABLE3_LIMITS)
-    sim = VehicleSimulator(sc, truth, dt_s=1.0)
+    sim = VehicleSimulator.for_scenario(sc, truth, dt_s=1.0)
     st = sim.start_state()
     for i in range(3):
         st, ok = sim.advance(st, np.array([i]))

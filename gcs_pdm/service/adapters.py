@@ -147,32 +147,32 @@ def run_planner(name: str, sim, *, particles: int, seed: int, deadline_s: float)
     return run(name, sim, particles=particles, seed=seed, should_stop=_deadline(deadline_s))
 
 
-def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequence[MotorFault],
-                    catalogue: Sequence[CatalogueWaypoint], home: tuple[float, float, float],
-                    ground_temp_c: float, position: tuple[float, float, float], keep_route: Sequence[int],
-                    *, planner: str, particles: int, seed: int, deadline_s: float, time_s: float,
-                    visited: Sequence[int] = (), reward_collected: float = 0.0,
-                    limits: Any = None, vehicle=None,
+def plan_candidates(state: PowertrainState, faults: Sequence[MotorFault], catalogue: Sequence[CatalogueWaypoint],
+                    home: tuple[float, float, float], ground_temp_c: float, position: tuple[float, float, float],
+                    keep_route: Sequence[int], *, vehicle, planner: str, particles: int, seed: int,
+                    deadline_s: float, time_s: float, params: ParameterSet | None = None,
+                    visited: Sequence[int] = (), reward_collected: float = 0.0, limits: Any = None,
                     wind_en: tuple[float, float] | None = None, max_failure_probability: float | None = None,
                     risk_samples: int = 200, estimator=None) -> tuple[list[Candidate], dict]:
     """Plan from the live state; evaluate the planner's route, the current one and the way home.
 
     Each candidate carries the mission that flies it (``extra["mission"]``: items in the planner's
-    ArduPilot layout and the item to make current after the upload). ``vehicle``: a description to
-    fly instead of the paper's aircraft; ``state`` and ``faults`` are then its packs' and motors'
-    (the scenario keeps the position and waypoints; its four-pack start is a placeholder the
-    simulator does not read, and ``info["vehicle"]`` records the state planned from). ``wind_en``:
-    the wind (east, north m/s) every leg is flown in; None (unknown) plans in calm air and says so
-    in ``info["wind_unknown"]``. ``max_failure_probability`` (any vehicle): plan risk-bounded over
-    ``risk_samples`` draws of the simulator's packs and motors (the start from ``estimator``'s
-    covariance when given) and judge every candidate on the same draws; each candidate's
-    ``extra["risk"]`` holds its P(failure) and landing-SoC quantiles."""
-    from gcs_pdm.vehicle.presets import is_paper_aircraft
+    ArduPilot layout and the item to make current after the upload). ``vehicle``: the description
+    flown (the service's entry point resolves "none given" to ``edge540``); ``state`` and ``faults``
+    are its packs' and motors'; ``params`` a parameter set flown over its values and ``limits`` (a
+    ``PlanLimits``) one limit for every pack and motor plus the landing reserve (the service's
+    ``parameter_override`` / ``plan_limits_override``; None: the description's). The scenario
+    records the state planned from (``info["vehicle"]`` names the vehicle). ``wind_en``: the wind
+    (east, north m/s) every leg is flown in; None (unknown) plans in calm air and says so in
+    ``info["wind_unknown"]``. ``max_failure_probability``: plan risk-bounded over ``risk_samples``
+    draws of the simulator's packs and motors (the start from ``estimator``'s covariance when given)
+    and judge every candidate on the same draws; each candidate's ``extra["risk"]`` holds its
+    P(failure) and landing-SoC quantiles."""
     from gcs_pdm.missions import item_to_json
     from gcs_pdm.planning.mission import plan_to_mission
     from gcs_pdm.planning.plan import make_plan
     from gcs_pdm.geo import enu_from_geodetic
-    from gcs_pdm.planning.scenario import Home, Scenario, Waypoint
+    from gcs_pdm.planning.scenario import Home, Scenario, Waypoint, named_motor_faults
     from gcs_pdm.planning.simulator import VehicleSimulator
 
     lat0, lon0, alt0 = home
@@ -185,17 +185,12 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
                             airspeed_mps=w.airspeed_mps))
     e, n = enu_from_geodetic(position[0], position[1], lat0, lon0)
     # The ground ambient is what the scenario wants; aloft it follows the lapse rate from there.
-    paper = vehicle is None or is_paper_aircraft(vehicle)
-    scenario = Scenario.from_live(params, state if paper else _placeholder_state(params, ground_temp_c),
-                                  list(faults) if paper else [], wps, (e, n, position[2]),
+    scenario = Scenario.from_live(state, list(faults), wps, (e, n, position[2]),
                                   Home(lat_deg=lat0, lon_deg=lon0, ground_alt_m=alt0, ground_temp_c=ground_temp_c),
-                                  limits, time_s=time_s, reward_collected=reward_collected, visited=tuple(visited),
-                                  wind_en_mps=wind_en if wind_en is not None else (0.0, 0.0))
-    if paper:
-        sim = VehicleSimulator(scenario, params)
-    else:
-        sim = VehicleSimulator(scenario, vehicle=vehicle, state=state,
-                               motor_faults={f.motor: f.magnitude for f in faults})
+                                  limits, params=params, time_s=time_s, reward_collected=reward_collected,
+                                  visited=tuple(visited), wind_en_mps=wind_en if wind_en is not None else (0.0, 0.0))
+    motor_faults = named_motor_faults(faults, vehicle.motor_names)
+    sim = VehicleSimulator(scenario, vehicle, params=params, state=state, motor_faults=motor_faults, limits=limits)
     index_of = {w.number: i for i, w in enumerate(scenario.waypoints)}
     t0 = time.perf_counter()
     judge = sim
@@ -238,10 +233,9 @@ def plan_candidates(params: ParameterSet, state: PowertrainState, faults: Sequen
             "loads": {name: route_load(sim, p.route) for name, p in plans.items()}}
     if wind_en is None:
         info["wind_unknown"] = "no wind estimate: planned in calm air"
-    if not paper:
-        info["vehicle"] = {"name": vehicle.name, "pack_state": np.asarray(state.pack_state).tolist(),
-                           "motor_temp_c": np.asarray(state.motor_temp_c).tolist(),
-                           "motor_faults": {f.motor: f.magnitude for f in faults}}
+    info["vehicle"] = {"name": vehicle.name, "pack_state": np.asarray(state.pack_state).tolist(),
+                       "motor_temp_c": np.asarray(state.motor_temp_c).tolist(),
+                       "motor_faults": {f.motor: f.magnitude for f in faults}}
     return cands, info
 
 
@@ -268,14 +262,6 @@ def _estimated_start(estimator, sim) -> dict:
     tm_sd = np.asarray(estimator.motors.temperature()[1], dtype=np.float64)
     return {"pack_mean": np.asarray(sim.initial.pack_state, dtype=np.float64), "pack_cov": cov,
             "motor_sd": np.where(np.isfinite(tm_sd), tm_sd, 2.0), "spread": spread_from_estimator(estimator)}
-
-
-def _placeholder_state(params: ParameterSet, temp_c: float) -> PowertrainState:
-    """Full packs of the paper's layout: the scenario's start when a description is flown (unread)."""
-    from gcs_pdm.models import kernel
-
-    return PowertrainState(pack_state=kernel.initial_pack_state(params.pack_matrix(), 1.0, temp_c),
-                           motor_temp_c=np.full(kernel.N_MOTORS, temp_c))
 
 
 def route_load(sim, route: Sequence[int]):

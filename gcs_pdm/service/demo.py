@@ -65,7 +65,7 @@ def table3_mission():
     from gcs_pdm.sim.truth import true_parameters
 
     sc = preflight_scenario(10)
-    sim = VehicleSimulator(sc, true_parameters())
+    sim = VehicleSimulator.for_scenario(sc, true_parameters())
     return sc, plan_to_mission(sc, make_plan(sim, original_order(sc), "original"), airborne=False)
 
 
@@ -305,7 +305,7 @@ def summarise_predictions(service: Service) -> dict:
     soc = kernel.state_of_charge(ParameterSet.from_dict(sc.params).pack_matrix(), x)
     start = dataclasses.replace(sc.start, pack_state=None, pack_soc=tuple(float(min(max(v, 0.0), 1.0)) for v in soc))
     sc = dataclasses.replace(sc, start=start, faults=(MotorFault(FAULT_MOTOR, FAULT_MAGNITUDE),))
-    sim = VehicleSimulator(sc, truth)
+    sim = VehicleSimulator.for_scenario(sc, truth)
     index = {w.number: i for i, w in enumerate(sc.waypoints)}
     out = {"at_time_s": plan["time_s"], "collected_before": plan["scenario"].get("reward_collected", 0.0)}
     for c in plan["candidates"]:

@@ -385,10 +385,10 @@ class PlanExecutor:
         svc.events.publish("plan", status="planning", time_s=snap.time_s, reason=reason, faults=faults)
         home = (self.home[0], self.home[1], self.home[2] or self.telemetry.ground_alt_amsl or 0.0)
         cands, info = adapters.plan_candidates(
-            svc.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
+            snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
             planner=cfg.planner, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
             time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
-            limits=svc.limits, vehicle=svc.vehicle, wind_en=snap.wind_en,
+            **self._flown(), wind_en=snap.wind_en,
             max_failure_probability=cfg.max_failure_probability, risk_samples=cfg.risk_samples,
             estimator=snap.estimator)
         chosen, why = choose(cands)
@@ -440,6 +440,15 @@ class PlanExecutor:
             self.statustext(f"PDM: plan {pid} proposed, reward {chosen.reward:g}; approve on gcs-pdm",
                             MAV_SEVERITY_WARNING)
 
+    def _flown(self) -> dict:
+        """The vehicle the planner flies (the service's ``flown_vehicle``: the description followed,
+        else ``edge540``, as the estimator's count-down and the route risk) with the service's
+        overrides of its values and limits, as ``plan_candidates``' keywords."""
+        svc = self.service
+        vehicle = svc.flown_vehicle()
+        return {"vehicle": vehicle, "params": svc.parameter_override(vehicle),
+                "limits": svc.plan_limits_override(vehicle)}
+
     def _assess_risk(self, snap: Snapshot, cands: list[Candidate], chosen: Candidate, loads: dict
                      ) -> tuple[list[Candidate], Candidate]:
         """The chosen route's and the current mission's Monte Carlo probability of failure and
@@ -448,7 +457,7 @@ class PlanExecutor:
         the snapshot's estimator flies the description's packs and motors (its faults by the
         description's motor names, its limits). Without an estimate or a route load a candidate
         gets ``risk_unknown`` with the reason instead."""
-        limits = self.service.limits_override(self.service.vehicle)
+        limits = self.service.limits_override(self.service.flown_vehicle())
         out, new_chosen = [], chosen
         for c in cands:
             if c.name not in (chosen.name, "keep"):
@@ -502,10 +511,10 @@ class PlanExecutor:
             keep = remaining_route(self.mission_items, snap.current_seq, self.catalogue, self.visited)
             home = (self.home[0], self.home[1], self.home[2] or self.telemetry.ground_alt_amsl or 0.0)
             cands, _info = adapters.plan_candidates(
-                svc.params, snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
+                snap.state, snap.faults, self.catalogue, home, snap.ambient_c, snap.position, keep,
                 planner=None, particles=cfg.particles, seed=cfg.planner_seed, deadline_s=cfg.planner_deadline_s,
                 time_s=snap.time_s, visited=sorted(self.visited), reward_collected=self.reward_collected,
-                limits=svc.limits, vehicle=svc.vehicle, wind_en=snap.wind_en,
+                **self._flown(), wind_en=snap.wind_en,
                 max_failure_probability=cfg.max_failure_probability, risk_samples=cfg.risk_samples,
                 estimator=snap.estimator)
             risk = cands[0].extra.get("risk")

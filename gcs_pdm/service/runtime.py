@@ -123,6 +123,14 @@ class Service:
             return None
         return self.limits.kernel_limits()
 
+    def plan_limits_override(self, vehicle):
+        """The planner's ``PlanLimits`` for every pack and motor of ``vehicle``, the landing reserve
+        included: the scenario's (the kernel's defaults and no reserve when none was loaded) for
+        the paper's aircraft, else None (the description's limits and reserve)."""
+        from gcs_pdm.planning.scenario import PlanLimits
+
+        return (self.limits or PlanLimits()) if is_paper_aircraft(vehicle) else None
+
     def adopt_vehicle(self, desc, source: str, notes: list[str]) -> None:
         """A description the service now follows (derived from telemetry): said in /status, the log
         and an event, with how to save and correct it."""

@@ -31,7 +31,7 @@ def predictions() -> None:
     # the diagnoser's prognosis against the mission's load keeps its trajectories' medians
     predict_from_estimator(est, load, rng=np.random.default_rng(0), n_samples=4, trajectories=True)
     scenario = preflight_scenario(10)
-    make_plan(VehicleSimulator(scenario, true_parameters()), original_order(scenario), "original")
+    make_plan(VehicleSimulator.for_scenario(scenario, true_parameters()), original_order(scenario), "original")
     warm_up_kernel(SimConfig(limits=scenario.limits.kernel_limits()))
 
 
