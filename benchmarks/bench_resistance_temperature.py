@@ -15,11 +15,14 @@ low-passes (the filter's two polarisation pairs) — with
 Reported (the summary over flights that warm at least ``MIN_SPAN_K``): the rms residual of each (mV, pack), the share of the constant fit's residual variance
 the fitted factor removes (``explained_by_temperature``), and the fitted E. ``--heldout DIR``
 (flights made by ``scripts/generate_pybamm_flights.py --sets ...``, e.g. Ecker2015, Mohtat2020,
-NCA_Kim2011: cells no part of the estimator was tuned on) adds those flights, each with its own
-rested curve when ``DIR/curves.json`` has it, else the ``liion`` table.
+NCA_Kim2011: cells no part of the estimator was tuned on; their curves from ``scripts/pybamm_curves.py``
+with those sets, into ``DIR/curves.json``) adds those flights, each with its own rested curve when
+``DIR/curves.json`` has it, else the ``liion`` table — and, from the ``liion`` prior as the Chen2020
+flights are read (``calibration_eval.pybamm_flight_soc``), each one's largest SoC error after 5 min
+and its 2σ share (``heldout_soc``).
 
 Run: ``PYTHONPATH=$PWD python benchmarks/bench_resistance_temperature.py [--heldout DIR]`` (≈ 10 s
-per dozen flights). Last line: one JSON object.
+per dozen flights; the held-out SoC ≈ 2 s a flight). Last line: one JSON object.
 """
 from __future__ import annotations
 
@@ -133,6 +136,22 @@ def _summary(all_rows: list[dict]) -> dict:
             "prior_e_worse_than_none": f"{worse}/{len(rows)}"}
 
 
+def heldout_soc(root: Path) -> list[dict]:
+    """Each flight of ``root`` through the estimator from the ``liion`` prior: largest |SoC error|
+    after 5 min and the share inside 2σ."""
+    from gcs_pdm.replay.calibration_eval import pybamm_flight_soc
+
+    manifest = json.loads((root / "manifest.json").read_text())
+    rows = []
+    for flight in manifest["flights"]:
+        track, _ = pybamm_flight_soc(root, flight, manifest["sets"], chemistry="liion")
+        s = track.summary(300.0)
+        rows.append({"flight": flight["flight"], "max_abs_error_after_5min": s["max_abs_error"],
+                     "within_2sd": s["within_2sd"]})
+        print(f"{flight['flight']} (liion prior): max error {s['max_abs_error']} after 5 min, 2σ {s['within_2sd']}")
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--heldout", type=Path, default=None, help="a directory of generated PyBaMM flights")
@@ -141,6 +160,9 @@ def main() -> None:
     if args.heldout:
         held = measure(args.heldout, None)
         out["heldout"], out["heldout_flights"] = _summary(held), held
+        soc = heldout_soc(args.heldout)
+        out["heldout_soc_within_0.05"] = f"{sum(r['max_abs_error_after_5min'] <= 0.05 for r in soc)}/{len(soc)}"
+        out["heldout_soc"] = soc
     print(json.dumps(out))
 
 
