@@ -46,7 +46,8 @@ def test_reward_ratio_counts_only_scenarios_where_the_deterministic_plan_is_safe
 def test_failure_bound_is_judged_on_every_risk_bounded_plan():
     table = {"a": {"pf_deterministic": _row(1.0, failures=50), "pf_risk": _row(1.0), "exact_risk": _row(1.0)}}
     out = bench.done_when(table, eps=0.02)["failure_bound"]
-    assert out["met"] and out["pooled_failures"] == 0 and out["pooled_truths"] == 400  # the deterministic plan's losses are not the risk planner's
+    # the deterministic plan's losses are not the risk planner's
+    assert out["met"] and out["pooled_failures"] == 0 and out["pooled_truths"] == 400
     table["a"]["exact_risk"] = _row(1.0, failures=4)  # 2 % lost: its 95 % upper bound is above 3 %
     out = bench.done_when(table, eps=0.02)["failure_bound"]
     assert not out["met"] and out["worst_upper95"] > 0.03 and out["pooled_failures"] == 4
