@@ -101,6 +101,26 @@ def test_estimator_prefers_the_autopilot_then_falls_back_to_the_triangle():
     assert est.estimate(t + 30.0) is None or est.estimate(t + 30.0).source == "triangle"
 
 
+def test_the_autopilots_gusty_estimate_is_averaged_to_the_mean_wind():
+    """A 1 Hz WIND carrying gusts (sim --wind 8@270's default: 1.2 m/s per component, 5 s correlation,
+    0.3 m/s noise): the estimate the planner flies stays within 1 m/s and 20 degrees of the mean wind on
+    at least 93 % of the seconds (a 10-s average held about 85 %)."""
+    rng = np.random.default_rng(7)
+    a = math.exp(-1.0 / 5.0)
+    gust = np.zeros(2)
+    est = WindEstimator()
+    inside = []
+    for t in range(3000):
+        gust = a * gust + 1.2 * math.sqrt(1 - a * a) * rng.normal(size=2)
+        e, n = 8.0 + gust[0] + rng.normal(0, 0.3), gust[1] + rng.normal(0, 0.3)
+        est.consume(WindFrame(float(t), *speed_direction(e, n)))
+        if t >= 90:
+            w = est.estimate(float(t))
+            speed, from_deg = speed_direction(*w.en)
+            inside.append(abs(speed - 8.0) <= 1.0 and bench.angle_diff(from_deg, 270.0) <= 20.0)
+    assert np.mean(inside) >= 0.93
+
+
 # ---- the planner flies the wind --------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
