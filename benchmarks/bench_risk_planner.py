@@ -11,7 +11,9 @@
    draws: the true parameter set (``sim.truth``, not the planner's ``paper_si``) with the same kind
    of spread, drawn with another seed than the planners' draws. A truth scores the route's reward
    if it gets home with the landing reserve, else 0; a failure is a truth lost in the air. Reported:
-   mean realised reward, realised failure rate with its 95 % Wilson upper bound, reserve missed.
+   mean realised reward, realised failure rate with its 95 % Wilson upper bound, reserve missed; then
+   issue 31's "Done when" figures on those rows (``done_when``: the failure bound, and the reward kept
+   where the deterministic plan is also safe).
 
     python benchmarks/bench_risk_planner.py [--trials 10] [--truths 200] [--wind 6@240]
 
@@ -83,6 +85,36 @@ def score(route, truth: RiskSimulator) -> dict:
             "nominal_reward": reward, "feasible_by_verdict": bool(ev.feasible[0])}
 
 
+RISK_PLANNERS = ("pf_risk", "exact_risk")
+
+
+def done_when(table: dict, eps: float) -> dict:
+    """Issue 31's two bullets on the table's rows, computed here rather than by hand.
+
+    * failure bound: each risk-bounded plan's realised failure rate, its 95 % Wilson upper bound at most
+      ``eps + 0.01`` (per scenario, and pooled over every risk-bounded plan's truths);
+    * reward: on each scenario where the deterministic plan is also safe, the risk-bounded PF's mean realised
+      reward over the deterministic PF's. "Safe" is read two ways, both reported: ``no_loss`` (its failure
+      upper bound within ``eps + 0.01``, the bound the risk planner is held to) and ``reserve_quantile`` (the
+      truths' own verdict: P(failure) <= eps and the reserve kept at the 5 % quantile)."""
+    bound = eps + 0.01
+    lost = sum(rows[p]["failures"] for rows in table.values() for p in RISK_PLANNERS)
+    flown = sum(rows[p]["truths"] for rows in table.values() for p in RISK_PLANNERS)
+    worst_upper = max(rows[p]["failure_rate_upper95"] for rows in table.values() for p in RISK_PLANNERS)
+    safe = {"no_loss": lambda d: d["failure_rate_upper95"] <= bound,
+            "reserve_quantile": lambda d: d["feasible_by_verdict"]}
+    reward = {}
+    for reading, is_safe in safe.items():
+        ratios = {name: rows["pf_risk"]["mean_reward"] / rows["pf_deterministic"]["mean_reward"]
+                  for name, rows in table.items() if is_safe(rows["pf_deterministic"])}
+        reward[reading] = {"ratios": ratios, "min_ratio": min(ratios.values()) if ratios else None,
+                           "met": bool(ratios) and min(ratios.values()) >= 0.95}
+    return {"failure_bound": {"target_upper95": bound, "worst_upper95": worst_upper, "pooled_failures": lost,
+                              "pooled_truths": flown, "pooled_upper95": wilson_upper(lost, flown),
+                              "met": worst_upper <= bound},
+            "reward_vs_deterministic": reward}
+
+
 def table3(truths: int, samples: int, wind_text: str, eps: float) -> dict:
     speed_mps, from_deg = (float(v) for v in wind_text.split("@"))
     wind = wind_from_speed_direction(speed_mps, from_deg)
@@ -137,6 +169,15 @@ def main() -> int:
     result = {"speed": sp, "eps": args.eps, "wind": args.wind}
     if not args.skip_table:
         result["table3"] = table3(args.truths, args.samples, args.wind, args.eps)
+        result["done_when"] = done_when(result["table3"], args.eps)
+        fb, rw = result["done_when"]["failure_bound"], result["done_when"]["reward_vs_deterministic"]
+        print(f"failure rate, risk-bounded plans: worst 95 % upper bound {100 * fb['worst_upper95']:.1f} % "
+              f"(target <= {100 * fb['target_upper95']:.1f} %), pooled {fb['pooled_failures']}/{fb['pooled_truths']}"
+              f" -> met {fb['met']}", flush=True)
+        for reading, r in rw.items():
+            shown = ", ".join(f"{k} {100 * v:.1f} %" for k, v in r["ratios"].items())
+            print(f"risk PF reward / deterministic where it is safe ({reading}): {shown} -> met {r['met']}",
+                  flush=True)
     print(json.dumps(result))
     return 0
 

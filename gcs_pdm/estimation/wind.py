@@ -18,8 +18,10 @@ from gcs_pdm.models.wind import speed_direction, wind_from_speed_direction, wind
 #: an autopilot estimate older than this (message time) gives way to the triangle
 AUTOPILOT_STALE_S = 10.0
 #: averaging time constant of the autopilot's estimate, s: the planner flies legs of minutes and wants
-#: the mean wind, while a 1 Hz estimate carries the gusts
-AUTOPILOT_TAU_S = 10.0
+#: the mean wind, while a 1 Hz estimate carries the gusts. As the triangle's: at 10 s a gust of 1.2 m/s
+#: per component (sim's default at 8 m/s) left about one reading in six more than 1 m/s off the mean
+#: wind; at 30 s about one in thirty (docs/notes/2026-11-27-issue31-audit.md)
+AUTOPILOT_TAU_S = 30.0
 #: averaging time constant of the triangle estimate, s
 TRIANGLE_TAU_S = 30.0
 #: a triangle needs an airspeed and a ground velocity at most this far apart in time, and flight
