@@ -7,10 +7,11 @@ service's does, and every *other* flight of the set is flown from that prior (fl
 flight 1: flights 2 within 0.05 of the truth after 5 min, their median largest error, the mean
 share inside 2σ. Rows: the charge voltage declared (Marquis2019 4.10 V, Chen2020 4.20 V: what the
 description's ``full_cell_voltage`` gives) or not; and the chemistry prior alone (no history) for
-comparison.
+comparison. A chemistry with one published curve (Chen2020's ``liion``) is given nothing by the fit
+(``packs.priors``: its flights 2 are the chemistry prior's, ``applied`` false): its rows check that.
 
 Run: ``PYTHONPATH=$PWD python benchmarks/bench_pack_history_prior.py [--sets Marquis2019]``
-(≈ 2-4 min). Prints one line per (set, flight 1, declared), then ONE JSON object.
+(≈ 4 min per set at load 12). Prints one line per (set, flight 1, declared), then ONE JSON object.
 """
 from __future__ import annotations
 

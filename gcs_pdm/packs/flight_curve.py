@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from gcs_pdm.packs.health import effective_samples
+
 #: a flight drawing less than this share of the rated capacity leaves the capacity and the curve's
 #: shape open (the same limit the filter's capacity learning has, doubled: a batch has no second chance)
 MIN_DRAWN_FRACTION = 0.2
@@ -93,15 +95,9 @@ class _Problem:
         """The shape's basis: piecewise-linear hats on ``self.knots`` at each SoC."""
         return np.clip(1.0 - np.abs(soc[:, None] - self.knots[None, :]) * (SHAPE_KNOTS - 1), 0.0, None)
 
-    def curve_at(self, beta: np.ndarray, soc: np.ndarray) -> np.ndarray:
-        """The fitted rested cell curve at ``soc``: the table, its offset and scale, the shape's corrections."""
-        c = np.interp(soc, self.grid, self.table)
-        return c + beta[0] + beta[1] * (c - self.mid) + self.hats(soc) @ beta[5:]
-
     def solve(self, s0: float, rho: float) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-        """(cost, [ΔV, k, R0, R1, R2], their covariance, residuals V) at (s0, ρ): cost is
-        Σ (r/σ)² plus the pseudo-observations of ΔV and k, plus leaving the curve's table."""
-        p = self.prior
+        """(cost, [ΔV, k, R0, R1, R2, the shape's corrections], their covariance, residuals V) at
+        (s0, ρ): cost is Σ (r/σ)² plus the pseudo-observations, plus leaving the curve's table."""
         soc = s0 - self.q / (rho * self.q0)
         c = np.interp(soc, self.grid, self.table)
         a = np.column_stack([np.full(c.size, float(self.cells)), self.cells * (c - self.mid), -self.loads,
@@ -139,7 +135,7 @@ def fit_flight_curve(time_s, current_a, voltage_v, temperature_c, prior) -> dict
     ``calibration.PackPrior`` gives the chemistry, cells, rated capacity and σ's, and the declared
     charge voltage). JSON-ready; ``{"why": ...}`` when the flight cannot tell."""
     from gcs_pdm.estimation.calibration import TAU2_FACTOR
-    from gcs_pdm.models.curve_hypotheses import DECLARED_FULL_MATCH_V, curve_hypotheses
+    from gcs_pdm.models.curve_hypotheses import DECLARED_FULL_MATCH_V, CurveHypothesis, curve_hypotheses
 
     t = np.asarray(time_s, float)
     i = np.asarray(current_a, float)
@@ -157,8 +153,7 @@ def fit_flight_curve(time_s, current_a, voltage_v, temperature_c, prior) -> dict
         return {"why": f"{q[-1] / q0:.0%} of the rated capacity drawn: under {MIN_DRAWN_FRACTION:.0%}, the curve's "
                        "shape and the capacity stay open"}
     chem = prior.chem
-    temp = np.where(np.isfinite(temp), temp, np.nan)
-    if np.isfinite(temp).any():
+    if np.isfinite(temp).any():  # a missing reading is the last one (the first: the flight's mean)
         last = np.maximum.accumulate(np.where(np.isfinite(temp), np.arange(temp.size), 0))
         temp = temp[last]
         temp = np.where(np.isfinite(temp), temp, float(np.nanmean(temp)))
@@ -170,10 +165,10 @@ def fit_flight_curve(time_s, current_a, voltage_v, temperature_c, prior) -> dict
     if use.sum() > MAX_SAMPLES:
         use &= np.arange(t.size) % int(math.ceil(use.sum() / MAX_SAMPLES)) == 0
     cells = int(prior.cells)
-    rest_a = max(0.3, 0.05 * q0 / 3600.0)
+    rest_a = max(0.3, 0.05 * q0 / 3600.0)  # the filter's rest current (PackCalibrator.rest_current_a)
     first_load = int(np.argmax(np.abs(i) > rest_a)) if (np.abs(i) > rest_a).any() else t.size
     start_rest_v = float(np.nanmedian(v[:max(first_load, 1)])) / cells if first_load > 0 else math.nan
-    hyps = ((type("H", (), {"curve": prior.curve, "prior_weight": 1.0})(),) if prior.curve is not None
+    hyps = ((CurveHypothesis(prior.curve, 1.0),) if prior.curve is not None
             else curve_hypotheses(prior.chemistry, prior.full_cell_v))
     started_full = (prior.full_cell_v is not None and math.isfinite(start_rest_v)
                     and abs(start_rest_v - prior.full_cell_v) <= DECLARED_FULL_MATCH_V)
@@ -188,8 +183,6 @@ def fit_flight_curve(time_s, current_a, voltage_v, temperature_c, prior) -> dict
         post = _grid_posterior(prob, s0_prior, prior.capacity_rel_sd, coarse_s0, coarse_rho)
         s0b, rhob, *_ = post["sols"][int(np.argmax(post["logw"]))]
         _, _, _, resid = prob.solve(s0b, rhob)
-        from gcs_pdm.packs.health import effective_samples
-
         n_eff = effective_samples(resid)
         prob.sigma_v = max(float(np.sqrt(np.mean(resid ** 2))), 1e-4) * math.sqrt(resid.size / n_eff)
         fine_s0 = np.clip(np.arange(s0b - 0.1, s0b + 0.1 + 1e-9, 0.01), *S0_RANGE)
@@ -222,6 +215,7 @@ def fit_flight_curve(time_s, current_a, voltage_v, temperature_c, prior) -> dict
                         "ocv_scale": round(float(mean_beta[1]), 4),
                         "ocv_scale_sd": round(math.sqrt(float(var_beta[1])), 4),
                         "capacity_ah": round(rho_m * q0 / 3600.0, 4),
+                        # floored at a quarter of the fine grid's step: a narrower posterior is not resolved
                         "capacity_sd_ah": round(math.sqrt(float(w @ (rhos - rho_m) ** 2) + 0.005 ** 2) * q0 / 3600.0, 4),
                         "start_soc": round(s0_m, 4), "start_soc_sd": round(math.sqrt(float(w @ (s0s - s0_m) ** 2)), 4),
                         "rms_v": round(float(np.sqrt(np.mean(resid ** 2))), 4), "effective_samples": round(n_eff, 1),
