@@ -82,9 +82,19 @@ def _full_state(electrodes: ElectrodeCurves, capacity_ah: float, full_v: float) 
 
 def pack_health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None, *, chemistry: str,
                       nominal_capacity_ah: float, cells_series: int = 1,
-                      settings: HealthSettings = HealthSettings()) -> HealthPoint:
+                      settings: HealthSettings = HealthSettings(), fit_curve: bool = False,
+                      full_cell_v: float | None = None) -> HealthPoint:
     """A flight's health point read on its chemistry's curve (``capacity_reading``): the one call of
-    the live service, ``packs ingest`` and the ageing evaluation."""
+    the live service, ``packs ingest`` and the ageing evaluation. With ``fit_curve`` it also carries
+    the flight's curve fit (``packs.flight_curve``; ``full_cell_v``: the declared charge voltage),
+    what the pack's next flight starts its curve from (``packs.priors``)."""
     reading = capacity_reading(chemistry, float(nominal_capacity_ah))
-    return health_point(pack_id, time_s, current_a, voltage_v, temperature_c, nominal_capacity_ah=nominal_capacity_ah,
-                        cells_series=cells_series, ocv=reading.ocv, electrodes=reading.electrodes, settings=settings)
+    hp = health_point(pack_id, time_s, current_a, voltage_v, temperature_c, nominal_capacity_ah=nominal_capacity_ah,
+                      cells_series=cells_series, ocv=reading.ocv, electrodes=reading.electrodes, settings=settings)
+    if fit_curve:
+        from gcs_pdm.estimation.calibration import PackPrior
+        from gcs_pdm.packs.flight_curve import fit_flight_curve
+
+        prior = PackPrior(chemistry, int(cells_series), float(nominal_capacity_ah) * 3600.0, full_cell_v=full_cell_v)
+        hp.curve = fit_flight_curve(time_s, current_a, voltage_v, temperature_c, prior)
+    return hp

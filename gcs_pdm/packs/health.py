@@ -319,6 +319,9 @@ class HealthPoint:
     cells_series: int
     method: dict = field(default_factory=dict)
     why: dict = field(default_factory=dict)
+    #: the flight's curve fit (``packs.flight_curve``: curve, offset, scale, capacity; or its ``why``),
+    #: None where not fitted: what the next flight's estimator starts its curve from
+    curve: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -16,6 +16,8 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
+
 #: the pulse a health point's resistance is read over (s): one sample step at the autopilot's rate
 PULSE_S = 1.0
 
@@ -28,7 +30,7 @@ def series_resistance_of_pulse(pulse_ohm: float, r1_ratio: float, tau1_s: float)
 
 def prior_with_history(base, history: dict | None, pack_id: str | None = None):
     """``base`` (a ``PackPrior`` from the description) with the pack's latest health; ``base``
-    itself when no flight has told (None, or neither quantity known)."""
+    itself when no flight has told (None, or no quantity known)."""
     if not history:
         return base
     changes = {}
@@ -36,12 +38,54 @@ def prior_with_history(base, history: dict | None, pack_id: str | None = None):
     if cap is not None and cap > 0 and cap_sd is not None and math.isfinite(cap_sd):
         changes.update(capacity_c=float(cap) * 3600.0, capacity_rel_sd=max(float(cap_sd) / float(cap), 1e-4),
                        capacity_source=f"pack history ({pack_id or 'this pack'})")
+    changes.update(_curve_changes(base, history.get("curve"), changes.get("capacity_rel_sd"), pack_id))
     res, res_sd = history.get("resistance_25c_ohm"), history.get("resistance_sd_ohm")
     if res is not None and res > 0 and res_sd is not None and math.isfinite(res_sd):
         chem = base.chem
         r0, pair_share = series_resistance_of_pulse(float(res), chem.r1_ratio, chem.tau1_s)
         changes.update(r0_ohm=r0, r0_rel_sd=math.hypot(float(res_sd) / float(res), pair_share))
     return replace(base, **changes) if changes else base
+
+
+#: a curve hypothesis a flight's fit chose this surely is the next flight's one curve (below, the
+#: next flight weighs them again: the bank, from its base rates)
+CURVE_CHOSEN_WEIGHT = 0.95
+#: the learned offset's and scale's σ are floored here: one flight's fit, next flight's temperature
+MIN_OFFSET_SD = 0.005
+MIN_SCALE_SD = 0.02
+
+
+def _curve_changes(base, fit: dict | None, capacity_rel_sd: float | None, pack_id: str | None) -> dict:
+    """What a flight's curve fit (``packs.flight_curve``) gives the next flight of a pack whose
+    chemistry leaves the curve open (``models.curve_hypotheses``): the curve it chose (by the charge
+    voltage that picks it), as that flight fitted it (shape, offset, scale), and its capacity where
+    the health point's is unknown or looser. Nothing for a described pack's own curve (the fit read
+    the chemistry's curves, not it), a chemistry with one curve, or a fit that could not tell."""
+    from gcs_pdm.models.curve_hypotheses import curve_hypotheses
+
+    if not fit or fit.get("why") or base.curve is not None or fit.get("weight", 0.0) < CURVE_CHOSEN_WEIGHT:
+        return {}
+    hyps = curve_hypotheses(base.chemistry)
+    hyp = next((h.curve for h in hyps if h.curve.name == fit["curve"]), None)
+    if hyp is None or len(hyps) < 2:
+        # a chemistry with one published curve keeps it: a flight's shape fit absorbs the circuit's
+        # misses too, and where the curve was right it made the next flight worse (PyBaMM Chen2020 on
+        # its own published curve: 7/12 within 0.05 from the chemistry; 1/11 from three of its flights)
+        return {}
+    table = tuple(float(x) for x in fit["ocv_cell_v"])
+    learned = replace(hyp, name=f"{hyp.name} (learned by {pack_id or 'this pack'}'s flight)", ocv_cell_v=table,
+                      max_rest_cell_v=max(hyp.max_rest_cell_v, table[-1] + 0.02),
+                      source=f"{hyp.source}, its shape fitted to an earlier flight of this pack")
+    # the learned table carries the offset and scale: the filter's own start at 0, with the table's
+    # typical σ over the span the flight covered
+    out = {"curve": learned, "full_cell_v": float(fit["full_cell_v"]),
+           "ocv_offset_v": 0.0, "ocv_offset_sd": max(float(np.median(fit["ocv_cell_sd"])), MIN_OFFSET_SD),
+           "ocv_scale": 0.0, "ocv_scale_sd": MIN_SCALE_SD}
+    cap, cap_sd = fit.get("capacity_ah"), fit.get("capacity_sd_ah")
+    if cap and cap > 0 and cap_sd and (capacity_rel_sd is None or cap_sd / cap < capacity_rel_sd):
+        out.update(capacity_c=float(cap) * 3600.0, capacity_rel_sd=float(cap_sd) / float(cap),
+                   capacity_source=f"pack history ({pack_id or 'this pack'}): a flight's curve fit")
+    return out
 
 
 def start_from_history(estimator, priors_by_slot: dict[str, dict | None]) -> dict[str, str]:

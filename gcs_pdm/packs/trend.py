@@ -176,15 +176,16 @@ def pack_trend(pack_id: str, points, *, capacity_fraction: float = 0.8, resistan
 
 def estimator_priors(points) -> dict | None:
     """What the next flight's estimator starts from for this pack: its latest known capacity and
-    resistance at 25 °C, each with its σ (None: no point knows it). The hook for the estimator's
-    priors (docs/packs.md): {"capacity_ah", "capacity_sd_ah", "resistance_25c_ohm",
-    "resistance_sd_ohm", "from_flight_end_s"}."""
+    resistance at 25 °C, each with its σ (None: no point knows it), and the latest flight's curve fit
+    (``packs.flight_curve``). The hook for the estimator's priors (docs/packs.md): {"capacity_ah",
+    "capacity_sd_ah", "resistance_25c_ohm", "resistance_sd_ohm", "curve", "from_flight_end_s"}."""
     points = list(points)
     if not points:
         return None
     cap = next((p for p in reversed(points) if p.capacity_ah is not None), None)
     res = next((p for p in reversed(points) if p.resistance_25c_ohm is not None), None)
+    curve = next((p.curve for p in reversed(points) if p.curve and not p.curve.get("why")), None)
     return {"capacity_ah": cap.capacity_ah if cap else None, "capacity_sd_ah": cap.capacity_sd_ah if cap else None,
             "resistance_25c_ohm": res.resistance_25c_ohm if res else None,
             "resistance_sd_ohm": res.resistance_sd_ohm if res else None,
-            "from_flight_end_s": points[-1].end_s}
+            "curve": curve, "from_flight_end_s": points[-1].end_s}

@@ -200,7 +200,8 @@ class FlightRecorder:
                 try:
                     hp = pack_health_point(ident.pack_id, a[:, 0], a[:, 1], a[:, 2], a[:, 3], chemistry=spec.chemistry,
                                            nominal_capacity_ah=spec.capacity_mah / 1000.0,
-                                           cells_series=spec.cells_series)
+                                           cells_series=spec.cells_series, fit_curve=True,
+                                           full_cell_v=spec.full_cell_voltage)
                 except ValueError as exc:
                     log.warning("flight %d: pack %s: no health point: %s", fid, pack, exc)
                     continue
