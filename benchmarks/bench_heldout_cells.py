@@ -12,7 +12,14 @@ differ in one part at a time, as ``bench_pybamm_error_sources.py`` does for the 
   (``WIDE_OFFSET_SD_V``, ``WIDE_SCALE_SD``): does a wider σ honestly cover what the curve cannot tell?
 - ``bank_loo``: a curve bank (``estimation.curve_bank.CurveBank``, equal weights) of the OTHER
   published Li-ion curves: Chen2020 (the fixtures' ``curves.json``) and the held-out sets but the
-  flight's own — leave-one-out, never the cell's own curve.
+  flight's own — leave-one-out, never the cell's own curve; ``mean_loo``: one filter on the mean of
+  those curves (the family's centre); ``mean_loo_loose_voltage``: that with the voltage's σ
+  ``LOOSE_SIGMA_V`` (the curves' spread in volts, so the voltage moves the SoC less in flight);
+  ``mean_loo_then_count``: no filter in flight — the SoC ``mean_loo`` read at take-off less the
+  charge counted over the nominal capacity (how much of the in-flight error the voltage adds).
+
+``curve_spread``: for each pair of curves, the largest SoC difference at the same rested voltage
+between 10 and 95 % — what reading one cell through another's curve costs at rest.
 
 Per flight it also records where it starts (truth SoC, full or partly charged), how much it draws in
 5 min, its true window capacity over the nominal, and where the error comes from in time: the error
@@ -32,7 +39,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-PRIORS = ("chemistry", "own_curve", "true_capacity", "both", "wide_curve_sd", "bank_loo")
+PRIORS = ("chemistry", "own_curve", "true_capacity", "both", "wide_curve_sd", "bank_loo", "mean_loo", "mean_loo_loose_voltage",
+          "mean_loo_then_count")
 #: the widened curve priors of ``wide_curve_sd``: the held-out cells rest up to ~0.1 V off the M50
 #: at mid-SoC, 3-7x the default offset σ (0.015 V)
 WIDE_OFFSET_SD_V, WIDE_SCALE_SD = 0.06, 0.15
@@ -41,11 +49,14 @@ FULL_SOC = 0.95
 #: above this the pack is flying (A); the last sample below it before that is the rested start
 FLYING_A = 1.0
 AFTER_S = 300.0
+#: pack voltage σ (V, 5S) of ``mean_loo_loose_voltage``: the published curves are 0.02-0.05 V per
+#: cell apart at mid-SoC (0.1-0.25 V on 5 cells), where the default is 0.08 V
+LOOSE_SIGMA_V = 0.25
 CELLS = 5
 
 
-def run_filter(cal, table: dict, truth: np.ndarray) -> dict:
-    """Frames of one flight through ``cal``: the SoC and σ at each sample against ``truth``."""
+def track(cal, table: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Frames of one flight (or its first part) through ``cal``: its SoC and σ at each sample."""
     t = np.asarray(table["time_s"], float)
     i = np.asarray(table["current_a"], float)
     v = np.asarray(table["voltage_v"], float)
@@ -58,15 +69,45 @@ def run_filter(cal, table: dict, truth: np.ndarray) -> dict:
         else:
             cal.step(t[k], dt[k], i[k], v[k], temp[k])
         soc[k], sd[k] = cal.soc, cal.soc_sd
+    return soc, sd
+
+
+def run_filter(cal, table: dict, truth: np.ndarray) -> dict:
+    """``cal`` through a whole flight, its errors against ``truth`` (``_errors``)."""
+    soc, sd = track(cal, table)
+    return _errors(np.asarray(table["time_s"], float), np.asarray(table["current_a"], float), soc, sd, truth)
+
+
+def takeoff_index(current: np.ndarray) -> int:
+    """The last rested sample before the pack first carries more than ``FLYING_A``."""
+    flying = np.flatnonzero(np.abs(current) > FLYING_A)
+    return max(int(flying[0]) - 1, 0) if flying.size else current.size - 1
+
+
+def _errors(t, i, soc, sd, truth) -> dict:
     err = soc - truth
     late = t >= t[0] + AFTER_S
-    flying = np.flatnonzero(np.abs(i) > FLYING_A)
-    takeoff = max(int(flying[0]) - 1, 0) if flying.size else 0
+    takeoff = takeoff_index(i)
     return {"error_at_takeoff": round(float(err[takeoff]), 3),
             "error_at_5min": round(float(err[np.flatnonzero(late)[0]]), 3) if late.any() else None,
             "max_abs_error_after_5min": round(float(np.nanmax(np.abs(err[late]))), 3),
             "within_2sd_after_5min": round(float(np.mean(np.abs(err[late]) <= 2.0 * sd[late])), 3),
             "sd_at_5min": round(float(sd[np.flatnonzero(late)[0]]), 3) if late.any() else None}
+
+
+def count_from_takeoff(cal, table: dict, truth: np.ndarray, capacity_c: float) -> dict:
+    """The filter ``cal`` on the ground only; from take-off the SoC is its take-off SoC less the
+    charge drawn over ``capacity_c`` (σ: the filter's at take-off, plus 25 % of the charge drawn)."""
+    t, i = np.asarray(table["time_s"], float), np.asarray(table["current_a"], float)
+    takeoff = takeoff_index(i)
+    sub = {k: v[: takeoff + 1] for k, v in table.items()}
+    soc_ground, sd_ground = track(cal, sub)
+    start = (soc_ground[-1], sd_ground[-1])
+    drawn = np.concatenate([[0.0], np.cumsum(0.5 * (i[1:] + i[:-1]) * np.diff(t))])
+    drawn = drawn - drawn[takeoff]
+    soc = np.where(np.arange(t.size) < takeoff, start[0], start[0] - drawn / capacity_c)
+    sd = np.hypot(start[1], 0.25 * np.abs(drawn) / capacity_c)
+    return _errors(t, i, soc, sd, truth)
 
 
 def published_curves(heldout: Path) -> dict:
@@ -76,6 +117,31 @@ def published_curves(heldout: Path) -> dict:
     out = {"Chen2020": pybamm_cell_curve(ROOT / "fixtures" / "pybamm", "Chen2020", "liion")}
     for name in json.loads((heldout / "curves.json").read_text())["sets"]:
         out[name] = pybamm_cell_curve(heldout, name, "liion")
+    return out
+
+
+def mean_curve(curves: list):
+    """One ``liion`` chemistry whose rested curve is the mean of ``curves`` on their common SoC grid."""
+    ocv = np.mean([np.asarray(c.ocv_cell_v) for c in curves], axis=0)
+    return replace(curves[0], name=f"liion (mean of {len(curves)} published curves)",
+                   ocv_cell_v=tuple(float(v) for v in ocv), full_cell_v=float(ocv[-1]),
+                   max_rest_cell_v=max(c.max_rest_cell_v for c in curves), source="mean of published curves")
+
+
+def curve_spread(curves: dict) -> dict:
+    """Per pair (a, b): the largest |SoC_b(V) - SoC_a| over a's 10-95 % — the SoC a cell on curve a
+    reads through curve b at rest."""
+    from gcs_pdm.models.chemistry import SOC_GRID
+
+    soc = np.asarray(SOC_GRID)
+    probe = np.linspace(0.10, 0.95, 86)
+    out = {}
+    for a, ca in curves.items():
+        va = np.interp(probe, soc, ca.ocv_cell_v)
+        for b, cb in curves.items():
+            if a != b:
+                read = np.interp(va, np.asarray(cb.ocv_cell_v), soc)
+                out[f"{a} read as {b}"] = round(float(np.max(np.abs(read - probe))), 3)
     return out
 
 
@@ -118,6 +184,10 @@ def main() -> None:
         bank = CurveBank(base, tuple(CurveHypothesis(c, 1.0 / len(others)) for c in others))
         row["bank_loo"] = run_filter(bank, table, truth)
         row["bank_loo"]["lead_at_end"] = bank.lead.chem.name
+        mean_prior = replace(base, curve=mean_curve(others))
+        row["mean_loo"] = run_filter(PackCalibrator(mean_prior), table, truth)
+        row["mean_loo_loose_voltage"] = run_filter(PackCalibrator(mean_prior, sigma_v=LOOSE_SIGMA_V), table, truth)
+        row["mean_loo_then_count"] = count_from_takeoff(PackCalibrator(mean_prior), table, truth, nominal_c)
         rows.append(row)
         print(f"{row['flight']}: start {row['start_soc']} ({row['start']}), drew {row['drawn_in_5min']} in 5 min, "
               f"C true/nominal {row['true_over_nominal_capacity']}; max error after 5 min "
@@ -134,7 +204,9 @@ def main() -> None:
                       "per_set_within_0.05": {
                           name: f"{sum(r[p]['max_abs_error_after_5min'] <= 0.05 for r in rows if r['set'] == name)}"
                                 f"/{sum(r['set'] == name for r in rows)}" for name in manifest["sets"]}}
-    print(json.dumps({"heldout": str(args.heldout), "summary": summary, "flights": rows}))
+    spread = curve_spread(curves)
+    print("curve spread (largest SoC misread at rest, 10-95 %):", spread)
+    print(json.dumps({"heldout": str(args.heldout), "summary": summary, "curve_spread": spread, "flights": rows}))
 
 
 if __name__ == "__main__":
