@@ -72,10 +72,14 @@ def track(cal, table: dict) -> tuple[np.ndarray, np.ndarray]:
     return soc, sd
 
 
-def run_filter(cal, table: dict, truth: np.ndarray) -> dict:
-    """``cal`` through a whole flight, its errors against ``truth`` (``_errors``)."""
+def run_filter(cal, table: dict, truth: np.ndarray, true_capacity_c: float) -> dict:
+    """``cal`` through a whole flight, its errors against ``truth`` (``_errors``), and the capacity
+    it learned by the end over the true one (a curve of the wrong slope is read as a capacity)."""
     soc, sd = track(cal, table)
-    return _errors(np.asarray(table["time_s"], float), np.asarray(table["current_a"], float), soc, sd, truth)
+    out = _errors(np.asarray(table["time_s"], float), np.asarray(table["current_a"], float), soc, sd, truth)
+    learned_ah = cal.report().get("capacity_ah")
+    out["learned_over_true_capacity"] = round(learned_ah * 3600.0 / true_capacity_c, 3) if learned_ah else None
+    return out
 
 
 def takeoff_index(current: np.ndarray) -> int:
@@ -145,6 +149,11 @@ def curve_spread(curves: dict) -> dict:
     return out
 
 
+def _range(values: list) -> list | None:
+    known = [v for v in values if v is not None]
+    return [min(known), max(known)] if known else None
+
+
 def main() -> None:
     import pyarrow.parquet as pq
 
@@ -180,13 +189,14 @@ def main() -> None:
                "true_over_nominal_capacity": round(true_c / nominal_c, 3),
                "ambient_c": flight["ambient_c"], "reached_cutoff": flight.get("reached_cutoff", False)}
         for name, prior in priors.items():
-            row[name] = run_filter(PackCalibrator(prior), table, truth)
+            row[name] = run_filter(PackCalibrator(prior), table, truth, true_c)
         bank = CurveBank(base, tuple(CurveHypothesis(c, 1.0 / len(others)) for c in others))
-        row["bank_loo"] = run_filter(bank, table, truth)
+        row["bank_loo"] = run_filter(bank, table, truth, true_c)
         row["bank_loo"]["lead_at_end"] = bank.lead.chem.name
         mean_prior = replace(base, curve=mean_curve(others))
-        row["mean_loo"] = run_filter(PackCalibrator(mean_prior), table, truth)
-        row["mean_loo_loose_voltage"] = run_filter(PackCalibrator(mean_prior, sigma_v=LOOSE_SIGMA_V), table, truth)
+        row["mean_loo"] = run_filter(PackCalibrator(mean_prior), table, truth, true_c)
+        row["mean_loo_loose_voltage"] = run_filter(PackCalibrator(mean_prior, sigma_v=LOOSE_SIGMA_V), table, truth,
+                                                     true_c)
         row["mean_loo_then_count"] = count_from_takeoff(PackCalibrator(mean_prior), table, truth, nominal_c)
         rows.append(row)
         print(f"{row['flight']}: start {row['start_soc']} ({row['start']}), drew {row['drawn_in_5min']} in 5 min, "
@@ -201,6 +211,7 @@ def main() -> None:
                       "median_abs_error_at_takeoff": round(float(np.median([abs(r[p]["error_at_takeoff"])
                                                                             for r in rows])), 3),
                       "within_2sd_mean": round(float(np.mean([r[p]["within_2sd_after_5min"] for r in rows])), 3),
+                      "learned_over_true_capacity_range": _range([r[p].get("learned_over_true_capacity") for r in rows]),
                       "per_set_within_0.05": {
                           name: f"{sum(r[p]['max_abs_error_after_5min'] <= 0.05 for r in rows if r['set'] == name)}"
                                 f"/{sum(r['set'] == name for r in rows)}" for name in manifest["sets"]}}
