@@ -16,7 +16,10 @@ differ in one part at a time, as ``bench_pybamm_error_sources.py`` does for the 
   those curves (the family's centre); ``mean_loo_loose_voltage``: that with the voltage's σ
   ``LOOSE_SIGMA_V`` (the curves' spread in volts, so the voltage moves the SoC less in flight);
   ``mean_loo_then_count``: no filter in flight — the SoC ``mean_loo`` read at take-off less the
-  charge counted over the nominal capacity (how much of the in-flight error the voltage adds).
+  charge counted over the nominal capacity (how much of the in-flight error the voltage adds);
+  ``mean_loo_capacity_held`` / ``chemistry_capacity_held``: the mean curve / the ``liion`` table with
+  the NOMINAL capacity's σ ``HELD_CAPACITY_REL_SD`` (the filter does not learn a capacity from a
+  curve whose slope it does not know).
 
 ``curve_spread``: for each pair of curves, the largest SoC difference at the same rested voltage
 between 10 and 95 % — what reading one cell through another's curve costs at rest.
@@ -40,7 +43,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PRIORS = ("chemistry", "own_curve", "true_capacity", "both", "wide_curve_sd", "bank_loo", "mean_loo", "mean_loo_loose_voltage",
-          "mean_loo_then_count")
+          "mean_loo_then_count", "mean_loo_capacity_held", "chemistry_capacity_held")
 #: the widened curve priors of ``wide_curve_sd``: the held-out cells rest up to ~0.1 V off the M50
 #: at mid-SoC, 3-7x the default offset σ (0.015 V)
 WIDE_OFFSET_SD_V, WIDE_SCALE_SD = 0.06, 0.15
@@ -52,6 +55,8 @@ AFTER_S = 300.0
 #: pack voltage σ (V, 5S) of ``mean_loo_loose_voltage``: the published curves are 0.02-0.05 V per
 #: cell apart at mid-SoC (0.1-0.25 V on 5 cells), where the default is 0.08 V
 LOOSE_SIGMA_V = 0.25
+#: the capacity σ of the ``*_capacity_held`` priors: the capacity stays at the nominal
+HELD_CAPACITY_REL_SD = 0.02
 CELLS = 5
 
 
@@ -197,6 +202,10 @@ def main() -> None:
         row["mean_loo"] = run_filter(PackCalibrator(mean_prior), table, truth, true_c)
         row["mean_loo_loose_voltage"] = run_filter(PackCalibrator(mean_prior, sigma_v=LOOSE_SIGMA_V), table, truth,
                                                      true_c)
+        row["mean_loo_capacity_held"] = run_filter(
+            PackCalibrator(replace(mean_prior, capacity_rel_sd=HELD_CAPACITY_REL_SD)), table, truth, true_c)
+        row["chemistry_capacity_held"] = run_filter(
+            PackCalibrator(replace(base, capacity_rel_sd=HELD_CAPACITY_REL_SD)), table, truth, true_c)
         row["mean_loo_then_count"] = count_from_takeoff(PackCalibrator(mean_prior), table, truth, nominal_c)
         rows.append(row)
         print(f"{row['flight']}: start {row['start_soc']} ({row['start']}), drew {row['drawn_in_5min']} in 5 min, "
