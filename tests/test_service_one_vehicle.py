@@ -98,3 +98,17 @@ def test_the_simulator_takes_a_description_not_a_parameter_set():
     with pytest.raises(ValueError, match="no motor 'left'"):
         VehicleSimulator(sc, PRESETS["edge540"], motor_faults={"left": 0.2})
     assert MotorFault("aft", 0.7) in sc.faults and sc.flown_vehicle().motor_faults["aft"] == pytest.approx(0.7)
+
+
+def test_with_no_scenario_loaded_the_planner_keeps_the_reserve_the_outlook_judges_by(tmp_path):
+    """No objectives loaded: edge540 plans on its description's limits and its 15 % landing reserve
+    (the outlook's), not on no reserve at all."""
+    svc = Service(load_config(env={}, data_dir=str(tmp_path / "svc"), api_token="one-vehicle-test-token-0002"))
+    try:
+        assert svc.limits is None
+        flown = PlanExecutor(svc, FakeLink(), None, None, None, None)._flown()
+        assert flown["limits"] is None and flown["vehicle"].landing_reserve == 0.15
+        sim = VehicleSimulator(table3_scenario(true_parameters(), 7), **flown)
+        assert sim._base_reserve == 0.15
+    finally:
+        svc.close()

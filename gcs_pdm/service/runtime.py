@@ -55,7 +55,7 @@ class Service:
         #: flights as records (service/flights.py); the live loop feeds it
         self.flights = FlightRecorder(self)
         self.catalogue: list[CatalogueWaypoint] | None = None
-        #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the kernel's defaults
+        #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the flown description's (its limits and landing reserve)
         self.limits = None
         self.loop = None
         self.foreign_watch = None  # status_report.ForeignSystemWatcher, once a link is attached
@@ -125,11 +125,11 @@ class Service:
 
     def plan_limits_override(self, vehicle):
         """The planner's ``PlanLimits`` for every pack and motor of ``vehicle``, the landing reserve
-        included: the scenario's (the kernel's defaults and no reserve when none was loaded) for
-        the paper's aircraft, else None (the description's limits and reserve)."""
-        from gcs_pdm.planning.scenario import PlanLimits
-
-        return (self.limits or PlanLimits()) if is_paper_aircraft(vehicle) else None
+        included: the loaded scenario's for the paper's aircraft, else None (the description's limits
+        and reserve). With no scenario loaded the paper's aircraft plans on its description's too
+        (edge540: the kernel's limits and a 15 % reserve), the reserve the outlook and its alarm
+        judge by: a plan that lands under it would be proposed and then alarmed on."""
+        return self.limits if self.limits is not None and is_paper_aircraft(vehicle) else None
 
     def adopt_vehicle(self, desc, source: str, notes: list[str]) -> None:
         """A description the service now follows (derived from telemetry): said in /status, the log
