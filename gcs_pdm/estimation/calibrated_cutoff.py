@@ -127,7 +127,7 @@ class CutoffModel:
         # the loaded voltage on a fine SoC grid, the sag rising near empty from where it is now:
         # it rises as SoC falls, so the cut-off is its one crossing
         power = np.broadcast_to(np.asarray(rise_power, dtype=float), (s.shape[0],))[:, None]
-        rise = (_FINE_RISE[None] / low_charge_rise(np.clip(s[:, I_SOC], 0.0, 1.0))[:, None]) ** power
+        rise = (low_charge_rise(_FINE)[None] / low_charge_rise(np.clip(s[:, I_SOC], 0.0, 1.0))[:, None]) ** power
         loaded = self.cells * _on_fine(curves) - sag[:, None] * rise
         soc_cut = _crossing(loaded, np.full(s.shape[0], cutoff_v), _FINE)
         left = np.maximum(s[:, I_SOC] - soc_cut, 0.0)
@@ -206,16 +206,11 @@ def low_charge_rise(soc: np.ndarray) -> np.ndarray:
     return _total_resistance(soc) / _total_resistance(0.5)
 
 
-#: ``low_charge_rise`` on ``_FINE``, and where ``_FINE`` falls between the 21 knots (the knot below,
-#: its fraction of the way to the next): constants, worked out once rather than at every draw
-_FINE_RISE = low_charge_rise(_FINE)
-_FINE_KNOT = np.minimum((_FINE * 20.0).astype(int), 19)
-_FINE_FRAC = _FINE * 20.0 - _FINE_KNOT
-
-
 def _on_fine(curves: np.ndarray) -> np.ndarray:
     """Rows of a 21-knot curve interpolated onto ``_FINE``."""
-    return curves[:, _FINE_KNOT] * (1.0 - _FINE_FRAC) + curves[:, _FINE_KNOT + 1] * _FINE_FRAC
+    k = np.minimum((_FINE * 20.0).astype(int), 19)
+    frac = _FINE * 20.0 - k
+    return curves[:, k] * (1.0 - frac) + curves[:, k + 1] * frac
 
 
 def _crossing(curves: np.ndarray, target: np.ndarray, grid: np.ndarray) -> np.ndarray:

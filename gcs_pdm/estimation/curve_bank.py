@@ -59,14 +59,13 @@ class CurveBank:
         self.log_weight = [math.log(h.prior_weight) for h in hypotheses]
         self.ruled_out = [False] * len(hypotheses)
         self._scored = [0.0] * len(hypotheses)
-        self._read_out()
 
     def __getattr__(self, name: str):
         # Anything else a reader takes from a ``PackCalibrator`` (its state and covariance, its
         # priors' resistances, the recent load the count-down holds: the planner's spread, the
         # calibrated pack) is the leading curve's filter's, as the reported SoC is. Only called for
-        # names the bank does not have itself; never before ``__init__`` has set the lead (copy).
-        if name.startswith("__") or "_lead" not in self.__dict__:
+        # names the bank does not have itself; never before ``__init__`` has set the members (copy).
+        if name.startswith("__") or "members" not in self.__dict__ or "log_weight" not in self.__dict__:
             raise AttributeError(name)
         return getattr(self.lead, name)
 
@@ -118,25 +117,18 @@ class CurveBank:
         # the floor keeps a hypothesis the voltage has not yet ruled out within reach
         for k, out in enumerate(self.ruled_out):
             lw[k] = -math.inf if out else max(lw[k] - top, LOG_WEIGHT_FLOOR)
-        self._read_out()
-
-    def _read_out(self) -> None:
-        # the weights and the lead change only here: the estimator reads them several times a frame
-        # (the SoC, its σ, the evidence), which cost more than the weighing when worked out each time
-        lw = self.log_weight
-        w = [math.exp(x) for x in lw]  # the lead's log-weight is 0
-        total = sum(w)
-        self._weight_list = [x / total for x in w]
-        self._lead = self.members[lw.index(max(lw))]
 
     # ---- read-outs -----------------------------------------------------------------------------
     @property
     def weights(self) -> np.ndarray:
-        return np.array(self._weight_list)
+        w = [math.exp(x) for x in self.log_weight]  # the lead's log-weight is 0
+        total = sum(w)
+        return np.array([x / total for x in w])
 
     @property
     def lead(self) -> PackCalibrator:
-        return self._lead
+        lw = self.log_weight
+        return self.members[lw.index(max(lw))]
 
     @property
     def soc(self) -> float:
@@ -152,7 +144,7 @@ class CurveBank:
             return math.nan
         lead = self.lead.soc
         return math.sqrt(sum(w * (m.soc_sd ** 2 + (m.soc - lead) ** 2)
-                             for w, m, out in zip(self._weight_list, self.members, self.ruled_out) if not out))
+                             for w, m, out in zip(self.weights, self.members, self.ruled_out) if not out))
 
     @property
     def chem(self):
