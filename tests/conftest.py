@@ -14,7 +14,7 @@ Under xdist it runs once, in the controller, before the workers start (they shar
 Before it, the package's bytecode is written once (``compileall``): with ``PYTHONDONTWRITEBYTECODE``
 set, as on this machine and in CI, no process writes it, so every Python the suite starts (each
 ``gcs-pdm`` command, demo and service of the subprocess tests, the workers) compiled all of
-``gcs_pdm`` from source again: 0.3-0.6 s of CPU each (docs/notes/2026-11-27-test-time-2.md).
+``gcs_pdm`` from source again: 0.3-0.7 s of CPU each (docs/notes/2026-11-27-test-time-2.md).
 
 The order of the run under xdist: the tests marked ``slow`` first, each test to the next free
 worker, a module's tests sharing a module-scoped fixture together (``tests/run_order.py``).
