@@ -11,6 +11,11 @@ predictions, the planner's and the simulated vehicle's kernel), one child proces
 cores: without it both xdist workers compiled the same functions at once in their first demo test.
 Under xdist it runs once, in the controller, before the workers start (they share the on-disk cache).
 
+Before it, the package's bytecode is written once (``compileall``): with ``PYTHONDONTWRITEBYTECODE``
+set, as on this machine and in CI, no process writes it, so every Python the suite starts (each
+``gcs-pdm`` command, demo and service of the subprocess tests, the workers) compiled all of
+``gcs_pdm`` from source again: 0.3-0.7 s of CPU each (docs/notes/2026-11-27-test-time-2.md).
+
 The order of the run under xdist: the tests marked ``slow`` first, each test to the next free
 worker, a module's tests sharing a module-scoped fixture together (``tests/run_order.py``).
 
@@ -19,6 +24,7 @@ The tests that call the library in this process get the commands' one BLAS threa
 """
 from __future__ import annotations
 
+import compileall
 import os
 import shlex
 import subprocess
@@ -52,10 +58,13 @@ sys.exit(main(["replay", {str(WARM_UP_TLOG)!r}, "--json"]))
 
 
 def pytest_sessionstart(session) -> None:
-    if not WARM_UP_TLOG.exists() or session.config.option.collectonly:
+    if session.config.option.collectonly or hasattr(session.config, "workerinput"):
+        return  # an xdist worker: the controller wrote the bytecode and warmed the cache before starting it
+    # Python checks each .pyc against its source's mtime, so a stale one is never read; a tree it
+    # cannot write to only leaves the processes compiling, as before
+    compileall.compile_dir(REPO / "gcs_pdm", quiet=2)
+    if not WARM_UP_TLOG.exists():
         return
-    if hasattr(session.config, "workerinput"):
-        return  # an xdist worker: the controller warmed the cache before starting it
     # a subprocess, so the test process itself starts as a user's would; its output is of no interest,
     # and a failure here is left to the tests that exercise the replay to report
     subprocess.run([sys.executable, "-c", WARM_UP], cwd=REPO, stdout=subprocess.DEVNULL,
