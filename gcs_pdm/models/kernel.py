@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit, prange
 
 from gcs_pdm.models.variants import MODEL_VARIANTS  # noqa: F401 (re-exported: kernel.MODEL_VARIANTS)
+from gcs_pdm.models.lane_math import exp_row, log_row
 
 PACK_PARAMS: tuple[str, ...] = (
     "R_s", "R_p", "R_cp0", "R_cp1", "R_cp2", "C_s", "C_b", "C_cp", "q_max", "C_max", "C_t", "h",
@@ -750,6 +751,8 @@ def _asinh_by_log(z):
 #: diffusion and thermal decays
 (D_H, D_1, D_2, D_D, D_T) = range(5)
 N_EXT_DECAYS = 5
+#: rows of the scratch table ``_ext_step_soa`` (and ``_pack_step_soa``, which uses the first three) takes
+N_EXT_WORK = 14
 
 
 @njit(inline="always", **_JIT)
@@ -776,18 +779,18 @@ def _ext_step_soa(p, p0, y, d, knot_row, x, x0, decay, d0, b, lo, hi, current, a
         work[1, l] = p[p0 + E_ER, l] * (1.0 / (x[x0 + X_T, l] + 273.15) - 1.0 / EXT_T_REF_K)
         work[6, l] = x[x0 + X_T, l] + 273.15  # t_k
         work[2, l] = p[p0 + E_ECT, l] * (1.0 / work[6, l] - 1.0 / EXT_T_REF_K)
+    exp_row(work, 0, 9, lo, hi)
+    exp_row(work, 1, 10, lo, hi)
+    exp_row(work, 2, 11, lo, hi)
     for l in range(lo, hi):
-        work[0, l] = math.exp(work[0, l])
+        rho = 1.0 + p[p0 + E_KSOC, l] * work[9, l]
+        work[1, l] = work[10, l] * rho  # f
+        z = current[b, l] * (work[11, l] * rho) / p[p0 + E_ICT, l]
+        work[3, l] = z
+        work[12, l] = abs(z) + math.sqrt(z * z + 1.0)  # asinh z = sign(z) log(this): _asinh_by_log
+    log_row(work, 12, 13, lo, hi)
     for l in range(lo, hi):
-        work[1, l] = math.exp(work[1, l])
-    for l in range(lo, hi):
-        work[2, l] = math.exp(work[2, l])
-    for l in range(lo, hi):
-        rho = 1.0 + p[p0 + E_KSOC, l] * work[0, l]
-        work[1, l] = work[1, l] * rho  # f
-        work[3, l] = current[b, l] * (work[2, l] * rho) / p[p0 + E_ICT, l]
-    for l in range(lo, hi):
-        work[3, l] = _asinh_by_log(work[3, l])
+        work[3, l] = math.copysign(work[13, l], work[3, l])
     for l in range(lo, hi):
         work[7, l] = x[x0 + X_SOC, l] - work[5, l]  # the SoC after the step
     for l in range(lo, hi):  # the look-up branches per lane: a stage of its own

@@ -24,7 +24,7 @@ from gcs_pdm.models.kernel import (_JIT, C_DECAY_S, C_DECAY_T, C_DT, C_H, C_NSUB
                                    E_OCV0, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAIL_NONE, FAIL_PACK_OVERTEMP,
                                    FAIL_POWER, FAIL_UNDERVOLTAGE, I_CB, I_CCP, I_CMAX, I_CS, I_QMAX, I_RS, M_CT, M_H,
                                    M_I0, M_PIRON, M_RW, N_EXT_DECAYS, N_MOTOR_PARAMS, N_OCV_KNOTS, N_PACK_PARAMS,
-                                   N_STEP_CACHE, S_QB, S_QCP, S_QS, S_T, X_SOC, _ext_advance, _ext_decays,
+                                   N_EXT_WORK, N_STEP_CACHE, S_QB, S_QCP, S_QS, S_T, X_SOC, _ext_advance, _ext_decays,
                                    _ext_step_soa, _ext_substeps_at, _ocv_knots, _pack_step_soa)
 
 #: samples flown together, time loop outside: the Monte Carlo's chunk of 50 in one block (every stage
@@ -126,7 +126,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
     imot = np.empty((n_motors, LANES))
     ipack = np.empty((n_packs, LANES))
     soc = np.empty((n_packs, LANES))
-    work = np.empty((9, LANES))
+    work = np.empty((N_EXT_WORK, LANES))
     x_row = np.empty((1, width))  # one lane's pack state as a row, for the one-pack steps
     cache_row = np.empty((1, N_STEP_CACHE))
     packs_on_bus = np.zeros(n_bus)
