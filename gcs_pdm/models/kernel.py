@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit, prange
 
 from gcs_pdm.models.variants import MODEL_VARIANTS  # noqa: F401 (re-exported: kernel.MODEL_VARIANTS)
-from gcs_pdm.models.lane_math import exp_row, log_row
+from gcs_pdm.models.lane_math import asinh_row, exp_row
 
 PACK_PARAMS: tuple[str, ...] = (
     "R_s", "R_p", "R_cp0", "R_cp1", "R_cp2", "C_s", "C_b", "C_cp", "q_max", "C_max", "C_t", "h",
@@ -750,16 +750,6 @@ def _ext_substeps_at(p, i, y, d, m, x, r, current, ambient, t_drive, n_sub, h, d
     return v
 
 
-@njit(inline="always", **_JIT)
-def _asinh_by_log(z):
-    """asinh z = sign(z) log(|z| + sqrt(z² + 1)): libm's asinh (through log1p) costs three of the
-    extended step's exponentials. Its error is a few 1e-16 absolute plus the result's last bit (the log of
-    a number >= 1, rounded in its last bit; tests/test_models_extended_lookup.py): near z = 0 it is not
-    asinh's correctly rounded value, but the overpotential it feeds, b_ct (T/T_ref) asinh z, is then off
-    by under 1e-16 V."""
-    return math.copysign(math.log(abs(z) + math.sqrt(z * z + 1.0)), z)
-
-
 #: decay-table rows of an extended pack's interval (``_ext_decays``): sub-step length, then the R1, R2,
 #: diffusion and thermal decays
 (D_H, D_1, D_2, D_D, D_T) = range(5)
@@ -790,6 +780,26 @@ def _cache_ocv_interval(y, d, i, soc, oc, o0, l):
         oc[o0 + O_X, l] = np.inf
 
 
+@njit(inline="always", **_JIT)
+def ocv_lanes(y, d, knot_row, b, oc, o0, a, src, dst, lo, hi):
+    """``a[dst, l]`` = the OCV of lane ``l`` of pack ``b`` (knot rows ``knot_row[b, l]`` of ``y``/``d``) at
+    SoC ``a[src, l]``: ``_ocv_eval_at``'s value bit for bit, from the knot interval the lane last used
+    (``oc[o0 + O_*, l]``), so it is a SIMD stage without a look-up; the lanes whose SoC left it (once
+    in hundreds of steps) look it up afterwards and cache the new one."""
+    n_moved = 0
+    for l in range(lo, hi):
+        s = a[src, l]
+        a[dst, l] = _hermite(s, oc[o0 + O_X, l], oc[o0 + O_H, l], oc[o0 + O_Y0, l], oc[o0 + O_D0, l],
+                             oc[o0 + O_Y1, l], oc[o0 + O_D1, l])
+        n_moved += not _in_cached_interval(oc, o0, l, s)
+    if n_moved:
+        for l in range(lo, hi):
+            s = a[src, l]
+            if not _in_cached_interval(oc, o0, l, s):
+                a[dst, l] = _ocv_eval_at(y, d, knot_row[b, l], s)
+                _cache_ocv_interval(y, d, knot_row[b, l], s, oc, o0, l)
+
+
 #: rows of the scratch table ``_ext_step_soa`` (and ``_pack_step_soa``, which uses the first three) takes
 N_EXT_WORK = 14
 
@@ -803,11 +813,12 @@ def _ext_step_soa(p, p0, y, d, knot_row, oc, o0, x, x0, decay, d0, b, lo, hi, cu
     (``_cache_ocv_interval``); terminal current ``current[b, l]``, ambient ``ambient[l]``;
     the model's own temperature drives it. Writes the terminal voltages to ``v[b, l]``.
 
-    ``_ext_substeps_at``'s operations per lane, in its order, taken stage by stage over the lanes:
-    the arithmetic stages compile to SIMD instructions, and the three exponentials, the log and the
-    OCV look-up of the lanes overlap. The one difference: the asinh is ``_asinh_by_log`` (a third of
-    the step's cost less), so a lane's voltages follow the one-pack step's to ~1e-14 relative, not
-    bit for bit (docs/notes/2026-11-27-extended-mc.md). ``work`` is (9, LANES) scratch."""
+    ``_ext_substeps_at``'s operations per lane, in its order, taken stage by stage over the lanes,
+    every stage a SIMD loop: the OCV from each lane's cached knot interval (``ocv_lanes``, bit for
+    bit), and the three exponentials and the asinh by ``gcs_pdm.models.lane_math`` instead of
+    libm's. Those are within one or two units in the last place of libm's, so a lane follows the
+    one-pack step to ~1e-13 relative, not bit for bit (docs/notes/2026-11-27-extended-mc-2.md).
+    ``work`` is (N_EXT_WORK, LANES) scratch."""
     for l in range(lo, hi):
         cur = current[b, l]
         cmax = p[p0 + E_CMAX, l]
@@ -825,28 +836,12 @@ def _ext_step_soa(p, p0, y, d, knot_row, oc, o0, x, x0, decay, d0, b, lo, hi, cu
     for l in range(lo, hi):
         rho = 1.0 + p[p0 + E_KSOC, l] * work[9, l]
         work[1, l] = work[10, l] * rho  # f
-        z = current[b, l] * (work[11, l] * rho) / p[p0 + E_ICT, l]
-        work[3, l] = z
-        work[12, l] = abs(z) + math.sqrt(z * z + 1.0)  # asinh z = sign(z) log(this): _asinh_by_log
-    log_row(work, 12, 13, lo, hi)
-    for l in range(lo, hi):
-        work[3, l] = math.copysign(work[13, l], work[3, l])
+        work[11, l] = current[b, l] * (work[11, l] * rho) / p[p0 + E_ICT, l]
+    asinh_row(work, 11, 3, 13, lo, hi)
     for l in range(lo, hi):
         work[7, l] = x[x0 + X_SOC, l] - work[5, l]  # the SoC after the step
-    # the OCV at the surface SoC from each lane's cached knot interval (a SIMD stage: no look-up);
-    # the lanes whose SoC left it (once in hundreds of steps) look it up afterwards
-    n_moved = 0
-    for l in range(lo, hi):
-        s = work[7, l] - work[4, l]
-        work[8, l] = _hermite(s, oc[o0 + O_X, l], oc[o0 + O_H, l], oc[o0 + O_Y0, l], oc[o0 + O_D0, l],
-                              oc[o0 + O_Y1, l], oc[o0 + O_D1, l])
-        n_moved += not _in_cached_interval(oc, o0, l, s)
-    if n_moved:
-        for l in range(lo, hi):
-            s = work[7, l] - work[4, l]
-            if not _in_cached_interval(oc, o0, l, s):
-                work[8, l] = _ocv_eval_at(y, d, knot_row[b, l], s)
-                _cache_ocv_interval(y, d, knot_row[b, l], s, oc, o0, l)
+        work[12, l] = work[7, l] - work[4, l]  # at the particles' surface
+    ocv_lanes(y, d, knot_row, b, oc, o0, work, 12, 8, lo, hi)
     for l in range(lo, hi):
         cur = current[b, l]
         f = work[1, l]

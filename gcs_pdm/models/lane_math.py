@@ -129,3 +129,16 @@ def log_row(a, src, dst, lo, hi):
             x = a[src, l]
             if not (_SMALLEST_NORMAL <= x <= 1.7976931348623157e308):
                 a[dst, l] = math.log(x)
+
+
+@njit(inline="always", **_JIT)
+def asinh_row(a, src, dst, scratch, lo, hi):
+    """``a[dst, l] = asinh(a[src, l])`` as sign(z) log(|z| + √(z² + 1)) with ``log_row`` (libm's asinh
+    goes through log1p: three exponentials' worth); rows ``src``, ``dst`` and ``scratch`` distinct. Near z = 0 this is not asinh's correctly rounded value (a few 1e-16 absolute off),
+    elsewhere within two units in the last place (tests/test_models_lane_math.py)."""
+    for l in range(lo, hi):
+        z = a[src, l]
+        a[scratch, l] = abs(z) + math.sqrt(z * z + 1.0)
+    log_row(a, scratch, dst, lo, hi)
+    for l in range(lo, hi):
+        a[dst, l] = math.copysign(a[dst, l], a[src, l])
