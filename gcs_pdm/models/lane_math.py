@@ -103,32 +103,50 @@ def _log_in_range(x):
 
 
 @njit(inline="always", **_JIT)
-def exp_row(a, src, dst, lo, hi):
-    """``a[dst, l] = exp(a[src, l])`` for lanes ``lo`` … ``hi`` - 1 (``src`` != ``dst``)."""
+def _exp_covers(x):
+    return abs(x) <= _EXP_LIMIT
+
+
+@njit(inline="always", **_JIT)
+def _log_covers(x):
+    return _SMALLEST_NORMAL <= x <= 1.7976931348623157e308
+
+
+@njit(inline="always", **_JIT)
+def _libm_exp(x):
+    return math.exp(x)
+
+
+@njit(inline="always", **_JIT)
+def _libm_log(x):
+    return math.log(x)
+
+
+@njit(inline="always", **_JIT)
+def _map_row(a, src, dst, lo, hi, arithmetic, covers, libm):
+    """``a[dst, l] = arithmetic(a[src, l])`` over the lanes in one SIMD loop, then libm's value for
+    the lanes the arithmetic does not cover (numba passes the functions as constants: direct calls)."""
     n_outside = 0
     for l in range(lo, hi):
         x = a[src, l]
-        a[dst, l] = _exp_in_range(x)
-        n_outside += not abs(x) <= _EXP_LIMIT
+        a[dst, l] = arithmetic(x)
+        n_outside += not covers(x)
     if n_outside:
         for l in range(lo, hi):
-            if not abs(a[src, l]) <= _EXP_LIMIT:
-                a[dst, l] = math.exp(a[src, l])
+            if not covers(a[src, l]):
+                a[dst, l] = libm(a[src, l])
+
+
+@njit(inline="always", **_JIT)
+def exp_row(a, src, dst, lo, hi):
+    """``a[dst, l] = exp(a[src, l])`` for lanes ``lo`` … ``hi`` - 1 (``src`` != ``dst``)."""
+    _map_row(a, src, dst, lo, hi, _exp_in_range, _exp_covers, _libm_exp)
 
 
 @njit(inline="always", **_JIT)
 def log_row(a, src, dst, lo, hi):
     """``a[dst, l] = log(a[src, l])`` for lanes ``lo`` … ``hi`` - 1 (``src`` != ``dst``)."""
-    n_outside = 0
-    for l in range(lo, hi):
-        x = a[src, l]
-        a[dst, l] = _log_in_range(x)
-        n_outside += not (_SMALLEST_NORMAL <= x <= 1.7976931348623157e308)
-    if n_outside:
-        for l in range(lo, hi):
-            x = a[src, l]
-            if not (_SMALLEST_NORMAL <= x <= 1.7976931348623157e308):
-                a[dst, l] = math.log(x)
+    _map_row(a, src, dst, lo, hi, _log_in_range, _log_covers, _libm_log)
 
 
 @njit(inline="always", **_JIT)
