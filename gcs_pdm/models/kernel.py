@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit, prange
 
 from gcs_pdm.models.variants import MODEL_VARIANTS  # noqa: F401 (re-exported: kernel.MODEL_VARIANTS)
+from gcs_pdm.models.lane_math import asinh_row, exp_row
 
 PACK_PARAMS: tuple[str, ...] = (
     "R_s", "R_p", "R_cp0", "R_cp1", "R_cp2", "C_s", "C_b", "C_cp", "q_max", "C_max", "C_t", "h",
@@ -606,19 +607,32 @@ def _ocv_eval_at(y, d, i, soc):
         return y[i, 0] + (soc - xs[0]) * d[i, 0]
     if soc >= xs[last]:
         return y[i, last] + (soc - xs[last]) * d[i, last]
-    # the knot interval holding soc (xs[k] < soc <= xs[k + 1], as a bisection finds it): the grid
-    # cell's interval, moved by at most one knot where rounding puts soc across a knot
+    k = _ocv_interval(soc)
+    return _hermite(soc, xs[k], xs[k + 1] - xs[k], y[i, k], d[i, k], y[i, k + 1], d[i, k + 1])
+
+
+@njit(inline="always", **_JIT)
+def _ocv_interval(soc):
+    """The knot interval k holding ``soc`` (xs[k] < soc <= xs[k + 1], as a bisection finds it), for
+    xs[0] < soc < xs[-1]: the grid cell's interval, moved by at most one knot where rounding puts
+    soc across a knot."""
+    xs = EXT_OCV_SOC
     k = _OCV_INTERVAL_OF_CELL[min(int(soc * _OCV_CELLS_PER_SOC), _OCV_INTERVAL_OF_CELL.shape[0] - 1)]
     while k > 0 and soc <= xs[k]:
         k -= 1
     while soc > xs[k + 1]:
         k += 1
-    hk = xs[k + 1] - xs[k]
-    t = (soc - xs[k]) / hk
+    return k
+
+
+@njit(inline="always", **_JIT)
+def _hermite(soc, x_k, h_k, y_k, d_k, y_k1, d_k1):
+    """The cubic Hermite piece from knot (x_k, y_k, slope d_k) to (x_k + h_k, y_k1, d_k1) at ``soc``."""
+    t = (soc - x_k) / h_k
     t2 = t * t
     t3 = t2 * t
-    return ((2.0 * t3 - 3.0 * t2 + 1.0) * y[i, k] + (t3 - 2.0 * t2 + t) * hk * d[i, k]
-            + (-2.0 * t3 + 3.0 * t2) * y[i, k + 1] + (t3 - t2) * hk * d[i, k + 1])
+    return ((2.0 * t3 - 3.0 * t2 + 1.0) * y_k + (t3 - 2.0 * t2 + t) * h_k * d_k
+            + (-2.0 * t3 + 3.0 * t2) * y_k1 + (t3 - t2) * h_k * d_k1)
 
 
 @njit(inline="always", **_JIT)
@@ -736,35 +750,75 @@ def _ext_substeps_at(p, i, y, d, m, x, r, current, ambient, t_drive, n_sub, h, d
     return v
 
 
-@njit(inline="always", **_JIT)
-def _asinh_by_log(z):
-    """asinh z = sign(z) log(|z| + sqrt(z² + 1)): libm's asinh (through log1p) costs three of the
-    extended step's exponentials. Its error is a few 1e-16 absolute plus the result's last bit (the log of
-    a number >= 1, rounded in its last bit; tests/test_models_extended_lookup.py): near z = 0 it is not
-    asinh's correctly rounded value, but the overpotential it feeds, b_ct (T/T_ref) asinh z, is then off
-    by under 1e-16 V."""
-    return math.copysign(math.log(abs(z) + math.sqrt(z * z + 1.0)), z)
-
-
 #: decay-table rows of an extended pack's interval (``_ext_decays``): sub-step length, then the R1, R2,
 #: diffusion and thermal decays
 (D_H, D_1, D_2, D_D, D_T) = range(5)
 N_EXT_DECAYS = 5
+#: rows of a lane's cached OCV knot interval (``_cache_ocv_interval``): its ends x_k and x_k+1 and
+#: their difference, the knot values and slopes at either end
+(O_X, O_X1, O_H, O_Y0, O_D0, O_Y1, O_D1) = range(7)
+N_OCV_CACHE = 7
 
 
 @njit(inline="always", **_JIT)
-def _ext_step_soa(p, p0, y, d, knot_row, x, x0, decay, d0, b, lo, hi, current, ambient, v, work):
+def _in_cached_interval(oc, o0, l, soc):
+    """Whether ``_ocv_eval_at`` would evaluate ``soc`` on lane ``l``'s cached interval (an interior
+    one: at the last knot it extrapolates instead)."""
+    return (oc[o0 + O_X, l] < soc) & (soc <= oc[o0 + O_X1, l]) & (soc < EXT_OCV_SOC[-1])
+
+
+@njit(inline="always", **_JIT)
+def _cache_ocv_interval(y, d, i, soc, oc, o0, l):
+    """Lane ``l`` caches the knot interval of row ``i`` of ``y``/``d`` holding ``soc``; outside
+    the knots (or NaN), an empty interval."""
+    xs = EXT_OCV_SOC
+    if soc > xs[0] and soc < xs[N_OCV_KNOTS - 1]:
+        k = _ocv_interval(soc)
+        oc[o0 + O_X, l], oc[o0 + O_X1, l], oc[o0 + O_H, l] = xs[k], xs[k + 1], xs[k + 1] - xs[k]
+        oc[o0 + O_Y0, l], oc[o0 + O_D0, l], oc[o0 + O_Y1, l], oc[o0 + O_D1, l] = y[i, k], d[i, k], y[i, k + 1], d[i, k + 1]
+    else:
+        oc[o0 + O_X, l] = np.inf
+
+
+@njit(inline="always", **_JIT)
+def ocv_lanes(y, d, knot_row, b, oc, o0, a, src, dst, lo, hi):
+    """``a[dst, l]`` = the OCV of lane ``l`` of pack ``b`` (knot rows ``knot_row[b, l]`` of ``y``/``d``) at
+    SoC ``a[src, l]``: ``_ocv_eval_at``'s value bit for bit, from the knot interval the lane last used
+    (``oc[o0 + O_*, l]``), so it is a SIMD stage without a look-up; the lanes whose SoC left it (once
+    in hundreds of steps) look it up afterwards and cache the new one."""
+    n_moved = 0
+    for l in range(lo, hi):
+        s = a[src, l]
+        a[dst, l] = _hermite(s, oc[o0 + O_X, l], oc[o0 + O_H, l], oc[o0 + O_Y0, l], oc[o0 + O_D0, l],
+                             oc[o0 + O_Y1, l], oc[o0 + O_D1, l])
+        n_moved += not _in_cached_interval(oc, o0, l, s)
+    if n_moved:
+        for l in range(lo, hi):
+            s = a[src, l]
+            if not _in_cached_interval(oc, o0, l, s):
+                a[dst, l] = _ocv_eval_at(y, d, knot_row[b, l], s)
+                _cache_ocv_interval(y, d, knot_row[b, l], s, oc, o0, l)
+
+
+#: rows of the scratch table ``_ext_step_soa`` (and ``_pack_step_soa``, which uses the first three) takes
+N_EXT_WORK = 14
+
+
+@njit(inline="always", **_JIT)
+def _ext_step_soa(p, p0, y, d, knot_row, oc, o0, x, x0, decay, d0, b, lo, hi, current, ambient, v, work):
     """One step (a single sub-step) of lanes ``lo`` … ``hi`` - 1 of one extended pack at once, in
     tables with the lane innermost: parameter ``E_*`` of lane l is ``p[p0 + E_*, l]``, state
     ``x[x0 + X_*, l]``, decays ``decay[d0 + D_*, l]`` (``_ext_decays``), OCV knots rows
-    ``knot_row[b, l]`` of ``y``/``d``; terminal current ``current[b, l]``, ambient ``ambient[l]``;
+    ``knot_row[b, l]`` of ``y``/``d`` and the knot interval last used ``oc[o0 + O_*, l]``
+    (``_cache_ocv_interval``); terminal current ``current[b, l]``, ambient ``ambient[l]``;
     the model's own temperature drives it. Writes the terminal voltages to ``v[b, l]``.
 
-    ``_ext_substeps_at``'s operations per lane, in its order, taken stage by stage over the lanes:
-    the arithmetic stages compile to SIMD instructions, and the three exponentials, the log and the
-    OCV look-up of the lanes overlap. The one difference: the asinh is ``_asinh_by_log`` (a third of
-    the step's cost less), so a lane's voltages follow the one-pack step's to ~1e-14 relative, not
-    bit for bit (docs/notes/2026-11-27-extended-mc.md). ``work`` is (9, LANES) scratch."""
+    ``_ext_substeps_at``'s operations per lane, in its order, taken stage by stage over the lanes,
+    every stage a SIMD loop: the OCV from each lane's cached knot interval (``ocv_lanes``, bit for
+    bit), and the three exponentials and the asinh by ``gcs_pdm.models.lane_math`` instead of
+    libm's. Those are within one or two units in the last place of libm's, so a lane follows the
+    one-pack step to ~1e-13 relative, not bit for bit (docs/notes/2026-11-27-extended-mc-2.md).
+    ``work`` is (N_EXT_WORK, LANES) scratch."""
     for l in range(lo, hi):
         cur = current[b, l]
         cmax = p[p0 + E_CMAX, l]
@@ -776,22 +830,18 @@ def _ext_step_soa(p, p0, y, d, knot_row, x, x0, decay, d0, b, lo, hi, current, a
         work[1, l] = p[p0 + E_ER, l] * (1.0 / (x[x0 + X_T, l] + 273.15) - 1.0 / EXT_T_REF_K)
         work[6, l] = x[x0 + X_T, l] + 273.15  # t_k
         work[2, l] = p[p0 + E_ECT, l] * (1.0 / work[6, l] - 1.0 / EXT_T_REF_K)
+    exp_row(work, 0, 9, lo, hi)
+    exp_row(work, 1, 10, lo, hi)
+    exp_row(work, 2, 11, lo, hi)
     for l in range(lo, hi):
-        work[0, l] = math.exp(work[0, l])
-    for l in range(lo, hi):
-        work[1, l] = math.exp(work[1, l])
-    for l in range(lo, hi):
-        work[2, l] = math.exp(work[2, l])
-    for l in range(lo, hi):
-        rho = 1.0 + p[p0 + E_KSOC, l] * work[0, l]
-        work[1, l] = work[1, l] * rho  # f
-        work[3, l] = current[b, l] * (work[2, l] * rho) / p[p0 + E_ICT, l]
-    for l in range(lo, hi):
-        work[3, l] = _asinh_by_log(work[3, l])
+        rho = 1.0 + p[p0 + E_KSOC, l] * work[9, l]
+        work[1, l] = work[10, l] * rho  # f
+        work[11, l] = current[b, l] * (work[11, l] * rho) / p[p0 + E_ICT, l]
+    asinh_row(work, 11, 3, 13, lo, hi)
     for l in range(lo, hi):
         work[7, l] = x[x0 + X_SOC, l] - work[5, l]  # the SoC after the step
-    for l in range(lo, hi):  # the look-up branches per lane: a stage of its own
-        work[8, l] = _ocv_eval_at(y, d, knot_row[b, l], work[7, l] - work[4, l])
+        work[12, l] = work[7, l] - work[4, l]  # at the particles' surface
+    ocv_lanes(y, d, knot_row, b, oc, o0, work, 12, 8, lo, hi)
     for l in range(lo, hi):
         cur = current[b, l]
         f = work[1, l]

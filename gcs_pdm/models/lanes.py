@@ -23,9 +23,10 @@ from gcs_pdm.models import kernel
 from gcs_pdm.models.kernel import (_JIT, C_DECAY_S, C_DECAY_T, C_DT, C_H, C_NSUB, C_TAU_S, D_1, D_2, D_D, D_H, D_T,
                                    E_OCV0, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAIL_NONE, FAIL_PACK_OVERTEMP,
                                    FAIL_POWER, FAIL_UNDERVOLTAGE, I_CB, I_CCP, I_CMAX, I_CS, I_QMAX, I_RS, M_CT, M_H,
-                                   M_I0, M_PIRON, M_RW, N_EXT_DECAYS, N_MOTOR_PARAMS, N_OCV_KNOTS, N_PACK_PARAMS,
-                                   N_STEP_CACHE, S_QB, S_QCP, S_QS, S_T, X_SOC, _ext_advance, _ext_decays,
-                                   _ext_step_soa, _ext_substeps_at, _ocv_knots, _pack_step_soa)
+                                   M_I0, M_PIRON, M_RW, N_EXT_DECAYS, N_EXT_WORK, N_MOTOR_PARAMS, N_OCV_CACHE,
+                                   N_OCV_KNOTS, N_PACK_PARAMS, N_STEP_CACHE, O_X, S_QB, S_QCP, S_QS, S_T, X_SOC,
+                                   _ext_advance, _ext_decays, _ext_step_soa, _ext_substeps_at, _ocv_knots,
+                                   _pack_step_soa)
 
 #: samples flown together, time loop outside: the Monte Carlo's chunk of 50 in one block (every stage
 #: of a time step is a loop over the active lanes with a fixed cost of its own, so 16 lanes cost
@@ -105,6 +106,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
     ext_dt = np.empty((n_packs, LANES))                    # for this interval,
     ext_n_sub = np.empty((n_packs, LANES), dtype=np.int64)  # in so many sub-steps
     knot_row = np.empty((n_packs, LANES), dtype=np.int64)  # row of the OCV knot tables below
+    ocv_c = np.empty((n_packs * N_OCV_CACHE, LANES))       # and the knot interval each pack last used
     acc = np.empty((5 * n_packs, LANES))
     pack_end = np.empty((n_packs, LANES), dtype=np.int64)
     mot = np.empty((n_motors * N_MOTOR_ROWS, LANES))
@@ -126,7 +128,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
     imot = np.empty((n_motors, LANES))
     ipack = np.empty((n_packs, LANES))
     soc = np.empty((n_packs, LANES))
-    work = np.empty((9, LANES))
+    work = np.empty((N_EXT_WORK, LANES))
     x_row = np.empty((1, width))  # one lane's pack state as a row, for the one-pack steps
     cache_row = np.empty((1, N_STEP_CACHE))
     packs_on_bus = np.zeros(n_bus)
@@ -135,9 +137,8 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
     inv_m = 1.0 / n_motors
     na = min(LANES, x0.shape[0] - j0)  # active lanes
     for lane in range(na):
-        _start_lane(lane, j0 + lane, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault, fault_drag,
-                    inv_m, max_dt, lane_int, lane_f, xs, v, pt, cache, et, ext_dt, knot_row, acc, pack_end, mot, ky,
-                    kd, x_row)
+        _start_lane(lane, j0 + lane, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault, fault_drag, max_dt,
+                    lane_int, lane_f, xs, v, pt, cache, et, ext_dt, knot_row, ocv_c, acc, pack_end, mot, ky, kd, x_row)
     k = 0
     while k < n and na > 0:
         for l in range(na):
@@ -216,7 +217,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
         # ---- the packs, each over the lanes
         for b in range(n_packs):
             if is_ext[b]:
-                _ext_packs_step(b, na, ep, et, ky, kd, knot_row, xs, width, decay, ext_dt, ext_n_sub, lane_int,
+                _ext_packs_step(b, na, ep, et, ky, kd, knot_row, ocv_c, xs, width, decay, ext_dt, ext_n_sub, lane_int,
                                 h_l, ipack, amb_l, v, max_dt, simple, work, x_row)
             else:
                 _paper_packs_step(b, na, pp, pt, xs, width, cache, lane_int, h_l, ipack, amb_l, v, max_dt, simple,
@@ -315,7 +316,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                              max_tm, charge, energy, fail_k, fail_cause, elapsed, end_k, end_energy, peak_tp, peak_tm)
                 na -= 1
                 if l != na:
-                    for a in (lane_f, xs, v, pt, cache, et, decay, ext_dt, acc, mot):
+                    for a in (lane_f, xs, v, pt, cache, et, decay, ext_dt, ocv_c, acc, mot):
                         _swap_lanes(a, l, na)
                     for a in (lane_int, ext_n_sub, knot_row, pack_end):
                         _swap_lanes(a, l, na)
@@ -363,11 +364,11 @@ def _paper_packs_step(b, na, pp, pt, xs, width, cache, lane_int, h_l, ipack, amb
 
 
 @njit(inline="always", **_JIT)
-def _ext_packs_step(b, na, ep, et, ky, kd, knot_row, xs, width, decay, ext_dt, ext_n_sub, lane_int, h_l, ipack,
+def _ext_packs_step(b, na, ep, et, ky, kd, knot_row, ocv_c, xs, width, decay, ext_dt, ext_n_sub, lane_int, h_l, ipack,
                     amb_l, v, max_dt, simple, work, x_row):
     """Extended pack ``b`` of every active lane over one interval (``kernel._ext_advance``, its
     decays computed once per interval): the lanes that take one step together, others one by one."""
-    eo, o, do = b * N_EXT_STEP_PARAMS, b * width, b * N_EXT_DECAYS
+    eo, o, do, oo = b * N_EXT_STEP_PARAMS, b * width, b * N_EXT_DECAYS, b * N_OCV_CACHE
     n_simple = 0
     for l in range(na):
         h = h_l[l]
@@ -382,11 +383,11 @@ def _ext_packs_step(b, na, ep, et, ky, kd, knot_row, xs, width, decay, ext_dt, e
             simple[l] = ext_n_sub[b, l] == 1
             n_simple += simple[l]
     if n_simple == na:
-        _ext_step_soa(et, eo, ky, kd, knot_row, xs, o, decay, do, b, 0, na, ipack, amb_l, v, work)
+        _ext_step_soa(et, eo, ky, kd, knot_row, ocv_c, oo, xs, o, decay, do, b, 0, na, ipack, amb_l, v, work)
         return
     for l in range(na):
         if simple[l]:
-            _ext_step_soa(et, eo, ky, kd, knot_row, xs, o, decay, do, b, l, l + 1, ipack, amb_l, v, work)
+            _ext_step_soa(et, eo, ky, kd, knot_row, ocv_c, oo, xs, o, decay, do, b, l, l + 1, ipack, amb_l, v, work)
             continue
         for s in range(width):
             x_row[0, s] = xs[o + s, l]
@@ -402,10 +403,12 @@ def _ext_packs_step(b, na, ep, et, ky, kd, knot_row, xs, width, decay, ext_dt, e
 
 
 @njit(inline="always", **_JIT)
-def _start_lane(l, j, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault, fault_drag, inv_m, max_dt,
-                lane_int, lane_f, xs, v, pt, cache, et, ext_dt, knot_row, acc, pack_end, mot, ky, kd, x_row):
-    """Lane ``l`` takes sample ``j``: its parameters, initial state and voltages, and its accumulators."""
+def _start_lane(l, j, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault, fault_drag, max_dt,
+                lane_int, lane_f, xs, v, pt, cache, et, ext_dt, knot_row, ocv_c, acc, pack_end, mot, ky, kd, x_row):
+    """Lane ``l`` takes sample ``j``: its parameters, initial state and voltages, and its accumulators.
+    (At most 30 arguments: CPython passes more as a tuple, which numba cannot inline.)"""
     n_packs, n_motors, width = x0.shape[1], tm0.shape[1], x0.shape[2]
+    inv_m = 1.0 / n_motors
     lane_int[L_SAMPLE, l] = j
     lane_int[L_PACK_ROW, l] = (j if pp_own else 0) * n_packs
     lane_int[L_EXT_ROW, l] = (j if ep_own else 0) * n_packs
@@ -429,6 +432,7 @@ def _start_lane(l, j, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault
                 x_row[0, s] = x0[j, b, s]
             v[b, l] = _ext_advance(ep[e], ky[r], kd[r], x_row[0], 0.0, 0.0, np.nan, 0.0, max_dt)
             ext_dt[b, l] = -1.0  # no interval seen yet
+            ocv_c[b * N_OCV_CACHE + O_X, l] = np.inf  # no knot interval cached yet
         else:
             v[b, l] = (xs[o + S_QB, l] / pt[po + I_CB, l] - xs[o + S_QCP, l] / pt[po + I_CCP, l]
                        - xs[o + S_QS, l] / pt[po + I_CS, l])
