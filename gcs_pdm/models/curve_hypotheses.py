@@ -90,7 +90,7 @@ class CurveFamilySpread:
 
 CURVE_FAMILY_SPREAD: dict[str, CurveFamilySpread] = {
     "liion": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.25),
-    "lipo": CurveFamilySpread(rest_soc_sd=0.05, slope_rel_sd=0.25),
+    "lipo": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.5),
 }
 
 
