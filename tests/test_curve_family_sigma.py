@@ -35,7 +35,7 @@ def _fly(prior: PackPrior, start_soc: float = 0.8, seconds: int = 900, seed: int
             cal.initialise(0.0, v, i, 25.0)
         else:
             cal.step(float(k), 1.0, i, v, 25.0)
-        out.append((cal.soc, cal.soc_sd, math.sqrt(max(cal.P[0, 0], 0.0)), soc))
+        out.append((cal.soc, cal.soc_sd, cal.filter_soc_sd, soc))
     return cal, np.array(out)
 
 

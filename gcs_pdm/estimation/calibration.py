@@ -599,6 +599,12 @@ class PackCalibrator:
             return math.nan
         return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0) + self.curve_family_sd() ** 2)
 
+    @property
+    def filter_soc_sd(self) -> float:
+        """The filter's own σ (its covariance), without the curve family: what the count-down and
+        the route risk draw from (they do not carry the family yet: issue 29's follow-up)."""
+        return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0)) if self.initialised else math.nan
+
     def curve_family_sd(self) -> float:
         """The SoC σ the chemistry's family of published curves leaves (0 for a pack's own curve):
         their spread at the rested start, and their slopes' spread times the charge drawn since it
