@@ -97,7 +97,8 @@ def test_where_the_curves_disagree_the_soc_and_its_sigma_cover_both():
     w = bank.weights
     assert w[0] > w[1] and bank.soc == pytest.approx(lipo_soc)  # the leading curve's
     # the σ holds the other curve in proportion to its weight, not only the lead's own σ
-    own = bank.members[0].soc_sd
+    # (the lead's filter σ: its reported σ also carries the chemistry's curve family, CURVE_FAMILY_SPREAD)
+    own = bank.members[0].filter_soc_sd
     assert bank.soc_sd ** 2 >= w[1] * (lco_soc - lipo_soc) ** 2 and bank.soc_sd > 1.5 * own
     report = bank.report()
     assert [h["curve"] for h in report["curve_hypotheses"]] == ["lipo", "lco_4v10"]

@@ -83,7 +83,7 @@ class CutoffModel:
             return None
         bank_soc_var = None
         if hasattr(cal, "lead"):
-            bank_soc_var, cal = cal.soc_sd ** 2, cal.lead
+            bank_soc_var, cal = cal.filter_soc_sd ** 2, cal.lead
         move = cal.current_move_log_var
         P = cal.P.copy()
         if bank_soc_var is not None and math.isfinite(bank_soc_var) and bank_soc_var > P[I_SOC, I_SOC]:

@@ -62,6 +62,7 @@ import numpy as np
 from numba import njit
 
 from gcs_pdm.models.chemistry import Chemistry, chemistry
+from gcs_pdm.models.curve_hypotheses import CURVE_FAMILY_SPREAD, CurveFamilySpread, is_published_table_curve
 
 # state indices. The last, the charge count's start, is never updated (its gain is zero): it is in
 # the state so that the filter's covariance carries how the filter's SoC and the count's start err
@@ -159,6 +160,15 @@ class PackPrior:
         return self.curve if self.curve is not None else chemistry(self.chemistry)
 
     @property
+    def curve_family_spread(self) -> CurveFamilySpread | None:
+        """What the chemistry's published curves leave open about the SoC when this pack's curve is
+        only its chemistry's table (``models.curve_hypotheses.CURVE_FAMILY_SPREAD``); None when the
+        pack has a curve of its own or a declared charge voltage picks it."""
+        if self.full_cell_v is not None or not is_published_table_curve(self.chemistry, self.curve):
+            return None
+        return CURVE_FAMILY_SPREAD.get(self.chemistry)
+
+    @property
     def r0_prior(self) -> float:
         if self.r0_ohm is not None:
             return self.r0_ohm
@@ -252,6 +262,7 @@ class PackCalibrator:
         self.r2p = 0.0
         self.sigma_v = sigma_v if sigma_v is not None else 0.02 + 0.012 * self.cells
         self.rest_current_a = max(0.3, 0.05 * self.q0 / 3600.0)
+        self.family = prior.curve_family_spread
         # bounds: what the chemistry allows
         top = self.chem.ocv(1.0)
         self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6, 0.2 * self.r1p, -5.0, 0.0, 0.0, -math.inf])
@@ -581,7 +592,26 @@ class PackCalibrator:
 
     @property
     def soc_sd(self) -> float:
+        """The filter's σ, and, when the curve is only the chemistry's table, what that curve cannot
+        tell (``curve_family_sd``): the filter's covariance cannot hold it, as no voltage of the
+        flight separates the chemistry's published curves."""
+        if not self.initialised:
+            return math.nan
+        return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0) + self.curve_family_sd() ** 2)
+
+    @property
+    def filter_soc_sd(self) -> float:
+        """The filter's own σ (its covariance), without the curve family: what the count-down and
+        the route risk draw from (they do not carry the family yet: issue 29's follow-up)."""
         return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0)) if self.initialised else math.nan
+
+    def curve_family_sd(self) -> float:
+        """The SoC σ the chemistry's family of published curves leaves (0 for a pack's own curve):
+        their spread at the rested start, and their slopes' spread times the charge drawn since it
+        (the voltage read through a curve of the wrong slope reads that share of it wrong)."""
+        if self.family is None:
+            return 0.0
+        return math.hypot(self.family.rest_soc_sd, self.family.slope_rel_sd * self.drawn_c / self.q0)
 
     def evidence(self, now: float | None = None) -> list[str]:
         if not self.initialised:

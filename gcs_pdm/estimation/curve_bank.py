@@ -140,10 +140,19 @@ class CurveBank:
     def soc_sd(self) -> float:
         """The spread of the hypotheses about the reported SoC: √Σ w (σ² + (SoC − the lead's)²), the
         expected squared error of the lead's SoC if the weights are right."""
+        return self._spread(lambda m: m.soc_sd)
+
+    @property
+    def filter_soc_sd(self) -> float:
+        """That spread with each filter's own σ, without the chemistry's curve family
+        (``PackCalibrator.filter_soc_sd``): what the count-down draws from."""
+        return self._spread(lambda m: m.filter_soc_sd)
+
+    def _spread(self, member_sd) -> float:
         if not self.initialised:
             return math.nan
         lead = self.lead.soc
-        return math.sqrt(sum(w * (m.soc_sd ** 2 + (m.soc - lead) ** 2)
+        return math.sqrt(sum(w * (member_sd(m) ** 2 + (m.soc - lead) ** 2)
                              for w, m, out in zip(self.weights, self.members, self.ruled_out) if not out))
 
     @property

@@ -71,3 +71,30 @@ def curve_hypotheses(name: str, full_cell_v: float | None = None) -> tuple[Curve
         return hyps
     total = sum(h.prior_weight for h in kept)
     return tuple(replace(h, prior_weight=h.prior_weight / total) for h in kept)
+
+
+#: what a chemistry's name leaves open about the SoC when the pack's curve is only its published
+#: table's (no curve of its own, no declared charge voltage, none learned from its history): the
+#: published curves of one chemistry read each other's cells 0.10-0.23 of SoC apart at rest (Li-ion:
+#: Chen2020, Ecker2015, Mohtat2020, Kim2011), and in flight they differ by only 1-5 mV rms, so no
+#: flight shrinks it. ``rest_soc_sd``: that spread at a rested start, as a σ; ``slope_rel_sd``: the
+#: relative spread of their slopes, which the voltage turns into an error in the charge it reads as
+#: drawn (the filter learned 0.77-1.49x the true capacity through a curve of the wrong slope).
+#: Measured in docs/notes/2026-11-27-honest-soc-sigma.md; a chemistry not listed has no measured
+#: spread and adds nothing (its σ is the filter's alone).
+@dataclass(frozen=True)
+class CurveFamilySpread:
+    rest_soc_sd: float
+    slope_rel_sd: float
+
+
+CURVE_FAMILY_SPREAD: dict[str, CurveFamilySpread] = {
+    "liion": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.25),
+    "lipo": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.5),
+}
+
+
+def is_published_table_curve(name: str, curve: Chemistry | None) -> bool:
+    """Whether ``curve`` (a ``PackPrior.curve``; None: the table's) is one of chemistry ``name``'s
+    published table curves, not a pack's own (described, or learned from its history)."""
+    return curve is None or any(h.curve == curve for h in CURVE_HYPOTHESES.get(name, ())) or curve == chemistry(name)
