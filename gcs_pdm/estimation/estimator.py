@@ -501,9 +501,13 @@ class StateEstimator:
 
     def _sync_paper(self, b: int) -> None:
         """The paper filter of a self-calibrated pack carries its SoC (mean and variance of q_b) for
-        the users of the kernel's layout: predictions fly the kernel from it."""
+        the users of the kernel's layout: predictions fly the kernel from it. The filter's own σ
+        (``filter_soc_sd``), not the reported one: the chemistry's curve family widens only what is
+        shown, as the count-down and the route risk draw without it; in the paper filter's
+        covariance it would move that filter's other states (its temperature) through their
+        cross-covariance."""
         cal = self.calib[b]
-        soc, sd = cal.soc, cal.soc_sd
+        soc, sd = cal.soc, cal.filter_soc_sd
         if not math.isfinite(soc):
             return
         p, mean, cov = self.packs.params[b], self.packs.mean, self.packs.cov
