@@ -187,8 +187,10 @@ def test_single_battery_plane_operator_declared_fault_replanned_uploaded(tmp_pat
 def test_paper_aircraft_preset_fault_diagnosed_replanned_uploaded(tmp_path):
     legs = [(1500, 0, 100), (1500, 1500, 100), (0, 1500, 100), (-1500, 1500, 100), (-1500, 0, 100),
             (-1500, -1500, 100), (0, -1500, 100)]
+    # 45 %: with no objectives loaded edge540 plans on its description's 15 % landing reserve (the
+    # outlook's); from 30 % no replan keeps it, and the mission is kept with no upload
     lb, faults, uploads, plans = _fly(tmp_path, vehicle="edge540", mission=legs, fault="motor:aft:0.7@leg:2-3",
-                                      speedup=10.0, soc=0.3, takeoff_alt_m=100.0)
+                                      speedup=10.0, soc=0.45, takeoff_alt_m=100.0)
     try:
         assert faults[0]["source"] == "diagnoser" and faults[0]["target"] == "aft"
         assert plans and uploads[0]["status"] == "confirmed"
