@@ -55,7 +55,8 @@ class Service:
         #: flights as records (service/flights.py); the live loop feeds it
         self.flights = FlightRecorder(self)
         self.catalogue: list[CatalogueWaypoint] | None = None
-        #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the flown description's (its limits and landing reserve)
+        #: the planner's limits (gcs_pdm.planning.scenario.PlanLimits); None: the flown
+        #: description's (its limits and landing reserve)
         self.limits = None
         self.loop = None
         self.foreign_watch = None  # status_report.ForeignSystemWatcher, once a link is attached
@@ -117,11 +118,11 @@ class Service:
         return self.params if is_paper_aircraft(vehicle) else None
 
     def limits_override(self, vehicle):
-        """One ``Limits`` for every pack and motor of ``vehicle`` (the scenario's, for the paper's
-        aircraft), else None: the description's per pack and motor."""
-        if self.limits is None or not is_paper_aircraft(vehicle):
-            return None
-        return self.limits.kernel_limits()
+        """One ``Limits`` for every pack and motor of ``vehicle``: the kernel's part of
+        ``plan_limits_override`` (the loaded scenario's, for the paper's aircraft), else None: the
+        description's per pack and motor."""
+        plan = self.plan_limits_override(vehicle)
+        return plan.kernel_limits() if plan is not None else None
 
     def plan_limits_override(self, vehicle):
         """The planner's ``PlanLimits`` for every pack and motor of ``vehicle``, the landing reserve
