@@ -476,7 +476,8 @@ class PackCalibrator:
         # within 200 s on a PyBaMM cell). Held (their gain zero; the Joseph form keeps the covariance
         # right for any gain) until LEARN_AFTER_FRACTION is drawn, and under load while the pack's
         # temperature has moved far from the count's start (``capacity_separable``)
-        hold = not self.capacity_separable(i)
+        hold = not self.capacity_separable(i) or self._capacity_held_by_curve()
+        reading_held = self._curve_reading_held(i)
         nis, s = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas)
         # how well this filter's curve explains the voltage (a Gaussian innovation's log-likelihood,
         # the squared term capped as the window's is): ``curve_bank`` weighs curve hypotheses by it
@@ -496,10 +497,11 @@ class PackCalibrator:
         if nis > GATE_SIGMAS ** 2:
             self.counters["voltage_gated"] += 1
             return
-        _update_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas, hold)
+        _update_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas, hold, reading_held)
         np.clip(self.x, self.lo, self.hi, out=self.x)
         self.counters["voltage_updates"] += 1
-        self.last_voltage_update_s = t
+        if not reading_held:  # the evidence's ``voltage_model``: the voltage corrects the SoC
+            self.last_voltage_update_s = t
 
     def capacity_separable(self, current: float) -> bool:
         """Whether a voltage at ``current`` can teach the capacity (and the curve's scale) now: a
@@ -514,6 +516,19 @@ class PackCalibrator:
             return True
         moved = abs(self.temp_c - self.count_temp_c)
         return not moved > CAPACITY_TEMP_SPAN_K  # no temperature read: nothing moved
+
+    # ---- a curve known only as its chemistry's (``CurveFamilySpread.count_in_flight``) -----------
+    def _capacity_held_by_curve(self) -> bool:
+        """The capacity (and the curve's scale) stays at its prior: the voltage's fall per charge
+        drawn is read through the table's slope, and the chemistry's published slopes differ more
+        than the capacity's prior (learned 0.77-1.49x the truth through the Li-ion table)."""
+        return self.family is not None and self.family.count_in_flight
+
+    def _curve_reading_held(self, current: float) -> bool:
+        """Under load the voltage does not move the SoC or the curve's offset (the charge count
+        carries the SoC from the rested start); it still teaches the circuit. A rested voltage reads
+        the SoC through the table as before."""
+        return self._capacity_held_by_curve() and abs(current) >= self.rest_current_a
 
     def _to_prior(self, soc: float, soc_var: float, v1: float, v1_var: float) -> None:
         """State and covariance at ``soc`` and fast-pair voltage ``v1``, every parameter at its prior."""
@@ -611,6 +626,10 @@ class PackCalibrator:
         (the voltage read through a curve of the wrong slope reads that share of it wrong)."""
         if self.family is None:
             return 0.0
+        if self.family.count_in_flight:
+            # the voltage does not read the SoC in flight: the count's error is the capacity's,
+            # which the filter's covariance holds (its capacity is held at the prior's σ)
+            return self.family.rest_soc_sd
         return math.hypot(self.family.rest_soc_sd, self.family.slope_rel_sd * self.drawn_c / self.q0)
 
     def evidence(self, now: float | None = None) -> list[str]:
@@ -736,9 +755,9 @@ def _innovation_core(x, P, table, cells, mid, v, i, u, r_meas):
 
 
 @njit(cache=True, nogil=True)
-def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold):
+def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold, hold_reading):
     """The Kalman update of the voltage (Joseph form; with ``hold`` the capacity's and the curve
-    scale's gains are zero)."""
+    scale's gains are zero, with ``hold_reading`` the SoC's and the curve offset's)."""
     n = x.size
     h = np.empty(n)
     pred = _measurement(x, table, cells, mid, i, u, h)
@@ -751,6 +770,9 @@ def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold):
     if hold:
         k[5] = 0.0
         k[4] = 0.0
+    if hold_reading:
+        k[0] = 0.0
+        k[3] = 0.0
     nu = v - pred
     for r in range(n):
         x[r] += k[r] * nu

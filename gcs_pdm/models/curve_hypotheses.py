@@ -82,14 +82,21 @@ def curve_hypotheses(name: str, full_cell_v: float | None = None) -> tuple[Curve
 #: drawn (the filter learned 0.77-1.49x the true capacity through a curve of the wrong slope).
 #: Measured in docs/notes/2026-11-27-honest-soc-sigma.md; a chemistry not listed has no measured
 #: spread and adds nothing (its σ is the filter's alone).
+#: ``count_in_flight``: the filter holds the capacity at its prior and, under load, lets the voltage
+#: teach only the circuit — the SoC is the rested start plus the charge counted (its σ the capacity's)
+#: — instead of reading it through a slope it does not know (Li-ion: PyBaMM Chen2020 8 -> 12/12,
+#: held-out cells 2 -> 4/18 within 0.05 after 5 min; docs/notes/2026-11-27-curve-uncertainty.md).
+#: Not for ``lipo``: its bank carries its curves, and its simulated presets need the capacity learned
+#: from the voltage (chemistry-curve presets 30 -> 17/32 with it).
 @dataclass(frozen=True)
 class CurveFamilySpread:
     rest_soc_sd: float
     slope_rel_sd: float
+    count_in_flight: bool = False
 
 
 CURVE_FAMILY_SPREAD: dict[str, CurveFamilySpread] = {
-    "liion": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.25),
+    "liion": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.25, count_in_flight=True),
     "lipo": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.5),
 }
 
