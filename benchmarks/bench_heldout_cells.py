@@ -19,7 +19,16 @@ differ in one part at a time, as ``bench_pybamm_error_sources.py`` does for the 
   charge counted over the nominal capacity (how much of the in-flight error the voltage adds);
   ``mean_loo_capacity_held`` / ``chemistry_capacity_held``: the mean curve / the ``liion`` table with
   the NOMINAL capacity's σ ``HELD_CAPACITY_REL_SD`` (the filter does not learn a capacity from a
-  curve whose slope it does not know).
+  curve whose slope it does not know);
+- ``mean_loo_counting``: the leave-one-out mean curve read as a family's table is
+  (``CurveFamilySpread.count_in_flight``, what the ``liion`` table gets: the rested voltage sets the
+  SoC, in flight the charge is counted and the capacity held at its prior).
+
+Since ``count_in_flight`` (2026-11-27, docs/notes/2026-11-27-curve-uncertainty.md) every prior on the
+``liion`` table (``chemistry``, ``true_capacity``, ``wide_curve_sd``, ``chemistry_capacity_held``)
+counts charge in flight; the others read their curve as a pack's own. ``chen_fixtures_mean_loo``: the
+fixtures' 12 Chen2020 flights through ``mean_loo_counting`` built from the three held-out curves (the
+family's centre without the cell's own curve, as for the held-out cells).
 
 ``curve_spread``: for each pair of curves, the largest SoC difference at the same rested voltage
 between 10 and 95 % — what reading one cell through another's curve costs at rest.
@@ -43,7 +52,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 PRIORS = ("chemistry", "own_curve", "true_capacity", "both", "wide_curve_sd", "bank_loo", "mean_loo", "mean_loo_loose_voltage",
-          "mean_loo_then_count", "mean_loo_capacity_held", "chemistry_capacity_held")
+          "mean_loo_then_count", "mean_loo_capacity_held", "chemistry_capacity_held", "mean_loo_counting")
 #: the widened curve priors of ``wide_curve_sd``: the held-out cells rest up to ~0.1 V off the M50
 #: at mid-SoC, 3-7x the default offset σ (0.015 V)
 WIDE_OFFSET_SD_V, WIDE_SCALE_SD = 0.06, 0.15
@@ -154,6 +163,40 @@ def curve_spread(curves: dict) -> dict:
     return out
 
 
+def counting_on(prior):
+    """A filter that reads ``prior``'s curve (not a published table) as the Li-ion family's table:
+    the rested voltage sets the SoC, in flight it counts (``CurveFamilySpread.count_in_flight``)."""
+    from gcs_pdm.estimation.calibration import PackCalibrator
+    from gcs_pdm.models.curve_hypotheses import CURVE_FAMILY_SPREAD
+
+    cal = PackCalibrator(prior)
+    cal.family = CURVE_FAMILY_SPREAD["liion"]  # set before the first frame: its prior and read-outs take it
+    return cal
+
+
+def chen_fixtures_through(curve) -> list:
+    """The fixtures' Chen2020 flights through ``counting_on`` ``curve``: per flight its largest error after 5 min."""
+    import pyarrow.parquet as pq
+
+    from gcs_pdm.estimation.calibration import PackPrior
+    from gcs_pdm.replay.calibration_eval import pybamm_truth_soc
+
+    root = ROOT / "fixtures" / "pybamm"
+    manifest = json.loads((root / "manifest.json").read_text())
+    out = []
+    for flight in manifest["flights"]:
+        if flight["set"] != "Chen2020":
+            continue
+        s = manifest["sets"][flight["set"]]
+        table = pq.read_table(root / flight["file"]).to_pydict()
+        t, i = np.asarray(table["time_s"], float), np.asarray(table["current_a"], float)
+        truth = pybamm_truth_soc(t, i, flight, s)
+        prior = PackPrior("liion", CELLS, s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0, curve=curve)
+        out.append(run_filter(counting_on(prior), table, truth, s["cell_window_capacity_ah"] * s["cells_parallel"] * 3600.0)
+                   ["max_abs_error_after_5min"])
+    return out
+
+
 def _range(values: list) -> list | None:
     known = [v for v in values if v is not None]
     return [min(known), max(known)] if known else None
@@ -207,6 +250,7 @@ def main() -> None:
         row["chemistry_capacity_held"] = run_filter(
             PackCalibrator(replace(base, capacity_rel_sd=HELD_CAPACITY_REL_SD)), table, truth, true_c)
         row["mean_loo_then_count"] = count_from_takeoff(PackCalibrator(mean_prior), table, truth, nominal_c)
+        row["mean_loo_counting"] = run_filter(counting_on(mean_prior), table, truth, true_c)
         rows.append(row)
         print(f"{row['flight']}: start {row['start_soc']} ({row['start']}), drew {row['drawn_in_5min']} in 5 min, "
               f"C true/nominal {row['true_over_nominal_capacity']}; max error after 5 min "
@@ -224,6 +268,9 @@ def main() -> None:
                       "per_set_within_0.05": {
                           name: f"{sum(r[p]['max_abs_error_after_5min'] <= 0.05 for r in rows if r['set'] == name)}"
                                 f"/{sum(r['set'] == name for r in rows)}" for name in manifest["sets"]}}
+    chen = chen_fixtures_through(mean_curve([c for name, c in curves.items() if name != "Chen2020"]))
+    summary["chen_fixtures_mean_loo"] = {"within_0.05_after_5min": f"{sum(e <= 0.05 for e in chen)}/{len(chen)}",
+                                         "max_abs_error_after_5min": chen}
     spread = curve_spread(curves)
     print("curve spread (largest SoC misread at rest, 10-95 %):", spread)
     print(json.dumps({"heldout": str(args.heldout), "summary": summary, "curve_spread": spread, "flights": rows}))
