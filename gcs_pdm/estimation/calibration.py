@@ -25,6 +25,10 @@ inside what the chemistry allows (``PARAM_BOUNDS``: a LiPo never rests above 4.2
 The capacity and the curve's scale learn only from evidence that separates them from the dynamics
 (``capacity_separable``): a span of the curve drawn, and a loaded voltage only while the pack's
 temperature stays near where the count started; a rested voltage at any temperature.
+A pack whose curve is only its chemistry's table, where the chemistry's published curves differ
+more than the capacity's prior (``CurveFamilySpread.count_in_flight``: Li-ion), learns neither: its
+capacity stays at its prior and under load the voltage teaches only the circuit — the SoC is the
+rested voltage's plus the charge counted.
 
 **The charge count is the floor.** The filter's SoC is a charge count (SoC' above) that the
 voltage corrects. The voltage is trusted only while it carries information the model can follow:
