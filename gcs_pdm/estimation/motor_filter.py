@@ -27,7 +27,7 @@ class MotorFilterConfig:
 class MotorThermalFilter:
     def __init__(self, motor_params: np.ndarray, n_motors: int = 2, config: MotorFilterConfig = MotorFilterConfig()):
         m = np.asarray(motor_params, dtype=np.float64)
-        self.params = np.ascontiguousarray(np.broadcast_to(m, (n_motors, kernel.N_MOTOR_PARAMS)))
+        self.params = kernel.owned(np.broadcast_to(m, (n_motors, kernel.N_MOTOR_PARAMS)))  # one compiled step
         self.config = config
         self.mean = np.full((n_motors, 1), np.nan)
         self.cov = np.zeros((n_motors, 1, 1))

@@ -69,8 +69,9 @@ def scalar_update(mean: np.ndarray, cov: np.ndarray, h: np.ndarray, z: np.ndarra
 # same gated scalar updates in Joseph form, the same re-lock — one row at a time, in place.
 
 def as_rows(a, shape) -> np.ndarray:
-    """An argument of the compiled steps as a contiguous float64 array of ``shape`` (scalars broadcast)."""
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, dtype=np.float64), shape))
+    """An argument of the compiled steps as a writable contiguous float64 array of ``shape`` (scalars
+    broadcast; ``kernel.owned``: one compiled version per step)."""
+    return kernel.owned(np.broadcast_to(np.asarray(a, dtype=np.float64), shape))
 
 
 _JIT = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")

@@ -396,11 +396,22 @@ def _rows(a: np.ndarray | float, n_vec: int, n: int, name: str) -> np.ndarray:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != n or arr.shape[0] not in (1, n_vec):
         raise ValueError(f"{name}: expected shape ({n},) or ({n_vec}, {n}), got {np.shape(a)}")
-    return np.ascontiguousarray(arr)
+    return owned(arr)
+
+
+def owned(a, dtype=np.float64) -> np.ndarray:
+    """``a`` as a writable C-contiguous array of ``dtype``, copied only when it is not one already.
+    Every array a compiled entry point gets goes through here: numba compiles one machine-code
+    version per argument type, and a read-only array (a ``broadcast_to`` view, which
+    ``ascontiguousarray`` hands back as it is when its shape already fits) is another type. The
+    vehicle driver then compiled a second time, minutes of CPU, wherever a caller happened to pass
+    one (a planner's first airspeed optimisation, a calibrated pack's route risk)."""
+    a = np.asarray(a, dtype=dtype)
+    return a if a.flags.c_contiguous and a.flags.writeable else np.array(a, dtype=dtype, order="C")
 
 
 def _params2d(params: np.ndarray, width: int, name: str) -> np.ndarray:
-    arr = np.ascontiguousarray(np.atleast_2d(np.asarray(params, dtype=np.float64)))
+    arr = owned(np.atleast_2d(np.asarray(params, dtype=np.float64)))
     if arr.ndim != 2 or arr.shape[1] != width:
         raise ValueError(f"{name}: expected shape (N, {width}), got {np.shape(params)}")
     return arr
@@ -419,7 +430,7 @@ def _pack_inputs(params, n_params: int, x0, n_state: int, dt, current, ambient):
     """Both variants' inputs as contiguous (N, ·) rows: params, x0, dt, current, ambient."""
     params = _params2d(params, n_params, "params")
     n_vec = params.shape[0]
-    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, n_state)))
+    x0 = owned(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n_vec, n_state)))
     cur = np.asarray(current, dtype=np.float64)
     n = cur.shape[-1]
     cur = _rows(cur, n_vec, n, "current")
@@ -467,7 +478,7 @@ def simulate_motor_thermal(params: np.ndarray, temp0: np.ndarray | float, dt: np
     cur = np.asarray(current, dtype=np.float64)
     n = cur.shape[-1]
     n_vec = max(params.shape[0], cur.shape[0] if cur.ndim == 2 else 1, np.size(temp0))
-    t0 = np.ascontiguousarray(np.broadcast_to(np.asarray(temp0, dtype=np.float64), (n_vec,)))
+    t0 = owned(np.broadcast_to(np.asarray(temp0, dtype=np.float64), (n_vec,)))
     out = np.empty((n_vec, n))
     _simulate_motor_thermal(params, t0, _rows(dt, n_vec, n, "dt"), _rows(cur, n_vec, n, "current"),
                             _rows(ambient, n_vec, n, "ambient"), out)

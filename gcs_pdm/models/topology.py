@@ -97,7 +97,7 @@ def _run(topo: Topology, pp: np.ndarray, ep: np.ndarray, is_ext: np.ndarray, mp:
     allocate the outputs, fly ``_simulate``. Parameter and state arrays arrive checked."""
     n_packs, n_motors = topo.n_packs, topo.n_motors
     n_vec = x0.shape[0]
-    tm0 = np.ascontiguousarray(np.broadcast_to(np.asarray(motor_temp0, dtype=np.float64), (n_vec, n_motors)))
+    tm0 = np.broadcast_to(np.asarray(motor_temp0, dtype=np.float64), (n_vec, n_motors))
     sp = np.asarray(shaft_power, dtype=np.float64)
     n = sp.shape[-1]
     sp = _rows(sp, n_vec, n, "shaft_power")
@@ -119,14 +119,12 @@ def _run(topo: Topology, pp: np.ndarray, ep: np.ndarray, is_ext: np.ndarray, mp:
                elapsed=np.empty(n_vec), end_k=np.empty((n_vec, n_packs), dtype=np.int64),
                end_energy=np.empty((n_vec, n_packs)), peak_tp=np.empty((n_vec, n_packs)),
                peak_tm=np.empty((n_vec, n_motors)))
-    _simulate(pp, ep, np.ascontiguousarray(is_ext, dtype=np.bool_), mp, x0, tm0, dt_, sp, f, amb,
-              np.ascontiguousarray(topo.bus_of_pack, dtype=np.int64),
-              np.ascontiguousarray(topo.bus_of_motor, dtype=np.int64),
-              np.ascontiguousarray(topo.bus_parallel, dtype=np.bool_),
-              np.ascontiguousarray(topo.pack_cutoff_v, dtype=np.float64),
-              np.ascontiguousarray(topo.pack_max_temp_c, dtype=np.float64),
-              np.ascontiguousarray(topo.motor_max_temp_c, dtype=np.float64),
-              float(fault_drag), float(max_dt), bool(stop_on_failure), slot_of_step, *rec, *out.values())
+    own = kernel.owned  # one compiled version of the driver: every array writable and C-contiguous
+    _simulate(own(pp), own(ep), own(is_ext, np.bool_), own(mp), own(x0), own(tm0), own(dt_), own(sp), own(f),
+              own(amb), own(topo.bus_of_pack, np.int64), own(topo.bus_of_motor, np.int64),
+              own(topo.bus_parallel, np.bool_), own(topo.pack_cutoff_v), own(topo.pack_max_temp_c),
+              own(topo.motor_max_temp_c), float(fault_drag), float(max_dt), bool(stop_on_failure), slot_of_step,
+              *rec, *out.values())
     recorded = dict(zip(("pack_voltage", "pack_current", "pack_temp", "pack_soc", "motor_current", "motor_temp"),
                         rec)) if recorded_steps is not None else {}
     if record_at is not None:
