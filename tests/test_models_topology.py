@@ -112,3 +112,28 @@ def test_pack_ends_peaks_and_sparse_record_match_the_full_record(stop_on_failure
     with pytest.raises(ValueError, match="record_at"):
         topology.simulate_powertrain(ps.pack_matrix()[None], ps.motor_vector()[None], x0, tm0, dt, power, 20.0,
                                      record_at=[5, 3], **kw)
+
+
+def test_read_only_inputs_reuse_the_compiled_driver():
+    """A read-only array (a ``broadcast_to`` view, a frozen table) is another numba type: before
+    ``kernel.owned`` it compiled the vehicle driver a second time (minutes of CPU, four CI timeouts)
+    in a planner's airspeed optimisation and a calibrated pack's route risk. One version serves both."""
+    from gcs_pdm.models import lanes
+
+    inputs = model_inputs(PRESETS["quad-4s"])
+    x0 = kernel.initial_pack_state(inputs.pack_matrix, 1.0, 25.0)[None]
+    n = 20
+
+    def frozen(a):
+        a = np.array(a, dtype=np.float64)
+        a.setflags(write=False)
+        return a
+
+    writable = simulate_vehicle(inputs, None, None, x0, np.full((1, 4), 25.0), np.ones(n), np.full(n, 300.0), 20.0,
+                                np.zeros((1, 4)))
+    versions = len(lanes._simulate.signatures)
+    read_only = simulate_vehicle(inputs, None, frozen(inputs.motor_matrix[None]), frozen(x0),
+                                 np.broadcast_to(25.0, (1, 4)), frozen(np.ones(n)), frozen(np.full(n, 300.0)),
+                                 20.0, np.broadcast_to(0.0, (1, 4)))
+    assert len(lanes._simulate.signatures) == versions
+    np.testing.assert_array_equal(read_only.final_pack_state, writable.final_pack_state)
