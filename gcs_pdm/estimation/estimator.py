@@ -22,6 +22,7 @@ import numpy as np
 
 from gcs_pdm.estimation.calibration import PackCalibrator, prior_of_spec
 from gcs_pdm.estimation.curve_bank import CurveBank, pack_calibrator
+from gcs_pdm.estimation.fitted_prior import FittedPackWatch, fitted_prior
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
 from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
@@ -88,6 +89,10 @@ class EstimatorConfig:
     #: self-calibrating filter (``estimation.calibration``): chemistry curve, adapted capacity,
     #: resistance and curve, the charge count as its floor (issue 29)
     self_calibrate: bool = True
+    #: a fitted pack (edge540's, a parameter set's) is watched by a self-calibrating filter whose
+    #: prior is its set; the filter takes over when the flight contradicts the set
+    #: (``estimation.fitted_prior``). Off: the set is flown as it is, whatever the flight says
+    fitted_set_as_prior: bool = True
 
 
 @dataclass(frozen=True)
@@ -198,6 +203,12 @@ class StateEstimator:
         #: carries the pack's temperature and, for the users of its layout (predictions, the
         #: planner), the calibrated SoC (``_sync_paper``)
         self.calib: list[PackCalibrator | CurveBank | None] = calib
+        #: per fitted pack (no calibrator of its own, paper variant): the self-calibrating filter that
+        #: runs beside its paper filter and becomes its ``calib`` when the flight contradicts the set
+        self.fitted_watch: list[FittedPackWatch | None] = [
+            FittedPackWatch(fitted_prior(prior_of_spec(p, pack_matrix[b])), capacity_rel_sd=config.capacity_rel_sigma)
+            if config.fitted_set_as_prior and calib[b] is None and b not in ext_vectors else None
+            for b, p in enumerate(vehicle.packs)]
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
         # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper
@@ -414,6 +425,9 @@ class StateEstimator:
             packs.initialised[b] = initialised = False
             if cal is not None:
                 cal.initialised = False
+            watch = self.fitted_watch[b]
+            if watch is not None:
+                watch.calibrator.initialised = False
             if ext_row >= 0:
                 self.ext.initialised[ext_row] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
@@ -431,6 +445,10 @@ class StateEstimator:
                         cal.initialise(t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
                         self._calibrator_temp[b] = (t, temp)
                     self._sync_paper(b)
+                elif self.fitted_watch[b] is not None and not self.fitted_watch[b].calibrator.initialised:
+                    self.fitted_watch[b].calibrator.initialise(
+                        t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+                    self._calibrator_temp[b] = (t, temp)
                 self._pack_time[b] = t
             if t > self.time_s:
                 self.time_s = t
@@ -479,6 +497,8 @@ class StateEstimator:
             cal.step(t, dt, i_used, v, self._calibrator_temperature(b, t, temp))
             self._sync_paper(b)
             flipped = (not cal.voltage_trusted) != self._mismatch_active[b]
+        elif self.fitted_watch[b] is not None:
+            self._watch_fitted(b, t, dt, i_used, v, temp)
         if flipped or self._mismatch_active[b]:
             self._mismatch_changed(b, t)
         if t > self.time_s:
@@ -498,6 +518,29 @@ class StateEstimator:
             return last
         self._calibrator_temp[b] = (t, temp)
         return temp
+
+    def _watch_fitted(self, b: int, t: float, dt: float, current: float, v: float, temp: float) -> None:
+        """Step fitted pack ``b``'s watching calibrator; when the flight contradicts its set, the
+        calibrator becomes the pack's filter from this frame on (``estimation.fitted_prior``)."""
+        watch = self.fitted_watch[b]
+        cal = watch.calibrator
+        if not cal.initialised:
+            return
+        cal.step(t, dt, current, v, self._calibrator_temperature(b, t, temp))
+        p, q = self.packs.params[b], self.packs.mean[b, kernel.S_QB]
+        soc = 1.0 - (p[kernel.I_QMAX] - q) / p[kernel.I_CMAX]
+        # the SoC as this pack's paper filter reports it (``estimate``): its σ with the set's capacity's
+        sd = math.hypot(math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / p[kernel.I_CMAX],
+                        self.config.capacity_rel_sigma * min(max(1.0 - soc, 0.0), 1.0))
+        why = watch.contradiction(t, float(soc), sd)
+        if why is None:
+            return
+        watch.contradicted_at_s, watch.reason = t, why
+        self.calib[b] = cal
+        self.counters["fitted_set_contradicted"] += 1
+        log.warning("pack %s at t=%.1f s: %s; its SoC is the self-calibrating filter's from now on",
+                    self.pack_names[b], t, why)
+        self._sync_paper(b)
 
     def _sync_paper(self, b: int) -> None:
         """The paper filter of a self-calibrated pack carries its SoC (mean and variance of q_b) for
