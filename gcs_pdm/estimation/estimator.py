@@ -726,6 +726,9 @@ class StateEstimator:
                "channels": ["voltage"] if active else [],
                "since_s": None if not math.isfinite(self._mismatch_since[b]) else round(float(self._mismatch_since[b]), 3),
                "prediction_inflation": 1.0, "calibration": rep}
+        watch = self.fitted_watch[b]
+        if watch is not None:  # a fitted pack whose set the flight contradicted
+            out["fitted_set"] = {"contradicted_at_s": round(float(watch.contradicted_at_s), 3), "reason": watch.reason}
         if not cal.initialised:
             out["state"], out["reason"] = "unknown", "not judged yet: no voltage reading"
         elif active:

@@ -10,10 +10,11 @@ twice its resistance, reads 0.1-0.6 off in SoC.
 ``FittedPackWatch`` runs a ``calibration.PackCalibrator`` whose prior is the set's own model
 (``calibration.described_chemistry``: its rested curve, series resistance and pair) on the same
 frames. While the set holds, the estimator reports the paper filter, untouched: a pack that is its
-set gives the paper's results bit for bit. The watch judges the set contradicted when the
-calibrator's learned resistance or capacity lies outside what the set's own uncertainty allows
-(``contradiction``); from then on the calibrator is the pack's filter (``StateEstimator`` makes
-it the pack's ``calib``), as for any described pack.
+set gives the paper's results bit for bit. The watch judges the set contradicted when, for
+``CONTRADICTION_HOLD_S``, the calibrator's learned resistance or capacity, or the paper filter's SoC
+against the calibrator's, lies further from the set than the set's own uncertainty and the
+calibrator's allow (``contradiction``); from then on the calibrator is the pack's filter
+(``StateEstimator`` makes it the pack's ``calib``), as for any described pack.
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ class FittedPackWatch:
         self.reason: str | None = None
         self._over_since = math.nan
 
-    def statistics(self, paper_soc: float = math.nan, paper_soc_sd: float = math.nan) -> tuple[float, float, float]:
+    def statistics(self, paper_soc: float, paper_soc_sd: float) -> tuple[float, float, float]:
         """(z of the learned resistance, z of the learned capacity) against the set's: the log of
         their ratio to the set's over the set's relative σ and the calibrator's own, combined; and
         z of the paper filter's SoC against the calibrator's (their σ combined)."""
@@ -91,5 +92,7 @@ class FittedPackWatch:
 
 def fitted_prior(prior: PackPrior) -> PackPrior:
     """``prior`` (a described pack's, from its fitted set's model) as the calibrator beside the fitted
-    filter starts from it."""
+    filter starts from it: the set's curve and circuit, learned with the description's wide σ (a
+    swapped or aged pack is what it must follow once it takes over; the set's own, tighter σ is what
+    ``contradiction`` judges against), its capacity said to come from the set."""
     return replace(prior, capacity_source="fitted set")
