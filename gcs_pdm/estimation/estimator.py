@@ -505,16 +505,18 @@ class StateEstimator:
             self.time_s = t
         return b
 
-    def _calibrator_temperature(self, b: int, t: float, temp: float) -> float:
+    def _calibrator_temperature(self, b: int, t: float, temp: float, count: bool = True) -> float:
         """The pack temperature the calibrator steps with: the reading, unless it jumped further than
-        the pack can heat or cool since the last reading believed (then that one, counted); the
-        thermal model's temperature when nothing is read."""
+        the pack can heat or cool since the last reading believed (then that one, counted unless
+        ``count`` is off: a fitted pack's watch leaves the estimator's counters as the set's filter
+        has them); the thermal model's temperature when nothing is read."""
         if not math.isfinite(temp):
             return float(self.packs.mean[b, kernel.S_T])
         last_t, last = self._calibrator_temp[b]
         if math.isfinite(last) and abs(temp - last) > (CALIBRATOR_TEMP_SLEW_K_PER_S * (t - last_t)
                                                        + CALIBRATOR_TEMP_SLACK_K):
-            self.counters["temperature_jumps_held"] += 1
+            if count:
+                self.counters["temperature_jumps_held"] += 1
             return last
         self._calibrator_temp[b] = (t, temp)
         return temp
@@ -526,13 +528,14 @@ class StateEstimator:
         cal = watch.calibrator
         if not cal.initialised:
             return
-        cal.step(t, dt, current, v, self._calibrator_temperature(b, t, temp))
+        cal.step(t, dt, current, v, self._calibrator_temperature(b, t, temp, count=False))
         p, q = self.packs.params[b], self.packs.mean[b, kernel.S_QB]
         soc = 1.0 - (p[kernel.I_QMAX] - q) / p[kernel.I_CMAX]
         # the SoC as this pack's paper filter reports it (``estimate``): its σ with the set's capacity's
         sd = math.hypot(math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / p[kernel.I_CMAX],
                         self.config.capacity_rel_sigma * min(max(1.0 - soc, 0.0), 1.0))
-        why = watch.contradiction(t, float(soc), sd)
+        window = self.packs.consistency
+        why = watch.contradiction(t, float(soc), sd, float(window.statistic()[b, 0]) / window.raise_at)
         if why is None:
             return
         watch.contradicted_at_s, watch.reason = t, why
