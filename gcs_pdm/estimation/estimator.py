@@ -170,7 +170,7 @@ class StateEstimator:
     ``edge540`` preset), in its order, on its buses. ``params``: a parameter set (the paper's, a
     learned one) whose values are flown over the description's (``model_inputs(vehicle, params)``:
     each pack's by its name, extended packs on their extended filter); such packs are flown as the
-    set has them, never self-calibrated."""
+    set has them until the flight contradicts the set (``fitted_watch``, ``estimation.fitted_prior``)."""
 
     def __init__(self, params: ParameterSet | None = None, config: EstimatorConfig = EstimatorConfig(), *,
                  vehicle: VehicleDescription = PRESETS[DEFAULT_PRESET]):
@@ -529,13 +529,8 @@ class StateEstimator:
         if not cal.initialised:
             return
         cal.step(t, dt, current, v, self._calibrator_temperature(b, t, temp, count=False))
-        p, q = self.packs.params[b], self.packs.mean[b, kernel.S_QB]
-        soc = 1.0 - (p[kernel.I_QMAX] - q) / p[kernel.I_CMAX]
-        # the SoC as this pack's paper filter reports it (``estimate``): its σ with the set's capacity's
-        sd = math.hypot(math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / p[kernel.I_CMAX],
-                        self.config.capacity_rel_sigma * min(max(1.0 - soc, 0.0), 1.0))
         window = self.packs.consistency
-        why = watch.contradiction(t, float(soc), sd, float(window.statistic()[b, 0]) / window.raise_at)
+        why = watch.contradiction(t, *self.paper_soc(b), float(window.statistic()[b, 0]) / window.raise_at)
         if why is None:
             return
         watch.contradicted_at_s, watch.reason = t, why
@@ -544,6 +539,14 @@ class StateEstimator:
         log.warning("pack %s at t=%.1f s: %s; its SoC is the self-calibrating filter's from now on",
                     self.pack_names[b], t, why)
         self._sync_paper(b)
+
+    def paper_soc(self, b: int) -> tuple[float, float]:
+        """Pack ``b``'s SoC and σ as its paper filter reports them (``estimate`` of a fitted pack):
+        the σ with the set's capacity's (``capacity_rel_sigma``)."""
+        p, q = self.packs.params[b], self.packs.mean[b, kernel.S_QB]
+        soc = float(1.0 - (p[kernel.I_QMAX] - q) / p[kernel.I_CMAX])
+        sd = math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / float(p[kernel.I_CMAX])
+        return soc, math.hypot(sd, self.config.capacity_rel_sigma * min(max(1.0 - soc, 0.0), 1.0))
 
     def _sync_paper(self, b: int) -> None:
         """The paper filter of a self-calibrated pack carries its SoC (mean and variance of q_b) for
