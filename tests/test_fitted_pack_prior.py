@@ -33,8 +33,10 @@ def test_edge540_with_a_pack_of_twice_its_sets_resistance_is_within_005_after_12
     assert 30.0 < watch.contradicted_at_s < 150.0
     assert "contradicts the fitted set" in watch.reason
     assert case.estimator.calib[0] is watch.calibrator
+    # the set no longer describes the pack: the model-mismatch advisory says so, and to refit it
     check = case.estimator.model_check(0)
     assert check["fitted_set"]["reason"] == watch.reason
+    assert check["state"] == "mismatch" and watch.reason in check["reason"] and "fit this pack" in check["suggestion"]
     late = t >= 150.0  # 120 s of flight after 30 s of rest
     err = np.abs(soc[late] - truth[late])
     assert err.max() <= 0.05

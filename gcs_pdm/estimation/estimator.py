@@ -496,7 +496,7 @@ class StateEstimator:
         if cal is not None:
             cal.step(t, dt, i_used, v, self._calibrator_temperature(b, t, temp))
             self._sync_paper(b)
-            flipped = (not cal.voltage_trusted) != self._mismatch_active[b]
+            flipped = self._calibrated_mismatch(b) != self._mismatch_active[b]
         elif self.fitted_watch[b] is not None:
             self._watch_fitted(b, t, dt, i_used, v, temp)
         if flipped or self._mismatch_active[b]:
@@ -568,7 +568,7 @@ class StateEstimator:
     def _mismatch_changed(self, b: int, t: float) -> None:
         cal = self.calib[b]
         if cal is not None:
-            now = not cal.voltage_trusted
+            now = self._calibrated_mismatch(b)
         else:
             window, row = self._window_of(b)
             now = bool(window.active[row].any())
@@ -723,6 +723,13 @@ class StateEstimator:
             out["state"] = "matches"
         return out
 
+    def _calibrated_mismatch(self, b: int) -> bool:
+        """Whether self-calibrated pack ``b`` fails its model-consistency test: its calibrator does
+        not trust the voltage, or it is a fitted pack whose set the flight contradicted (the set no
+        longer describes it: the advisory says so, and to refit it)."""
+        watch = self.fitted_watch[b]
+        return not self.calib[b].voltage_trusted or (watch is not None and watch.reason is not None)
+
     def _calibration_check(self, b: int) -> dict:
         """``model_check`` of a self-calibrated pack: whether its voltage is trusted, and why not."""
         cal = self.calib[b]
@@ -739,8 +746,11 @@ class StateEstimator:
             out["state"], out["reason"] = "unknown", "not judged yet: no voltage reading"
         elif active:
             out["state"] = "mismatch"
-            out["reason"] = (f"pack {self.pack_names[b]}: {cal.why_not_voltage}; its SoC follows the charge drawn "
-                             f"(σ grows with the capacity's uncertainty)")
+            why = [f"{watch.reason}; its SoC is the self-calibrating filter's"] if watch is not None else []
+            if not cal.voltage_trusted:
+                why.append(f"{cal.why_not_voltage}; its SoC follows the charge drawn (σ grows with the capacity's "
+                           f"uncertainty)")
+            out["reason"] = f"pack {self.pack_names[b]}: " + "; ".join(why)
             out["suggestion"] = refit_suggestion(self.pack_names[b])
         else:
             out["state"] = "matches"
