@@ -36,7 +36,7 @@ sample counters are its own.
 (issue 29, ``estimation.fitted_prior``): its two packs are off their set (URA40 capacity 0.65x, LLF20
 resistance 2.5x), the flight contradicts the set and the self-calibrating filter takes over. Both
 pack-health faults (LLF20 resistance rise, URA40 capacity loss) are raised, updated and held as
-before. The model_mismatch advisories moved: LLF20 raised at 56.9 s (was 139.1 s, cleared at 759.9 s),
+before. The model_mismatch advisories moved: LLF20 raised at 70.7 s (was 139.1 s, cleared at 759.9 s),
 now held to the end (a pack whose set was contradicted no longer matches it: the advisory says so
 and to refit); URA40 raised at 300.0 s as before, last updated 899.9 s (was 859.8 s); their evidence is
 the calibrator's report. Every other entry is unchanged.
