@@ -52,9 +52,10 @@ class FittedPackWatch:
         self._over_since = math.nan
 
     def statistics(self, paper_soc: float, paper_soc_sd: float) -> tuple[float, float, float]:
-        """(z of the learned resistance, z of the learned capacity) against the set's: the log of
-        their ratio to the set's over the set's relative σ and the calibrator's own, combined; and
-        z of the paper filter's SoC against the calibrator's (their σ combined)."""
+        """(z_resistance, z_capacity, z_soc): the calibrator's learned resistance (R₀ + R₁) and
+        capacity against the set's — the log of their ratio over the set's relative σ and the
+        calibrator's own, combined — and the paper filter's SoC against the calibrator's (their σ
+        combined)."""
         cal = self.calibrator
         x, p = cal.x, cal.P
         r = x[I_R0] + x[I_R1]
