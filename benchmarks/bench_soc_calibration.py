@@ -37,7 +37,7 @@ SIM_CASES = [  # (capacity scale, resistance scale, start SoC, seed)
     (0.7, 0.5, 1.0, 1), (1.3, 3.0, 0.6, 2), (1.0, 1.0, 0.75, 3), (0.8, 2.0, 0.9, 4), (1.2, 1.0, 0.5, 5),
     (1.0, 0.5, 0.6, 6), (0.7, 1.0, 0.8, 7), (1.3, 1.0, 1.0, 8),
 ]
-#: edge540, the paper's aircraft, keeps its fitted set's filter (no self-calibration): measured beside
+#: edge540, the paper's aircraft, flies its fitted set until the flight contradicts it (fitted_prior)
 PRESETS = ["plane-3s", "quad-4s", "quad-6s", "hex-6s", "edge540"]
 
 

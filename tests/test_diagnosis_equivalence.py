@@ -31,6 +31,15 @@ by the shared-shaft detector, not the ESC-imbalance one it got as "a described v
 motor fault raised and cleared at the same message time on the same motor, magnitudes within 3e-4;
 the evidence is the shared-shaft detector's; fault_02's last update 800 -> 720 s; the detector's
 sample counters are its own.
+
+``synthetic/degraded_packs`` re-recorded (that entry alone) after a fitted pack's set became a prior
+(issue 29, ``estimation.fitted_prior``): its two packs are off their set (URA40 capacity 0.65x, LLF20
+resistance 2.5x), the flight contradicts the set and the self-calibrating filter takes over. Both
+pack-health faults (LLF20 resistance rise, URA40 capacity loss) are raised, updated and held as
+before. The model_mismatch advisories moved: LLF20 raised at 70.7 s (was 139.1 s, cleared at 759.9 s),
+now held to the end (a pack whose set was contradicted no longer matches it: the advisory says so
+and to refit); URA40 raised at 300.0 s as before, last updated 899.9 s (was 859.8 s); their evidence is
+the calibrator's report. Every other entry is unchanged.
 """
 from __future__ import annotations
 

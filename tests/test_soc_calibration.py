@@ -246,7 +246,8 @@ def test_simulated_pack_started_partly_charged_is_followed(preset):
 
 @pytest.mark.parametrize("preset", [p for p in PRESET_NAMES if p != "edge540"])
 def test_simulated_pack_with_its_capacity_30_percent_under_the_description(preset):
-    # (edge540, the paper's aircraft, keeps its fitted parameter set's filter: no self-calibration)
+    # (edge540, the paper's aircraft, flies its fitted set until the flight contradicts it: from full with
+    # 0.7x its capacity that is at ~600 s, docs/notes/2026-11-27-fitted-pack-prior.md)
     # truth's capacity 0.7x, resistance 0.5x, starting full. Issue 29 asks 0.05 after 120 s of flight;
     # measured 0.056-0.063 over these 600 s (the slow polarisation pair takes part of a fast-falling
     # voltage for a growing sag until the capacity is learned; the 900 s flights of

@@ -22,6 +22,7 @@ import numpy as np
 
 from gcs_pdm.estimation.calibration import PackCalibrator, prior_of_spec
 from gcs_pdm.estimation.curve_bank import CurveBank, pack_calibrator
+from gcs_pdm.estimation.fitted_prior import FittedPackWatch, fitted_prior
 from gcs_pdm.estimation.motor_filter import MotorFilterConfig, MotorThermalFilter
 from gcs_pdm.estimation.pack_filter import CHANNELS, ExtendedPackFilterBank, PackFilterBank, PackFilterConfig
 from gcs_pdm.frames import AmbientFrame, MotorFrame, PackFrame
@@ -88,6 +89,10 @@ class EstimatorConfig:
     #: self-calibrating filter (``estimation.calibration``): chemistry curve, adapted capacity,
     #: resistance and curve, the charge count as its floor (issue 29)
     self_calibrate: bool = True
+    #: a fitted pack (edge540's, a parameter set's) is watched by a self-calibrating filter whose
+    #: prior is its set; the filter takes over when the flight contradicts the set
+    #: (``estimation.fitted_prior``). Off: the set is flown as it is, whatever the flight says
+    fitted_set_as_prior: bool = True
 
 
 @dataclass(frozen=True)
@@ -165,7 +170,7 @@ class StateEstimator:
     ``edge540`` preset), in its order, on its buses. ``params``: a parameter set (the paper's, a
     learned one) whose values are flown over the description's (``model_inputs(vehicle, params)``:
     each pack's by its name, extended packs on their extended filter); such packs are flown as the
-    set has them, never self-calibrated."""
+    set has them until the flight contradicts the set (``fitted_watch``, ``estimation.fitted_prior``)."""
 
     def __init__(self, params: ParameterSet | None = None, config: EstimatorConfig = EstimatorConfig(), *,
                  vehicle: VehicleDescription = PRESETS[DEFAULT_PRESET]):
@@ -198,6 +203,12 @@ class StateEstimator:
         #: carries the pack's temperature and, for the users of its layout (predictions, the
         #: planner), the calibrated SoC (``_sync_paper``)
         self.calib: list[PackCalibrator | CurveBank | None] = calib
+        #: per fitted pack (no calibrator of its own, paper variant): the self-calibrating filter that
+        #: runs beside its paper filter and becomes its ``calib`` when the flight contradicts the set
+        self.fitted_watch: list[FittedPackWatch | None] = [
+            FittedPackWatch(fitted_prior(prior_of_spec(p, pack_matrix[b])), capacity_rel_sd=config.capacity_rel_sigma)
+            if config.fitted_set_as_prior and calib[b] is None and b not in ext_vectors else None
+            for b, p in enumerate(vehicle.packs)]
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
         self.packs = PackFilterBank(pack_matrix, config.pack)
         # packs of the extended variant (docs/model.md) are estimated by their own filter; the paper
@@ -414,6 +425,9 @@ class StateEstimator:
             packs.initialised[b] = initialised = False
             if cal is not None:
                 cal.initialised = False
+            watch = self.fitted_watch[b]
+            if watch is not None:
+                watch.calibrator.initialised = False
             if ext_row >= 0:
                 self.ext.initialised[ext_row] = False
             self._i_sum[b], self._i_n[b] = 0.0, 0
@@ -431,6 +445,10 @@ class StateEstimator:
                         cal.initialise(t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
                         self._calibrator_temp[b] = (t, temp)
                     self._sync_paper(b)
+                elif self.fitted_watch[b] is not None and not self.fitted_watch[b].calibrator.initialised:
+                    self.fitted_watch[b].calibrator.initialise(
+                        t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+                    self._calibrator_temp[b] = (t, temp)
                 self._pack_time[b] = t
             if t > self.time_s:
                 self.time_s = t
@@ -478,26 +496,57 @@ class StateEstimator:
         if cal is not None:
             cal.step(t, dt, i_used, v, self._calibrator_temperature(b, t, temp))
             self._sync_paper(b)
-            flipped = (not cal.voltage_trusted) != self._mismatch_active[b]
+            flipped = self._calibrated_mismatch(b) != self._mismatch_active[b]
+        elif self.fitted_watch[b] is not None:
+            self._watch_fitted(b, t, dt, i_used, v, temp)
         if flipped or self._mismatch_active[b]:
             self._mismatch_changed(b, t)
         if t > self.time_s:
             self.time_s = t
         return b
 
-    def _calibrator_temperature(self, b: int, t: float, temp: float) -> float:
+    def _calibrator_temperature(self, b: int, t: float, temp: float, count: bool = True) -> float:
         """The pack temperature the calibrator steps with: the reading, unless it jumped further than
-        the pack can heat or cool since the last reading believed (then that one, counted); the
-        thermal model's temperature when nothing is read."""
+        the pack can heat or cool since the last reading believed (then that one, counted unless
+        ``count`` is off: a fitted pack's watch leaves the estimator's counters as the set's filter
+        has them); the thermal model's temperature when nothing is read."""
         if not math.isfinite(temp):
             return float(self.packs.mean[b, kernel.S_T])
         last_t, last = self._calibrator_temp[b]
         if math.isfinite(last) and abs(temp - last) > (CALIBRATOR_TEMP_SLEW_K_PER_S * (t - last_t)
                                                        + CALIBRATOR_TEMP_SLACK_K):
-            self.counters["temperature_jumps_held"] += 1
+            if count:
+                self.counters["temperature_jumps_held"] += 1
             return last
         self._calibrator_temp[b] = (t, temp)
         return temp
+
+    def _watch_fitted(self, b: int, t: float, dt: float, current: float, v: float, temp: float) -> None:
+        """Step fitted pack ``b``'s watching calibrator; when the flight contradicts its set, the
+        calibrator becomes the pack's filter from this frame on (``estimation.fitted_prior``)."""
+        watch = self.fitted_watch[b]
+        cal = watch.calibrator
+        if not cal.initialised:
+            return
+        cal.step(t, dt, current, v, self._calibrator_temperature(b, t, temp, count=False))
+        window = self.packs.consistency
+        why = watch.contradiction(t, *self.paper_soc(b), float(window.statistic()[b, 0]) / window.raise_at)
+        if why is None:
+            return
+        watch.contradicted_at_s, watch.reason = t, why
+        self.calib[b] = cal
+        self.counters["fitted_set_contradicted"] += 1
+        log.warning("pack %s at t=%.1f s: %s; its SoC is the self-calibrating filter's from now on",
+                    self.pack_names[b], t, why)
+        self._sync_paper(b)
+
+    def paper_soc(self, b: int) -> tuple[float, float]:
+        """Pack ``b``'s SoC and σ as its paper filter reports them (``estimate`` of a fitted pack):
+        the σ with the set's capacity's (``capacity_rel_sigma``)."""
+        p, q = self.packs.params[b], self.packs.mean[b, kernel.S_QB]
+        soc = float(1.0 - (p[kernel.I_QMAX] - q) / p[kernel.I_CMAX])
+        sd = math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / float(p[kernel.I_CMAX])
+        return soc, math.hypot(sd, self.config.capacity_rel_sigma * min(max(1.0 - soc, 0.0), 1.0))
 
     def _sync_paper(self, b: int) -> None:
         """The paper filter of a self-calibrated pack carries its SoC (mean and variance of q_b) for
@@ -519,7 +568,7 @@ class StateEstimator:
     def _mismatch_changed(self, b: int, t: float) -> None:
         cal = self.calib[b]
         if cal is not None:
-            now = not cal.voltage_trusted
+            now = self._calibrated_mismatch(b)
         else:
             window, row = self._window_of(b)
             now = bool(window.active[row].any())
@@ -674,6 +723,13 @@ class StateEstimator:
             out["state"] = "matches"
         return out
 
+    def _calibrated_mismatch(self, b: int) -> bool:
+        """Whether self-calibrated pack ``b`` fails its model-consistency test: its calibrator does
+        not trust the voltage, or it is a fitted pack whose set the flight contradicted (the set no
+        longer describes it: the advisory says so, and to refit it)."""
+        watch = self.fitted_watch[b]
+        return not self.calib[b].voltage_trusted or (watch is not None and watch.reason is not None)
+
     def _calibration_check(self, b: int) -> dict:
         """``model_check`` of a self-calibrated pack: whether its voltage is trusted, and why not."""
         cal = self.calib[b]
@@ -683,12 +739,18 @@ class StateEstimator:
                "channels": ["voltage"] if active else [],
                "since_s": None if not math.isfinite(self._mismatch_since[b]) else round(float(self._mismatch_since[b]), 3),
                "prediction_inflation": 1.0, "calibration": rep}
+        watch = self.fitted_watch[b]
+        if watch is not None:  # a fitted pack whose set the flight contradicted
+            out["fitted_set"] = {"contradicted_at_s": round(float(watch.contradicted_at_s), 3), "reason": watch.reason}
         if not cal.initialised:
             out["state"], out["reason"] = "unknown", "not judged yet: no voltage reading"
         elif active:
             out["state"] = "mismatch"
-            out["reason"] = (f"pack {self.pack_names[b]}: {cal.why_not_voltage}; its SoC follows the charge drawn "
-                             f"(σ grows with the capacity's uncertainty)")
+            why = [f"{watch.reason}; its SoC is the self-calibrating filter's"] if watch is not None else []
+            if not cal.voltage_trusted:
+                why.append(f"{cal.why_not_voltage}; its SoC follows the charge drawn (σ grows with the capacity's "
+                           f"uncertainty)")
+            out["reason"] = f"pack {self.pack_names[b]}: " + "; ".join(why)
             out["suggestion"] = refit_suggestion(self.pack_names[b])
         else:
             out["state"] = "matches"

@@ -79,7 +79,8 @@ class PackSpec(_Strict):
     #: whether the pack reports its temperature (False: estimated from the thermal model)
     reports_temperature: bool = True
     #: whether the estimator learns the pack's open-circuit curve and resistance in flight from its
-    #: prior (False: its ``parameters`` are flown as they are, e.g. the paper's fitted packs)
+    #: prior (False: its ``parameters`` are flown as they are, e.g. the paper's fitted packs, until a
+    #: flight contradicts them: ``estimation.fitted_prior``)
     self_calibrate: bool = True
 
     @property

@@ -23,7 +23,7 @@ def _edge540() -> dict:
                        "two motors on one shaft",
         "packs": [{"name": n, "mavlink_battery_id": i, "cells_series": 5, "capacity_mah": 7800.0,
                    "chemistry": "lipo", "cutoff_v_per_cell": limits.pack_cutoff_v / 5,
-                   "max_temp_c": limits.pack_max_temp_c, "self_calibrate": False,  # the paper's fitted packs
+                   "max_temp_c": limits.pack_max_temp_c, "self_calibrate": False,  # fitted: flown as set until a flight contradicts it (fitted_prior)
                    "parameters": {"set": default_set().name, "pack": n}} for i, n in enumerate(PACK_NAMES)],
         "motors": [{"name": n, "esc_index": i, "max_temp_c": limits.motor_max_temp_c, "parameter_set": default_set().name}
                    for i, n in enumerate(("fwd", "aft"))],
