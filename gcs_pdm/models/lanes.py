@@ -40,8 +40,16 @@ N_EXT_STEP_PARAMS = E_OCV0 + 1
 # rows of the per-lane float table: the power demand's drag factor, I_0 of the first motor (or 1),
 # how many motors share the shortfall, whether every motor is dead, energy drawn, time flown
 (F_DRAG, F_I0_SCALE, F_N_LEAST, F_DEAD, F_ENERGY, F_ELAPSED) = range(6)
-# a pack's accumulators: rows a * P + b of ``acc``
+# a pack's accumulators: rows b * N_ACC + a of ``acc``
 (A_MIN_V, A_MAX_TP, A_CHARGE, A_END_ENERGY, A_PEAK_TP) = range(5)
+N_ACC = 5
+#: rows of a pack's state in the block's state table (pack b's state s: row b * XW + s), the widest
+#: state (the extended pack's; a paper pack's PACK_STATE fills the first four). Every table's row
+#: offsets are compile-time multiples (XW, N_ACC, N_PACK_PARAMS …): with a run-time stride LLVM can
+#: neither tell two rows of one table apart nor merge them, so each lane loop needed run-time
+#: overlap checks between every pair of rows, and it took its scalar loop instead of the SIMD one
+#: (docs/notes/2026-11-27-extended-mc-3.md)
+XW = 5
 # a motor's rows q * N_MOTOR_ROWS + · of ``mot``: its MOTOR_PARAMS (M_*), then these
 (MF_CAP, MF_MULT, MF_FAULT, MF_LEAST, MF_TEMP, MF_DT, MF_DECAY, MF_MAX_T, MF_PEAK_T) = range(N_MOTOR_PARAMS,
                                                                                           N_MOTOR_PARAMS + 9)
@@ -70,6 +78,18 @@ def _simulate(pack_params, ext_params, is_ext, motor_params, x0, tm0, dt, shaft_
                         peak_tp, peak_tm)
 
 
+@njit(inline="always", **_JIT)
+def _lane_inputs(profile, own, k, lane_int, na, out):
+    """Step ``k`` of a profile for each active lane: its sample's row, or the one shared row."""
+    if own:
+        for l in range(na):
+            out[l] = profile[lane_int[L_SAMPLE, l], k]
+    else:
+        shared = profile[0, k]
+        for l in range(na):
+            out[l] = shared
+
+
 @njit(**_JIT)
 def _swap_lanes(a, l1, l2):
     for r in range(a.shape[0]):
@@ -92,12 +112,14 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
     n_motors = tm0.shape[1]
     n_bus = bus_parallel.shape[0]
     width = x0.shape[2]  # a paper pack's PACK_STATE in its first four rows, an extended pack's EXT_PACK_STATE
+    if width > XW:
+        raise ValueError("a pack state wider than the block's state rows (XW)")
     record = slot_of_step.shape[0] == n
     dt_own, power_own, ambient_own = dt.shape[0] > 1, shaft_power.shape[0] > 1, ambient.shape[0] > 1
     # ---- the block's tables, lane innermost; every one with per-lane state is swapped with the lane
     lane_int = np.empty((6, LANES), dtype=np.int64)
     lane_f = np.empty((6, LANES))
-    xs = np.empty((n_packs * width, LANES))                # pack b's state s: row b * width + s
+    xs = np.empty((n_packs * XW, LANES))                   # pack b's state s: row b * XW + s
     v = np.empty((n_packs, LANES))                         # terminal voltages
     pt = np.empty((n_packs * N_PACK_PARAMS, LANES))        # paper packs' parameters
     cache = np.empty((n_packs * N_STEP_CACHE, LANES))      # and their step caches (kernel._pack_advance_cached)
@@ -107,7 +129,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
     ext_n_sub = np.empty((n_packs, LANES), dtype=np.int64)  # in so many sub-steps
     knot_row = np.empty((n_packs, LANES), dtype=np.int64)  # row of the OCV knot tables below
     ocv_c = np.empty((n_packs * N_OCV_CACHE, LANES))       # and the knot interval each pack last used
-    acc = np.empty((5 * n_packs, LANES))
+    acc = np.empty((N_ACC * n_packs, LANES))
     pack_end = np.empty((n_packs, LANES), dtype=np.int64)
     mot = np.empty((n_motors * N_MOTOR_ROWS, LANES))
     # not swapped: tables a lane keeps its row of (the knots) and each step's scratch
@@ -141,11 +163,9 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                     lane_int, lane_f, xs, v, pt, cache, et, ext_dt, knot_row, ocv_c, acc, pack_end, mot, ky, kd, x_row)
     k = 0
     while k < n and na > 0:
-        for l in range(na):
-            j = lane_int[L_SAMPLE, l]
-            h_l[l] = dt[j if dt_own else 0, k]
-            power_l[l] = shaft_power[j if power_own else 0, k]
-            amb_l[l] = ambient[j if ambient_own else 0, k]
+        _lane_inputs(dt, dt_own, k, lane_int, na, h_l)
+        _lane_inputs(shaft_power, power_own, k, lane_int, na, power_l)
+        _lane_inputs(ambient, ambient_own, k, lane_int, na, amb_l)
         # ---- the buses and the motors' currents
         for u in range(n_bus):
             for l in range(na):
@@ -226,7 +246,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
         for l in range(na):
             flying[l] = lane_int[L_FAIL_K, l] < 0  # a sample up to and including its first failure
         for b in range(n_packs):
-            o = b * width
+            o = b * XW
             if is_ext[b]:
                 for l in range(na):
                     soc[b, l] = xs[o + X_SOC, l]
@@ -234,34 +254,43 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                 po = b * N_PACK_PARAMS
                 for l in range(na):
                     soc[b, l] = 1.0 - (pt[po + I_QMAX, l] - xs[o + S_QB, l]) / pt[po + I_CMAX, l]
-            for l in range(na):
+            # three loops, each writing one table (fewer run-time overlap checks: see XW)
+            a = b * N_ACC
+            for l in range(na):  # the accumulators
                 vv = v[b, l]
                 i_b = ipack[b, l]
                 temp = xs[o + S_T, l]
-                sc = soc[b, l]
                 h = h_l[l]
-                acc[A_CHARGE * n_packs + b, l] += i_b * h
-                m = acc[A_MIN_V * n_packs + b, l]
-                acc[A_MIN_V * n_packs + b, l] = vv if vv < m else m
-                m = acc[A_MAX_TP * n_packs + b, l]
-                acc[A_MAX_TP * n_packs + b, l] = temp if temp > m else m
-                open_end = pack_end[b, l] < 0
+                acc[a + A_CHARGE, l] += i_b * h
+                m = acc[a + A_MIN_V, l]
+                acc[a + A_MIN_V, l] = vv if vv < m else m
+                m = acc[a + A_MAX_TP, l]
+                acc[a + A_MAX_TP, l] = temp if temp > m else m
                 w = vv * i_b
-                e = acc[A_END_ENERGY * n_packs + b, l]
-                acc[A_END_ENERGY * n_packs + b, l] = e + (w if math.isfinite(w) else 0.0) * h if open_end else e
-                pack_end[b, l] = k if open_end and (vv < cutoff_v[b] or sc <= 0.0) else pack_end[b, l]
-                m = acc[A_PEAK_TP * n_packs + b, l]
-                acc[A_PEAK_TP * n_packs + b, l] = temp if flying[l] and temp > m else m
-                c = (FAIL_DEPLETED if sc <= 0.0 else FAIL_UNDERVOLTAGE if vv < cutoff_v[b]
-                     else FAIL_PACK_OVERTEMP if temp > pack_max_t[b] else FAIL_NONE)
+                e = acc[a + A_END_ENERGY, l]
+                acc[a + A_END_ENERGY, l] = e + (w if math.isfinite(w) else 0.0) * h if pack_end[b, l] < 0 else e
+                m = acc[a + A_PEAK_TP, l]
+                acc[a + A_PEAK_TP, l] = temp if flying[l] & (temp > m) else m
+            cut, t_max = cutoff_v[b], pack_max_t[b]
+            for l in range(na):  # its end: cut-off or empty
+                pe = pack_end[b, l]
+                pack_end[b, l] = k if (pe < 0) & ((v[b, l] < cut) | (soc[b, l] <= 0.0)) else pe
+            for l in range(na):  # the first failure's cause
+                c = FAIL_PACK_OVERTEMP if xs[o + S_T, l] > t_max else FAIL_NONE
+                c = FAIL_UNDERVOLTAGE if v[b, l] < cut else c
+                c = FAIL_DEPLETED if soc[b, l] <= 0.0 else c
                 cause[l] = c if cause[l] == FAIL_NONE else cause[l]
         for q in range(n_motors):
             o = q * N_MOTOR_ROWS
-            for l in range(na):  # the decay's exp only when the interval changes (kernel._motor_decay)
-                h = h_l[l]
-                if not h <= 0.0 and h != mot[o + MF_DT, l]:
-                    mot[o + MF_DECAY, l] = math.exp(-h * mot[o + M_H, l] / mot[o + M_CT, l])
-                    mot[o + MF_DT, l] = h
+            n_new = 0  # the decay's exp only when the interval changes (kernel._motor_decay)
+            for l in range(na):
+                n_new += (not h_l[l] <= 0.0) & (h_l[l] != mot[o + MF_DT, l])
+            if n_new:
+                for l in range(na):
+                    h = h_l[l]
+                    if not h <= 0.0 and h != mot[o + MF_DT, l]:
+                        mot[o + MF_DECAY, l] = math.exp(-h * mot[o + M_H, l] / mot[o + M_CT, l])
+                        mot[o + MF_DT, l] = h
             for l in range(na):  # kernel._thermal_step
                 i_q = imot[q, l]
                 i0 = mot[o + M_I0, l]
@@ -274,8 +303,11 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                 m = mot[o + MF_MAX_T, l]
                 mot[o + MF_MAX_T, l] = temp if temp > m else m
                 m = mot[o + MF_PEAK_T, l]
-                mot[o + MF_PEAK_T, l] = temp if flying[l] and temp > m else m
-                cause[l] = FAIL_MOTOR_OVERTEMP if cause[l] == FAIL_NONE and temp > motor_max_t[q] else cause[l]
+                mot[o + MF_PEAK_T, l] = temp if flying[l] & (temp > m) else m
+            t_max = motor_max_t[q]
+            for l in range(na):
+                over = (cause[l] == FAIL_NONE) & (mot[o + MF_TEMP, l] > t_max)
+                cause[l] = FAIL_MOTOR_OVERTEMP if over else cause[l]
         slot = slot_of_step[k] if record else -1
         if slot >= 0:
             for l in range(na):
@@ -283,7 +315,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                 for b in range(n_packs):
                     rec_v[j, slot, b] = v[b, l]
                     rec_i[j, slot, b] = ipack[b, l]
-                    rec_t[j, slot, b] = xs[b * width + S_T, l]
+                    rec_t[j, slot, b] = xs[b * XW + S_T, l]
                     rec_soc[j, slot, b] = soc[b, l]
                 for q in range(n_motors):
                     rec_mi[j, slot, q] = imot[q, l]
@@ -331,21 +363,25 @@ def _paper_packs_step(b, na, pp, pt, xs, width, cache, lane_int, h_l, ipack, amb
                       cache_row):
     """Paper pack ``b`` of every active lane over one interval (``kernel._pack_advance_cached``'s
     cache set as it sets it): the lanes that take one step together, others one by one."""
-    po, o, co = b * N_PACK_PARAMS, b * width, b * N_STEP_CACHE
-    n_simple = 0
-    for l in range(na):
-        h = h_l[l]
-        simple[l] = False
-        if not h <= 0.0:  # as _pack_advance_cached: a NaN interval steps (to NaN)
-            if h != cache[co + C_DT, l]:
+    po, o, co = b * N_PACK_PARAMS, b * XW, b * N_STEP_CACHE
+    n_new = 0  # lanes whose interval changed (a SIMD count; their caches are set below)
+    for l in range(na):  # as _pack_advance_cached: a NaN interval steps (to NaN)
+        n_new += (not h_l[l] <= 0.0) & (h_l[l] != cache[co + C_DT, l])
+    if n_new:
+        for l in range(na):
+            h = h_l[l]
+            if not h <= 0.0 and h != cache[co + C_DT, l]:
                 n_sub, h_sub = kernel._substeps(h, max_dt)
                 cache[co + C_NSUB, l] = n_sub
                 cache[co + C_H, l] = h_sub
                 cache[co + C_DECAY_S, l], cache[co + C_DECAY_T, l] = kernel._fixed_decays(
                     pp, lane_int[L_PACK_ROW, l] + b, h_sub, cache[co + C_TAU_S, l])
                 cache[co + C_DT, l] = h
-            simple[l] = cache[co + C_NSUB, l] == 1
-            n_simple += simple[l]
+    n_simple = 0
+    for l in range(na):
+        one = (not h_l[l] <= 0.0) & (cache[co + C_NSUB, l] == 1)
+        simple[l] = one
+        n_simple += one
     if n_simple == na:
         _pack_step_soa(pt, po, xs, o, cache, co, b, 0, na, ipack, amb_l, v, work)
         return
@@ -368,20 +404,24 @@ def _ext_packs_step(b, na, ep, et, ky, kd, knot_row, ocv_c, xs, width, decay, ex
                     amb_l, v, max_dt, simple, work, x_row):
     """Extended pack ``b`` of every active lane over one interval (``kernel._ext_advance``, its
     decays computed once per interval): the lanes that take one step together, others one by one."""
-    eo, o, do, oo = b * N_EXT_STEP_PARAMS, b * width, b * N_EXT_DECAYS, b * N_OCV_CACHE
-    n_simple = 0
+    eo, o, do, oo = b * N_EXT_STEP_PARAMS, b * XW, b * N_EXT_DECAYS, b * N_OCV_CACHE
+    n_new = 0  # lanes whose interval changed (a SIMD count; their decays are computed below)
     for l in range(na):
-        h = h_l[l]
-        simple[l] = False
-        if h > 0.0:
-            if h != ext_dt[b, l]:
+        n_new += (h_l[l] > 0.0) & (h_l[l] != ext_dt[b, l])
+    if n_new:
+        for l in range(na):
+            h = h_l[l]
+            if h > 0.0 and h != ext_dt[b, l]:
                 n_sub, h_sub, d1, d2, dd, dtt = _ext_decays(ep[lane_int[L_EXT_ROW, l] + b], h, max_dt)
                 ext_n_sub[b, l] = n_sub
                 decay[do + D_H, l], decay[do + D_1, l], decay[do + D_2, l] = h_sub, d1, d2
                 decay[do + D_D, l], decay[do + D_T, l] = dd, dtt
                 ext_dt[b, l] = h
-            simple[l] = ext_n_sub[b, l] == 1
-            n_simple += simple[l]
+    n_simple = 0
+    for l in range(na):
+        one = (h_l[l] > 0.0) & (ext_n_sub[b, l] == 1)
+        simple[l] = one
+        n_simple += one
     if n_simple == na:
         _ext_step_soa(et, eo, ky, kd, knot_row, ocv_c, oo, xs, o, decay, do, b, 0, na, ipack, amb_l, v, work)
         return
@@ -416,7 +456,7 @@ def _start_lane(l, j, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault
     lane_int[L_FAIL_K, l] = -1
     lane_int[L_FAIL_CAUSE, l] = FAIL_NONE
     for b in range(n_packs):
-        o, po = b * width, b * N_PACK_PARAMS
+        o, po = b * XW, b * N_PACK_PARAMS
         i = lane_int[L_PACK_ROW, l] + b
         for s in range(width):
             xs[o + s, l] = x0[j, b, s]
@@ -438,11 +478,11 @@ def _start_lane(l, j, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault
                        - xs[o + S_QS, l] / pt[po + I_CS, l])
             cache[b * N_STEP_CACHE + C_DT, l] = -1.0  # no interval seen yet (kernel._reset_step_cache)
             cache[b * N_STEP_CACHE + C_TAU_S, l] = pt[po + I_RS, l] * pt[po + kernel.I_CS, l]
-        acc[A_MIN_V * n_packs + b, l] = v[b, l]
-        acc[A_MAX_TP * n_packs + b, l] = xs[o + S_T, l]
-        acc[A_CHARGE * n_packs + b, l] = 0.0
-        acc[A_END_ENERGY * n_packs + b, l] = 0.0
-        acc[A_PEAK_TP * n_packs + b, l] = -np.inf
+        acc[b * N_ACC + A_MIN_V, l] = v[b, l]
+        acc[b * N_ACC + A_MAX_TP, l] = xs[o + S_T, l]
+        acc[b * N_ACC + A_CHARGE, l] = 0.0
+        acc[b * N_ACC + A_END_ENERGY, l] = 0.0
+        acc[b * N_ACC + A_PEAK_TP, l] = -np.inf
         pack_end[b, l] = -1
     f = fault[j if fault.shape[0] > 1 else 0]
     m0 = lane_int[L_MOTOR_ROW, l]
@@ -484,12 +524,12 @@ def _finish_lane(l, lane_int, lane_f, xs, width, acc, pack_end, mot, final_x, fi
     n_packs, n_motors = final_x.shape[1], final_tm.shape[1]
     for b in range(n_packs):
         for s in range(width):
-            final_x[j, b, s] = xs[b * width + s, l]
-        min_v[j, b] = acc[A_MIN_V * n_packs + b, l]
-        max_tp[j, b] = acc[A_MAX_TP * n_packs + b, l]
-        charge[j, b] = acc[A_CHARGE * n_packs + b, l]
-        end_energy[j, b] = acc[A_END_ENERGY * n_packs + b, l]
-        peak_tp[j, b] = acc[A_PEAK_TP * n_packs + b, l]
+            final_x[j, b, s] = xs[b * XW + s, l]
+        min_v[j, b] = acc[b * N_ACC + A_MIN_V, l]
+        max_tp[j, b] = acc[b * N_ACC + A_MAX_TP, l]
+        charge[j, b] = acc[b * N_ACC + A_CHARGE, l]
+        end_energy[j, b] = acc[b * N_ACC + A_END_ENERGY, l]
+        peak_tp[j, b] = acc[b * N_ACC + A_PEAK_TP, l]
         end_k[j, b] = pack_end[b, l]
     for q in range(n_motors):
         o = q * N_MOTOR_ROWS
