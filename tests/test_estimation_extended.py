@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from gcs_pdm.estimation.estimator import StateEstimator
+from gcs_pdm.estimation.estimator import EstimatorConfig, StateEstimator
 from gcs_pdm.estimation.prediction import FutureLoad, predict_from_estimator, predict_packs_at_current
 from gcs_pdm.frames import PackFrame
 from gcs_pdm.models import kernel, topology
@@ -74,15 +74,23 @@ def test_extended_packs_are_tracked_by_their_own_filter(flown):
 
 def test_the_paper_estimator_on_extended_cells_says_mismatch(flown):
     """The same telemetry through the paper variant's values: its straight-line OCV cannot follow
-    the curved one, and the consistency test says so (the SoC it reports is far off)."""
+    the curved one, and the consistency test says so (the SoC it reports is far off). With the set
+    as a prior (``estimation.fitted_prior``, the default) every pack's set is contradicted and the
+    advisory says to refit; the self-calibrating filter that takes over starts from the same set's
+    curve, so its SoC is no better here (docs/notes/2026-11-27-fitted-pack-prior.md)."""
     ps, frames, run, _ = flown
-    est = StateEstimator(default_set())
+    est = StateEstimator(default_set(), EstimatorConfig(fitted_set_as_prior=False))
     for f in frames:
         est.consume(f)
     e = est.estimate()
     assert est.counters["model_mismatch_raised"] >= 4
     assert all(c["active"] and c["model"] == "paper" for c in e.model_mismatch.values())
     assert np.all(np.abs(e.soc - run.soc[:, -1]) > 0.1)
+    watched = StateEstimator(default_set())
+    for f in frames:
+        watched.consume(f)
+    assert watched.counters["fitted_set_contradicted"] == 4
+    assert all(c["active"] for c in watched.estimate().model_mismatch.values())
 
 
 def test_a_mixed_set_runs_each_pack_on_its_own_variant():
