@@ -543,10 +543,15 @@ class StateEstimator:
     def paper_soc(self, b: int) -> tuple[float, float]:
         """Pack ``b``'s SoC and σ as its paper filter reports them (``estimate`` of a fitted pack):
         the σ with the set's capacity's (``capacity_rel_sigma``)."""
-        p, q = self.packs.params[b], self.packs.mean[b, kernel.S_QB]
-        soc = float(1.0 - (p[kernel.I_QMAX] - q) / p[kernel.I_CMAX])
+        p = self.packs.params[b]
+        soc = float(kernel.state_of_charge(p, self.packs.mean[b]))
         sd = math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / float(p[kernel.I_CMAX])
-        return soc, math.hypot(sd, self.config.capacity_rel_sigma * min(max(1.0 - soc, 0.0), 1.0))
+        return soc, float(self._with_capacity_sd(soc, sd))
+
+    def _with_capacity_sd(self, soc, soc_sd):
+        """A paper filter's SoC σ as reported: its own, with the set's capacity's uncertainty, which
+        the filter cannot see (``capacity_rel_sigma`` of the charge drawn)."""
+        return np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
 
     def _sync_paper(self, b: int) -> None:
         """The paper filter of a self-calibrated pack carries its SoC (mean and variance of q_b) for
@@ -854,7 +859,7 @@ class StateEstimator:
             order = [self.ext_row[b] for b in rows]
             soc[rows], soc_sd[rows], tp[rows], tp_sd[rows] = e_soc[order], e_sd[order], e_t[order], e_tsd[order]
             v[rows] = self.ext.voltage(np.nan_to_num(self.pack_current[rows]))[order]
-        soc_sd = np.hypot(soc_sd, self.config.capacity_rel_sigma * np.clip(1.0 - soc, 0.0, 1.0))
+        soc_sd = self._with_capacity_sd(soc, soc_sd)
         for b, cal in enumerate(self.calib):
             if cal is not None:  # its σ carries the capacity's uncertainty itself
                 soc[b], soc_sd[b] = cal.soc, cal.soc_sd
