@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -202,6 +203,147 @@ def _range(values: list) -> list | None:
     return [min(known), max(known)] if known else None
 
 
+#: the leave-one-out comparison over every published Li-ion cell (``--family``): what a cell reads
+#: through the product with, as its ``liion`` table, ``single`` = one published curve, never the
+#: cell's own (the table before 2026-11-27 was Chen2020's: the other cells read through it; Chen2020
+#: through each of the other three in turn, its median flight kept), ``family`` = the mean of the
+#: OTHER published curves (the product's table had the cell been unknown), ``chen_table`` = Chen2020's
+#: curve (not leave-one-out for Chen2020) and ``as_shipped`` = the product's table (the mean of all
+#: four: not leave-one-out for any of these cells)
+FAMILY_PRIORS = ("single", "family", "chen_table", "as_shipped")
+
+
+@contextmanager
+def liion_table(ocv_cell_v: tuple, source: str):
+    """The product with ``ocv_cell_v`` as its ``liion`` table (the circuit priors stay the table's):
+    every path that reads ``chemistry("liion")`` — the prior, the family's count in flight, the
+    count-down — sees it, as if the product had shipped it."""
+    from gcs_pdm.models import chemistry as chem_mod
+
+    shipped = chem_mod.CHEMISTRIES["liion"]
+    chem_mod.CHEMISTRIES["liion"] = replace(shipped, ocv_cell_v=tuple(ocv_cell_v), source=source)
+    try:
+        yield
+    finally:
+        chem_mod.CHEMISTRIES["liion"] = shipped
+
+
+def flight_through_product(root: Path, flight: dict, sets: dict) -> dict:
+    """One flight from the ``liion`` chemistry prior only (``pybamm_flight_soc``, the product's path):
+    its errors (``_errors``) and, if it reaches cut-off, the count-down's median at half-way over the
+    time truly left, minus 1, and whether its 5-95 % holds the truth."""
+    import pyarrow.parquet as pq
+
+    from gcs_pdm.estimation.calibration import PackPrior
+    from gcs_pdm.replay.calibration_eval import pybamm_flight_soc
+
+    s = sets[flight["set"]]
+    prior = PackPrior("liion", CELLS, s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0)
+    track, ttc = pybamm_flight_soc(root, flight, sets, chemistry="liion", prior=prior, cells=CELLS)
+    current = np.asarray(pq.read_table(root / flight["file"], columns=["current_a"]).column(0).to_numpy(), float)
+    out = _errors(track.time_s, current, track.soc, track.soc_sd, track.reference)
+    if ttc and ttc["true_s"] > 0 and np.isfinite(ttc["predicted_s"]):
+        out["ttc_rel_error_at_half"] = round(ttc["predicted_s"] / ttc["true_s"] - 1.0, 3)
+        out["ttc_interval_holds_truth"] = bool(ttc["low_s"] <= ttc["true_s"] <= ttc["high_s"])
+        # every minute from half-way while a minute is left: (within 10 %, 5-95 % holds the truth)
+        out["ttc_later"] = [(bool(abs(med / true - 1.0) <= 0.10), bool(lo <= true <= hi))
+                            for true, lo, med, hi in ttc["later"]]
+    return out
+
+
+def family_figures(rows: list[dict], key: str) -> dict:
+    """Within 0.05 after 5 min, median largest error, median |take-off error|, mean and least 2σ
+    share after 5 min, and the time to cut-off at half-way (within 10 %; 5-95 % holds the truth)."""
+    res = [r[key] for r in rows]
+    errs = [x["max_abs_error_after_5min"] for x in res]
+    ttc = [x["ttc_rel_error_at_half"] for x in res if "ttc_rel_error_at_half" in x]
+    return {"within_0.05_after_5min": f"{sum(e <= 0.05 for e in errs)}/{len(errs)}",
+            "median_max_abs_error": round(float(np.median(errs)), 3),
+            "median_abs_error_at_takeoff": round(float(np.median([abs(x["error_at_takeoff"]) for x in res])), 3),
+            "within_2sd_mean": round(float(np.mean([x["within_2sd_after_5min"] for x in res])), 3),
+            "within_2sd_min": round(float(np.min([x["within_2sd_after_5min"] for x in res])), 3),
+            "ttc_within_10pct_at_half": f"{sum(abs(e) <= 0.10 for e in ttc)}/{len(ttc)}",
+            "ttc_interval_holds_truth": f"{sum(x.get('ttc_interval_holds_truth', False) for x in res)}/{len(ttc)}",
+            "ttc_every_minute_within_10pct": f"{sum(w for x in res for w, _ in x.get('ttc_later', []))}"
+                                             f"/{sum(len(x.get('ttc_later', [])) for x in res)}",
+            "ttc_every_minute_interval_holds": f"{sum(h for x in res for _, h in x.get('ttc_later', []))}"
+                                               f"/{sum(len(x.get('ttc_later', [])) for x in res)}"}
+
+
+def check_stored_curves(curves: dict) -> None:
+    """The product's ``LIION_PUBLISHED_CURVES`` are the published sets' curves (to 1 mV)."""
+    from gcs_pdm.models.liion_family import LIION_PUBLISHED_CURVES
+
+    for c in LIION_PUBLISHED_CURVES:
+        gap = np.max(np.abs(np.asarray(c.ocv_cell_v) - np.asarray(curves[c.pybamm_set].ocv_cell_v)))
+        if gap > 1e-3:
+            raise SystemExit(f"models.liion_family's {c.pybamm_set} curve is {gap:.4f} V off its published set's")
+
+
+def loo_rest_misread(probe=np.linspace(0.10, 0.95, 86)) -> dict:
+    """Per published cell, its SoC (10-95 %) read at rest through the mean of the OTHER curves, minus
+    the truth: largest, rms and mean; and the rms over all four (what the family's rest σ must hold)."""
+    from gcs_pdm.models.chemistry import SOC_GRID
+    from gcs_pdm.models.liion_family import LIION_PUBLISHED_CURVES, family_mean
+
+    soc, out, squares = np.asarray(SOC_GRID), {}, []
+    for c in LIION_PUBLISHED_CURVES:
+        others = family_mean(tuple(o for o in LIION_PUBLISHED_CURVES if o is not c))
+        err = np.interp(np.interp(probe, soc, c.ocv_cell_v), np.asarray(others), soc) - probe
+        squares.append(np.mean(err ** 2))
+        out[c.pybamm_set] = {"max": round(float(np.max(np.abs(err))), 3), "rms": round(float(np.sqrt(squares[-1])), 3),
+                             "mean": round(float(np.mean(err)), 3)}
+    out["rms_all"] = round(float(np.sqrt(np.mean(squares))), 3)
+    return out
+
+
+def family_loo(heldout: Path) -> dict:
+    """Every published Li-ion cell's flights (the fixtures' Chen2020 and the held-out sets) through
+    the product with each ``FAMILY_PRIORS`` table; per cell and over all of them
+    (``family_figures``), and per flight."""
+    from gcs_pdm.models.chemistry import chemistry
+    from gcs_pdm.models.liion_family import LIION_PUBLISHED_CURVES, family_mean
+
+    check_stored_curves(published_curves(heldout))
+    published = {c.pybamm_set: c for c in LIION_PUBLISHED_CURVES}
+    shipped = chemistry("liion")
+    sources = {"Chen2020": ROOT / "fixtures" / "pybamm"} | {name: heldout for name in published if name != "Chen2020"}
+    rows = []
+    for set_name, root in sources.items():
+        manifest = json.loads((root / "manifest.json").read_text())
+        others = tuple(c for name, c in published.items() if name != set_name)
+        singles = [published["Chen2020"]] if set_name != "Chen2020" else list(others)
+        tables = {"family": (family_mean(others), "mean of " + ", ".join(c.pybamm_set for c in others)),
+                  "chen_table": (published["Chen2020"].ocv_cell_v, published["Chen2020"].source),
+                  "as_shipped": (shipped.ocv_cell_v, shipped.source)}
+        for flight in [f for f in manifest["flights"] if f["set"] == set_name]:
+            row = {"flight": flight["flight"], "set": set_name, "reached_cutoff": flight.get("reached_cutoff", False)}
+            runs = []
+            for single in singles:
+                with liion_table(single.ocv_cell_v, single.source):
+                    runs.append(flight_through_product(root, flight, manifest["sets"]))
+            row["single"] = sorted(runs, key=lambda x: x["max_abs_error_after_5min"])[len(runs) // 2]
+            row["single_each"] = {c.pybamm_set: r["max_abs_error_after_5min"] for c, r in zip(singles, runs)}
+            for name, (ocv, source) in tables.items():
+                with liion_table(ocv, source):
+                    row[name] = flight_through_product(root, flight, manifest["sets"])
+            rows.append(row)
+            print(f"{row['flight']}: " + ", ".join(
+                f"{p} {row[p]['max_abs_error_after_5min']} (take-off {row[p]['error_at_takeoff']}, 2σ "
+                f"{row[p]['within_2sd_after_5min']}, ttc {row[p].get('ttc_rel_error_at_half')})" for p in FAMILY_PRIORS),
+                flush=True)
+    summary = {p: {"all": family_figures(rows, p),
+                   "heldout": family_figures([r for r in rows if r["set"] != "Chen2020"], p),
+                   **{name: family_figures([r for r in rows if r["set"] == name], p) for name in sources}}
+               for p in FAMILY_PRIORS}
+    for p in FAMILY_PRIORS:
+        print(f"{p}: " + "; ".join(f"{k} {v['within_0.05_after_5min']} (median {v['median_max_abs_error']}, take-off "
+                                   f"{v['median_abs_error_at_takeoff']}, 2σ {v['within_2sd_mean']}, ttc "
+                                   f"{v['ttc_within_10pct_at_half']}, every minute {v['ttc_every_minute_within_10pct']})"
+                                   for k, v in summary[p].items()), flush=True)
+    return {"summary": summary, "rest_misread_loo": loo_rest_misread(), "flights": rows}
+
+
 def main() -> None:
     import pyarrow.parquet as pq
 
@@ -212,8 +354,13 @@ def main() -> None:
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--heldout", type=Path, default=Path("/tmp/chen29_heldout"))
+    ap.add_argument("--family", action="store_true",
+                    help="only the leave-one-out comparison over every published Li-ion cell (family_loo)")
     args = ap.parse_args()
     logging.disable(logging.WARNING)  # each suspended voltage model warns once; the figures say it
+    if args.family:
+        print(json.dumps({"heldout": str(args.heldout), "family_loo": family_loo(args.heldout)}))
+        return
     manifest = json.loads((args.heldout / "manifest.json").read_text())
     curves = published_curves(args.heldout)
     rows = []

@@ -61,16 +61,22 @@ def test_chemistry_curves_rise_and_stay_within_their_limits():
     assert chemistry_of_rest_voltage(4.6) == "lipo"  # above every chemistry: not made a LiHV
 
 
-def test_nmc_curve_is_chen2020s_own():
+def test_liion_table_is_the_mean_of_the_published_curves_and_chen2020s_is_its_own():
     import json
+
+    from gcs_pdm.models.liion_family import LIION_PUBLISHED_CURVES
 
     curves = json.loads((Path(__file__).parents[1] / "fixtures" / "pybamm" / "curves.json").read_text())
     s, c = np.array(curves["stoichiometry"]), curves["sets"]["Chen2020"]
+    (chen,) = [p for p in LIION_PUBLISHED_CURVES if p.pybamm_set == "Chen2020"]
     for k, soc in enumerate(np.linspace(0.0, 1.0, 21)):
         x = c["x_0"] + soc * (c["x_100"] - c["x_0"])
         y = c["y_0"] + soc * (c["y_100"] - c["y_0"])
         ocv = np.interp(y, s, c["positive_v"]) - np.interp(x, s, c["negative_v"])
-        assert CHEMISTRIES["liion"].ocv_cell_v[k] == pytest.approx(ocv, abs=1e-3)
+        assert chen.ocv_cell_v[k] == pytest.approx(ocv, abs=1e-3)
+    assert {p.pybamm_set for p in LIION_PUBLISHED_CURVES} == {"Chen2020", "Ecker2015", "Mohtat2020", "NCA_Kim2011"}
+    table = np.mean([p.ocv_cell_v for p in LIION_PUBLISHED_CURVES], axis=0)
+    np.testing.assert_allclose(CHEMISTRIES["liion"].ocv_cell_v, table, atol=1e-4)
 
 
 def test_derivation_never_sets_a_full_cell_above_the_chemistry():

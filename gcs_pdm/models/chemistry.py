@@ -13,10 +13,11 @@ Where the curves come from (docs/estimation.md says the same):
   approximation of a typical cobalt-oxide polymer cell, not one maker's cell.
 * ``lihv`` — the same cell charged to 4.35 V: the LiPo table with the extra 0.15 V spread over
   the upper half of the curve (where a LiHV cell's curve differs), an approximation.
-* ``liion`` — NMC811/graphite–SiOx (LG M50), Chen et al. 2020, J. Electrochem. Soc. 167 080534:
-  the cell's own electrode curves as PyBaMM ships them (``fixtures/pybamm/curves.json``,
-  ``Chen2020``), full cell = positive − negative potential over the stoichiometry window.
-  NCA cells rest within a few tens of mV of it; this is the curve used for both.
+* ``liion`` — the mean of four published NMC/NCA-on-graphite cells' rested curves
+  (``models.liion_family``: Chen2020's LG M50, Ecker2015's Kokam pouch, Mohtat2020's 5 Ah pouch,
+  Kim2011's NCA cell; each the positive − negative electrode potential over its stoichiometry window
+  as PyBaMM ships it). Not one cell's: they read each other 0.10-0.23 of SoC apart at rest, and a
+  cell nobody measured reads closer to their mean (leave-one-out, docs/notes/2026-11-27-liion-family.md).
 * ``lifepo4`` — a typical LFP/graphite rest curve (plateau 3.28–3.34 V between 20 % and 90 %,
   3.45 V full, 2.5 V empty), an approximation of published A123-type cell curves; its plateau
   carries little SoC information, so its estimate rests on the charge count there.
@@ -27,6 +28,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from gcs_pdm.models.liion_family import family_mean
 
 #: the SoC grid of every table
 SOC_GRID = np.round(np.linspace(0.0, 1.0, 21), 3)
@@ -68,13 +71,6 @@ class Chemistry:
         return np.asarray(self.ocv_cell_v, dtype=np.float64)
 
 
-def _nmc_chen2020() -> tuple[float, ...]:
-    """Chen et al. 2020 (LG M50) rested curve on SOC_GRID, precomputed from PyBaMM's electrode
-    curves (fixtures/pybamm/curves.json, set Chen2020; tests/test_chemistry.py recomputes it)."""
-    return (2.4999, 3.1094, 3.2959, 3.4339, 3.4852, 3.5286, 3.5814, 3.629, 3.667, 3.7054, 3.7509, 3.7983, 3.8406,
-            3.8896, 3.9479, 3.9943, 4.0421, 4.0809, 4.0967, 4.1236, 4.2)
-
-
 _LIPO = (3.27, 3.61, 3.69, 3.71, 3.73, 3.75, 3.77, 3.79, 3.80, 3.82, 3.84, 3.85, 3.87, 3.91, 3.95, 3.98, 4.02,
          4.08, 4.11, 4.15, 4.20)
 
@@ -84,8 +80,9 @@ CHEMISTRIES: dict[str, Chemistry] = {
     "lihv": Chemistry("lihv", tuple(round(v + 0.15 * max(0.0, (s - 0.5) / 0.5), 4) for s, v in zip(SOC_GRID, _LIPO)),
                       4.35, 3.5, 4.40, 0.020, 0.5, 20.0, 2500.0,
                       "the LiPo chart with the 0.15 V of a 4.35 V charge spread over its upper half (approximation)"),
-    "liion": Chemistry("liion", _nmc_chen2020(), 4.20, 3.0, 4.25, 0.030, 0.6, 30.0, 3000.0,
-                       "NMC811 (LG M50), Chen et al. 2020, J. Electrochem. Soc. 167 080534, via PyBaMM"),
+    "liion": Chemistry("liion", family_mean(), 4.20, 3.0, 4.25, 0.030, 0.6, 30.0, 3000.0,
+                       "mean of the published NMC/NCA curves of Chen et al. 2020, Ecker et al. 2015, Mohtat et "
+                       "al. 2020 and Kim et al. 2011, via PyBaMM"),
     "lifepo4": Chemistry("lifepo4", (2.50, 3.00, 3.20, 3.23, 3.25, 3.265, 3.28, 3.285, 3.29, 3.295, 3.30, 3.305,
                                      3.31, 3.315, 3.32, 3.325, 3.33, 3.335, 3.34, 3.36, 3.45),
                          3.45, 2.8, 3.65, 0.015, 0.5, 30.0, 3000.0,
