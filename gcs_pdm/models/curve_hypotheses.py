@@ -81,7 +81,9 @@ def curve_hypotheses(name: str, full_cell_v: float | None = None) -> tuple[Curve
 #: relative spread of their slopes, which the voltage turns into an error in the charge it reads as
 #: drawn (the filter learned 0.77-1.49x the true capacity through a curve of the wrong slope).
 #: Measured in docs/notes/2026-11-27-honest-soc-sigma.md; a chemistry not listed has no measured
-#: spread and adds nothing (its σ is the filter's alone).
+#: spread and adds nothing (its σ is the filter's alone). Li-ion's table is the four curves' mean
+#: (``models.liion_family``): a cell read at rest through the mean of the OTHER three is 0.079 rms
+#: off (10-95 %), the 0.08 below (docs/notes/2026-11-27-liion-family.md).
 #: ``count_in_flight``: the filter holds the capacity at its prior and, under load, lets the voltage
 #: teach only the circuit — the SoC is the rested start plus the charge counted (its σ the capacity's)
 #: — instead of reading it through a slope it does not know (Li-ion: PyBaMM Chen2020 8 -> 12/12,
