@@ -48,8 +48,13 @@ table had the cell been unknown), Chen2020's curve (``chen_table``, the table be
 table (``as_shipped``); and each cell's rested misread through the mean of the others (the σ the
 family must carry). It checks first that ``models.liion_family``'s stored curves are the sets' own.
 
-Run: ``PYTHONPATH=$PWD python benchmarks/bench_heldout_cells.py [--heldout DIR] [--family]`` (≈ 3 min
-at load 2; ``--family`` ≈ 25 s). Prints one line per flight, then ONE JSON object.
+``--ttc-sources``: the flights that reach cut-off through the leave-one-out family table, then with
+their true start SoC given, then with their true capacity too: which part of the prior costs the
+time to cut-off.
+
+Run: ``PYTHONPATH=$PWD python benchmarks/bench_heldout_cells.py [--heldout DIR] [--family | --ttc-sources]``
+(≈ 3 min at load 2; ``--family`` ≈ 25 s, ``--ttc-sources`` ≈ 10 s). Prints one line per flight,
+then ONE JSON object.
 """
 from __future__ import annotations
 
@@ -239,17 +244,18 @@ def liion_table(ocv_cell_v: tuple, source: str):
         chem_mod.CHEMISTRIES["liion"] = shipped
 
 
-def flight_through_product(root: Path, flight: dict, sets: dict) -> dict:
-    """One flight from the ``liion`` chemistry prior only (``pybamm_flight_soc``, the product's path):
-    its errors (``_errors``) and, if it reaches cut-off, the count-down's median at half-way over the
-    time truly left, minus 1, and whether its 5-95 % holds the truth."""
+def flight_through_product(root: Path, flight: dict, sets: dict, **prior_fields) -> dict:
+    """One flight from the ``liion`` chemistry prior only (``pybamm_flight_soc``, the product's path;
+    ``prior_fields`` replace the ``PackPrior``'s, to measure what a part of it costs): its errors
+    (``_errors``) and, if it reaches cut-off, the count-down's median at half-way over the time truly
+    left, minus 1, and whether its 5-95 % holds the truth."""
     import pyarrow.parquet as pq
 
     from gcs_pdm.estimation.calibration import PackPrior
     from gcs_pdm.replay.calibration_eval import pybamm_flight_soc
 
     s = sets[flight["set"]]
-    prior = PackPrior("liion", CELLS, s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0)
+    prior = replace(PackPrior("liion", CELLS, s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0), **prior_fields)
     track, ttc = pybamm_flight_soc(root, flight, sets, chemistry="liion", prior=prior, cells=CELLS)
     current = np.asarray(pq.read_table(root / flight["file"], columns=["current_a"]).column(0).to_numpy(), float)
     out = _errors(track.time_s, current, track.soc, track.soc_sd, track.reference)
@@ -355,6 +361,33 @@ def family_loo(heldout: Path) -> dict:
     return {"summary": summary, "rest_misread_loo": loo_rest_misread(), "flights": rows}
 
 
+def ttc_sources(heldout: Path) -> dict:
+    """What costs the time to cut-off from the leave-one-out family table: each flight that reaches
+    cut-off through it (``family``), then with its true start SoC given (``true_start``: the prior's
+    SoC, σ 0.005), then with its true window capacity too (``true_start_capacity``, σ 2 %)."""
+    from gcs_pdm.models.liion_family import LIION_PUBLISHED_CURVES, family_mean
+
+    sources = {"Chen2020": ROOT / "fixtures" / "pybamm"} | {c.pybamm_set: heldout for c in LIION_PUBLISHED_CURVES[1:]}
+    rows = []
+    for set_name, root in sources.items():
+        manifest = json.loads((root / "manifest.json").read_text())
+        s = manifest["sets"][set_name]
+        true_c = s["cell_window_capacity_ah"] * s["cells_parallel"] * 3600.0
+        others = tuple(c for c in LIION_PUBLISHED_CURVES if c.pybamm_set != set_name)
+        for flight in [f for f in manifest["flights"] if f["set"] == set_name and f.get("reached_cutoff")]:
+            start = {"soc": flight["initial_soc"], "soc_sd": 0.005}
+            row = {"flight": flight["flight"], "set": set_name}
+            with liion_table(family_mean(others), "leave-one-out family mean"):
+                for name, fields in (("family", {}), ("true_start", start),
+                                     ("true_start_capacity", {**start, "capacity_c": true_c, "capacity_rel_sd": 0.02})):
+                    r = flight_through_product(root, flight, manifest["sets"], **fields)
+                    row[name] = {"ttc_rel_error_at_half": r["ttc_rel_error_at_half"],
+                                 "ttc_every_minute_within_10pct": f"{sum(w for w, _ in r['ttc_later'])}/{len(r['ttc_later'])}"}
+            rows.append(row)
+            print(row, flush=True)
+    return {"flights": rows}
+
+
 def main() -> None:
     import pyarrow.parquet as pq
 
@@ -367,10 +400,15 @@ def main() -> None:
     ap.add_argument("--heldout", type=Path, default=Path("/tmp/chen29_heldout"))
     ap.add_argument("--family", action="store_true",
                     help="only the leave-one-out comparison over every published Li-ion cell (family_loo)")
+    ap.add_argument("--ttc-sources", action="store_true",
+                    help="only what costs the time to cut-off through the leave-one-out family table (ttc_sources)")
     args = ap.parse_args()
     logging.disable(logging.WARNING)  # each suspended voltage model warns once; the figures say it
     if args.family:
         print(json.dumps({"heldout": str(args.heldout), "family_loo": family_loo(args.heldout)}))
+        return
+    if args.ttc_sources:
+        print(json.dumps({"heldout": str(args.heldout), "ttc_sources": ttc_sources(args.heldout)}))
         return
     manifest = json.loads((args.heldout / "manifest.json").read_text())
     curves = published_curves(args.heldout)
