@@ -92,7 +92,11 @@ def test_a_pack_with_its_own_curve_or_a_declared_charge_voltage_keeps_the_filter
     assert PackPrior("liion", CELLS, q).curve_family_spread == CURVE_FAMILY_SPREAD["liion"]
     assert PackPrior("liion", CELLS, q, curve=LIION).curve_family_spread is not None  # the table itself
     assert PackPrior("liion", CELLS, q, curve=OTHER).curve_family_spread is None
-    assert PackPrior("liion", CELLS, q, full_cell_v=4.2).curve_family_spread is None
+    # a declared charge voltage picks a LiPo's curve (4.20 V, not the LCO pouch's 4.10 V); every
+    # published Li-ion curve ends at 4.20 V, so declaring it picks none (the mean table stays a guess)
+    assert PackPrior("lipo", CELLS, q, full_cell_v=4.2).curve_family_spread is None
+    assert PackPrior("lipo", CELLS, q).curve_family_spread == CURVE_FAMILY_SPREAD["lipo"]
+    assert PackPrior("liion", CELLS, q, full_cell_v=4.2).curve_family_spread == CURVE_FAMILY_SPREAD["liion"]
     assert not is_published_table_curve("liion", OTHER)
     own, rows = _fly(PackPrior("liion", CELLS, q, curve=OTHER), seconds=120)
     assert own.curve_family_sd() == 0.0 and rows[-1, 1] == pytest.approx(rows[-1, 2])
