@@ -291,6 +291,9 @@ class PackCalibrator:
         self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0,
                          "voltage_relaxing": 0}
         self.last_voltage_update_s = -math.inf
+        #: message time of the last frame at which the pack was rested and settled (the rested
+        #: voltage set the SoC and the count started again there; -inf: none yet)
+        self.rested_at_s = -math.inf
         #: the sum of the voltage's innovation log-likelihoods so far (every voltage the filter read)
         self.log_likelihood = 0.0
         self.last_u = 0.0
@@ -429,6 +432,7 @@ class PackCalibrator:
         if settled:
             self._anchor()
             self.start_kind = "rest_voltage"
+            self.rested_at_s = t
         elif self.voltage_trusted:
             self._referee()
         if not at_rest and math.isfinite(voltage) and dt > 0:
