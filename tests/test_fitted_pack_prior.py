@@ -49,6 +49,19 @@ def test_edge540_with_a_pack_of_twice_its_sets_resistance_is_within_005_after_12
     assert np.abs(socp[tp >= 150.0] - truthp[tp >= 150.0]).max() > 0.2
 
 
+def test_a_small_pack_taken_over_by_the_sets_innovations_keeps_the_sets_curve():
+    """A pack 0.7x its set's capacity: the set's innovations contradict it, but its curve is the
+    set's, so the filter that takes over stays on it (the curve check does not restart it from the
+    chemistry's curves, which read it 0.3 off) and stays within 0.05."""
+    case = simulated_case("edge540", capacity_scale=0.7, resistance_scale=1.0, start_soc=0.8, seed=7,
+                          duration_s=FLIGHT_S)
+    t, soc, sd, truth = _fly(case).T
+    watch = case.estimator.fitted_watch[0]
+    assert "innovations" in watch.reason and watch.curve_reason is None
+    assert case.estimator.calib[0] is watch.calibrator
+    assert np.abs(soc[t >= 150.0] - truth[t >= 150.0]).max() <= 0.05
+
+
 def test_a_pack_that_is_its_set_keeps_the_paper_filters_figures_exactly():
     start = 0.75
     case = simulated_case("edge540", capacity_scale=1.0, resistance_scale=1.0, start_soc=start, seed=3,

@@ -766,10 +766,10 @@ class StateEstimator:
                "prediction_inflation": 1.0, "calibration": rep}
         watch = self.fitted_watch[b]
         if watch is not None:  # a fitted pack whose set the flight contradicted
-            out["fitted_set"] = {"contradicted_at_s": round(float(watch.contradicted_at_s), 3), "reason": watch.reason,
-                                 "curve_contradicted_at_s": (round(float(watch.curve_contradicted_at_s), 3)
-                                                             if watch.curve_reason else None),
-                                 "curve_reason": watch.curve_reason}
+            out["fitted_set"] = {"contradicted_at_s": round(float(watch.contradicted_at_s), 3), "reason": watch.reason}
+            if watch.curve_reason is not None:  # and then its curve: the chemistry's filter is the pack's
+                out["fitted_set"].update(curve_contradicted_at_s=round(float(watch.curve_contradicted_at_s), 3),
+                                         curve_reason=watch.curve_reason)
         if not cal.initialised:
             out["state"], out["reason"] = "unknown", "not judged yet: no voltage reading"
         elif active:
