@@ -886,6 +886,9 @@ class StateEstimator:
         for b, cal in enumerate(self.calib):
             if cal is not None:  # its σ carries the capacity's uncertainty itself
                 soc[b], soc_sd[b] = cal.soc, cal.soc_sd
+                watch = self.fitted_watch[b]
+                if watch is not None and cal is watch.calibrator:  # and a fitted set's curve in question
+                    soc_sd[b] = math.hypot(soc_sd[b], watch.curve_doubt())
         tm, tm_sd = self.motors.temperature()
         modelled = tuple(n for b, n in enumerate(self.pack_names)
                          if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)

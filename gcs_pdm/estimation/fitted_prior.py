@@ -166,6 +166,18 @@ class FittedPackWatch:
         return (f"the set's curve is contradicted: on it the SoC {cal.soc:.2f} is {abs(z):.1f} σ off its charge "
                 f"count {count:.2f} (bound {CURVE_SIGMAS:g}); the pack is estimated from its chemistry's curves")
 
+    def curve_doubt(self) -> float:
+        """What the reported σ adds while the set's curve is in question (the set contradicted by its
+        innovations, its curve not yet judged, the calibrator on it trusting the voltage): how far
+        the calibrator's SoC is from its own charge count since the last rest. The count is the SoC's
+        other reading, and until the curve is judged nothing says which is nearer (the set flown on
+        curved cells: 0.55 on the set's curve, 0.83 by the count, the truth 0.79). 0 otherwise."""
+        cal = self.calibrator
+        if (self.contradicted_by != BY_INNOVATIONS or self.chemistry_prior is None or self.curve_reason is not None
+                or not cal.voltage_trusted):
+            return 0.0
+        return abs(cal.soc - cal._count()[0])
+
     def chemistry_filter(self, t: float, current: float, voltage: float, temperature_c: float):
         """The pack's filter once its set's curve is contradicted: the chemistry's (``curve_bank``),
         started from the last rested reading (or the first) and stepped over the charge drawn since
