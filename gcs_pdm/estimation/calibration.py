@@ -556,6 +556,10 @@ class PackCalibrator:
         return (self.count_start - frac,
                 self.count_start_var + (frac * self.prior.capacity_rel_sd) ** 2)
 
+    def charge_count(self) -> tuple[float, float]:
+        """The pure charge count from the last rest (or start): (SoC, variance), prior capacity."""
+        return self._count()
+
     def count_difference_sd(self) -> float:
         """σ of (filter SoC − the charge count from the last anchor). The start's error is common to
         both and cancels, as far as the voltage has not corrected it (P[SoC, count start] says how

@@ -58,6 +58,22 @@ BY_INNOVATIONS = 3
 CURVE_SIGMAS = 3.0
 
 
+class _Held:
+    """Whether a condition has held without a break for ``CONTRADICTION_HOLD_S`` of message time:
+    one noisy stretch is not a pack."""
+
+    def __init__(self):
+        self.since = math.nan
+
+    def held(self, t: float, now: bool) -> bool:
+        if not now:
+            self.since = math.nan
+            return False
+        if not math.isfinite(self.since):
+            self.since = t
+        return t - self.since >= CONTRADICTION_HOLD_S
+
+
 class FittedPackWatch:
     """The self-calibrating filter of a fitted pack, and whether the flight contradicts the set."""
 
@@ -74,8 +90,7 @@ class FittedPackWatch:
         self.contradicted_at_s = math.nan
         self.reason: str | None = None
         self.contradicted_by: int | None = None
-        self._over_since = math.nan
-        self._curve_over_since = math.nan
+        self._set_over, self._curve_over = _Held(), _Held()
         #: why the set's curve was judged contradicted after the takeover, and when (None, NaN: not)
         self.curve_reason: str | None = None
         self.curve_contradicted_at_s = math.nan
@@ -117,16 +132,11 @@ class FittedPackWatch:
         one's parameters are back at their priors)."""
         cal = self.calibrator
         if not cal.initialised or not cal.voltage_trusted:
-            self._over_since = math.nan
+            self._set_over.held(t, False)
             return None
         z = (*self.statistics(paper_soc, paper_soc_sd), innovations_over_bound)
         over = [k for k in range(4) if abs(z[k]) > CONTRADICTION_SIGMAS[k]]
-        if not over:
-            self._over_since = math.nan
-            return None
-        if not math.isfinite(self._over_since):
-            self._over_since = t
-        if t - self._over_since < CONTRADICTION_HOLD_S:
+        if not self._set_over.held(t, bool(over)):
             return None
         k = over[0]
         self.contradicted_by = k
@@ -138,7 +148,6 @@ class FittedPackWatch:
         how = (f"{z[k]:.1f}x their bound" if k == 3 else
                f"{abs(z[k]):.1f} σ of their uncertainty, bound {CONTRADICTION_SIGMAS[k]:g}")
         return f"the flight contradicts the fitted set: {what} ({how})"
-
 
     def record(self, t: float, current: float, voltage: float, temperature_c: float) -> None:
         """After a step of the calibrator (the pack's filter once it took over): a rested and settled
@@ -152,16 +161,11 @@ class FittedPackWatch:
         its charge count since the last rest, past ``CURVE_SIGMAS`` for ``CONTRADICTION_HOLD_S``."""
         cal = self.calibrator
         if self.contradicted_by != BY_INNOVATIONS or self.chemistry_prior is None or not cal.voltage_trusted:
-            self._curve_over_since = math.nan
+            self._curve_over.held(t, False)
             return None
-        count, _ = cal._count()
+        count, _ = cal.charge_count()
         z = (cal.soc - count) / max(cal.count_difference_sd(), 1e-9)
-        if abs(z) <= CURVE_SIGMAS:
-            self._curve_over_since = math.nan
-            return None
-        if not math.isfinite(self._curve_over_since):
-            self._curve_over_since = t
-        if t - self._curve_over_since < CONTRADICTION_HOLD_S:
+        if not self._curve_over.held(t, abs(z) > CURVE_SIGMAS):
             return None
         return (f"the set's curve is contradicted: on it the SoC {cal.soc:.2f} is {abs(z):.1f} σ off its charge "
                 f"count {count:.2f} (bound {CURVE_SIGMAS:g}); the pack is estimated from its chemistry's curves")
@@ -176,7 +180,7 @@ class FittedPackWatch:
         if (self.contradicted_by != BY_INNOVATIONS or self.chemistry_prior is None or self.curve_reason is not None
                 or not cal.voltage_trusted):
             return 0.0
-        return abs(cal.soc - cal._count()[0])
+        return abs(cal.soc - cal.charge_count()[0])
 
     def chemistry_filter(self, t: float, current: float, voltage: float, temperature_c: float):
         """The pack's filter once its set's curve is contradicted: the chemistry's (``curve_bank``),
