@@ -267,6 +267,8 @@ class PackCalibrator:
         self.sigma_v = sigma_v if sigma_v is not None else 0.02 + 0.012 * self.cells
         self.rest_current_a = max(0.3, 0.05 * self.q0 / 3600.0)
         self.family = prior.curve_family_spread
+        #: the family's σ at the last rest (or start): ``CurveFamilySpread.rest_sd_at`` its voltage
+        self.family_rest_sd = self.family.rest_soc_sd if self.family is not None else 0.0
         # bounds: what the chemistry allows
         top = self.chem.ocv(1.0)
         self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6, 0.2 * self.r1p, -5.0, 0.0, 0.0, -math.inf])
@@ -375,6 +377,8 @@ class PackCalibrator:
         start is the filter's SoC, with the same error."""
         self.count_start = float(self.x[I_SOC])
         self.count_start_var = float(self.P[I_SOC, I_SOC])
+        if self.family is not None:
+            self.family_rest_sd = self.family.rest_sd_at(self.chem.ocv(self.count_start))
         self.x[I_COUNT0] = self.x[I_SOC]
         self.P[I_COUNT0, :] = self.P[I_SOC, :]
         self.P[:, I_COUNT0] = self.P[:, I_SOC]
@@ -641,8 +645,8 @@ class PackCalibrator:
         if self.family.count_in_flight:
             # the voltage does not read the SoC in flight: the count's error is the capacity's,
             # which the filter's covariance holds (its capacity is held at the prior's σ)
-            return self.family.rest_soc_sd
-        return math.hypot(self.family.rest_soc_sd, self.family.slope_rel_sd * self.drawn_c / self.q0)
+            return self.family_rest_sd
+        return math.hypot(self.family_rest_sd, self.family.slope_rel_sd * self.drawn_c / self.q0)
 
     def evidence(self, now: float | None = None) -> list[str]:
         if not self.initialised:
