@@ -443,7 +443,11 @@ class StateEstimator:
                                                       * (RELOCK_CEILING * self.ext.config.relock_inflation))
                 if cal is not None:
                     if not cal.initialised:
-                        cal.initialise(t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+                        # a fitted pack's calibrator that took over starts again through its watch,
+                        # which keeps where the chemistry's curves would start from
+                        watch = self.fitted_watch[b]
+                        (watch if watch is not None and cal is watch.calibrator else cal).initialise(
+                            t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
                         self._calibrator_temp[b] = (t, temp)
                     self._sync_paper(b)
                 elif self.fitted_watch[b] is not None and not self.fitted_watch[b].calibrator.initialised:

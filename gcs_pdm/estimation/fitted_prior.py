@@ -83,7 +83,7 @@ class FittedPackWatch:
         self.capacity_rel_sd = float(capacity_rel_sd)
         self.resistance_rel_sd = float(resistance_rel_sd)
         #: the pack as a never-fitted pack of its chemistry would start (``prior_of_spec`` without
-        #: the set): whose curves join the set's when its innovations contradict it (None: never)
+        #: the set): what it restarts from when the set's curve is contradicted (None: never)
         self.chemistry_prior = chemistry_prior
         #: message time the set was judged contradicted (NaN: it holds) and why; which statistic
         #: (``contradiction``'s index; None while the set holds)
