@@ -90,7 +90,7 @@ def test_the_family_term_is_the_rest_spread_when_counting_and_grows_with_the_cha
 
 def test_a_lipo_rested_where_its_published_curves_part_starts_with_their_spread():
     """On the flat middle the hobby LiPo chart and the 4.10 V LCO cell read one rested voltage
-    0.16-0.25 apart: a pack resting there carries that spread in its σ, not the family's 0.08; at
+    0.15-0.18 apart: a pack resting there carries that spread in its σ, not the family's 0.08; at
     full they agree and the 0.08 stays."""
     lipo = CURVE_FAMILY_SPREAD["lipo"]
     hobby, lco = lipo.curves

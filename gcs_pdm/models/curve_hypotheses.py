@@ -90,10 +90,10 @@ def curve_hypotheses(name: str, full_cell_v: float | None = None) -> tuple[Curve
 #: from the voltage (chemistry-curve presets 30 -> 17/32 with it).
 #: ``curves``: published curves of the chemistry whose readings of one rested voltage set the start's
 #: σ where they part by more than ``rest_soc_sd`` (``rest_sd_at``): on a flat stretch a few mV move
-#: the SoC far. The hobby LiPo chart and an LCO cell charged to 4.10 V read 3.80-3.87 V per cell
-#: 0.16-0.25 apart, and PyBaMM's Marquis2019 (an LCO pouch, not one of them) rests there 0.29 above the
-#: chart's reading: with 0.08 its 2σ band held the truth in 40 % of flight 09
-#: (docs/notes/2026-11-27-takeover-curve.md).
+#: the SoC far. The hobby LiPo chart and an LCO cell charged to 4.10 V read a rested cell 0.11-0.18
+#: apart between 3.70 and 4.10 V (0.15-0.18 at 3.76-3.84 V), and PyBaMM's Marquis2019 (an LCO pouch,
+#: not one of them) rests at 3.83-3.90 V 0.29 above the chart's reading: with 0.08 its 2σ band held
+#: the truth in 40 % of flight 09 (docs/notes/2026-11-27-takeover-curve.md).
 @dataclass(frozen=True)
 class CurveFamilySpread:
     rest_soc_sd: float
