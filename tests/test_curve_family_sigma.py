@@ -84,7 +84,26 @@ def test_the_family_term_is_the_rest_spread_when_counting_and_grows_with_the_cha
     cal, _ = _fly(PackPrior("lipo", CELLS, Q_AH * 3600.0), seconds=600)
     drawn = cal.drawn_c / cal.q0
     assert drawn > 0.2
-    assert cal.curve_family_sd() == pytest.approx(math.hypot(lipo.rest_soc_sd, lipo.slope_rel_sd * drawn))
+    assert cal.curve_family_sd() == pytest.approx(math.hypot(cal.family_rest_sd, lipo.slope_rel_sd * drawn))
+    assert cal.family_rest_sd >= lipo.rest_soc_sd
+
+
+def test_a_lipo_rested_where_its_published_curves_part_starts_with_their_spread():
+    """On the flat middle the hobby LiPo chart and the 4.10 V LCO cell read one rested voltage
+    0.15-0.18 apart: a pack resting there carries that spread in its σ, not the family's 0.08; at
+    full they agree and the 0.08 stays."""
+    lipo = CURVE_FAMILY_SPREAD["lipo"]
+    hobby, lco = lipo.curves
+    assert lipo.rest_sd_at(3.83) == pytest.approx(abs(lco.soc_at(3.83) - hobby.soc_at(3.83)))
+    assert lipo.rest_sd_at(3.83) > 0.15
+    assert lipo.rest_sd_at(4.2) == lipo.rest_soc_sd
+    for cell_v, want in ((3.83, lipo.rest_sd_at(3.83)), (4.2, lipo.rest_soc_sd)):
+        cal = PackCalibrator(PackPrior("lipo", CELLS, Q_AH * 3600.0, curve=hobby))
+        cal.initialise(0.0, CELLS * cell_v, 0.0, 25.0)
+        for k in range(1, 30):  # rested and settled: the start is the rested voltage's
+            cal.step(float(k), 1.0, 0.0, CELLS * cell_v, 25.0)
+        assert cal.curve_family_sd() == pytest.approx(want, abs=0.01)
+        assert cal.soc_sd >= want
 
 
 def test_a_pack_with_its_own_curve_or_a_declared_charge_voltage_keeps_the_filters_sigma():

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import pytest
 
 from gcs_pdm.estimation.estimator import EstimatorConfig, StateEstimator
 from gcs_pdm.replay.calibration_eval import simulated_case
@@ -49,6 +50,19 @@ def test_edge540_with_a_pack_of_twice_its_sets_resistance_is_within_005_after_12
     assert np.abs(socp[tp >= 150.0] - truthp[tp >= 150.0]).max() > 0.2
 
 
+def test_a_small_pack_taken_over_by_the_sets_innovations_keeps_the_sets_curve():
+    """A pack 0.7x its set's capacity: the set's innovations contradict it, but its curve is the
+    set's, so the filter that takes over stays on it (the curve check does not restart it from the
+    chemistry's curves, which read it 0.3 off) and stays within 0.05."""
+    case = simulated_case("edge540", capacity_scale=0.7, resistance_scale=1.0, start_soc=0.8, seed=7,
+                          duration_s=FLIGHT_S)
+    t, soc, sd, truth = _fly(case).T
+    watch = case.estimator.fitted_watch[0]
+    assert "innovations" in watch.reason and watch.curve_reason is None
+    assert case.estimator.calib[0] is watch.calibrator
+    assert np.abs(soc[t >= 150.0] - truth[t >= 150.0]).max() <= 0.05
+
+
 def test_a_pack_that_is_its_set_keeps_the_paper_filters_figures_exactly():
     start = 0.75
     case = simulated_case("edge540", capacity_scale=1.0, resistance_scale=1.0, start_soc=start, seed=3,
@@ -60,3 +74,32 @@ def test_a_pack_that_is_its_set_keeps_the_paper_filters_figures_exactly():
                            duration_s=FLIGHT_S)
     plain.estimator = StateEstimator(vehicle=plain.description, config=EstimatorConfig(fitted_set_as_prior=False))
     np.testing.assert_array_equal(watched, _fly(plain))
+
+
+def test_a_curve_contradicted_pack_restarts_from_its_chemistry_at_the_last_rest_less_the_charge_counted():
+    """``FittedPackWatch.chemistry_filter``: the chemistry's curves read the last settled rest's
+    voltage (not the first reading's), and the charge drawn since moves the SoC; the σ is the
+    never-fitted LiPo's (at least the family's 0.08), not the set's filter's."""
+    from gcs_pdm.estimation.curve_bank import CurveBank
+    from gcs_pdm.estimation.fitted_prior import BY_INNOVATIONS
+    from gcs_pdm.models.chemistry import chemistry
+
+    est = StateEstimator()
+    watch = est.fitted_watch[0]
+    cells, q_c = watch.chemistry_prior.cells, watch.chemistry_prior.capacity_c
+    lipo = chemistry("lipo")
+    rest_v, current = cells * lipo.ocv(0.8), 30.0
+    watch.initialise(0.0, rest_v + 1.0, 0.0, 25.0)  # a first reading the rest then corrects
+    for k in range(1, 31):
+        watch.step(float(k), 1.0, 0.0, rest_v, 25.0)
+    soc, t = 0.8, 30.0
+    for k in range(31, 131):
+        soc -= current / q_c
+        t = float(k)
+        watch.step(t, 1.0, current, cells * lipo.ocv(soc) - 0.05 * current, 25.0)
+    watch.contradicted_by = BY_INNOVATIONS
+    cal = watch.chemistry_filter(t, current, cells * lipo.ocv(soc) - 0.05 * current, 25.0)
+    assert isinstance(cal, CurveBank) and cal.lead.chem.name == "lipo"
+    drawn = 100 * current / q_c
+    assert cal.soc == pytest.approx(0.8 - drawn, abs=0.03)
+    assert 0.08 <= cal.soc_sd <= 0.3

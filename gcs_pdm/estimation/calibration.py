@@ -272,6 +272,8 @@ class PackCalibrator:
         self.sigma_v = sigma_v if sigma_v is not None else 0.02 + 0.012 * self.cells
         self.rest_current_a = max(0.3, 0.05 * self.q0 / 3600.0)
         self.family = prior.curve_family_spread
+        #: the family's σ at the last rest (or start): ``CurveFamilySpread.rest_sd_at`` its voltage
+        self.family_rest_sd = self.family.rest_soc_sd if self.family is not None else 0.0
         # bounds: what the chemistry allows
         top = self.chem.ocv(1.0)
         self.lo = np.array([0.0, -5.0, 0.2 * self.r0p, -0.10, -0.25, 1.0 / 1.6, 0.2 * self.r1p, -5.0, 0.0, 0.0, -math.inf])
@@ -296,6 +298,9 @@ class PackCalibrator:
         self.counters = {"voltage_updates": 0, "voltage_gated": 0, "voltage_suspended": 0, "rest_anchors": 0,
                          "voltage_relaxing": 0}
         self.last_voltage_update_s = -math.inf
+        #: message time of the last frame at which the pack was rested and settled (the rested
+        #: voltage set the SoC and the count started again there; -inf: none yet)
+        self.rested_at_s = -math.inf
         #: the sum of the voltage's innovation log-likelihoods so far (every voltage the filter read)
         self.log_likelihood = 0.0
         self.last_u = 0.0
@@ -377,6 +382,8 @@ class PackCalibrator:
         start is the filter's SoC, with the same error."""
         self.count_start = float(self.x[I_SOC])
         self.count_start_var = float(self.P[I_SOC, I_SOC])
+        if self.family is not None:
+            self.family_rest_sd = self.family.rest_sd_at(self.chem.ocv(self.count_start))
         self.x[I_COUNT0] = self.x[I_SOC]
         self.P[I_COUNT0, :] = self.P[I_SOC, :]
         self.P[:, I_COUNT0] = self.P[:, I_SOC]
@@ -434,6 +441,7 @@ class PackCalibrator:
         if settled:
             self._anchor()
             self.start_kind = "rest_voltage"
+            self.rested_at_s = t
         elif self.voltage_trusted:
             self._referee()
         if not at_rest and math.isfinite(voltage) and dt > 0:
@@ -557,6 +565,10 @@ class PackCalibrator:
         return (self.count_start - frac,
                 self.count_start_var + (frac * self.prior.capacity_rel_sd) ** 2)
 
+    def charge_count(self) -> tuple[float, float]:
+        """The pure charge count from the last rest (or start): (SoC, variance), prior capacity."""
+        return self._count()
+
     def count_difference_sd(self) -> float:
         """σ of (filter SoC − the charge count from the last anchor). The start's error is common to
         both and cancels, as far as the voltage has not corrected it (P[SoC, count start] says how
@@ -638,8 +650,8 @@ class PackCalibrator:
         if self.family.count_in_flight:
             # the voltage does not read the SoC in flight: the count's error is the capacity's,
             # which the filter's covariance holds (its capacity is held at the prior's σ)
-            return self.family.rest_soc_sd
-        return math.hypot(self.family.rest_soc_sd, self.family.slope_rel_sd * self.drawn_c / self.q0)
+            return self.family_rest_sd
+        return math.hypot(self.family_rest_sd, self.family.slope_rel_sd * self.drawn_c / self.q0)
 
     def evidence(self, now: float | None = None) -> list[str]:
         if not self.initialised:

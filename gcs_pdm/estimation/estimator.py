@@ -206,7 +206,8 @@ class StateEstimator:
         #: per fitted pack (no calibrator of its own, paper variant): the self-calibrating filter that
         #: runs beside its paper filter and becomes its ``calib`` when the flight contradicts the set
         self.fitted_watch: list[FittedPackWatch | None] = [
-            FittedPackWatch(fitted_prior(prior_of_spec(p, pack_matrix[b])), capacity_rel_sd=config.capacity_rel_sigma)
+            FittedPackWatch(fitted_prior(prior_of_spec(p, pack_matrix[b])), capacity_rel_sd=config.capacity_rel_sigma,
+                            chemistry_prior=prior_of_spec(p))
             if config.fitted_set_as_prior and calib[b] is None and b not in ext_vectors else None
             for b, p in enumerate(vehicle.packs)]
         n_packs, n_motors = len(self.pack_names), len(self.motor_names)
@@ -442,11 +443,15 @@ class StateEstimator:
                                                       * (RELOCK_CEILING * self.ext.config.relock_inflation))
                 if cal is not None:
                     if not cal.initialised:
-                        cal.initialise(t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
+                        # a fitted pack's calibrator that took over starts again through its watch,
+                        # which keeps where the chemistry's curves would start from
+                        watch = self.fitted_watch[b]
+                        (watch if watch is not None and cal is watch.calibrator else cal).initialise(
+                            t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
                         self._calibrator_temp[b] = (t, temp)
                     self._sync_paper(b)
                 elif self.fitted_watch[b] is not None and not self.fitted_watch[b].calibrator.initialised:
-                    self.fitted_watch[b].calibrator.initialise(
+                    self.fitted_watch[b].initialise(
                         t, v, cur, temp if math.isfinite(temp) else float(packs.mean[b, kernel.S_T]))
                     self._calibrator_temp[b] = (t, temp)
                 self._pack_time[b] = t
@@ -494,7 +499,11 @@ class StateEstimator:
         self._charge_c[b] += i_used * dt
         self._pack_time[b] = t
         if cal is not None:
-            cal.step(t, dt, i_used, v, self._calibrator_temperature(b, t, temp))
+            temp_used = self._calibrator_temperature(b, t, temp)
+            cal.step(t, dt, i_used, v, temp_used)
+            watch = self.fitted_watch[b]
+            if watch is not None and cal is watch.calibrator:
+                self._watch_set_curve(b, t, i_used, v, temp_used)
             self._sync_paper(b)
             flipped = self._calibrated_mismatch(b) != self._mismatch_active[b]
         elif self.fitted_watch[b] is not None:
@@ -528,7 +537,8 @@ class StateEstimator:
         cal = watch.calibrator
         if not cal.initialised:
             return
-        cal.step(t, dt, current, v, self._calibrator_temperature(b, t, temp, count=False))
+        temp_used = self._calibrator_temperature(b, t, temp, count=False)
+        watch.step(t, dt, current, v, temp_used)
         window = self.packs.consistency
         why = watch.contradiction(t, *self.paper_soc(b), float(window.statistic()[b, 0]) / window.raise_at)
         if why is None:
@@ -539,6 +549,20 @@ class StateEstimator:
         log.warning("pack %s at t=%.1f s: %s; its SoC is the self-calibrating filter's from now on",
                     self.pack_names[b], t, why)
         self._sync_paper(b)
+
+    def _watch_set_curve(self, b: int, t: float, current: float, v: float, temp: float) -> None:
+        """A fitted pack whose set the flight contradicted, its calibrator (on the set's curve) now
+        its filter: when the curve itself is contradicted, the pack's filter becomes its chemistry's
+        from this frame on (``FittedPackWatch.curve_contradiction``, ``chemistry_filter``)."""
+        watch = self.fitted_watch[b]
+        watch.record(t, current, v, temp)
+        why = watch.curve_contradiction(t)
+        if why is None:
+            return
+        watch.curve_contradicted_at_s, watch.curve_reason = t, why
+        self.calib[b] = watch.chemistry_filter(t, current, v, temp)
+        self.counters["fitted_curve_contradicted"] += 1
+        log.warning("pack %s at t=%.1f s: %s", self.pack_names[b], t, why)
 
     def paper_soc(self, b: int) -> tuple[float, float]:
         """Pack ``b``'s SoC and σ as its paper filter reports them (``estimate`` of a fitted pack):
@@ -747,6 +771,9 @@ class StateEstimator:
         watch = self.fitted_watch[b]
         if watch is not None:  # a fitted pack whose set the flight contradicted
             out["fitted_set"] = {"contradicted_at_s": round(float(watch.contradicted_at_s), 3), "reason": watch.reason}
+            if watch.curve_reason is not None:  # and then its curve: the chemistry's filter is the pack's
+                out["fitted_set"].update(curve_contradicted_at_s=round(float(watch.curve_contradicted_at_s), 3),
+                                         curve_reason=watch.curve_reason)
         if not cal.initialised:
             out["state"], out["reason"] = "unknown", "not judged yet: no voltage reading"
         elif active:
@@ -863,6 +890,9 @@ class StateEstimator:
         for b, cal in enumerate(self.calib):
             if cal is not None:  # its σ carries the capacity's uncertainty itself
                 soc[b], soc_sd[b] = cal.soc, cal.soc_sd
+                watch = self.fitted_watch[b]
+                if watch is not None and cal is watch.calibrator:  # and a fitted set's curve in question
+                    soc_sd[b] = math.hypot(soc_sd[b], watch.curve_doubt())
         tm, tm_sd = self.motors.temperature()
         modelled = tuple(n for b, n in enumerate(self.pack_names)
                          if not self._pack_reports_temp[b] or f"{n}.temperature" not in self.seen)

@@ -90,16 +90,30 @@ def curve_hypotheses(name: str, full_cell_v: float | None = None) -> tuple[Curve
 #: held-out cells 2 -> 4/18 within 0.05 after 5 min; docs/notes/2026-11-27-curve-uncertainty.md).
 #: Not for ``lipo``: its bank carries its curves, and its simulated presets need the capacity learned
 #: from the voltage (chemistry-curve presets 30 -> 17/32 with it).
+#: ``curves``: published curves of the chemistry whose readings of one rested voltage set the start's
+#: σ where they part by more than ``rest_soc_sd`` (``rest_sd_at``): on a flat stretch a few mV move
+#: the SoC far. The hobby LiPo chart and an LCO cell charged to 4.10 V read a rested cell 0.11-0.18
+#: apart between 3.70 and 4.10 V (0.15-0.18 at 3.76-3.84 V), and PyBaMM's Marquis2019 (an LCO pouch,
+#: not one of them) rests at 3.83-3.90 V 0.29 above the chart's reading: with 0.08 its 2σ band held
+#: the truth in 40 % of flight 09 (docs/notes/2026-11-27-takeover-curve.md).
 @dataclass(frozen=True)
 class CurveFamilySpread:
     rest_soc_sd: float
     slope_rel_sd: float
     count_in_flight: bool = False
+    curves: tuple[Chemistry, ...] = ()
+
+    def rest_sd_at(self, cell_v: float) -> float:
+        """The start's σ at a rested ``cell_v``: ``rest_soc_sd``, or the spread of the SoCs the
+        family's ``curves`` read there (their largest less their smallest), whichever is larger."""
+        readings = [c.soc_at(cell_v) for c in self.curves]
+        return max(self.rest_soc_sd, max(readings) - min(readings)) if readings else self.rest_soc_sd
 
 
 CURVE_FAMILY_SPREAD: dict[str, CurveFamilySpread] = {
     "liion": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.25, count_in_flight=True),
-    "lipo": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.5),
+    "lipo": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.5,
+                              curves=tuple(h.curve for h in CURVE_HYPOTHESES["lipo"])),
 }
 
 
