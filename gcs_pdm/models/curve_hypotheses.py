@@ -109,6 +109,17 @@ class CurveFamilySpread:
         readings = [c.soc_at(cell_v) for c in self.curves]
         return max(self.rest_soc_sd, max(readings) - min(readings)) if readings else self.rest_soc_sd
 
+    def given_full(self, full_cell_v: float) -> CurveFamilySpread:
+        """What is left open once the pack's charge voltage is declared: only the ``curves`` that end
+        there (within ``DECLARED_FULL_MATCH_V``; all of them if none does) still read it. The
+        declaration settles the curve's end, not its flat middle, so ``rest_soc_sd`` and
+        ``slope_rel_sd`` stay: the family's curves that share an end still part by them (Li-ion's four,
+        all ending at 4.20 V, misread each other's cells 0.08 rms at rest), and the one published
+        4.10 V LCO curve misreads PyBaMM's Marquis2019, charged to 4.10 V too, by 30-80 mV per cell
+        on its middle (docs/notes/2026-11-27-declared-sigma.md)."""
+        kept = tuple(c for c in self.curves if abs(c.full_cell_v - full_cell_v) <= DECLARED_FULL_MATCH_V + 1e-9)
+        return replace(self, curves=kept or self.curves)
+
 
 CURVE_FAMILY_SPREAD: dict[str, CurveFamilySpread] = {
     "liion": CurveFamilySpread(rest_soc_sd=0.08, slope_rel_sd=0.25, count_in_flight=True),
