@@ -74,9 +74,9 @@ def curve_hypotheses(name: str, full_cell_v: float | None = None) -> tuple[Curve
 
 
 #: what a chemistry's name leaves open about the SoC when the pack's curve is only its published
-#: table's (no curve of its own, no declared charge voltage, none learned from its history): the
-#: published curves of one chemistry read each other's cells 0.10-0.23 of SoC apart at rest (Li-ion:
-#: Chen2020, Ecker2015, Mohtat2020, Kim2011), and in flight they differ by only 1-5 mV rms, so no
+#: table's (no curve of its own, none learned from its history; with a declared charge voltage,
+#: ``given_full``): the published curves of one chemistry read each other's cells 0.10-0.23 of SoC
+#: apart at rest (Li-ion: Chen2020, Ecker2015, Mohtat2020, Kim2011), and in flight they differ by only 1-5 mV rms, so no
 #: flight shrinks it. ``rest_soc_sd``: that spread at a rested start, as a σ; ``slope_rel_sd``: the
 #: relative spread of their slopes, which the voltage turns into an error in the charge it reads as
 #: drawn (the filter learned 0.77-1.49x the true capacity through a curve of the wrong slope).
