@@ -411,8 +411,8 @@ def _median_over_samples(a: np.ndarray) -> np.ndarray:
 #: samples per thread below which one thread flies them all. A second thread shortens the wall
 #: time but costs CPU of its own (its block's per-step overhead, the pool's hand-over, two cores
 #: sharing one cache): at 100 samples one thread spent 13.9 ms of CPU on the paper packs against
-#: 14.7 on two, and on the extended packs ~16 against ~24 (docs/notes/2026-11-27-extended-mc-4.md),
-#: so a 100-sample prediction flies on one thread
+#: 14.7 on two, and 22.2 against 24.3 on the extended packs (one process, load 2.1;
+#: docs/notes/2026-11-27-extended-mc-4.md), so a 100-sample prediction flies on one thread
 MIN_SAMPLES_PER_THREAD = 64
 
 
