@@ -224,6 +224,8 @@ def _fly_lanes(na, pp, ep, is_ext, dt, shaft_power, ambient, bus_of_pack, bus_of
     record = slot_of_step.shape[0] == n
     dt_own, power_own, ambient_own = dt.shape[0] > 1, shaft_power.shape[0] > 1, ambient.shape[0] > 1
     inv_m = 1.0 / n_motors
+    if lane_f.shape[1] != LANES or lane_int.shape[1] != LANES or ky.shape[1] != N_OCV_KNOTS:
+        raise ValueError("_fly_lanes: block tables of LANES columns, knot tables of N_OCV_KNOTS")
     # the tables' row length as a compile-time constant again (an argument's is not: see XW)
     lane_int = _lane_rows(lane_int)
     lane_f = _lane_rows(lane_f)
