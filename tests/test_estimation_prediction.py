@@ -119,3 +119,23 @@ def test_median_over_samples_is_numpys_nanmedian():
     got = _median_over_samples(a)
     np.testing.assert_array_equal(got, want)
     assert np.isnan(got[4]).all() and np.isfinite(got[6]).all()
+
+
+def test_nearest_quantiles_and_motor_types_are_numpys():
+    """The prediction's shortcuts give numpy's values: the quantiles (one sort, NaN columns NaN,
+    infinities where they fall) and the motor types (one row when every motor's is the same)."""
+    from gcs_pdm.estimation.prediction import QUANTILES, _motor_types, nearest_quantiles
+
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 7, 99, 100, 101):
+        a = rng.normal(size=(n, 4))
+        a[rng.random(a.shape) < 0.2] = np.inf
+        a[rng.random(a.shape) < 0.1] = -np.inf
+        a[rng.random(a.shape) < 0.05] = np.nan
+        want = np.quantile(a, QUANTILES, axis=0, method="nearest").T
+        assert np.array_equal(nearest_quantiles(a), want, equal_nan=True), n
+    motor = rng.normal(size=(1, 5))
+    for rows in (np.broadcast_to(motor, (2, 5)), np.vstack([motor, motor * 1.1]), np.vstack([motor * 1.1, motor])):
+        types, which = _motor_types(rows)
+        want_types, want_which = np.unique(rows, axis=0, return_inverse=True)
+        assert np.array_equal(types, want_types) and np.array_equal(np.ravel(which), np.ravel(want_which))

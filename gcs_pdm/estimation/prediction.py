@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 from numba import config as numba_config
@@ -142,6 +143,34 @@ class Prediction:
 ParamsLike = "ParameterSet | tuple[np.ndarray, np.ndarray]"
 
 
+@lru_cache(maxsize=64)
+def _nearest_ranks(n: int) -> np.ndarray:
+    """The order statistics ``np.quantile(…, QUANTILES, method="nearest")`` picks from n values
+    (numpy's own rounding, read off the ranks 0 … n-1 themselves)."""
+    return np.quantile(np.arange(n), QUANTILES, method="nearest").astype(np.intp)
+
+
+def nearest_quantiles(a: np.ndarray) -> np.ndarray:
+    """(columns, 3): ``np.quantile(a, QUANTILES, axis=0, method="nearest").T`` of (samples, columns),
+    the same numbers (each is one of the values), from one sort: numpy's quantile costs ~0.1 ms a
+    call in its argument handling, five calls a prediction (docs/notes/2026-11-27-extended-mc-4.md).
+    A column with a NaN gives NaN, as numpy's."""
+    a = np.asarray(a, dtype=np.float64)
+    ordered = np.sort(a, axis=0)  # NaN sorts last
+    out = ordered[_nearest_ranks(a.shape[0])].T
+    out[np.isnan(ordered[-1])] = np.nan
+    return out
+
+
+def _motor_types(motors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(motors, axis=0, return_inverse=True)`` (rows sorted, each motor's row): with one
+    type (every row the same bytes, the usual vehicle) that type without numpy's row sort, ~0.1 ms."""
+    bits = np.ascontiguousarray(motors, dtype=np.float64).view(np.int64)
+    if bits.shape[0] and (bits == bits[0]).all() and not np.isnan(motors).any():
+        return np.array(motors[:1], dtype=np.float64), np.zeros(motors.shape[0], dtype=np.intp)
+    return np.unique(motors, axis=0, return_inverse=True)
+
+
 def base_arrays(params) -> tuple[np.ndarray, np.ndarray]:
     """(4, 12) pack matrix and (5,) motor vector from a ParameterSet or such a pair of arrays
     (the estimator's own, once diagnosed degradation has been adopted)."""
@@ -229,8 +258,7 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         raise ValueError(f"n_samples: must be >= 1, got {n_samples}")
     n_motors = vehicle.n_motors
     packs0, motors0 = base_arrays(params)
-    motor_types, type_of_motor = np.unique(np.broadcast_to(motors0, (n_motors, kernel.N_MOTOR_PARAMS)), axis=0,
-                                           return_inverse=True)
+    motor_types, type_of_motor = _motor_types(np.broadcast_to(motors0, (n_motors, kernel.N_MOTOR_PARAMS)))
     pp, mp = sample_parameters((packs0, motor_types), n_samples, rng, param_rel_sigma)
     mp = mp[:, np.asarray(type_of_motor).reshape(-1)]  # (n, M, 5): each motor its type's draw
     x0, tm0 = sample_states(np.asarray(pack_mean, dtype=np.float64), np.asarray(pack_cov, dtype=np.float64),
@@ -296,12 +324,12 @@ def predict(params, pack_mean: np.ndarray, pack_cov: np.ndarray, motor_temp_c: n
         horizon_s=float(t_end[-1]) if t_end.size else 0.0,
         n_samples=n_samples,
         p_failure=float(failed.mean()),
-        time_to_failure_s=np.quantile(ttf, QUANTILES, method="nearest"),
+        time_to_failure_s=nearest_quantiles(ttf[:, None])[0],
         failure_causes=causes,
-        pack_time_to_cutoff_s=np.quantile(pack_ttc, QUANTILES, axis=0, method="nearest").T,
-        pack_energy_to_cutoff_j=np.quantile(energy, QUANTILES, axis=0, method="nearest").T,
-        peak_pack_temp_c=np.quantile(peak_pack, QUANTILES, axis=0, method="nearest").T,
-        peak_motor_temp_c=np.quantile(peak_motor, QUANTILES, axis=0, method="nearest").T,
+        pack_time_to_cutoff_s=nearest_quantiles(pack_ttc),
+        pack_energy_to_cutoff_j=nearest_quantiles(energy),
+        peak_pack_temp_c=nearest_quantiles(peak_pack),
+        peak_motor_temp_c=nearest_quantiles(peak_motor),
         pack_names=vehicle.pack_names, motor_names=vehicle.motor_names,
         **({} if not per_sample else {"sample_failure_time_s": ttf,
                                       "sample_failure_cause": np.where(failed, run["fail_cause"], kernel.FAIL_NONE),
@@ -380,8 +408,12 @@ def _median_over_samples(a: np.ndarray) -> np.ndarray:
     return out
 
 
-#: samples per thread below which one thread flies them all (a thread costs more than it saves)
-MIN_SAMPLES_PER_THREAD = 32
+#: samples per thread below which one thread flies them all. A second thread shortens the wall
+#: time but costs CPU of its own (its block's per-step overhead, the pool's hand-over, two cores
+#: sharing one cache): at 100 samples one thread spent 13.9 ms of CPU on the paper packs against
+#: 14.7 on two, and 22.2 against 24.3 on the extended packs (one process, load 2.1;
+#: docs/notes/2026-11-27-extended-mc-4.md), so a 100-sample prediction flies on one thread
+MIN_SAMPLES_PER_THREAD = 64
 
 
 def _map_chunks(fly, n_samples: int) -> list[dict]:
@@ -670,8 +702,7 @@ class HeldCurrentSamples:
         peak = peak.reshape(self.n_samples, n_packs)
         return PackCutoffPrediction(
             pack_names=self.inputs.pack_names, current_a=self.inputs.current_a, horizon_s=float(t_end[-1]),
-            n_samples=self.n_samples, time_to_cutoff_s=np.quantile(ttc, QUANTILES, axis=0, method="nearest").T,
-            peak_temp_c=np.quantile(peak, QUANTILES, axis=0, method="nearest").T)
+            n_samples=self.n_samples, time_to_cutoff_s=nearest_quantiles(ttc), peak_temp_c=nearest_quantiles(peak))
 
 
 def draw_held_current(inputs: HeldCurrentInputs, *, horizon_s: float = 3600.0, step_s: float = 5.0,

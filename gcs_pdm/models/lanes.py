@@ -17,9 +17,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.core.imputils import impl_ret_borrowed
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array, populate_array
 
 from gcs_pdm.models import kernel
+from gcs_pdm.models.lane_math import _bits_of, _float_of
 from gcs_pdm.models.kernel import (_JIT, C_DECAY_S, C_DECAY_T, C_DT, C_H, C_NSUB, C_TAU_S, D_1, D_2, D_D, D_H, D_T,
                                    E_OCV0, FAIL_DEPLETED, FAIL_MOTOR_OVERTEMP, FAIL_NONE, FAIL_PACK_OVERTEMP,
                                    FAIL_POWER, FAIL_UNDERVOLTAGE, I_CB, I_CCP, I_CMAX, I_CS, I_QMAX, I_RS, M_CT, M_H,
@@ -54,6 +58,43 @@ XW = 5
 (MF_CAP, MF_MULT, MF_FAULT, MF_LEAST, MF_TEMP, MF_DT, MF_DECAY, MF_MAX_T, MF_PEAK_T) = range(N_MOTOR_PARAMS,
                                                                                           N_MOTOR_PARAMS + 9)
 N_MOTOR_ROWS = N_MOTOR_PARAMS + 9
+
+
+def _rows_of(length: int):
+    """A compiled function viewing a 2-D C-contiguous array whose rows are ``length`` long as one
+    whose row length is that constant, not the run-time ``shape[1]`` an argument has: an element's
+    offset is then a compile-time multiple of its row, which LLVM needs to tell rows apart and
+    vectorise the lane loops (see XW). The caller vouches for the length."""
+    @intrinsic
+    def view(typingctx, a):
+        if not (isinstance(a, types.Array) and a.ndim == 2 and a.layout == "C"):
+            return None
+
+        def codegen(context, builder, sig, args):
+            src = make_array(sig.args[0])(context, builder, args[0])
+            dst = make_array(sig.return_type)(context, builder)
+            intp = context.get_value_type(types.intp)
+            item = context.get_abi_sizeof(context.get_data_type(sig.args[0].dtype))
+            populate_array(dst, data=src.data, shape=[builder.extract_value(src.shape, 0), intp(length)],
+                           strides=[intp(length * item), intp(item)], itemsize=src.itemsize, meminfo=src.meminfo,
+                           parent=src.parent)
+            return impl_ret_borrowed(context, builder, sig.return_type, dst._getvalue())
+        return a(a), codegen
+    return view
+
+
+_lane_rows = _rows_of(LANES)
+_knot_rows = _rows_of(N_OCV_KNOTS)
+
+
+@njit(inline="always", **_JIT)
+def _stored(x, zero):
+    """``x`` with ``zero`` (a run-time 0) OR-ed into its bits: the same float. A lane loop's
+    ``t[r, l] = new if c else t[r, l]`` otherwise compiles to a masked store (``vmaskmovpd``), which
+    AMD's cores microcode: ~16 cycles for four lanes against one for a plain store, a quarter of the
+    kernel's time in the loops that had them. LLVM sees through any identity it can fold
+    (``x * 1.0``, ``bits | 0``), not through a zero it cannot know (docs/notes/2026-11-27-extended-mc-4.md)."""
+    return _float_of(_bits_of(x) | zero)
 
 
 @njit(**_JIT)
@@ -106,16 +147,13 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
 
     A lane stops at its first failure with ``stop_on_failure`` (its results are written then and
     the last active lane takes its column); the block ends when every lane has, or at the
-    profile's end."""
-    n = shaft_power.shape[1]
+    profile's end. This allocates the block's tables and starts its lanes; ``_fly_lanes`` flies them."""
     n_packs = x0.shape[1]
     n_motors = tm0.shape[1]
     n_bus = bus_parallel.shape[0]
     width = x0.shape[2]  # a paper pack's PACK_STATE in its first four rows, an extended pack's EXT_PACK_STATE
     if width > XW:
         raise ValueError("a pack state wider than the block's state rows (XW)")
-    record = slot_of_step.shape[0] == n
-    dt_own, power_own, ambient_own = dt.shape[0] > 1, shaft_power.shape[0] > 1, ambient.shape[0] > 1
     # ---- the block's tables, lane innermost; every one with per-lane state is swapped with the lane
     lane_int = np.empty((6, LANES), dtype=np.int64)
     lane_f = np.empty((6, LANES))
@@ -156,11 +194,63 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
     packs_on_bus = np.zeros(n_bus)
     for b in range(n_packs):
         packs_on_bus[bus_of_pack[b]] += 1.0
-    inv_m = 1.0 / n_motors
     na = min(LANES, x0.shape[0] - j0)  # active lanes
     for lane in range(na):
         _start_lane(lane, j0 + lane, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, fault, fault_drag, max_dt,
                     lane_int, lane_f, xs, v, pt, cache, et, ext_dt, knot_row, ocv_c, acc, pack_end, mot, ky, kd, x_row)
+    _fly_lanes(na, pp, ep, is_ext, dt, shaft_power, ambient, bus_of_pack, bus_of_motor, bus_parallel, cutoff_v,
+               pack_max_t, motor_max_t, max_dt, stop_on_failure, slot_of_step, rec_v, rec_i, rec_t, rec_soc, rec_mi,
+               rec_mt, final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed, end_k,
+               end_energy, peak_tp, peak_tm, lane_int, lane_f, xs, v, pt, cache, et, decay, ext_dt, ext_n_sub,
+               knot_row, ocv_c, acc, pack_end, mot, ky, kd, h_l, power_l, amb_l, unpowered, p_tot, shortfall, cause,
+               flying, simple, vbus, ibus, share, imot, ipack, soc, work, x_row, cache_row, packs_on_bus)
+
+
+@njit(_nrt=False, **_JIT)
+def _fly_lanes(na, pp, ep, is_ext, dt, shaft_power, ambient, bus_of_pack, bus_of_motor, bus_parallel, cutoff_v,
+               pack_max_t, motor_max_t, max_dt, stop_on_failure, slot_of_step, rec_v, rec_i, rec_t, rec_soc, rec_mi,
+               rec_mt, final_x, final_tm, min_v, max_tp, max_tm, charge, energy, fail_k, fail_cause, elapsed, end_k,
+               end_energy, peak_tp, peak_tm, lane_int, lane_f, xs, v, pt, cache, et, decay, ext_dt, ext_n_sub,
+               knot_row, ocv_c, acc, pack_end, mot, ky, kd, h_l, power_l, amb_l, unpowered, p_tot, shortfall, cause,
+               flying, simple, vbus, ibus, share, imot, ipack, soc, work, x_row, cache_row, packs_on_bus):
+    """The block's time loop over tables ``_simulate_lanes`` allocated and filled (compiled without
+    numba's reference counting: nothing here allocates, and the counts' atomic increments on every
+    table passed to an inlined step cost ~10 % of the kernel; docs/notes/2026-11-27-extended-mc-4.md)."""
+    n = shaft_power.shape[1]
+    n_packs = xs.shape[0] // XW
+    n_motors = mot.shape[0] // N_MOTOR_ROWS
+    n_bus = bus_parallel.shape[0]
+    width = x_row.shape[1]
+    record = slot_of_step.shape[0] == n
+    dt_own, power_own, ambient_own = dt.shape[0] > 1, shaft_power.shape[0] > 1, ambient.shape[0] > 1
+    inv_m = 1.0 / n_motors
+    if lane_f.shape[1] != LANES or lane_int.shape[1] != LANES or ky.shape[1] != N_OCV_KNOTS:
+        raise ValueError("_fly_lanes: block tables of LANES columns, knot tables of N_OCV_KNOTS")
+    # the tables' row length as a compile-time constant again (an argument's is not: see XW)
+    lane_int = _lane_rows(lane_int)
+    lane_f = _lane_rows(lane_f)
+    xs = _lane_rows(xs)
+    v = _lane_rows(v)
+    pt = _lane_rows(pt)
+    cache = _lane_rows(cache)
+    et = _lane_rows(et)
+    decay = _lane_rows(decay)
+    ext_dt = _lane_rows(ext_dt)
+    ext_n_sub = _lane_rows(ext_n_sub)
+    knot_row = _lane_rows(knot_row)
+    ocv_c = _lane_rows(ocv_c)
+    acc = _lane_rows(acc)
+    pack_end = _lane_rows(pack_end)
+    mot = _lane_rows(mot)
+    vbus = _lane_rows(vbus)
+    ibus = _lane_rows(ibus)
+    share = _lane_rows(share)
+    imot = _lane_rows(imot)
+    ipack = _lane_rows(ipack)
+    soc = _lane_rows(soc)
+    work = _lane_rows(work)
+    ky, kd = _knot_rows(ky), _knot_rows(kd)
+    zero = np.int64(xs.shape[0] < 0)  # 0, which the compiler cannot know: see _stored
     k = 0
     while k < n and na > 0:
         _lane_inputs(dt, dt_own, k, lane_int, na, h_l)
@@ -193,7 +283,7 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
             unpowered[l] = unpowered[l] * lane_f[F_I0_SCALE, l]
             p_tot[l] = power_l[l] * lane_f[F_DRAG, l] + unpowered[l] if power_l[l] > 0.0 else power_l[l]
             shortfall[l] = p_tot[l]
-            cause[l] = FAIL_POWER if lane_f[F_DEAD, l] != 0.0 and power_l[l] > 0.0 else FAIL_NONE
+            cause[l] = FAIL_POWER if (lane_f[F_DEAD, l] != 0.0) & (power_l[l] > 0.0) else FAIL_NONE
         # equal shares of what the motors can deliver; the least-faulted make up the shortfall
         for q in range(n_motors):
             o = q * N_MOTOR_ROWS
@@ -205,8 +295,11 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
             o = q * N_MOTOR_ROWS
             for l in range(na):
                 s = share[q, l]
-                s = s + shortfall[l] / lane_f[F_N_LEAST, l] if mot[o + MF_LEAST, l] != 0.0 else s
-                share[q, l] = 0.0 if lane_f[F_DEAD, l] != 0.0 else s
+                # every value a select picks from is computed on every lane: a division or a load
+                # under a condition makes LLVM mask the loop's loads and stores (see _stored)
+                made_up = s + shortfall[l] / lane_f[F_N_LEAST, l]
+                s = made_up if mot[o + MF_LEAST, l] != 0.0 else s
+                share[q, l] = _stored(0.0 if lane_f[F_DEAD, l] != 0.0 else s, zero)
         # each motor's current (kernel._motor_current: V I = P + R_w I^2 + I_0' V, the smaller root;
         # past the motor's peak, its peak-power current and a failure)
         for q in range(n_motors):
@@ -221,8 +314,10 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                 i_q = 2.0 * c / (vb + math.sqrt(disc))
                 i_q = i0 if s <= 0.0 else (-1.0 if disc < 0.0 else i_q)
                 past_peak = i_q < 0.0
-                cause[l] = FAIL_POWER if past_peak else cause[l]
-                i_q = vb / (2.0 * mot[o + M_RW, l]) if past_peak else i_q
+                was = cause[l]  # loaded on every lane, not under the condition
+                cause[l] = (FAIL_POWER if past_peak else was) | zero
+                at_peak = vb / (2.0 * mot[o + M_RW, l])
+                i_q = at_peak if past_peak else i_q
                 imot[q, l] = i_q
                 ibus[u, l] += i_q
                 lane_f[F_ENERGY, l] += vb * i_q * h_l[l]
@@ -263,23 +358,24 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                 h = h_l[l]
                 acc[a + A_CHARGE, l] += i_b * h
                 m = acc[a + A_MIN_V, l]
-                acc[a + A_MIN_V, l] = vv if vv < m else m
+                acc[a + A_MIN_V, l] = _stored(vv if vv < m else m, zero)
                 m = acc[a + A_MAX_TP, l]
-                acc[a + A_MAX_TP, l] = temp if temp > m else m
+                acc[a + A_MAX_TP, l] = _stored(temp if temp > m else m, zero)
                 w = vv * i_b
                 e = acc[a + A_END_ENERGY, l]
-                acc[a + A_END_ENERGY, l] = e + (w if math.isfinite(w) else 0.0) * h if pack_end[b, l] < 0 else e
+                acc[a + A_END_ENERGY, l] = _stored(e + (w if math.isfinite(w) else 0.0) * h if pack_end[b, l] < 0 else e,
+                                                   zero)
                 m = acc[a + A_PEAK_TP, l]
-                acc[a + A_PEAK_TP, l] = temp if flying[l] & (temp > m) else m
+                acc[a + A_PEAK_TP, l] = _stored(temp if flying[l] & (temp > m) else m, zero)
             cut, t_max = cutoff_v[b], pack_max_t[b]
             for l in range(na):  # its end: cut-off or empty
                 pe = pack_end[b, l]
-                pack_end[b, l] = k if (pe < 0) & ((v[b, l] < cut) | (soc[b, l] <= 0.0)) else pe
+                pack_end[b, l] = (k if (pe < 0) & ((v[b, l] < cut) | (soc[b, l] <= 0.0)) else pe) | zero
             for l in range(na):  # the first failure's cause
                 c = FAIL_PACK_OVERTEMP if xs[o + S_T, l] > t_max else FAIL_NONE
                 c = FAIL_UNDERVOLTAGE if v[b, l] < cut else c
                 c = FAIL_DEPLETED if soc[b, l] <= 0.0 else c
-                cause[l] = c if cause[l] == FAIL_NONE else cause[l]
+                cause[l] = (c if cause[l] == FAIL_NONE else cause[l]) | zero
         for q in range(n_motors):
             o = q * N_MOTOR_ROWS
             n_new = 0  # the decay's exp only when the interval changes (kernel._motor_decay)
@@ -294,20 +390,21 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
             for l in range(na):  # kernel._thermal_step
                 i_q = imot[q, l]
                 i0 = mot[o + M_I0, l]
-                load = min(1.0, abs(i_q) / i0) if i0 > 0.0 else 1.0
+                ratio = abs(i_q) / i0
+                load = min(1.0, ratio) if i0 > 0.0 else 1.0
                 heat = mot[o + M_RW, l] * i_q * i_q + mot[o + M_PIRON, l] * load
                 t_inf = amb_l[l] + heat / mot[o + M_H, l]
                 temp = mot[o + MF_TEMP, l]
                 temp = temp if h_l[l] <= 0.0 else t_inf + (temp - t_inf) * mot[o + MF_DECAY, l]
-                mot[o + MF_TEMP, l] = temp
+                mot[o + MF_TEMP, l] = _stored(temp, zero)
                 m = mot[o + MF_MAX_T, l]
-                mot[o + MF_MAX_T, l] = temp if temp > m else m
+                mot[o + MF_MAX_T, l] = _stored(temp if temp > m else m, zero)
                 m = mot[o + MF_PEAK_T, l]
-                mot[o + MF_PEAK_T, l] = temp if flying[l] & (temp > m) else m
+                mot[o + MF_PEAK_T, l] = _stored(temp if flying[l] & (temp > m) else m, zero)
             t_max = motor_max_t[q]
             for l in range(na):
                 over = (cause[l] == FAIL_NONE) & (mot[o + MF_TEMP, l] > t_max)
-                cause[l] = FAIL_MOTOR_OVERTEMP if over else cause[l]
+                cause[l] = (FAIL_MOTOR_OVERTEMP if over else cause[l]) | zero
         slot = slot_of_step[k] if record else -1
         if slot >= 0:
             for l in range(na):
@@ -322,9 +419,9 @@ def _simulate_lanes(j0, pp, pp_own, ep, ep_own, is_ext, mp, mp_own, x0, tm0, dt,
                     rec_mt[j, slot, q] = mot[q * N_MOTOR_ROWS + MF_TEMP, l]
         for l in range(na):
             lane_f[F_ELAPSED, l] += h_l[l]
-            first = cause[l] != FAIL_NONE and lane_int[L_FAIL_K, l] < 0
-            lane_int[L_FAIL_CAUSE, l] = cause[l] if first else lane_int[L_FAIL_CAUSE, l]
-            lane_int[L_FAIL_K, l] = k if first else lane_int[L_FAIL_K, l]
+            first = (cause[l] != FAIL_NONE) & (lane_int[L_FAIL_K, l] < 0)
+            lane_int[L_FAIL_CAUSE, l] = (cause[l] if first else lane_int[L_FAIL_CAUSE, l]) | zero
+            lane_int[L_FAIL_K, l] = (k if first else lane_int[L_FAIL_K, l]) | zero
         if stop_on_failure:
             # downwards, so the lane moved into a freed column has been looked at already
             for l in range(na - 1, -1, -1):
