@@ -47,3 +47,36 @@ def rate(count: int, t: dict, key: str = "per_s") -> dict:
     """A count over a ``timed`` result as rates on wall and CPU time."""
     return {f"wall_{key}": round(count / t["wall_s"]), f"cpu_{key}": round(count / t["cpu_s"]),
             "wall_s": round(t["wall_s"], 4), "cpu_s": round(t["cpu_s"], 4), "loadavg_1min": t["loadavg_1min"]}
+
+
+def host_yardstick_ms() -> float:
+    """CPU ms of a fixed compiled loop (512 doubles, L1-resident, no allocation), best of four.
+
+    The host under this VM changes speed in phases of seconds: in its slow phase every compiled
+    loop, this one included, takes ~1.4-1.7x the CPU time (no steal time, the other vCPU idle;
+    docs/notes/2026-11-27-extended-mc-5.md). Timed just before and after a figure, it says which
+    phase the figure was measured in: ~1.2 ms fast, ~2.0 ms slow on the 2026-11-27 host."""
+    import numpy as np
+    from numba import njit
+
+    global _yardstick
+    if _yardstick is None:
+        @njit(cache=False)
+        def loop(x, n):
+            s = 0.0
+            for _ in range(n):
+                for i in range(x.shape[0]):
+                    s += np.exp(-x[i] * 1e-3) * x[i] + s * 1e-9
+            return s
+        _yardstick = loop
+        loop(np.zeros(1), 1)  # compile outside the timing
+    x = np.linspace(0.0, 1.0, 512)
+    best = float("inf")
+    for _ in range(4):
+        c0 = time.process_time()
+        _yardstick(x, 400)
+        best = min(best, time.process_time() - c0)
+    return round(best * 1e3, 2)
+
+
+_yardstick = None
