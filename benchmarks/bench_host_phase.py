@@ -7,7 +7,7 @@ fall together, the slow figures are the host's phase, not the code or its memory
 
 Prints ONE JSON object: the number of rounds, the correlation of the two series, and each one's
 median in the rounds whose yardstick is below / above ``--split_ms`` (default 1.6 ms, between the
-~1.2 ms fast and ~2.0 ms slow phases of the 2026-11-27 host).
+~1.2 ms fast and ~2.0 ms slow phases of this host in Nov 2026).
 
 Run: ``PYTHONPATH=$PWD python benchmarks/bench_host_phase.py [--seconds 15] [--split_ms 1.6]``
 """

@@ -55,7 +55,7 @@ def host_yardstick_ms() -> float:
     The host under this VM changes speed in phases of seconds: in its slow phase every compiled
     loop, this one included, takes ~1.4-1.7x the CPU time (no steal time, the other vCPU idle;
     docs/notes/2026-11-27-extended-mc-5.md). Timed just before and after a figure, it says which
-    phase the figure was measured in: ~1.2 ms fast, ~2.0 ms slow on the 2026-11-27 host."""
+    phase the figure was measured in: ~1.2 ms fast, ~2.0 ms slow on this host (Nov 2026)."""
     import numpy as np
     from numba import njit
 
