@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from measure import host_yardstick_ms, timed  # noqa: E402
+from measure import host_yardstick_ms, loadavg, timed  # noqa: E402
 
 from gcs_pdm.diagnosis.pipeline import DiagnosisPipeline
 from gcs_pdm.estimation.estimator import StateEstimator
@@ -127,12 +127,32 @@ def main() -> dict:
             "figures": figures}
 
 
-def extended_figure() -> dict:
-    """With the host's yardstick just before and after (``measure.host_yardstick_ms``): this
-    figure is ~12.5 ms CPU in the host's fast phase and ~17-19 in its slow one, the same code."""
+EXTENDED_WINDOW_S = 8.0
+
+
+def extended_figure(window_s: float = EXTENDED_WINDOW_S) -> dict:
+    """The best single call over ``window_s`` seconds of calls, with their median and the host's
+    yardstick just before and after (``measure.host_yardstick_ms``).
+
+    The host under this VM runs in phases of 1-5 s; in its slow one every compiled loop, a fixed
+    reference loop included, takes ~1.4-1.7x the CPU (docs/notes/2026-11-27-extended-mc-5.md). A
+    best of a few calls lands in whichever phase the process starts in; a window longer than a phase
+    measures the code, as timeit's best-of does, and the median says what a busy host gives."""
+    import time
+
     call = extended_monte_carlo()
+    call()
     before = host_yardstick_ms()
-    out = figure(timed(call, 5, 3), 1e3, 15, "ms")
+    cpu, wall = [], []
+    end = time.perf_counter() + window_s
+    while time.perf_counter() < end:
+        w0, c0 = time.perf_counter(), time.process_time()
+        call()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    out = figure({"wall_s": min(wall), "cpu_s": min(cpu), "loadavg_1min": loadavg()}, 1e3, 15, "ms")
+    out["median_cpu"] = round(float(np.median(cpu)) * 1e3, 1)
+    out["calls"] = len(cpu)
     out["host_yardstick_ms"] = {"before": before, "after": host_yardstick_ms()}
     return out
 

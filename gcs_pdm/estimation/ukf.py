@@ -70,7 +70,14 @@ def scalar_update(mean: np.ndarray, cov: np.ndarray, h: np.ndarray, z: np.ndarra
 
 def as_rows(a, shape) -> np.ndarray:
     """An argument of the compiled steps as a writable contiguous float64 array of ``shape`` (scalars
-    broadcast; ``kernel.owned``: one compiled version per step)."""
+    broadcast; ``kernel.owned``: one compiled version per step). Called for every argument of every
+    frame's step, so the two common cases skip ``broadcast_to`` (several µs each): an array that is
+    already one, and a scalar."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.shape == shape and a.flags.c_contiguous \
+            and a.flags.writeable:
+        return a
+    if isinstance(a, (float, int)):
+        return np.full(shape, float(a))
     return kernel.owned(np.broadcast_to(np.asarray(a, dtype=np.float64), shape))
 
 
