@@ -500,10 +500,12 @@ class StateEstimator:
         self._pack_time[b] = t
         if cal is not None:
             temp_used = self._calibrator_temperature(b, t, temp)
-            cal.step(t, dt, i_used, v, temp_used)
             watch = self.fitted_watch[b]
-            if watch is not None and cal is watch.calibrator:
+            if watch is not None and cal is watch.calibrator:  # a fitted set overturned: its curve judged too
+                watch.step(t, dt, i_used, v, temp_used)
                 self._watch_set_curve(b, t, i_used, v, temp_used)
+            else:
+                cal.step(t, dt, i_used, v, temp_used)
             self._sync_paper(b)
             flipped = self._calibrated_mismatch(b) != self._mismatch_active[b]
         elif self.fitted_watch[b] is not None:
@@ -555,7 +557,6 @@ class StateEstimator:
         its filter: when the curve itself is contradicted, the pack's filter becomes its chemistry's
         from this frame on (``FittedPackWatch.curve_contradiction``, ``chemistry_filter``)."""
         watch = self.fitted_watch[b]
-        watch.record(t, current, v, temp)
         why = watch.curve_contradiction(t)
         if why is None:
             return

@@ -160,7 +160,7 @@ class FittedPackWatch:
         takeover by the set's innovations, while the calibrator trusts the voltage: its SoC against
         its charge count since the last rest, past ``CURVE_SIGMAS`` for ``CONTRADICTION_HOLD_S``."""
         cal = self.calibrator
-        if self.contradicted_by != BY_INNOVATIONS or self.chemistry_prior is None or not cal.voltage_trusted:
+        if not self._curve_in_question():
             self._curve_over.held(t, False)
             return None
         count, _ = cal.charge_count()
@@ -176,11 +176,16 @@ class FittedPackWatch:
         the calibrator's SoC is from its own charge count since the last rest. The count is the SoC's
         other reading, and until the curve is judged nothing says which is nearer (the set flown on
         curved cells: 0.55 on the set's curve, 0.83 by the count, the truth 0.79). 0 otherwise."""
-        cal = self.calibrator
-        if (self.contradicted_by != BY_INNOVATIONS or self.chemistry_prior is None or self.curve_reason is not None
-                or not cal.voltage_trusted):
+        if self.curve_reason is not None or not self._curve_in_question():
             return 0.0
+        cal = self.calibrator
         return abs(cal.soc - cal.charge_count()[0])
+
+    def _curve_in_question(self) -> bool:
+        """The set was overturned by its own innovations (its model, maybe its curve, misses the
+        voltage), a chemistry to fall back on is known, and the calibrator trusts the voltage."""
+        return (self.contradicted_by == BY_INNOVATIONS and self.chemistry_prior is not None
+                and self.calibrator.voltage_trusted)
 
     def chemistry_filter(self, t: float, current: float, voltage: float, temperature_c: float):
         """The pack's filter once its set's curve is contradicted: the chemistry's (``curve_bank``),
