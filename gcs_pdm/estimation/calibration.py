@@ -423,7 +423,7 @@ class PackCalibrator:
                 # the polarisation the filter carries is added back: a fit of the raw voltage on
                 # [1, I, drawn] reads the pair's slow settling after each step as a flatter fall
                 # (quad-4s, C x1.2 from half: 0.27 where the curve falls 1.23, judged not falling)
-                self.drain.add(i, self.drawn_c / self.q0, voltage + float(self.x[I_V1] + self.x[I_V2]))
+                self.drain.add(i, self.drawn_c / self.q0, voltage + (self.x.item(I_V1) + self.x.item(I_V2)))
                 self._check_drain()
             if relaxing:
                 self.counters["voltage_relaxing"] += 1
@@ -574,15 +574,17 @@ class PackCalibrator:
         return math.sqrt(max(var, 0.0))
 
     def _referee(self) -> None:
-        soc, _ = self._count()
+        soc = self.count_start - self.drawn_c / self.q0  # ``_count``'s SoC, without its variance
         sd = self.count_difference_sd()
         if abs(self.x.item(I_SOC) - soc) > REFEREE_SIGMAS * sd + 0.03:
             self._suspend(f"the voltage contradicts the charge count beyond the capacity's uncertainty "
                           f"(voltage {self.x[I_SOC]:.2f}, count {soc:.2f} ± {sd:.2f})")
 
     def _check_drain(self) -> None:
+        if self.drain.n % DRAIN_CHECK_EVERY or self.drain_failed:  # the cheap tests first: a per-frame call
+            return
         frac = self.drawn_c / self.q0
-        if frac < DRAIN_MIN_FRACTION or self.drain_failed or self.drain.n % DRAIN_CHECK_EVERY:
+        if frac < DRAIN_MIN_FRACTION:
             return
         c, se = self.drain.slope()
         if not math.isfinite(c):
@@ -627,7 +629,7 @@ class PackCalibrator:
         flight separates the chemistry's published curves."""
         if not self.initialised:
             return math.nan
-        return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0) + self.curve_family_sd() ** 2)
+        return math.sqrt(max(self.P.item(I_SOC, I_SOC), 0.0) + self.curve_family_sd() ** 2)
 
     @property
     def filter_soc_sd(self) -> float:
