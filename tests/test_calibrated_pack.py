@@ -58,9 +58,10 @@ def test_the_kernel_flies_the_calibrators_model_on_its_mapped_pack(half_way):
     x, p = m.x.copy(), cal.P.copy()
     beyond = m.sag_beyond_model_ohm(m.x[None])[0] * current
     own_v, own_soc = np.empty(STEPS), np.empty(STEPS)
+    unbounded = np.full(x.size, -np.inf), np.full(x.size, np.inf)  # the model itself, not the filter's bounds
     for k in range(STEPS):
         _predict_core(x, p, 1.0, current, m.temp_u, m.q0, circuit.tau1_s, TAU2_FACTOR * circuit.tau1_s, cal.r0p,
-                      cal.r1p, 0.0, 0.0)
+                      cal.r1p, 0.0, 0.0, *unbounded)
         own_v[k] = _measurement(x, m.table, m.cells, m.mid, current, m.temp_u, np.empty(x.size)) - beyond
         own_soc[k] = x[0]
     np.testing.assert_allclose(run.soc[0], own_soc, atol=1e-9)  # the learned capacity

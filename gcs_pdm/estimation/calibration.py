@@ -219,8 +219,6 @@ def prior_of_spec(spec, pack_vector: np.ndarray | None = None,
 class _Drain:
     """Running normal equations of V ≈ a + b I + c (drawn / Q_prior) over loaded samples."""
 
-    ata: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
-    atv: np.ndarray = field(default_factory=lambda: np.zeros(3))
     vv: float = 0.0
     n: int = 0
 
@@ -246,16 +244,7 @@ class _Drain:
         judged missing is missing by more than it says."""
         if self.n < 20:
             return math.nan, math.nan
-        s = self.sums
-        self.ata = np.array([[self.n, s[0], s[1]], [s[0], s[2], s[3]], [s[1], s[3], s[4]]], dtype=float)
-        self.atv = np.array([s[5], s[6], s[7]])
-        try:
-            inv = np.linalg.inv(self.ata + 1e-12 * np.eye(3))
-        except np.linalg.LinAlgError:
-            return math.nan, math.nan
-        beta = inv @ self.atv
-        s2 = max(self.vv - float(beta @ self.atv), 0.0) / (self.n - 3)
-        return float(beta[2]), math.sqrt(max(s2 * inv[2, 2], 0.0))
+        return _drain_fit(float(self.n), np.array(self.sums), self.vv)
 
 
 class PackCalibrator:
@@ -434,7 +423,7 @@ class PackCalibrator:
                 # the polarisation the filter carries is added back: a fit of the raw voltage on
                 # [1, I, drawn] reads the pair's slow settling after each step as a flatter fall
                 # (quad-4s, C x1.2 from half: 0.27 where the curve falls 1.23, judged not falling)
-                self.drain.add(i, self.drawn_c / self.q0, voltage + float(self.x[I_V1] + self.x[I_V2]))
+                self.drain.add(i, self.drawn_c / self.q0, voltage + (self.x.item(I_V1) + self.x.item(I_V2)))
                 self._check_drain()
             if relaxing:
                 self.counters["voltage_relaxing"] += 1
@@ -452,11 +441,7 @@ class PackCalibrator:
     def _track_recent_load(self, dt: float, i: float, voltage: float, u: float) -> None:
         """The recent loaded current and the model's shortfall at it (its mean state after this
         frame's update: the pairs as they are, not settled)."""
-        x = self.x
-        ocv, _ = _curve(self.table, float(x[I_SOC]))
-        modelled = (self.cells * (ocv + x[I_DV] + x[I_K] * (ocv - self.mid)) - x[I_V1] - x[I_V2]
-                    - x[I_R0] * math.exp(x[I_E] * u) * i)
-        miss = float(modelled - voltage)
+        miss = _loaded_voltage(self.x, self.table, self.cells, self.mid, i, u) - voltage
         self.loaded_s += dt
         if not math.isfinite(self.recent_current_a):
             self.recent_current_a, self.recent_miss_v = i, miss
@@ -482,8 +467,7 @@ class PackCalibrator:
 
     def _predict(self, dt: float, i: float, u: float) -> None:
         _predict_core(self.x, self.P, dt, i, u, self.q0, self.chem.tau1_s, TAU2_FACTOR * self.chem.tau1_s, self.r0p, self.r1p,
-                      R0_WALK, V1_WALK)
-        np.clip(self.x, self.lo, self.hi, out=self.x)
+                      R0_WALK, V1_WALK, self.lo, self.hi)
 
     def _update(self, v: float, i: float, u: float, t: float) -> None:
         # under load the model's error grows with the current: its circuit is a first-order guess
@@ -497,7 +481,12 @@ class PackCalibrator:
         # temperature has moved far from the count's start (``capacity_separable``)
         hold = not self.capacity_separable(i) or self._capacity_held_by_curve()
         reading_held = self._curve_reading_held(i)
-        nis, s = _innovation_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas)
+        # one compiled call: the innovation, and the update when a trusted filter's gate passes it.
+        # Applied before the window below is read: a window that then stops trusting the voltage
+        # puts every state back at its prior (``_suspend``), so what the update did is dropped
+        trusted = self.voltage_trusted
+        nis, s, updated = _innovate_update(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas, hold,
+                                           reading_held, self.lo, self.hi, trusted, GATE_SIGMAS ** 2)
         # how well this filter's curve explains the voltage (a Gaussian innovation's log-likelihood,
         # the squared term capped as the window's is): ``curve_bank`` weighs curve hypotheses by it
         self.log_likelihood -= 0.5 * (min(nis, 25.0) + math.log(s))
@@ -516,8 +505,10 @@ class PackCalibrator:
         if nis > GATE_SIGMAS ** 2:
             self.counters["voltage_gated"] += 1
             return
-        _update_core(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas, hold, reading_held)
-        np.clip(self.x, self.lo, self.hi, out=self.x)
+        if not updated:  # trusted again by this very innovation: its update was not applied above
+            # (through the same compiled call, whose signature the warm-up has compiled)
+            _innovate_update(self.x, self.P, self.table, self.cells, self.mid, v, i, u, r_meas, hold, reading_held,
+                             self.lo, self.hi, True, math.inf)
         self.counters["voltage_updates"] += 1
         if not reading_held:  # the evidence's ``voltage_model``: the voltage corrects the SoC
             self.last_voltage_update_s = t
@@ -577,20 +568,23 @@ class PackCalibrator:
         far); the count's own error is its capacity's. Adding the two variances counted the start
         twice: a bound of 0.25-0.55 SoC that almost never tripped."""
         frac = self.drawn_c / self.q0
-        var = (self.P[I_SOC, I_SOC] + self.P[I_COUNT0, I_COUNT0] - 2.0 * self.P[I_SOC, I_COUNT0]
+        p = self.P  # ``item``: Python floats (a per-frame read, via ``_referee``)
+        var = (p.item(I_SOC, I_SOC) + p.item(I_COUNT0, I_COUNT0) - 2.0 * p.item(I_SOC, I_COUNT0)
                + (frac * self.prior.capacity_rel_sd) ** 2)
         return math.sqrt(max(var, 0.0))
 
     def _referee(self) -> None:
-        soc, _ = self._count()
+        soc = self.count_start - self.drawn_c / self.q0  # ``_count``'s SoC, without its variance
         sd = self.count_difference_sd()
-        if abs(self.x[I_SOC] - soc) > REFEREE_SIGMAS * sd + 0.03:
+        if abs(self.x.item(I_SOC) - soc) > REFEREE_SIGMAS * sd + 0.03:
             self._suspend(f"the voltage contradicts the charge count beyond the capacity's uncertainty "
                           f"(voltage {self.x[I_SOC]:.2f}, count {soc:.2f} ± {sd:.2f})")
 
     def _check_drain(self) -> None:
+        if self.drain.n % DRAIN_CHECK_EVERY or self.drain_failed:  # the cheap tests first: a per-frame call
+            return
         frac = self.drawn_c / self.q0
-        if frac < DRAIN_MIN_FRACTION or self.drain_failed or self.drain.n % DRAIN_CHECK_EVERY:
+        if frac < DRAIN_MIN_FRACTION:
             return
         c, se = self.drain.slope()
         if not math.isfinite(c):
@@ -635,7 +629,7 @@ class PackCalibrator:
         flight separates the chemistry's published curves."""
         if not self.initialised:
             return math.nan
-        return math.sqrt(max(float(self.P[I_SOC, I_SOC]), 0.0) + self.curve_family_sd() ** 2)
+        return math.sqrt(max(self.P.item(I_SOC, I_SOC), 0.0) + self.curve_family_sd() ** 2)
 
     @property
     def filter_soc_sd(self) -> float:
@@ -705,7 +699,25 @@ def _curve(table, soc):
 
 
 @njit(cache=True, nogil=True)
-def _predict_core(x, P, dt, i, u, q0, tau1, tau2, r0p, r1p, r0_walk, v1_walk):
+def _clip_into(x, lo, hi):
+    """``np.clip(x, lo, hi, out=x)`` inside the compiled steps (a NumPy call from Python costs more
+    than the step's arithmetic)."""
+    for r in range(x.size):
+        if x[r] < lo[r]:  # comparisons, not min/max: a NaN stays NaN, as np.clip leaves it
+            x[r] = lo[r]
+        elif x[r] > hi[r]:
+            x[r] = hi[r]
+
+
+@njit(cache=True, nogil=True)
+def _loaded_voltage(x, table, cells, mid, i, u):
+    """The model's loaded voltage at the mean state (the pairs as they are, not settled)."""
+    ocv, _ = _curve(table, x[0])
+    return cells * (ocv + x[3] + x[4] * (ocv - mid)) - x[1] - x[7] - x[2] * math.exp(x[9] * u) * i
+
+
+@njit(cache=True, nogil=True)
+def _predict_core(x, P, dt, i, u, q0, tau1, tau2, r0p, r1p, r0_walk, v1_walk, lo, hi):
     # the pair keeps its prior's capacitance: its time constant follows its learned resistance
     # (tau = tau1 R1 / R1_prior), as the pack model's own concentration pair does (tau_cp = R_cp C_cp).
     # With tau fixed, a pack of 3x the resistance sags 3x slower than the filter expects and the
@@ -744,6 +756,7 @@ def _predict_core(x, P, dt, i, u, q0, tau1, tau2, r0p, r1p, r0_walk, v1_walk):
     P[6, 6] += (r0_walk * r1p) ** 2 * dt
     P[7, 7] += v1_walk ** 2 * dt
     P[8, 8] += (r0_walk * r1p) ** 2 * dt
+    _clip_into(x, lo, hi)
 
 
 @njit(cache=True, nogil=True)
@@ -778,7 +791,7 @@ def _innovation_core(x, P, table, cells, mid, v, i, u, r_meas):
 
 
 @njit(cache=True, nogil=True)
-def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold, hold_reading):
+def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold, hold_reading, lo, hi):
     """The Kalman update of the voltage (Joseph form; with ``hold`` the capacity's and the curve
     scale's gains are zero, with ``hold_reading`` the SoC's and the curve offset's)."""
     n = x.size
@@ -807,3 +820,57 @@ def _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold, hold_reading):
     for r in range(n):
         for c in range(n):
             P[r, c] = newp[r, c] + k[r] * k[c] * r_meas
+    _clip_into(x, lo, hi)
+
+
+@njit(cache=True, nogil=True)
+def _innovate_update(x, P, table, cells, mid, v, i, u, r_meas, hold, hold_reading, lo, hi, apply, gate):
+    """``_innovation_core``'s (ν²/S, S), and ``_update_core`` applied when ``apply`` and ν²/S ≤
+    ``gate`` (the third value says whether it was): one call from Python instead of two."""
+    nis, s = _innovation_core(x, P, table, cells, mid, v, i, u, r_meas)
+    if apply and nis <= gate:
+        _update_core(x, P, table, cells, mid, v, i, u, r_meas, hold, hold_reading, lo, hi)
+        return nis, s, True
+    return nis, s, False
+
+
+@njit(cache=True, nogil=True)
+def _drain_fit(n, sums, vv):
+    """``_Drain.slope``'s least squares, compiled (every few loaded frames, where NumPy's
+    ``inv`` and the arrays around it cost ten times the arithmetic): the normal equations
+    (+1e-12 on the diagonal) solved by Gaussian elimination with partial pivoting, as LAPACK's
+    ``gesv`` (a constant current leaves the intercept and the current's term inseparable, but not
+    the slope), against [Aᵀv, e₂] for the solution and the inverse's last diagonal element."""
+    a = np.empty((3, 3))
+    a[0, 0], a[0, 1], a[0, 2] = n + 1e-12, sums[0], sums[1]
+    a[1, 0], a[1, 1], a[1, 2] = sums[0], sums[2] + 1e-12, sums[3]
+    a[2, 0], a[2, 1], a[2, 2] = sums[1], sums[3], sums[4] + 1e-12
+    b = np.zeros((3, 2))
+    b[0, 0], b[1, 0], b[2, 0], b[2, 1] = sums[5], sums[6], sums[7], 1.0
+    for k in range(3):
+        p = k
+        for r in range(k + 1, 3):
+            if abs(a[r, k]) > abs(a[p, k]):
+                p = r
+        if not a[p, k] != 0.0:  # singular, or not a number
+            return math.nan, math.nan
+        if p != k:
+            for c in range(3):
+                a[k, c], a[p, c] = a[p, c], a[k, c]
+            for c in range(2):
+                b[k, c], b[p, c] = b[p, c], b[k, c]
+        for r in range(k + 1, 3):
+            f = a[r, k] / a[k, k]
+            for c in range(k, 3):
+                a[r, c] -= f * a[k, c]
+            for c in range(2):
+                b[r, c] -= f * b[k, c]
+    x = np.zeros((3, 2))
+    for r in range(2, -1, -1):
+        for c in range(2):
+            acc = b[r, c]
+            for j in range(r + 1, 3):
+                acc -= a[r, j] * x[j, c]
+            x[r, c] = acc / a[r, r]
+    s2 = max(vv - (x[0, 0] * sums[5] + x[1, 0] * sums[6] + x[2, 0] * sums[7]), 0.0) / (n - 3.0)
+    return x[2, 0], math.sqrt(max(s2 * x[2, 1], 0.0))

@@ -542,7 +542,7 @@ class StateEstimator:
         temp_used = self._calibrator_temperature(b, t, temp, count=False)
         watch.step(t, dt, current, v, temp_used)
         window = self.packs.consistency
-        why = watch.contradiction(t, *self.paper_soc(b), float(window.statistic()[b, 0]) / window.raise_at)
+        why = watch.contradiction(t, *self.paper_soc(b), window.statistic_at(b, 0) / window.raise_at)
         if why is None:
             return
         watch.contradicted_at_s, watch.reason = t, why
@@ -568,10 +568,13 @@ class StateEstimator:
     def paper_soc(self, b: int) -> tuple[float, float]:
         """Pack ``b``'s SoC and σ as its paper filter reports them (``estimate`` of a fitted pack):
         the σ with the set's capacity's (``capacity_rel_sigma``)."""
+        # scalars, not ``kernel.state_of_charge`` and ``_with_capacity_sd``: this runs on every pack
+        # frame of a fitted pack (its watch), where NumPy's calls on one element cost more than the sums
         p = self.packs.params[b]
-        soc = float(kernel.state_of_charge(p, self.packs.mean[b]))
-        sd = math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / float(p[kernel.I_CMAX])
-        return soc, float(self._with_capacity_sd(soc, sd))
+        c_max = float(p[kernel.I_CMAX])
+        soc = 1.0 - (float(p[kernel.I_QMAX]) - float(self.packs.mean[b, kernel.S_QB])) / c_max
+        sd = math.sqrt(max(float(self.packs.cov[b, kernel.S_QB, kernel.S_QB]), 0.0)) / c_max
+        return soc, math.hypot(sd, self.config.capacity_rel_sigma * min(max(1.0 - soc, 0.0), 1.0))
 
     def _with_capacity_sd(self, soc, soc_sd):
         """A paper filter's SoC σ as reported: its own, with the set's capacity's uncertainty, which

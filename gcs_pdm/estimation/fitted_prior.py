@@ -114,13 +114,14 @@ class FittedPackWatch:
         calibrator's own, combined — and the paper filter's SoC against the calibrator's (their σ
         combined)."""
         cal = self.calibrator
+        # Python floats (``item``), not NumPy scalars: this runs on every frame of a fitted pack
         x, p = cal.x, cal.P
-        r = x[I_R0] + x[I_R1]
+        r = x.item(I_R0) + x.item(I_R1)
         r_prior = cal.r0p + cal.r1p
-        r_var = p[I_R0, I_R0] + p[I_R1, I_R1] + 2.0 * p[I_R0, I_R1]
+        r_var = p.item(I_R0, I_R0) + p.item(I_R1, I_R1) + 2.0 * p.item(I_R0, I_R1)
         z_r = math.log(r / r_prior) / math.sqrt(self.resistance_rel_sd ** 2 + r_var / r ** 2)
-        g = x[I_G]
-        z_c = math.log(g) / math.sqrt(self.capacity_rel_sd ** 2 + p[I_G, I_G] / g ** 2)
+        g = x.item(I_G)
+        z_c = math.log(g) / math.sqrt(self.capacity_rel_sd ** 2 + p.item(I_G, I_G) / g ** 2)
         z_s = (paper_soc - cal.soc) / math.hypot(paper_soc_sd, cal.soc_sd)
         return z_r, z_c, z_s
 

@@ -144,6 +144,11 @@ class ConsistencyWindow:
         full = self.count >= self.size
         return np.where(full, self.sums[..., 0] / np.maximum(self.count, 1), np.nan)
 
+    def statistic_at(self, row: int, channel: int) -> float:
+        """``statistic()[row, channel]`` without the whole array (a per-frame read of one pack)."""
+        count = int(self.ints[row, channel, ukf.W_COUNT])
+        return float(self.sums[row, channel, 0]) / max(count, 1) if count >= self.size else math.nan
+
     def mean_residual(self) -> np.ndarray:
         """(rows, 2) mean innovation (V, °C) over the updates in the window (NaN before any)."""
         return np.where(self.count > 0, self.sums[..., 1] / np.maximum(self.count, 1), np.nan)
