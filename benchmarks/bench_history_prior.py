@@ -30,7 +30,9 @@ mean share inside 2σ, time to cut-off within 10 % at half-way on the flights th
 - ``true_capacity``: the true window capacity, σ 2 % (what a perfect history's capacity could give).
 
 Run: ``PYTHONPATH=$PWD python benchmarks/bench_history_prior.py [--heldout DIR] [--chen]``
-(``--chen``: the fixtures' Chen2020 set too). Prints one line per (set, flight 1), then ONE JSON object.
+(``--chen``: the fixtures' Chen2020 set too; 64 s on the rested set, 2 min 36 s on the chen29 set with
+``--chen``, load 1-2.5). Prints one line per (set, flight 1), then ONE JSON object. Figures:
+docs/notes/2026-11-28-history-prior.md.
 """
 from __future__ import annotations
 
