@@ -244,9 +244,10 @@ def liion_table(ocv_cell_v: tuple, source: str):
         chem_mod.CHEMISTRIES["liion"] = shipped
 
 
-def flight_through_product(root: Path, flight: dict, sets: dict, **prior_fields) -> dict:
+def flight_through_product(root: Path, flight: dict, sets: dict, prior=None, **prior_fields) -> dict:
     """One flight from the ``liion`` chemistry prior only (``pybamm_flight_soc``, the product's path;
-    ``prior_fields`` replace the ``PackPrior``'s, to measure what a part of it costs): its errors
+    ``prior_fields`` replace the ``PackPrior``'s, to measure what a part of it costs; ``prior``, a
+    whole ``PackPrior``, replaces it: e.g. one built on the pack's history): its errors
     (``_errors``) and, if it reaches cut-off, the count-down's median at half-way over the time truly
     left, minus 1, and whether its 5-95 % holds the truth."""
     import pyarrow.parquet as pq
@@ -255,7 +256,8 @@ def flight_through_product(root: Path, flight: dict, sets: dict, **prior_fields)
     from gcs_pdm.replay.calibration_eval import pybamm_flight_soc
 
     s = sets[flight["set"]]
-    prior = replace(PackPrior("liion", CELLS, s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0), **prior_fields)
+    if prior is None:
+        prior = replace(PackPrior("liion", CELLS, s["cell_capacity_ah"] * s["cells_parallel"] * 3600.0), **prior_fields)
     track, ttc = pybamm_flight_soc(root, flight, sets, chemistry="liion", prior=prior, cells=CELLS)
     current = np.asarray(pq.read_table(root / flight["file"], columns=["current_a"]).column(0).to_numpy(), float)
     out = _errors(track.time_s, current, track.soc, track.soc_sd, track.reference)

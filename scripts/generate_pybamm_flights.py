@@ -220,6 +220,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--train-start-socs", type=float, nargs=2, default=None, metavar=("LO", "HI"),
                     help="experiment: the training flights start at SoCs spread evenly over this range (in the "
                          "order of their drawn ones) instead of the drawn ones (default: drawn, as committed)")
+    ap.add_argument("--rest-around-s", type=int, nargs=2, default=(0, 0), metavar=("BEFORE", "AFTER"),
+                    help="experiment: each flight's drawn profile with this much more rest before take-off and "
+                         "after landing (s), the rests a health point's capacity needs (packs/health.py: 60 s "
+                         "and 600 s); the noise of a padded record is drawn from a stream of its own, so the "
+                         "flights after it differ from the committed ones (default 0 0: as committed)")
     ap.add_argument("--ageing", action="store_true",
                     help="instead: one ageing cell per set (--ageing-sets), flown from cycle 1 to --cycles with its "
                          "true C/20 capacity at each flight (fixtures/pybamm_ageing; see AGEING_SETS)")
@@ -260,15 +265,24 @@ def main(argv: list[str] | None = None) -> int:
             ambient = min(max(ambient, 0.0), 35.0)
             c_rate = float(c_rates[k])
             soc0 = float(rng.uniform(0.75, 1.0))
-            t = np.arange(0.0, float(args.duration))
             pack_i = flight_profile(rng, c_rate, args.duration, BURST_CAP.get(set_name, DEFAULT_BURST_CAP))
+            padded = any(args.rest_around_s)
+            if padded:  # longer rests around the same flight (--rest-around-s)
+                pack_i = np.concatenate([np.zeros(args.rest_around_s[0]), pack_i, np.zeros(args.rest_around_s[1])])
+            t = np.arange(0.0, float(pack_i.size))
             t0 = time.perf_counter()
-            ts, v_cell, temp, v_cut, _ = simulate_cell(pybamm, set_name, t, pack_i / parallel, ambient + 273.15, soc0)
+            try:
+                ts, v_cell, temp, v_cut, _ = simulate_cell(pybamm, set_name, t, pack_i / parallel, ambient + 273.15,
+                                                           soc0)
+            except pybamm.SolverError as exc:  # e.g. a start above the set's upper voltage at this ambient
+                print(f"{name}: not simulated: {exc}", flush=True)
+                continue
             m = ts.size
             cutoff = m < t.size - 1
             cols = {"time_s": ts, "current_a": pack_i[:m], "voltage_v": CELLS_SERIES * v_cell,
                     "temperature_c": temp, "ambient_c": np.full(m, ambient)}
-            noisy = add_sensor_effects(rng, cols)
+            # a padded record's noise: a stream of its own (--rest-around-s)
+            noisy = add_sensor_effects(np.random.default_rng([args.seed, 2000 + position, k]) if padded else rng, cols)
             pd.DataFrame(noisy).astype("float32").to_parquet(out / set_name / f"{name}.parquet", index=False)
             manifest["flights"].append({"flight": name, "set": set_name, "file": f"{set_name}/{name}.parquet",
                                         "ambient_c": ambient, "cruise_c_rate": c_rate,
@@ -317,6 +331,8 @@ def main(argv: list[str] | None = None) -> int:
                                        "soc_range": list(args.rest_soc_range)}
             if args.train_start_socs is not None:
                 manifest["train_start_socs"] = list(args.train_start_socs)
+    if any(args.rest_around_s):
+        manifest["rest_around_s"] = {"before": args.rest_around_s[0], "after": args.rest_around_s[1]}
     manifest["seconds"] = round(time.perf_counter() - t_all, 1)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return 0

@@ -36,8 +36,11 @@ def prior_with_history(base, history: dict | None, pack_id: str | None = None):
     changes = {}
     cap, cap_sd = history.get("capacity_ah"), history.get("capacity_sd_ah")
     if cap is not None and cap > 0 and cap_sd is not None and math.isfinite(cap_sd):
-        changes.update(capacity_c=float(cap) * 3600.0, capacity_rel_sd=max(float(cap_sd) / float(cap), 1e-4),
-                       capacity_source=f"pack history ({pack_id or 'this pack'})")
+        borrowed = borrowed_curve_capacity_rel_sd(base, history.get("capacity_depth_of_discharge"))
+        changes.update(capacity_c=float(cap) * 3600.0,
+                       capacity_rel_sd=max(math.hypot(float(cap_sd) / float(cap), borrowed), 1e-4),
+                       capacity_source=f"pack history ({pack_id or 'this pack'})"
+                                       + (" read through its chemistry's curve" if borrowed else ""))
     changes.update(_curve_changes(base, history.get("curve"), changes.get("capacity_rel_sd"), pack_id))
     res, res_sd = history.get("resistance_25c_ohm"), history.get("resistance_sd_ohm")
     if res is not None and res > 0 and res_sd is not None and math.isfinite(res_sd):
@@ -45,6 +48,25 @@ def prior_with_history(base, history: dict | None, pack_id: str | None = None):
         r0, pair_share = series_resistance_of_pulse(float(res), chem.r1_ratio, chem.tau1_s)
         changes.update(r0_ohm=r0, r0_rel_sd=math.hypot(float(res_sd) / float(res), pair_share))
     return replace(base, **changes) if changes else base
+
+
+def borrowed_curve_capacity_rel_sd(base, depth_of_discharge: float | None) -> float:
+    """The relative σ a health point's capacity carries when its two rests were read through a
+    curve that is not the pack's own (``base`` has no curve of its own: ``PackPrior.curve_family_spread``),
+    on top of its own σ: each rest's SoC misread by the family's rest σ, over the SoC used between
+    them (``depth_of_discharge``; unknown: the shallowest a capacity is read from). The health point's
+    own σ is the flight's (noise, relaxation, gain); this part is the curve's, the same on every
+    flight of the pack, so the pack's trend does not carry it, the filter's prior does. Measured on
+    PyBaMM cells no fixture holds (docs/notes/2026-11-28-history-prior.md): read on the LG M50's
+    electrodes, NCA_Kim2011 came out 7-23 % low with σ 1.6 %; its next flights' 2σ band then held
+    the truth in 0.67-0.76 of samples."""
+    from gcs_pdm.packs.health import HealthSettings
+
+    spread = base.curve_family_spread
+    if spread is None:
+        return 0.0
+    used = depth_of_discharge if depth_of_discharge and depth_of_discharge > 0 else HealthSettings().min_soc_used
+    return math.sqrt(2.0) * spread.rest_soc_sd / float(used)
 
 
 #: a curve hypothesis a flight's fit chose this surely is the next flight's one curve (below, the

@@ -178,7 +178,8 @@ def estimator_priors(points) -> dict | None:
     """What the next flight's estimator starts from for this pack: its latest known capacity and
     resistance at 25 °C, each with its σ (None: no point knows it), and the latest flight's curve fit
     (``packs.flight_curve``). The hook for the estimator's priors (docs/packs.md): {"capacity_ah",
-    "capacity_sd_ah", "resistance_25c_ohm", "resistance_sd_ohm", "curve", "from_flight_end_s"}."""
+    "capacity_sd_ah", "capacity_depth_of_discharge" (the SoC used between the rests it was read
+    from), "resistance_25c_ohm", "resistance_sd_ohm", "curve", "from_flight_end_s"}."""
     points = list(points)
     if not points:
         return None
@@ -186,6 +187,7 @@ def estimator_priors(points) -> dict | None:
     res = next((p for p in reversed(points) if p.resistance_25c_ohm is not None), None)
     curve = next((p.curve for p in reversed(points) if p.curve and not p.curve.get("why")), None)
     return {"capacity_ah": cap.capacity_ah if cap else None, "capacity_sd_ah": cap.capacity_sd_ah if cap else None,
+            "capacity_depth_of_discharge": cap.depth_of_discharge if cap else None,
             "resistance_25c_ohm": res.resistance_25c_ohm if res else None,
             "resistance_sd_ohm": res.resistance_sd_ohm if res else None,
             "curve": curve, "from_flight_end_s": points[-1].end_s}
