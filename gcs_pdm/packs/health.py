@@ -395,6 +395,8 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
     # --- capacity between the rests ---
     capacity = capacity_sd = dod = None
     rest_a = settings.rest_c_rate * nominal_capacity_ah
+    # the load's samples, read through the sensor's noise (``REST_MEDIAN_SAMPLES``): the rests' edges
+    # below and the take-off step's first load
     loaded = np.flatnonzero(_running_median(np.abs(i_filled), REST_MEDIAN_SAMPLES) > rest_a)
     if loaded.size == 0:
         why["capacity_ah"] = "the pack never carried a load in this record"
@@ -486,9 +488,8 @@ def health_point(pack_id: str, time_s, current_a, voltage_v, temperature_c=None,
         # the take-off step (the flight's first, within TAKEOFF_WINDOW_S of the first load), when
         # there is one: the same condition every flight (the pack at its starting charge, barely
         # loaded before), where the median mixes steps at every SoC
-        rest_a = settings.rest_c_rate * nominal_capacity_ah
         k = int(np.flatnonzero(step)[0])
-        first_load = np.flatnonzero(np.abs(i_filled) > rest_a)
+        first_load = loaded  # not sample by sample: one noisy sample in a long rest before is not the load
         before = (t < t[k] + 1e-9) & (t >= t[k] - 30.0) & np.isfinite(v)
         if (settings.resistance_at_takeoff and first_load.size and t[k] - t[first_load[0]] <= TAKEOFF_WINDOW_S
                 and before.sum() >= 5):
