@@ -574,7 +574,7 @@ class PackCalibrator:
         return math.sqrt(max(var, 0.0))
 
     def _referee(self) -> None:
-        soc = self.count_start - self.drawn_c / self.q0  # ``_count``'s SoC, without its variance
+        soc, _ = self._count()
         sd = self.count_difference_sd()
         if abs(self.x.item(I_SOC) - soc) > REFEREE_SIGMAS * sd + 0.03:
             self._suspend(f"the voltage contradicts the charge count beyond the capacity's uncertainty "
