@@ -35,12 +35,14 @@ def electrode_potential(pybamm, values, name: str, sto: float) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="fixtures/pybamm/curves.json")
+    ap.add_argument("--sets", nargs="+", default=list(SETS), metavar="SET",
+                    help="PyBaMM parameter sets (default: the fixtures'; e.g. Prada2013 for an LFP cell)")
     args = ap.parse_args(argv)
     import pybamm
 
     out = {"generator": "scripts/pybamm_curves.py", "pybamm": pybamm.__version__, "temperature_k": T_REF_K,
            "stoichiometry": GRID.tolist(), "sets": {}}
-    for set_name in SETS:
+    for set_name in args.sets:
         values = pybamm.ParameterValues(set_name)
         x_0, x_100, y_100, y_0 = pybamm.lithium_ion.get_min_max_stoichiometries(values)
         out["sets"][set_name] = {

@@ -225,8 +225,9 @@ def simulated_case(preset: str, *, capacity_scale: float, resistance_scale: floa
 
 
 #: PyBaMM parameter set -> the chemistry a user would name for such a cell (the prior it starts from):
-#: Chen2020 is an LG M50 (NMC811, Li-ion), Marquis2019 a Kokam LCO pouch (a LiPo)
-PYBAMM_CHEMISTRY = {"Chen2020": "liion", "Marquis2019": "lipo"}
+#: Chen2020 is an LG M50 (NMC811, Li-ion), Marquis2019 a Kokam LCO pouch (a LiPo), Prada2013 an A123
+#: ANR26650 (LiFePO4; ``fixtures/pybamm_lfp``)
+PYBAMM_CHEMISTRY = {"Chen2020": "liion", "Marquis2019": "lipo", "Prada2013": "lifepo4"}
 
 
 def pybamm_truth_soc(t: np.ndarray, current: np.ndarray, flight: dict, pack_set: dict) -> np.ndarray:
