@@ -116,20 +116,19 @@ def window_capacity_ah(pv) -> float:
     return float(abs(x_100 - x_0) * lithium * area * 96485.33212 / 3600.0)
 
 
-#: the set whose current collectors and thermal constants fill a set that publishes none (Prada2013's A123
-#: LFP cell has no current collector thickness, which the lumped thermal model needs)
+#: the set whose values fill what another set does not publish (Prada2013's A123 LFP cell has no current
+#: collector thickness, Ramadass2004's Sony cell no cell volume; the lumped thermal model needs both)
 THERMAL_DEFAULTS_SET = "Chen2020"
 
 
 def with_thermal_defaults(pybamm, pv):
-    """``pv`` with the parameters the lumped thermal SPMe needs and ``pv`` lacks taken from
-    ``THERMAL_DEFAULTS_SET`` (its current collectors, cooling and heat capacities): the cell's own
-    electrodes, windows and OCPs are untouched, and a set that has them all is returned as it is."""
-    needed = ("Negative current collector thickness [m]", "Positive current collector thickness [m]")
-    if all(k in pv.keys() for k in needed):
-        return pv
-    defaults = pybamm.ParameterValues(THERMAL_DEFAULTS_SET)
-    pv.update({k: v for k, v in defaults.items() if k not in pv.keys()}, check_already_exists=False)
+    """``pv`` with every parameter it lacks taken from ``THERMAL_DEFAULTS_SET`` (current collectors, cell
+    volume, cooling, heat capacities): what ``pv`` publishes, its electrodes, windows and curves, is
+    untouched, and a parameter the model does not use changes nothing."""
+    have = set(pv.keys())
+    missing = {k: v for k, v in pybamm.ParameterValues(THERMAL_DEFAULTS_SET).items() if k not in have}
+    if missing:
+        pv.update(missing, check_already_exists=False)
     return pv
 
 
