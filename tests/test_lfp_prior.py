@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior
+from gcs_pdm.estimation.calibration import PackCalibrator, PackPrior, prior_of_spec
 from gcs_pdm.models.chemistry import chemistry
 from gcs_pdm.models.curve_hypotheses import CURVE_FAMILY_SPREAD
-from gcs_pdm.replay.calibration_eval import pybamm_flight_soc
+from gcs_pdm.replay.calibration_eval import pybamm_cell_curve, pybamm_flight_soc
+from gcs_pdm.vehicle.description import PackSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 LFP_FLIGHTS = ROOT / "fixtures" / "pybamm_lfp"
@@ -20,8 +21,12 @@ CELLS = 4
 CAPACITY_C = 10.0 * 3600.0
 
 
-def _rested(cell_v: float) -> PackCalibrator:
-    cal = PackCalibrator(PackPrior("lifepo4", CELLS, CAPACITY_C))
+#: the published cell's rested curve as PyBaMM gives it (``curves.json``), not the module's copy
+PUBLISHED = pybamm_cell_curve(LFP_FLIGHTS, "Prada2013", "lifepo4")
+
+
+def _rested(cell_v: float, prior: PackPrior | None = None) -> PackCalibrator:
+    cal = PackCalibrator(prior if prior is not None else PackPrior("lifepo4", CELLS, CAPACITY_C))
     cal.initialise(0.0, CELLS * cell_v, 0.0, 25.0)
     for k in range(1, 31):
         cal.step(float(k), 1.0, 0.0, CELLS * cell_v, 25.0)
@@ -32,10 +37,29 @@ def _rested(cell_v: float) -> PackCalibrator:
 def test_a_pack_resting_on_the_published_cells_plateau_is_inside_its_2sigma(soc):
     # the published A123 cell (Prada2013) rests 20-80 mV below the table on the plateau: read through
     # the table alone that was 0.2-0.4 of SoC off with a σ of about 0.05
-    published = CURVE_FAMILY_SPREAD["lifepo4"].curves[1]
-    cal = _rested(published.ocv(soc))
+    cal = _rested(PUBLISHED.ocv(soc))
     assert abs(cal.soc - soc) <= 2.0 * cal.soc_sd, (cal.soc, cal.soc_sd)
     assert abs(cal.soc - soc) > 0.05  # the table's reading is off: it is the σ that holds the truth
+
+
+def test_the_family_carries_the_published_cells_curve():
+    family = CURVE_FAMILY_SPREAD["lifepo4"]
+    assert family.count_in_flight
+    assert any(np.allclose(c.ocv_cell_v, PUBLISHED.ocv_cell_v, atol=1e-3) for c in family.curves)
+    assert any(c == chemistry("lifepo4") for c in family.curves)
+
+
+@pytest.mark.parametrize("full_cell_voltage", [None, 3.45, 3.6])
+def test_a_described_lfp_pack_without_its_own_model_keeps_both_curves(full_cell_voltage):
+    # a provisional (derived) description, or one without a parameter set, reads the chemistry's
+    # table with its declared (or default 3.45 V) full cell: the declaration must not drop the
+    # published cell (``CurveFamilySpread.given_full``), nor a 3.6 V charge voltage pick one
+    spec = PackSpec(name="lfp", mavlink_battery_id=0, cells_series=CELLS, capacity_mah=10000.0, chemistry="lifepo4",
+                    full_cell_voltage=full_cell_voltage)
+    prior = prior_of_spec(spec)
+    assert len(prior.curve_family_spread.curves) == 2
+    cal = _rested(PUBLISHED.ocv(0.5), prior)
+    assert abs(cal.soc - 0.5) <= 2.0 * cal.soc_sd, (cal.soc, cal.soc_sd)
 
 
 def test_a_pack_resting_on_the_tables_own_curve_reads_it():
