@@ -34,7 +34,7 @@ _LCO_POUCH_4V10 = (3.0, 3.5202, 3.6346, 3.6554, 3.6861, 3.7089, 3.7243, 3.739, 3
 #: Afshar et al. 2017 (arXiv:1709.03970) less the graphite of Chen et al. 2020 (J. Electrochem. Soc. 167
 #: 080534), as PyBaMM composes them (``scripts/pybamm_curves.py --sets Prada2013``, then
 #: ``replay.calibration_eval.pybamm_cell_curve``). Its plateau sits 20-80 mV below the ``lifepo4`` table's
-#: between 15 and 95 %: on a plateau of a few mV per 10 %, the two read one rested voltage 0.2-0.4 apart
+#: between 20 and 95 % (122 mV at 15 %): on a plateau of a few mV per 10 %, the two read one rested voltage 0.2-0.4 apart
 _LFP_A123_PRADA2013 = (1.9998, 2.7853, 2.9781, 3.108, 3.1685, 3.1857, 3.2058, 3.2324, 3.2525, 3.2621, 3.266, 3.2678,
                        3.2688, 3.27, 3.274, 3.2926, 3.3097, 3.3132, 3.3142, 3.3164, 3.6006)
 
